@@ -1,0 +1,80 @@
+"""Configuration models: ``survey.toml`` (SPEC §4) and every processing default.
+
+``ProcessingParams`` holds every tunable of the pipeline with its default; the
+``[processing]`` table of ``survey.toml`` and the web job ``params`` override it.
+Units live in the names.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class SurveySection(_Strict):
+    name: str = "survey"
+    crs: str | None = Field(None, description="Projected CRS for distances and grids, e.g. 'EPSG:32657'; UTM chosen if absent")
+    normal_gravity: Literal["WGS84", "Helmert1901"] = "WGS84"
+
+
+class GravimeterSection(_Strict):
+    model: str = "GT-1A"
+    tau_s: float = Field(2.0, ge=0.0, le=60.0, description="First-order lag time constant (s); 0 if already de-lagged")
+    scale: float = Field(1.0, gt=0.0, description="Scale k of the gravimeter model τ·ḟ' + k·f' = f_g + …")
+    base_gravity_mgal: float | None = Field(None, description="Absolute gravity at the parking place (mGal)")
+    rate_hz: float = Field(18.24, gt=0.0, description="Declared sampling rate of the gravimeter (Hz)")
+
+
+class ProcessingParams(_Strict):
+    """Every pipeline default (SPEC §2, §3). All fields overridable."""
+
+    # --- ingest / validation
+    gnss_rate_hz: float | None = Field(None, gt=0, description="Declared GNSS rate (Hz); inferred when None")
+    rate_tolerance: float = Field(0.25, gt=0, description="Allowed relative deviation of the median rate from the declared one")
+    max_gap_s: float = Field(1.0, gt=0, description="Longest allowed gap between consecutive samples inside a line window (s)")
+    max_nan_run: int = Field(0, ge=0, description="Longest run of missing values tolerated (interpolated); longer runs are errors")
+    # --- measurement
+    estimate_time_offset: bool = True
+    apply_time_offset: bool = Field(True, description="Shift the gravimeter time scale by the cross-correlation estimate")
+    max_time_offset_s: float = Field(2.0, gt=0)
+    # --- anomaly model
+    m: int = Field(2, ge=1, le=3, description="Order of the difference operator ∇^m δg = q")
+    # --- regularization (SPEC §2 step 1)
+    decimation_n: int | None = Field(None, ge=2, description="Decimation factor n; chosen for ~1 km steps when None")
+    decimation_step_km: float = Field(1.0, gt=0)
+    cutoff_hz: float | None = Field(None, gt=0, description="Kaiser low-pass cut-off ω_s (Hz); from n when None")
+    stopband_attenuation_db: float = Field(60.0, gt=10)
+    ma_order_K: int | None = Field(None, ge=0)
+    ma_order_L: int | None = Field(None, ge=0)
+    # --- EM learning (step 2)
+    n_q: int = Field(2, ge=1, le=4, description="N1: number of anomaly intensity levels Q_i")
+    n_r: int = Field(1, ge=1, le=3, description="N2: number of GNSS noise levels R_j")
+    em_max_iter: int = Field(60, ge=1)
+    em_tol: float = Field(1e-6, gt=0, description="Stop when the relative objective increase is below this")
+    include_tie_lines: bool = True
+    # --- recognition smoothing (step 4)
+    nlmeans_h_per_km: float = Field(1.4, ge=0)
+    nlmeans_rho_km: float = Field(5.0, ge=0)
+    nlmeans_mode: Literal["hard", "soft"] = "soft"
+    # --- filtering (steps 5-6)
+    smoother: Literal["bf", "rts"] = "bf"
+    fir_cutoff_period_s: float = Field(100.0, gt=0)
+    # --- survey level (SPEC §3)
+    calibrate: bool = False
+    leveling_degree: int = Field(1, ge=0, le=2)
+    grid_spacing_km: float = Field(1.0, gt=0)
+    gridding: Literal["collocation", "spline"] = "collocation"
+    grid_mask_km: float | None = Field(None, gt=0, description="Mask cells farther than this from any line; 1.5× line spacing when None")
+
+
+class SurveyConfig(_Strict):
+    """The whole ``survey.toml``."""
+
+    survey: SurveySection = SurveySection()
+    gravimeter: GravimeterSection = GravimeterSection()
+    processing: ProcessingParams = ProcessingParams()

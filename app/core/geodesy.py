@@ -1,0 +1,166 @@
+"""Geodesy for airborne gravimetry: normal gravity, Eötvös, radii, projections.
+
+All functions are pure and vectorised over numpy arrays.  Latitudes and
+longitudes in degrees, heights in metres (ellipsoidal), velocities in m/s,
+gravity values in mGal (1 mGal = 1e-5 m/s²).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+#: Earth rotation rate (rad/s), GRS80/WGS84.
+OMEGA_EARTH = 7.292115e-5
+#: WGS84 semi-major axis (m) and first eccentricity squared.
+WGS84_A_M = 6378137.0
+WGS84_E2 = 6.69437999014e-3
+MGAL_PER_MS2 = 1e5
+
+
+def normal_gravity_helmert_mgal(lat_deg, h_m):
+    """Helmert 1901 normal gravity at height, as in seed 001 (mGal).
+
+    ``γ = 9.7803·(1 + 0.005302 sin²φ − 0.000007 sin²2φ) − 0.00014 − 2·0.00123²·h`` m/s².
+
+    Parameters
+    ----------
+    lat_deg : array_like
+        Geodetic latitude (degrees).
+    h_m : array_like
+        Height above the ellipsoid (m), same shape (or broadcastable).
+
+    Returns
+    -------
+    ndarray
+        Normal gravity in mGal, broadcast shape of the inputs.
+    """
+    phi = np.deg2rad(np.asarray(lat_deg, dtype=float))
+    h = np.asarray(h_m, dtype=float)
+    g_ms2 = (9.7803 * (1.0 + 0.005302 * np.sin(phi) ** 2 - 0.000007 * np.sin(2.0 * phi) ** 2)
+             - 0.00014 - 2.0 * 0.00123 ** 2 * h)
+    return g_ms2 * MGAL_PER_MS2
+
+
+def normal_gravity_wgs84_mgal(lat_deg, h_m):
+    """WGS84 normal gravity at height: Somigliana closed form through ``boule`` (mGal).
+
+    Parameters
+    ----------
+    lat_deg, h_m : array_like
+        Geodetic latitude (degrees) and ellipsoidal height (m).
+
+    Returns
+    -------
+    ndarray
+        Normal gravity (mGal), the magnitude of the normal gravity vector.
+    """
+    import boule
+
+    lat = np.asarray(lat_deg, dtype=float)
+    h = np.asarray(h_m, dtype=float)
+    lat, h = np.broadcast_arrays(lat, h)
+    lon = np.zeros_like(lat)
+    return np.asarray(boule.WGS84.normal_gravity((lon, lat, h)), dtype=float)
+
+
+def normal_gravity_mgal(lat_deg, h_m, model: str = "WGS84"):
+    """Normal gravity (mGal) by the model the survey chose: ``"WGS84"`` or ``"Helmert1901"``."""
+    if model == "WGS84":
+        return normal_gravity_wgs84_mgal(lat_deg, h_m)
+    if model == "Helmert1901":
+        return normal_gravity_helmert_mgal(lat_deg, h_m)
+    raise ValueError(f"unknown normal gravity model {model!r} (expected 'WGS84' or 'Helmert1901')")
+
+
+def radii_of_curvature_m(lat_deg, a_m: float = WGS84_A_M, e2: float = WGS84_E2):
+    """Meridian and prime-vertical radii of curvature of the ellipsoid (m).
+
+    Returns
+    -------
+    (R_M, R_N) : tuple of ndarray
+        ``R_M = a(1−e²)/(1−e² sin²φ)^{3/2}``, ``R_N = a/(1−e² sin²φ)^{1/2}``.
+    """
+    s2 = np.sin(np.deg2rad(np.asarray(lat_deg, dtype=float))) ** 2
+    w = 1.0 - e2 * s2
+    return a_m * (1.0 - e2) / w ** 1.5, a_m / np.sqrt(w)
+
+
+def eotvos_mgal(lat_deg, h_m, ve_ms, vn_ms):
+    """Eötvös correction (Harlan 1968, leading terms with the ellipsoid radii), mGal.
+
+    ``E = 2Ω v_E cos φ + v_E²/(R_N+h) + v_N²/(R_M+h)``; positive when flying east.
+    Added to the measurement (SPEC §1): ``z = f̄ − V̇ − γ + E``.
+
+    Parameters
+    ----------
+    lat_deg, h_m : array_like
+        Latitude (degrees), ellipsoidal height (m).
+    ve_ms, vn_ms : array_like
+        East and north ground velocity (m/s).
+    """
+    lat = np.asarray(lat_deg, dtype=float)
+    h = np.asarray(h_m, dtype=float)
+    ve = np.asarray(ve_ms, dtype=float)
+    vn = np.asarray(vn_ms, dtype=float)
+    r_m, r_n = radii_of_curvature_m(lat)
+    e_ms2 = (2.0 * OMEGA_EARTH * ve * np.cos(np.deg2rad(lat))
+             + ve ** 2 / (r_n + h) + vn ** 2 / (r_m + h))
+    return e_ms2 * MGAL_PER_MS2
+
+
+def velocities_from_positions_ms(t_s, lat_deg, lon_deg, h_m):
+    """East and north velocity (m/s) from positions by central differences.
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (n,)
+        Strictly increasing times (s).
+    lat_deg, lon_deg, h_m : ndarray, shape (n,)
+
+    Returns
+    -------
+    (ve_ms, vn_ms) : tuple of ndarray, shape (n,)
+    """
+    t = np.asarray(t_s, dtype=float)
+    lat = np.asarray(lat_deg, dtype=float)
+    lon = np.asarray(lon_deg, dtype=float)
+    h = np.asarray(h_m, dtype=float)
+    if t.size < 2:
+        return np.zeros_like(t), np.zeros_like(t)
+    r_m, r_n = radii_of_curvature_m(lat)
+    phi = np.deg2rad(lat)
+    dlat = np.gradient(np.deg2rad(lat), t)
+    dlon = np.gradient(np.unwrap(np.deg2rad(lon)), t)
+    return dlon * (r_n + h) * np.cos(phi), dlat * (r_m + h)
+
+
+def utm_crs_for(lon_deg, lat_deg) -> str:
+    """EPSG code of the UTM zone containing the mean of the given points."""
+    lon = float(np.nanmean(lon_deg))
+    lat = float(np.nanmean(lat_deg))
+    zone = int(np.floor((lon + 180.0) / 6.0)) % 60 + 1
+    return f"EPSG:{32600 + zone if lat >= 0 else 32700 + zone}"
+
+
+def project_km(lon_deg, lat_deg, crs: str):
+    """Project geographic coordinates to a projected CRS, in km.
+
+    Returns
+    -------
+    (easting_km, northing_km) : tuple of ndarray
+    """
+    from pyproj import Transformer
+
+    tr = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    x, y = tr.transform(np.asarray(lon_deg, dtype=float), np.asarray(lat_deg, dtype=float))
+    return np.asarray(x) / 1000.0, np.asarray(y) / 1000.0
+
+
+def unproject_km(easting_km, northing_km, crs: str):
+    """Inverse of :func:`project_km`: (lon_deg, lat_deg)."""
+    from pyproj import Transformer
+
+    tr = Transformer.from_crs(crs, "EPSG:4326", always_xy=True)
+    lon, lat = tr.transform(np.asarray(easting_km, dtype=float) * 1000.0,
+                            np.asarray(northing_km, dtype=float) * 1000.0)
+    return np.asarray(lon), np.asarray(lat)
