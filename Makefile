@@ -1,0 +1,50 @@
+# Aerograv — two commands: `make serve` and `make test` (README).
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed
+DATA   ?= $(CURDIR)/data
+SAMPLE := sample_surveys/omolon-mini
+
+.PHONY: install browser test test-fast demo serve bench sample clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+install: $(STAMP)
+
+# Debian's Chromium for the browser tests (Playwright drives it; no browser download).
+browser:
+	@if [ ! -x /usr/bin/chromium ]; then \
+	  if command -v apt-get >/dev/null 2>&1; then \
+	    (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null) \
+	      || echo "warning: could not install chromium; browser tests will be skipped"; \
+	  else echo "warning: no apt-get; browser tests will be skipped"; fi; \
+	fi
+
+test: install browser
+	$(PY) -m pytest -q -p no:cacheprovider
+
+test-fast: install
+	$(PY) -m pytest -q -p no:cacheprovider -m "not slow and not browser"
+
+demo: install
+	$(VENV)/bin/aerograv process $(SAMPLE) --out out/omolon-mini
+	@echo "outputs written to $(CURDIR)/out/omolon-mini"
+
+serve: install
+	AEROGRAV_DATA_DIR=$(DATA) $(VENV)/bin/aerograv serve --host 127.0.0.1 --port 8000 --bootstrap $(SAMPLE)
+
+bench: install
+	$(PY) benchmarks/run_all.py
+
+# Regenerate the committed sample survey.
+sample: install
+	rm -rf $(SAMPLE)
+	$(VENV)/bin/aerograv simulate --preset omolon-mini --out $(SAMPLE) --seed 1
+
+clean:
+	rm -rf $(VENV) out .pytest_cache
