@@ -1,0 +1,359 @@
+"""Gravimeter model: sample times, interval means on the GNSS grid, lag/scale inversion, time offset.
+
+The instrument model (seed 001 eq. 4) is ``τ·ḟ' + k·f' = f_g + δf_T + δf``: the
+output ``f'`` is the true specific force ``f_g`` seen through a first-order
+(aperiodic) filter of time constant ``τ`` and scale ``k``.  Each output sample
+is the instrument's output averaged over its sampling interval and stamped at
+the interval's centre (SPEC §4).
+
+Everything here works through the cumulative integral ``F(t) = ∫ f' dt``:
+
+* ``F`` is known exactly at the sample-interval boundaries (sum of sample value
+  × interval length), so interval means over any other partition (the GNSS
+  intervals ``(t_{k−1}, t_k]``) follow from a smooth (cubic-spline) interpolant
+  of ``F`` — exact for polynomial ``f'`` up to degree 2, and free of the
+  aliasing that piecewise-constant or linear resampling of the 18.24 Hz series
+  would put into the anomaly band;
+* the lag/scale inversion is then exact and needs no numerical derivative of
+  the noisy samples: the mean of ``f_g = τ·ḟ' + k·f'`` over ``(t_{k−1}, t_k]``
+  is ``[τ·(f'(t_k) − f'(t_{k−1})) + k·(F(t_k) − F(t_{k−1}))] / Δt_k`` with
+  ``f' = F'`` from the same spline.
+
+Units: times in s, specific force in m/s².
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.signal import savgol_filter
+
+
+def dejitter_times_s(t_s, max_jitter_s: float = 1.5e-3, window: int = 401) -> np.ndarray:
+    """Remove the rounding jitter of sample time stamps of a uniformly clocked instrument.
+
+    The file's stamps are rounded (e.g. to 1 ms), so consecutive intervals are
+    not exactly equal although the instrument clock is.  Within each segment
+    without gaps (steps within ±50 % of the median), the stamps are replaced by
+    a local straight-line fit (Savitzky–Golay, degree 1, ``window`` samples),
+    which follows slow clock-rate changes but averages the rounding out.  A
+    segment is left untouched when its stamps deviate from the fit by more
+    than ``max_jitter_s`` (real irregular sampling is not "jitter").
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (n,)
+        Strictly increasing sample time stamps (s).
+    max_jitter_s : float
+        Largest deviation from a uniform clock accepted as rounding (s).
+    window : int
+        Fit window in samples (odd).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        De-jittered time stamps (s).
+    """
+    t = np.asarray(t_s, dtype=float)
+    if t.ndim != 1:
+        raise ValueError("t_s must be one-dimensional")
+    n = t.size
+    if n < 3:
+        return t.copy()
+    dt = np.diff(t)
+    med = np.median(dt)
+    if not med > 0:
+        raise ValueError("time stamps must be strictly increasing")
+    breaks = np.flatnonzero(np.abs(dt - med) > 0.5 * med) + 1
+    edges = np.concatenate([[0], breaks, [n]])
+    out = t.copy()
+    window = int(window) | 1
+    # Work relative to the segment start to keep full float precision.
+    for a, b in zip(edges[:-1], edges[1:]):
+        seg = t[a:b]
+        if seg.size < 7:
+            continue
+        w = min(window, seg.size if seg.size % 2 == 1 else seg.size - 1)
+        if w < 5:
+            continue
+        rel = seg - seg[0]
+        fit = savgol_filter(rel, w, 1, mode="interp")
+        if np.max(np.abs(fit - rel)) <= max_jitter_s:
+            out[a:b] = fit + seg[0]
+    # the fit must keep the stamps increasing
+    if np.any(np.diff(out) <= 0):
+        return t.copy()
+    return out
+
+
+def sample_boundaries_s(t_s) -> np.ndarray:
+    """Boundaries of the averaging intervals of centre-stamped samples (s).
+
+    Interior boundaries are midpoints of consecutive stamps; the outer two are
+    extrapolated by half the neighbouring interval.
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (n,)
+
+    Returns
+    -------
+    ndarray, shape (n + 1,)
+    """
+    t = np.asarray(t_s, dtype=float)
+    if t.size < 2:
+        raise ValueError("need at least two gravimeter samples")
+    mid = 0.5 * (t[1:] + t[:-1])
+    return np.concatenate([[t[0] - (mid[0] - t[0])], mid, [t[-1] + (t[-1] - mid[-1])]])
+
+
+@dataclass(frozen=True)
+class IntegratedSeries:
+    """Cumulative integral of a centre-stamped interval-mean series.
+
+    Attributes
+    ----------
+    spline : CubicSpline
+        ``F(t)`` in (m/s²)·s through the interval boundaries; ``F'`` ≈ f'(t).
+    t_first_s, t_last_s : float
+        Time span covered by the samples (outer boundaries).
+    """
+
+    spline: CubicSpline
+    t_first_s: float
+    t_last_s: float
+
+    def integral(self, t_s):
+        """F(t): ∫ f' dt from the first boundary (m/s²·s)."""
+        return self.spline(np.asarray(t_s, dtype=float))
+
+    def value(self, t_s):
+        """f'(t) = F'(t): smooth point value of the series (m/s²)."""
+        return self.spline(np.asarray(t_s, dtype=float), 1)
+
+
+def integrate_samples(t_s, f, dejitter: bool = True) -> IntegratedSeries:
+    """Build the cumulative-integral interpolant of an interval-mean series.
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (n,)
+        Centre time stamps (s), strictly increasing.
+    f : ndarray, shape (n,)
+        Sample values (interval means), e.g. specific force in m/s².
+    dejitter : bool
+        Apply :func:`dejitter_times_s` to the stamps first.
+
+    Returns
+    -------
+    IntegratedSeries
+    """
+    t = np.asarray(t_s, dtype=float)
+    y = np.asarray(f, dtype=float)
+    if t.shape != y.shape or t.ndim != 1:
+        raise ValueError("t_s and f must be 1-D arrays of the same length")
+    if not np.all(np.isfinite(y)):
+        raise ValueError("gravimeter samples contain NaN or inf")
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("gravimeter time stamps must be strictly increasing")
+    if dejitter:
+        t = dejitter_times_s(t)
+    b = sample_boundaries_s(t)
+    # Remove the mean level before accumulating to keep F well conditioned.
+    level = float(np.mean(y))
+    F = np.concatenate([[0.0], np.cumsum((y - level) * np.diff(b))])
+    t0 = b[0]
+    inner = CubicSpline(b - t0, F, bc_type="not-a-knot")
+    # Re-express with the level added back: F_total(t) = F(t) + level·(t − t0).
+    c = inner.c.copy()
+    c[-2] += level          # linear coefficient of each piece gets + level
+    c[-1] += level * (b[:-1] - t0)  # constant term: level·(x_i − t0)
+    spline = CubicSpline.construct_fast(c, b, extrapolate=False)
+    return IntegratedSeries(spline=spline, t_first_s=float(b[0]), t_last_s=float(b[-1]))
+
+
+def interval_means(series: IntegratedSeries, t_epochs_s, tau_s: float = 0.0, scale: float = 1.0,
+                   time_offset_s: float = 0.0) -> np.ndarray:
+    """Mean of ``f_g = τ·ḟ' + k·f'`` over each GNSS interval ``(t_{k−1}, t_k]`` (m/s²).
+
+    With ``tau_s = 0`` and ``scale = 1`` this is the plain interval mean of the
+    series.  The first epoch (no previous epoch) and epochs outside the
+    gravimeter's time span are NaN.
+
+    Parameters
+    ----------
+    series : IntegratedSeries
+        From :func:`integrate_samples`.
+    t_epochs_s : ndarray, shape (n,)
+        GNSS epoch times (s), strictly increasing.
+    tau_s : float
+        Lag time constant τ of the instrument (s), ≥ 0.
+    scale : float
+        Scale k (dimensionless), > 0.
+    time_offset_s : float
+        Added to the gravimeter's time scale to align it with GNSS time: the
+        gravimeter sample stamped ``t`` belongs to GNSS time ``t + offset``.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    if tau_s < 0:
+        raise ValueError(f"tau_s must be >= 0, got {tau_s}")
+    if not scale > 0:
+        raise ValueError(f"scale must be > 0, got {scale}")
+    t = np.asarray(t_epochs_s, dtype=float) - float(time_offset_s)
+    inside = (t >= series.t_first_s) & (t <= series.t_last_s)
+    tc = np.clip(t, series.t_first_s, series.t_last_s)
+    F = series.integral(tc)
+    out = np.full(t.shape, np.nan)
+    if t.size < 2:
+        return out
+    dt = np.diff(t)
+    mean = scale * np.diff(F) / dt
+    if tau_s > 0:
+        fv = series.value(tc)
+        mean = mean + tau_s * np.diff(fv) / dt
+    ok = inside[1:] & inside[:-1]
+    out[1:] = np.where(ok, mean, np.nan)
+    return out
+
+
+def apply_first_order_lag(t_s, f, tau_s: float, scale: float = 1.0, f0=None) -> np.ndarray:
+    """Pass a finely, uniformly sampled signal through ``τ·ẏ + k·y = f``.
+
+    Exact for an input that is linear between samples.  A forward model for
+    the simulator and the tests (the pipeline inverts it in :func:`interval_means`).
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (n,)
+        Uniformly spaced sample times (s), step fine compared with τ.
+    f : ndarray, shape (n,)
+        Input signal.
+    tau_s : float
+        Time constant (s); 0 returns ``f / k``.
+    scale : float
+        k, > 0.
+    f0 : float, optional
+        Initial output; the steady state ``f[0]/k`` when None.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    from scipy.signal import lfilter
+
+    t = np.asarray(t_s, dtype=float)
+    u = np.asarray(f, dtype=float)
+    if tau_s <= 0:
+        return u / scale
+    h = np.diff(t)
+    if h.size == 0:
+        return u / scale
+    step = float(np.mean(h))
+    if np.max(np.abs(h - step)) > 1e-9 * max(1.0, abs(t[-1])):
+        raise ValueError("apply_first_order_lag needs uniformly spaced samples")
+    a = scale / tau_s
+    e = np.exp(-a * step)
+    # Exact discretisation for piecewise-linear input (first-order hold):
+    # y[i+1] = e·y[i] + b0·u[i+1] + b1·u[i]
+    b0 = (1.0 - (1.0 - e) / (a * step)) / scale
+    b1 = ((1.0 - e) / (a * step) - e) / scale
+    y0 = u[0] / scale if f0 is None else float(f0)
+    zi = np.array([e * y0 + b1 * u[0]])
+    y_rest, _ = lfilter([b0, b1], [1.0, -e], u[1:], zi=zi)
+    return np.concatenate([[y0], y_rest])
+
+
+def estimate_time_offset_s(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 0.0,
+                           scale: float = 1.0, max_offset_s: float = 2.0,
+                           band_hz: tuple[float, float] = (0.01, 1.0)) -> tuple[float, float]:
+    """Time offset between gravimeter and GNSS by cross-correlation of accelerations.
+
+    The gravimeter's interval-mean specific force and the GNSS acceleration
+    ``(V_k − V_{k−1})/Δt`` share the aircraft's vertical acceleration, which is
+    10⁴ times the anomaly.  Both are band-passed (``band_hz``); a coarse search
+    of the cross-correlation over whole GNSS steps is refined to sub-millisecond
+    by minimising the band-passed residual variance over the offset.
+
+    Parameters
+    ----------
+    series : IntegratedSeries
+    t_epochs_s, vu_ms : ndarray, shape (n,)
+        GNSS epochs (s) and vertical velocity (m/s).
+    tau_s, scale : float
+        Instrument lag and scale used for the interval means.
+    max_offset_s : float
+        Search range ±max_offset_s.
+    band_hz : (float, float)
+        Pass band for the comparison (Hz).
+
+    Returns
+    -------
+    (offset_s, correlation) : (float, float)
+        ``offset_s`` to pass as ``time_offset_s`` to :func:`interval_means`
+        (gravimeter stamp + offset = GNSS time) and the correlation coefficient
+        of the aligned band-passed signals.
+    """
+    from scipy.optimize import minimize_scalar
+    from scipy.signal import butter, sosfiltfilt
+
+    t = np.asarray(t_epochs_s, dtype=float)
+    v = np.asarray(vu_ms, dtype=float)
+    if t.size < 200:
+        raise ValueError("need at least 200 GNSS epochs to estimate the time offset")
+    dt = float(np.median(np.diff(t)))
+    fs = 1.0 / dt
+    lo, hi = band_hz
+    hi = min(hi, 0.45 * fs)
+    sos = butter(4, [lo, hi], btype="band", fs=fs, output="sos")
+    acc = np.full(t.shape, np.nan)
+    acc[1:] = np.diff(v) / np.diff(t)
+    margin = int(np.ceil(max_offset_s / dt)) + 2
+    sl = slice(margin, t.size - margin)
+    acc_bp = sosfiltfilt(sos, _fill_nan(acc))[sl]
+
+    def grav_bp(offset):
+        f = interval_means(series, t, tau_s, scale, time_offset_s=offset)
+        return sosfiltfilt(sos, _fill_nan(f))[sl]
+
+    g0 = grav_bp(0.0)
+    nlag = int(np.ceil(max_offset_s / dt))
+    lags = np.arange(-nlag, nlag + 1)
+    # shifting the gravimeter by +offset moves its features later: g(t − offset)
+    cc = np.array([_corr_shift(g0, acc_bp, L) for L in lags])
+    best = lags[int(np.nanargmax(cc))] * dt
+
+    def cost(offset):
+        r = grav_bp(offset) - acc_bp
+        return float(np.mean(r * r))
+
+    res = minimize_scalar(cost, bounds=(best - 1.5 * dt, best + 1.5 * dt), method="bounded",
+                          options={"xatol": 1e-4})
+    off = float(res.x)
+    g = grav_bp(off)
+    corr = float(np.corrcoef(g, acc_bp)[0, 1])
+    return off, corr
+
+
+def _fill_nan(x):
+    x = np.asarray(x, dtype=float).copy()
+    bad = ~np.isfinite(x)
+    if bad.any():
+        idx = np.arange(x.size)
+        x[bad] = np.interp(idx[bad], idx[~bad], x[~bad])
+    return x
+
+
+def _corr_shift(g, a, lag):
+    """Correlation of g shifted later by ``lag`` samples with a."""
+    if lag > 0:
+        gg, aa = g[:-lag], a[lag:]
+    elif lag < 0:
+        gg, aa = g[-lag:], a[:lag]
+    else:
+        gg, aa = g, a
+    return float(np.dot(gg - gg.mean(), aa - aa.mean()) / (np.std(gg) * np.std(aa) * gg.size + 1e-300))

@@ -1,0 +1,93 @@
+"""Normal gravity and Eötvös against independent references (boule, hand formulas)."""
+
+import math
+
+import boule
+import numpy as np
+import pytest
+
+from app.core import geodesy
+
+
+def test_wgs84_equals_boule_and_textbook_constants():
+    lat = np.array([-89.9, -60.0, -12.5, 0.0, 33.3, 65.5, 89.9])
+    h = np.array([0.0, 500.0, 3000.0, 0.0, 1200.0, 3000.0, 100.0])
+    ours = geodesy.normal_gravity_mgal(lat, h, "WGS84")
+    ref = np.array([boule.WGS84.normal_gravity((0.0, la, hh)) for la, hh in zip(lat, h)])
+    np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-6)
+    # WGS84 defining values: equatorial and polar normal gravity on the ellipsoid
+    assert geodesy.normal_gravity_mgal(0.0, 0.0) == pytest.approx(978032.53359, abs=1e-4)
+    assert geodesy.normal_gravity_mgal(90.0, 0.0) == pytest.approx(983218.49378, abs=1e-4)
+    # free-air gradient ≈ 0.3086 mGal/m
+    grad = (geodesy.normal_gravity_mgal(45.0, 0.0) - geodesy.normal_gravity_mgal(45.0, 1000.0)) / 1000.0
+    assert grad == pytest.approx(0.3086, abs=0.001)
+
+
+@pytest.mark.parametrize("lat,h", [(0.0, 0.0), (30.0, 1000.0), (45.0, 3000.0), (65.5, 3100.0), (-30.75, 2500.0), (90.0, 0.0)])
+def test_helmert_by_hand(lat, h):
+    phi = math.radians(lat)
+    hand = (9.7803 * (1 + 0.005302 * math.sin(phi) ** 2 - 0.000007 * math.sin(2 * phi) ** 2)
+            - 0.00014 - 2 * 0.00123 ** 2 * h) * 1e5
+    assert geodesy.normal_gravity_mgal(lat, h, "Helmert1901") == pytest.approx(hand, abs=1e-9)
+
+
+def test_helmert_close_to_wgs84_at_sea_level():
+    # The two models differ by the Potsdam correction (~14 mGal) and small terms.
+    d = geodesy.normal_gravity_mgal(45.0, 0.0, "Helmert1901") - geodesy.normal_gravity_mgal(45.0, 0.0)
+    assert -30 < d < 10
+
+
+def test_unknown_model_rejected():
+    with pytest.raises(ValueError, match="Helmert1901"):
+        geodesy.normal_gravity_mgal(0.0, 0.0, "GRS67")
+
+
+def _radii(lat):
+    a, e2 = 6378137.0, 6.69437999014e-3
+    s2 = math.sin(math.radians(lat)) ** 2
+    return a * (1 - e2) / (1 - e2 * s2) ** 1.5, a / math.sqrt(1 - e2 * s2)
+
+
+@pytest.mark.parametrize("lat", [0.0, 45.0, 65.5, -30.75])
+def test_eotvos_steady_flights_closed_form(lat):
+    v, h, om = 100.0, 3000.0, 7.292115e-5
+    rm, rn = _radii(lat)
+    east = 2 * om * v * math.cos(math.radians(lat)) + v * v / (rn + h)
+    west = -2 * om * v * math.cos(math.radians(lat)) + v * v / (rn + h)
+    north = v * v / (rm + h)
+    assert geodesy.eotvos_mgal(lat, h, v, 0.0) == pytest.approx(east * 1e5, rel=1e-12)
+    assert geodesy.eotvos_mgal(lat, h, -v, 0.0) == pytest.approx(west * 1e5, rel=1e-12)
+    assert geodesy.eotvos_mgal(lat, h, 0.0, v) == pytest.approx(north * 1e5, rel=1e-12)
+    assert geodesy.eotvos_mgal(lat, h, 0.0, -v) == pytest.approx(north * 1e5, rel=1e-12)
+
+
+def test_eotvos_classic_knots_formula():
+    # Classic marine form: E = 7.503 V cosφ sinα + 0.004154 V² (V in knots, mGal)
+    lat, v = 60.0, 100.0
+    kn = v / 0.514444
+    classic = 7.503 * kn * math.cos(math.radians(lat)) + 0.004154 * kn ** 2
+    assert geodesy.eotvos_mgal(lat, 0.0, v, 0.0) == pytest.approx(classic, rel=5e-3)
+
+
+def test_velocities_from_positions():
+    t = np.arange(0, 100, 0.1)
+    lat0, lon0 = 65.5, 160.0
+    rm, rn = _radii(lat0)
+    ve, vn = 80.0, -60.0
+    lat = lat0 + np.degrees(vn * t / (rm + 3000.0))
+    lon = lon0 + np.degrees(ve * t / ((rn + 3000.0) * math.cos(math.radians(lat0))))
+    e, n = geodesy.velocities_from_positions_ms(t, lat, lon, np.full_like(t, 3000.0))
+    np.testing.assert_allclose(n, vn, rtol=1e-3)
+    # the test track uses cos(lat0) for the longitude rate; lat drifts 0.05° → 0.2 % in v_E
+    np.testing.assert_allclose(e, ve, rtol=3e-3)
+
+
+def test_projection_roundtrip_and_utm_zone():
+    assert geodesy.utm_crs_for(160.0, 65.5) == "EPSG:32657"
+    assert geodesy.utm_crs_for(121.5, -30.75) == "EPSG:32751"
+    e, n = geodesy.project_km([160.0, 160.1], [65.5, 65.5], "EPSG:32657")
+    lon, lat = geodesy.unproject_km(e, n, "EPSG:32657")
+    np.testing.assert_allclose(lon, [160.0, 160.1], atol=1e-9)
+    np.testing.assert_allclose(lat, [65.5, 65.5], atol=1e-9)
+    # 0.1° of longitude at 65.5° ≈ 4.63 km
+    assert (e[1] - e[0]) == pytest.approx(111.32 * 0.1 * math.cos(math.radians(65.5)), rel=0.01)
