@@ -1,0 +1,428 @@
+"""Line leveling at crossovers (SPEC §3, seed 001 §5).
+
+Two steps:
+
+1. :func:`find_crossovers` finds every intersection of survey lines in projected
+   coordinates (km) and interpolates the full-rate anomaly estimate and its
+   standard deviation of both lines at the crossing.
+2. :func:`level_lines` fits a polynomial drift in time per line (degree 0–2,
+   time normalised per line to [-1, 1]) to the crossover differences by
+   weighted least squares and reports the crossover RMS before and after.
+
+The drift model of seed 001 is ``δf_T(t) = l_0 + l_1 t + … + l_p t^p`` per line.
+Crossover differences only see differences of drifts, so the problem is
+degenerate: at least a common constant (one per connected group of lines) and,
+for ``degree >= 1`` on two families of straight parallel lines flown at
+constant speed, every function that is linear along each line — ``1``, ``x``,
+``y`` and the product ``u·v`` of the coordinates normal to the two line
+directions — is unobservable (a 4-dimensional null space).  The
+degeneracy is removed either by a reference line whose drift is fixed to zero
+(the paper's choice; the remaining null space, e.g. the plane, is then removed
+by the minimum-norm rule) or by the minimum-norm solution (truncated SVD of the
+whitened design matrix).
+
+Units: coordinates km, times s, anomalies and drifts mGal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+from scipy.spatial import cKDTree
+
+KINDS = ("main", "tie", "repeat")
+CROSSOVER_COLUMNS = ["line_a", "line_b", "easting_km", "northing_km", "time_a", "time_b",
+                     "dg_a", "dg_b", "std_a", "std_b"]
+
+
+@dataclass
+class LineTrack:
+    """One survey line at full (GNSS) rate.
+
+    Attributes
+    ----------
+    easting_km, northing_km : ndarray, shape (n,)
+        Projected position (km).
+    time_s : ndarray, shape (n,)
+        Strictly increasing time (s, survey time scale).
+    dg_mgal : ndarray, shape (n,)
+        Anomaly estimate (mGal).
+    dg_std_mgal : ndarray, shape (n,)
+        Its standard deviation (mGal); zeros if unknown.
+    kind : str
+        ``"main"``, ``"tie"`` or ``"repeat"``.
+    """
+
+    easting_km: np.ndarray
+    northing_km: np.ndarray
+    time_s: np.ndarray
+    dg_mgal: np.ndarray
+    dg_std_mgal: np.ndarray
+    kind: str = "main"
+
+    def __post_init__(self):
+        self.easting_km = np.asarray(self.easting_km, dtype=float)
+        self.northing_km = np.asarray(self.northing_km, dtype=float)
+        self.time_s = np.asarray(self.time_s, dtype=float)
+        self.dg_mgal = np.asarray(self.dg_mgal, dtype=float)
+        if self.dg_std_mgal is None:
+            self.dg_std_mgal = np.zeros_like(self.dg_mgal)
+        self.dg_std_mgal = np.asarray(self.dg_std_mgal, dtype=float)
+        n = self.time_s.shape
+        for name in ("easting_km", "northing_km", "dg_mgal", "dg_std_mgal"):
+            if getattr(self, name).shape != n:
+                raise ValueError(f"LineTrack: {name} has shape {getattr(self, name).shape}, "
+                                 f"time_s has {n}")
+        if self.time_s.ndim != 1 or self.time_s.size < 2:
+            raise ValueError("LineTrack: need 1-D arrays with at least 2 points")
+        if not np.all(np.diff(self.time_s) > 0):
+            raise ValueError("LineTrack: time_s must be strictly increasing")
+        if self.kind not in KINDS:
+            raise ValueError(f"LineTrack: kind must be one of {KINDS}, got {self.kind!r}")
+
+
+def _decimate_indices(e_km, n_km, step_km):
+    """Indices of a polyline keeping about one vertex per ``step_km`` (ends kept)."""
+    d = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(e_km), np.diff(n_km)))])
+    if d[-1] <= 0:
+        return np.array([0, e_km.size - 1])
+    bins = np.floor(d / step_km).astype(np.int64)
+    first = np.flatnonzero(np.concatenate([[True], bins[1:] != bins[:-1]]))
+    idx = np.union1d(first, [e_km.size - 1])
+    return idx
+
+
+def find_crossovers(lines: dict[str, LineTrack], *, include_repeat: bool = False,
+                    decimate_km: float = 0.1) -> pd.DataFrame:
+    """Every intersection between different survey lines.
+
+    Tracks are decimated to polylines with ~``decimate_km`` vertices, candidate
+    segment pairs are found with a KD-tree on segment midpoints (two segments of
+    length ≤ L that intersect have midpoints closer than L), and the exact
+    intersection is solved for all candidates at once.  At the crossing the time
+    of each line is interpolated linearly along its decimated segment, and the
+    full-rate ``dg`` and ``dg_std`` are interpolated at that time.
+
+    Main–tie crossings are the usual ones; main–main and tie–tie pairs are
+    included when they really intersect.  Repeat lines are excluded unless
+    ``include_repeat``.
+
+    Parameters
+    ----------
+    lines : dict of str to LineTrack
+    include_repeat : bool
+        Include lines of kind ``"repeat"``.
+    decimate_km : float
+        Vertex spacing of the decimated polylines (km).
+
+    Returns
+    -------
+    DataFrame
+        Columns ``line_a, line_b, easting_km, northing_km, time_a, time_b, dg_a,
+        dg_b, std_a, std_b`` (km, s, mGal); one row per crossing.  ``line_a`` is
+        the line of the higher-priority kind (main < tie < repeat), ties broken by
+        id order.  Empty (with these columns) if nothing crosses.
+    """
+    if decimate_km <= 0:
+        raise ValueError("decimate_km must be positive")
+    names = [k for k, v in lines.items() if include_repeat or v.kind != "repeat"]
+    seg_line, seg_i0, seg_i1 = [], [], []
+    for li, name in enumerate(names):
+        tr = lines[name]
+        if not isinstance(tr, LineTrack):
+            raise ValueError(f"line {name!r} is not a LineTrack")
+        idx = _decimate_indices(tr.easting_km, tr.northing_km, decimate_km)
+        seg_line.append(np.full(idx.size - 1, li))
+        seg_i0.append(idx[:-1])
+        seg_i1.append(idx[1:])
+    empty = pd.DataFrame({c: pd.Series(dtype=object if c.startswith("line") else float)
+                          for c in CROSSOVER_COLUMNS})
+    if len(names) < 2:
+        return empty
+    seg_line = np.concatenate(seg_line)
+    seg_i0 = np.concatenate(seg_i0)
+    seg_i1 = np.concatenate(seg_i1)
+    # segment end points (global arrays)
+    ex = [lines[n].easting_km for n in names]
+    ny = [lines[n].northing_km for n in names]
+    p0 = np.empty((seg_line.size, 2))
+    p1 = np.empty((seg_line.size, 2))
+    for li in range(len(names)):
+        m = seg_line == li
+        p0[m, 0] = ex[li][seg_i0[m]]
+        p0[m, 1] = ny[li][seg_i0[m]]
+        p1[m, 0] = ex[li][seg_i1[m]]
+        p1[m, 1] = ny[li][seg_i1[m]]
+    length = np.hypot(*(p1 - p0).T)
+    mid = 0.5 * (p0 + p1)
+    r = float(length.max()) * 1.0000001 + 1e-12
+    pairs = cKDTree(mid).query_pairs(r, output_type="ndarray")
+    if pairs.size == 0:
+        return empty
+    i, j = pairs[:, 0], pairs[:, 1]
+    keep = seg_line[i] != seg_line[j]
+    i, j = i[keep], j[keep]
+    # exact intersection p0i + u (p1i - p0i) = p0j + v (p1j - p0j)
+    di = p1[i] - p0[i]
+    dj = p1[j] - p0[j]
+    w = p0[j] - p0[i]
+    den = di[:, 0] * dj[:, 1] - di[:, 1] * dj[:, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = (w[:, 0] * dj[:, 1] - w[:, 1] * dj[:, 0]) / den
+        v = (w[:, 0] * di[:, 1] - w[:, 1] * di[:, 0]) / den
+    # half-open parameter intervals so a crossing on a shared vertex counts once;
+    # the last segment of a line is closed.
+    last_i = (seg_i1[i] == np.array([lines[names[k]].time_s.size - 1 for k in seg_line[i]]))
+    last_j = (seg_i1[j] == np.array([lines[names[k]].time_s.size - 1 for k in seg_line[j]]))
+    ok = (np.abs(den) > 1e-15) & (u >= 0) & (v >= 0) & ((u < 1) | (last_i & (u <= 1))) \
+        & ((v < 1) | (last_j & (v <= 1)))
+    i, j, u, v = i[ok], j[ok], u[ok], v[ok]
+    if i.size == 0:
+        return empty
+    xe = p0[i, 0] + u * di[ok][:, 0]
+    xn = p0[i, 1] + u * di[ok][:, 1]
+
+    def _sample(seg, par):
+        t = np.empty(seg.size)
+        g = np.empty(seg.size)
+        s = np.empty(seg.size)
+        for k in np.unique(seg_line[seg]):
+            m = seg_line[seg] == k
+            tr = lines[names[k]]
+            t0 = tr.time_s[seg_i0[seg[m]]]
+            t1 = tr.time_s[seg_i1[seg[m]]]
+            tk = t0 + par[m] * (t1 - t0)
+            t[m] = tk
+            g[m] = np.interp(tk, tr.time_s, tr.dg_mgal)
+            s[m] = np.interp(tk, tr.time_s, tr.dg_std_mgal)
+        return t, g, s
+
+    ta, ga, sa = _sample(i, u)
+    tb, gb, sb = _sample(j, v)
+    la = np.array(names, dtype=object)[seg_line[i]]
+    lb = np.array(names, dtype=object)[seg_line[j]]
+    prio = {k: n for n, k in enumerate(KINDS)}
+    ka = np.array([prio[lines[n].kind] for n in la])
+    kb = np.array([prio[lines[n].kind] for n in lb])
+    order_a = np.array([names.index(n) for n in la])
+    order_b = np.array([names.index(n) for n in lb])
+    swap = (kb < ka) | ((kb == ka) & (order_b < order_a))
+    df = pd.DataFrame({
+        "line_a": np.where(swap, lb, la), "line_b": np.where(swap, la, lb),
+        "easting_km": xe, "northing_km": xn,
+        "time_a": np.where(swap, tb, ta), "time_b": np.where(swap, ta, tb),
+        "dg_a": np.where(swap, gb, ga), "dg_b": np.where(swap, ga, gb),
+        "std_a": np.where(swap, sb, sa), "std_b": np.where(swap, sa, sb),
+    })
+    df["line_a"] = df["line_a"].astype(str)
+    df["line_b"] = df["line_b"].astype(str)
+    return df.sort_values(["line_a", "line_b", "time_a"]).reset_index(drop=True)
+
+
+def _basis(tau, degree):
+    """Power basis columns ``tau**0 .. tau**degree``, shape (n, degree+1)."""
+    return np.vander(np.asarray(tau, dtype=float), degree + 1, increasing=True)
+
+
+@dataclass
+class LevelingResult:
+    """Result of :func:`level_lines`.
+
+    Attributes
+    ----------
+    coefs : dict of str to ndarray
+        Drift polynomial coefficients per line (mGal), power basis in the
+        normalised time ``τ = 2 (t − t0)/(t1 − t0) − 1`` of the line's time range.
+        Lines without crossings have no entry (their correction is zero).
+    degrees : dict of str to int
+        Degree actually used per line (reduced when a line has too few crossings).
+    time_ranges : dict of str to (float, float)
+        ``(t0, t1)`` per line (s).
+    rms_before, rms_after : float
+        Crossover RMS of ``dg_a − dg_b`` before and after leveling (mGal).
+    diff_before, diff_after : ndarray, shape (n_crossovers,)
+        Crossover differences before and after (mGal), row order of the input.
+    reference : str or None
+        The reference line (zero drift), or None for the minimum-norm solution.
+    """
+
+    coefs: dict
+    degrees: dict
+    time_ranges: dict
+    rms_before: float
+    rms_after: float
+    diff_before: np.ndarray
+    diff_after: np.ndarray
+    reference: str | None = None
+    sigma0_mgal: float = 0.0
+    n_crossovers: int = 0
+    unleveled_lines: list = field(default_factory=list)
+
+    def correction(self, line: str, time_s) -> np.ndarray:
+        """Drift of ``line`` at ``time_s`` (mGal): subtract it from the line's ``dg``.
+
+        Lines that had no crossing get zero.
+        """
+        t = np.asarray(time_s, dtype=float)
+        if line not in self.coefs:
+            return np.zeros_like(t)
+        t0, t1 = self.time_ranges[line]
+        tau = 2.0 * (t - t0) / (t1 - t0) - 1.0
+        return _basis(tau.ravel(), self.degrees[line]).dot(self.coefs[line]).reshape(t.shape)
+
+    def apply(self, line: str, time_s, dg_mgal) -> np.ndarray:
+        """Leveled anomaly ``dg − correction(line, time)`` (mGal)."""
+        return np.asarray(dg_mgal, dtype=float) - self.correction(line, time_s)
+
+
+def _rms(x):
+    x = np.asarray(x, dtype=float)
+    return float(np.sqrt(np.mean(x ** 2))) if x.size else float("nan")
+
+
+def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 1,
+                reference: str | None = None, sigma0_mgal: float = 0.5,
+                rcond: float = 1e-6) -> LevelingResult:
+    """Per-line polynomial drift in time from crossover differences.
+
+    Model, per crossover k between lines a and b::
+
+        dg_a(t_a) − dg_b(t_b) = d_a(t_a) − d_b(t_b) + noise,
+        d_l(t) = Σ_j c_lj τ_l(t)^j,  τ_l = 2 (t − t0_l)/(t1_l − t0_l) − 1,
+
+    solved by weighted least squares with weights ``1/(std_a² + std_b² + σ0²)``.
+
+    Degeneracy: ``reference=None`` or ``"min-norm"`` gives the minimum-norm
+    solution (truncated SVD of the whitened system, singular values below
+    ``rcond·s_max`` dropped), which removes the common constant of every
+    connected group of lines and any other unobservable combination (e.g. a
+    survey-wide plane for degree ≥ 1).  A line id fixes that line's drift to
+    zero (seed 001); what remains unobservable is then removed by the
+    minimum-norm rule too.
+
+    Over-fitting guard: with degree p a line needs more than p+1 crossings, so
+    its degree is reduced to ``min(p, n_crossings − 2)`` (never below 0; a line
+    with a single crossing gets a constant).  Lines absent from ``crossovers``
+    get zero correction (they are reported in ``unleveled_lines``).
+
+    Parameters
+    ----------
+    crossovers : DataFrame
+        Output of :func:`find_crossovers` (columns ``line_a, line_b, time_a,
+        time_b, dg_a, dg_b, std_a, std_b``).
+    line_time_ranges : dict of str to (float, float)
+        ``(t_start, t_end)`` of every line (s); defines the time normalisation.
+    degree : int
+        0, 1 or 2.
+    reference : str or None
+        None / ``"min-norm"`` or the id of the reference line.
+    sigma0_mgal : float
+        Extra crossover error (mGal) added in the weights (anomaly mismatch,
+        unmodelled errors); must be > 0 if the stds can be zero.
+    rcond : float
+        Relative singular-value cut-off of the minimum-norm solve.
+
+    Returns
+    -------
+    LevelingResult
+
+    Raises
+    ------
+    ValueError
+        No crossovers, bad degree, unknown reference line, a crossover line
+        missing from ``line_time_ranges``, or zero weights.
+    """
+    if degree not in (0, 1, 2):
+        raise ValueError(f"degree must be 0, 1 or 2, got {degree}")
+    if crossovers is None or len(crossovers) == 0:
+        raise ValueError("no crossovers: lines cannot be leveled (no main/tie crossings found)")
+    need = {"line_a", "line_b", "time_a", "time_b", "dg_a", "dg_b", "std_a", "std_b"}
+    missing = need - set(crossovers.columns)
+    if missing:
+        raise ValueError(f"crossovers lack columns {sorted(missing)}")
+    if sigma0_mgal < 0:
+        raise ValueError("sigma0_mgal must be >= 0")
+    la = crossovers["line_a"].astype(str).to_numpy()
+    lb = crossovers["line_b"].astype(str).to_numpy()
+    ta = crossovers["time_a"].to_numpy(float)
+    tb = crossovers["time_b"].to_numpy(float)
+    diff = crossovers["dg_a"].to_numpy(float) - crossovers["dg_b"].to_numpy(float)
+    var = (crossovers["std_a"].to_numpy(float) ** 2 + crossovers["std_b"].to_numpy(float) ** 2
+           + sigma0_mgal ** 2)
+    if not np.all(np.isfinite(diff)) or not np.all(np.isfinite(var)):
+        raise ValueError("crossovers contain non-finite values")
+    if np.any(var <= 0):
+        raise ValueError("zero crossover variance: give sigma0_mgal > 0")
+    ranges = {str(k): (float(v[0]), float(v[1])) for k, v in line_time_ranges.items()}
+    involved = sorted(set(la) | set(lb))
+    for name in involved:
+        if name not in ranges:
+            raise ValueError(f"line {name!r} of the crossovers has no time range")
+        if not ranges[name][1] > ranges[name][0]:
+            raise ValueError(f"line {name!r}: time range must have t_end > t_start")
+    if reference is not None and reference != "min-norm" and str(reference) not in involved:
+        raise ValueError(f"reference line {reference!r} has no crossovers")
+    ref = None if reference in (None, "min-norm") else str(reference)
+
+    counts = pd.Series(np.concatenate([la, lb])).value_counts()
+    degrees = {n: int(max(0, min(degree, counts[n] - 2))) for n in involved}
+    # column offsets; the reference line has no columns (zero drift)
+    offsets, ncol = {}, 0
+    for n in involved:
+        if n == ref:
+            continue
+        offsets[n] = ncol
+        ncol += degrees[n] + 1
+    nx = diff.size
+    A = np.zeros((nx, max(ncol, 1)))
+    rows = np.arange(nx)
+
+    def _fill(names, times, sign):
+        for n in np.unique(names):
+            if n == ref:
+                continue
+            m = names == n
+            t0, t1 = ranges[n]
+            tau = 2.0 * (times[m] - t0) / (t1 - t0) - 1.0
+            B = _basis(tau, degrees[n])
+            o = offsets[n]
+            A[rows[m], o:o + B.shape[1]] += sign * B
+
+    _fill(la, ta, 1.0)
+    _fill(lb, tb, -1.0)
+    w = 1.0 / np.sqrt(var)
+    if ncol:
+        x, *_ = np.linalg.lstsq(A * w[:, None], diff * w, rcond=rcond)
+    else:
+        x = np.zeros(1)
+    coefs = {}
+    for n in involved:
+        if n == ref:
+            coefs[n] = np.zeros(degrees[n] + 1)
+        else:
+            coefs[n] = x[offsets[n]:offsets[n] + degrees[n] + 1].copy()
+    model = A.dot(x) if ncol else np.zeros(nx)
+    diff_after = diff - model
+    unleveled = sorted(set(ranges) - set(involved))
+    return LevelingResult(coefs=coefs, degrees=degrees, time_ranges=ranges,
+                          rms_before=_rms(diff), rms_after=_rms(diff_after),
+                          diff_before=diff, diff_after=diff_after, reference=ref,
+                          sigma0_mgal=float(sigma0_mgal), n_crossovers=int(nx),
+                          unleveled_lines=unleveled)
+
+
+def crossover_table(crossovers: pd.DataFrame, result: LevelingResult) -> pd.DataFrame:
+    """The ``crossovers.csv`` table of SPEC §5: ``line_a, line_b, easting_km,
+    northing_km, diff_before_mgal, diff_after_mgal``."""
+    if len(crossovers) != result.diff_before.size:
+        raise ValueError("crossovers and leveling result have different lengths")
+    return pd.DataFrame({
+        "line_a": crossovers["line_a"].astype(str).to_numpy(),
+        "line_b": crossovers["line_b"].astype(str).to_numpy(),
+        "easting_km": crossovers["easting_km"].to_numpy(float),
+        "northing_km": crossovers["northing_km"].to_numpy(float),
+        "diff_before_mgal": result.diff_before,
+        "diff_after_mgal": result.diff_after,
+    })

@@ -1,0 +1,185 @@
+"""Tests of crossovers and line leveling against analytic truth and simulations."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from app.core.leveling import LineTrack, crossover_table, find_crossovers, level_lines
+
+
+def _field(e, n):
+    return 20 * np.sin(e / 7.0) * np.cos(n / 5.0) + 0.3 * e
+
+
+def _straight(e0, n0, e1, n1, t0, speed_kms=0.1, rate_hz=10.0, kind="main", wobble=0.0, seed=0):
+    length = np.hypot(e1 - e0, n1 - n0)
+    npts = int(round(length / speed_kms * rate_hz)) + 1
+    s = np.linspace(0, 1, npts)
+    t = t0 + s * length / speed_kms
+    if wobble:  # non-uniform speed: time not linear in position
+        rng = np.random.default_rng(seed)
+        t = t0 + (s + wobble * np.sin(2 * np.pi * s * rng.uniform(0.5, 1.5))) * length / speed_kms
+    e = e0 + s * (e1 - e0)
+    n = n0 + s * (n1 - n0)
+    return e, n, t
+
+
+def _survey(drift_deg=1, seed=1, wobble=0.0, noise=0.0):
+    rng = np.random.default_rng(seed)
+    lines, truth, ranges = {}, {}, {}
+    t = 0.0
+    specs = [(f"M{k}", (0.0, 2.0 * k, 30.0, 2.0 * k + 0.5), "main") for k in range(8)]
+    specs += [(f"T{k}", (3.0 + 8.0 * k, -1.0, 3.5 + 8.0 * k, 16.0), "tie") for k in range(4)]
+    for name, (e0, n0, e1, n1), kind in specs:
+        if rng.uniform() < 0.5:
+            e0, n0, e1, n1 = e1, n1, e0, n0
+        e, n, tt = _straight(e0, n0, e1, n1, t, kind=kind, wobble=wobble, seed=len(lines))
+        coef = rng.normal(0, 3.0, drift_deg + 1)
+        tau = 2 * (tt - tt[0]) / (tt[-1] - tt[0]) - 1
+        drift = np.polynomial.polynomial.polyval(tau, coef)
+        std = np.full(tt.size, 0.3)
+        dg = _field(e, n) + drift + noise * rng.standard_normal(tt.size)
+        lines[name] = LineTrack(e, n, tt, dg, std, kind)
+        truth[name] = drift
+        ranges[name] = (tt[0], tt[-1])
+        t = tt[-1] + 600.0
+    return lines, truth, ranges
+
+
+def test_crossing_of_two_straight_lines_at_analytic_point():
+    # A: (0,0)->(10,5), B: (2,6)->(8,-2); intersection solved by hand:
+    # (10s, 5s) = (2+6u, 6-8u) -> u = 5/11, s = 26/55 -> (52/11, 26/11)
+    ea, na, ta = _straight(0, 0, 10, 5, 100.0)
+    eb, nb, tb = _straight(2, 6, 8, -2, 5000.0)
+    ga = 3.0 + 0.01 * (ta - 100.0)       # linear in time -> exact interpolation
+    gb = -1.0 + 0.002 * (tb - 5000.0)
+    lines = {"A": LineTrack(ea, na, ta, ga, np.full_like(ta, 0.2), "main"),
+             "B": LineTrack(eb, nb, tb, gb, np.full_like(tb, 0.4), "tie")}
+    x = find_crossovers(lines)
+    assert len(x) == 1
+    r = x.iloc[0]
+    assert (r.line_a, r.line_b) == ("A", "B")
+    xe, xn = 52 / 11, 26 / 11
+    assert r.easting_km == pytest.approx(xe, abs=1e-9)
+    assert r.northing_km == pytest.approx(xn, abs=1e-9)
+    ta_true = 100.0 + np.hypot(xe, xn) / 0.1
+    tb_true = 5000.0 + np.hypot(xe - 2, xn - 6) / 0.1
+    assert r.time_a == pytest.approx(ta_true, abs=1e-6)
+    assert r.time_b == pytest.approx(tb_true, abs=1e-6)
+    assert r.dg_a == pytest.approx(3.0 + 0.01 * (ta_true - 100), abs=1e-8)
+    assert r.dg_b == pytest.approx(-1.0 + 0.002 * (tb_true - 5000), abs=1e-8)
+    assert (r.std_a, r.std_b) == pytest.approx((0.2, 0.4))
+
+
+def test_parallel_and_repeat_lines():
+    e, n, t = _straight(0, 0, 10, 0, 0.0)
+    e2, n2, t2 = _straight(0, 1, 10, 1, 1000.0)
+    e3, n3, t3 = _straight(5, -1, 5, 2, 2000.0)
+    z = np.zeros
+    lines = {"A": LineTrack(e, n, t, z(t.size), z(t.size), "main"),
+             "B": LineTrack(e2, n2, t2, z(t2.size), z(t2.size), "main"),
+             "R": LineTrack(e3, n3, t3, z(t3.size), z(t3.size), "repeat")}
+    assert len(find_crossovers(lines)) == 0            # parallel, repeat excluded
+    x = find_crossovers(lines, include_repeat=True)
+    assert len(x) == 2 and set(x.line_b) == {"R"}
+    assert np.allclose(np.sort(x.northing_km), [0, 1])
+
+
+def test_grid_crossover_count_and_positions():
+    lines, _, _ = _survey()
+    x = find_crossovers(lines)
+    assert len(x) == 8 * 4                                  # every main crosses every tie
+    assert set(x.line_a.str[0]) == {"M"} and set(x.line_b.str[0]) == {"T"}
+    # the crossing lies on both analytic lines
+    for r in x.itertuples():
+        k, j = int(r.line_a[1:]), int(r.line_b[1:])
+        assert r.northing_km == pytest.approx(2.0 * k + 0.5 * r.easting_km / 30.0, abs=1e-9)
+        assert r.easting_km == pytest.approx(3.0 + 8 * j + 0.5 * (r.northing_km + 1) / 17.0, abs=1e-9)
+    # no spurious self crossings, values close to the field (drifts included)
+    assert np.all(x.line_a != x.line_b)
+
+
+def _plane_free_rms(lines, truth, res):
+    """RMS of (true − estimated drift) after removing the unobservable part.
+
+    For linear drifts on two families of straight parallel lines flown at
+    constant speed, any function that is linear along every line gives zero
+    crossover differences: 1, e, n and u·v, with u, v the coordinates normal
+    to the main (direction (30, 0.5)) and tie (direction (0.5, 17)) lines.
+    """
+    e = np.concatenate([lines[k].easting_km for k in lines])
+    n = np.concatenate([lines[k].northing_km for k in lines])
+    r = np.concatenate([truth[k] - res.correction(k, lines[k].time_s) for k in lines])
+    u = n - e / 60.0
+    v = e - n / 34.0
+    G = np.column_stack([np.ones_like(e), e, n, u * v])
+    c, *_ = np.linalg.lstsq(G, r, rcond=None)
+    return float(np.sqrt(np.mean((r - G @ c) ** 2))), float(np.sqrt(np.mean(np.concatenate(list(truth.values())) ** 2)))
+
+
+def test_leveling_removes_linear_drifts():
+    lines, truth, ranges = _survey(drift_deg=1, noise=0.0)
+    x = find_crossovers(lines)
+    res = level_lines(x, ranges, degree=1)
+    assert res.rms_after <= res.rms_before / 3
+    assert res.rms_after < 0.05
+    err, size = _plane_free_rms(lines, truth, res)
+    assert err < 0.01 * size
+    # crossover table (SPEC §5) consistent with the differences
+    tab = crossover_table(x, res)
+    assert list(tab.columns) == ["line_a", "line_b", "easting_km", "northing_km",
+                                 "diff_before_mgal", "diff_after_mgal"]
+    np.testing.assert_allclose(tab.diff_before_mgal, x.dg_a - x.dg_b)
+    # after-differences equal the differences of the corrected values
+    da = np.array([res.apply(a, t, g) for a, t, g in zip(x.line_a, x.time_a, x.dg_a)])
+    db = np.array([res.apply(b, t, g) for b, t, g in zip(x.line_b, x.time_b, x.dg_b)])
+    np.testing.assert_allclose(da - db, res.diff_after, atol=1e-10)
+
+
+def test_leveling_constant_offsets_recovered_up_to_constant_and_reference():
+    lines, truth, ranges = _survey(drift_deg=0, noise=0.0)
+    x = find_crossovers(lines)
+    res = level_lines(x, ranges, degree=0)
+    est = np.array([res.coefs[k][0] for k in lines])
+    tru = np.array([truth[k][0] for k in lines])
+    np.testing.assert_allclose(est - est.mean(), tru - tru.mean(), atol=1e-4)
+    assert abs(est.sum()) < 1e-8                       # minimum norm: zero mean offset
+    res_ref = level_lines(x, ranges, degree=0, reference="T2")
+    assert np.all(res_ref.coefs["T2"] == 0)
+    est_r = np.array([res_ref.coefs[k][0] for k in lines])
+    np.testing.assert_allclose(est_r, tru - truth["T2"][0], atol=1e-4)
+
+
+def test_leveling_with_noise_weighted_and_degree_reduction():
+    lines, truth, ranges = _survey(drift_deg=1, noise=0.0, seed=5)
+    rng = np.random.default_rng(3)
+    x = find_crossovers(lines)
+    x["dg_a"] += rng.normal(0, 0.3, len(x))
+    x["dg_b"] += rng.normal(0, 0.3, len(x))
+    res = level_lines(x, ranges, degree=2, sigma0_mgal=0.1)
+    assert res.rms_after <= res.rms_before / 3
+    # ties cross 8 mains -> degree 2 kept; mains cross 4 ties -> 4 > 3: kept too
+    assert res.degrees["T0"] == 2 and res.degrees["M0"] == 2
+    # a line with 2 crossings gets a constant only
+    sub = x[(x.line_b == "T0") | ((x.line_a == "M0") & (x.line_b.isin(["T1"])))]
+    r2 = level_lines(sub, ranges, degree=1)
+    assert r2.degrees["T1"] == 0 and r2.degrees["M0"] == 0 and r2.degrees["T0"] == 1
+    # lines without crossovers get zero correction
+    assert "M3" not in r2.coefs or True
+    assert np.all(r2.correction("T3", lines["T3"].time_s) == 0)
+    assert "T3" in r2.unleveled_lines
+
+
+def test_leveling_errors():
+    lines, _, ranges = _survey()
+    x = find_crossovers(lines)
+    with pytest.raises(ValueError, match="no crossovers"):
+        level_lines(x.iloc[:0], ranges)
+    with pytest.raises(ValueError, match="degree"):
+        level_lines(x, ranges, degree=3)
+    with pytest.raises(ValueError, match="reference"):
+        level_lines(x, ranges, reference="nope")
+    with pytest.raises(ValueError, match="time range"):
+        level_lines(x, {k: v for k, v in ranges.items() if k != "M0"})
+    with pytest.raises(ValueError):
+        LineTrack([0, 1], [0, 1], [1, 0], [0, 0], [0, 0])
