@@ -1,0 +1,136 @@
+"""Command line: ``aerograv simulate | inspect | process | evaluate | serve``.
+
+Thin: parse arguments, call the pipeline, print where things are.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def _progress_bar(desc: str):
+    from tqdm import tqdm
+
+    bar = tqdm(total=1000, desc=desc, unit="‰", bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}",
+               file=sys.stderr)
+    state = {"stage": None}
+
+    def progress(stage: str, fraction: float, info: dict | None = None):
+        target = int(round(1000 * max(0.0, min(1.0, fraction))))
+        if target > bar.n:
+            bar.update(target - bar.n)
+        post = stage
+        if info and "em_iteration" in info:
+            it = info["em_iteration"]
+            post = f"EM it {it.get('iteration')} Q={_fmt(it.get('Q'))} R={_fmt(it.get('R'))}"
+        if post != state["stage"]:
+            bar.set_postfix_str(post)
+            state["stage"] = post
+        if stage == "done":
+            bar.close()
+
+    return progress
+
+
+def _fmt(v):
+    try:
+        return "[" + ", ".join(f"{float(x):.4g}" for x in v) + "]"
+    except TypeError:
+        return str(v)
+
+
+def cmd_simulate(args) -> int:
+    from app.simulate import simulate_survey
+
+    path = simulate_survey(args.preset, args.out, seed=args.seed, progress=_progress_bar(f"simulate {args.preset}"))
+    print(f"survey written to {Path(path).resolve()}")
+    return 0
+
+
+def cmd_inspect(args) -> int:
+    from app.pipeline.inspect import inspect_survey
+
+    table = inspect_survey(args.survey)
+    import pandas as pd
+
+    with pd.option_context("display.max_rows", None, "display.max_columns", None, "display.width", 200):
+        print(table.to_string(index=False))
+    return 0
+
+
+def cmd_process(args) -> int:
+    from app.pipeline.process import process_survey
+
+    overrides = json.loads(args.params) if args.params else None
+    report = process_survey(args.survey, args.out, overrides=overrides, progress=_progress_bar("process"))
+    out = Path(args.out).resolve()
+    cx = report.get("crossovers", {})
+    print(f"outputs written to {out}")
+    if "rms_before_mgal" in cx:
+        print(f"crossover RMS: {cx['rms_before_mgal']:.3f} mGal before, {cx['rms_after_mgal']:.3f} mGal after leveling")
+    for w in report.get("warnings", []):
+        print(f"warning: {w}", file=sys.stderr)
+    return 0
+
+
+def cmd_evaluate(args) -> int:
+    from app.pipeline.evaluate import evaluate
+
+    res = evaluate(args.survey, args.out)
+    print(json.dumps(res, indent=2))
+    return 0
+
+
+def cmd_serve(args) -> int:
+    from app.web.serve import serve
+
+    serve(args.host, args.port, bootstrap=args.bootstrap)
+    return 0
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(prog="aerograv", description="Airborne gravimetry processing (SPEC.md)")
+    sub = ap.add_subparsers(dest="cmd", required=True)
+
+    s = sub.add_parser("simulate", help="write a simulated survey directory (+ truth/)")
+    s.add_argument("--preset", required=True, help="tiny | omolon-mini | omolon | kalgoorlie | markov")
+    s.add_argument("--out", required=True)
+    s.add_argument("--seed", type=int, default=0)
+    s.set_defaults(func=cmd_simulate)
+
+    s = sub.add_parser("inspect", help="QC table per flight and line")
+    s.add_argument("survey")
+    s.set_defaults(func=cmd_inspect)
+
+    s = sub.add_parser("process", help="process a survey directory into SPEC §5 outputs")
+    s.add_argument("survey")
+    s.add_argument("--out", required=True)
+    s.add_argument("--params", default=None, help="JSON object of processing overrides, e.g. '{\"m\": 1}'")
+    s.set_defaults(func=cmd_process)
+
+    s = sub.add_parser("evaluate", help="score processed outputs against a simulated survey's truth/")
+    s.add_argument("survey")
+    s.add_argument("--out", required=True, help="the directory `aerograv process` wrote")
+    s.set_defaults(func=cmd_evaluate)
+
+    s = sub.add_parser("serve", help="start the web application")
+    s.add_argument("--host", default="127.0.0.1")
+    s.add_argument("--port", type=int, default=8000)
+    s.add_argument("--bootstrap", default=None, help="survey directory imported and processed on first start")
+    s.set_defaults(func=cmd_serve)
+
+    args = ap.parse_args(argv)
+    from app.io.errors import InputError
+
+    try:
+        return args.func(args)
+    except InputError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

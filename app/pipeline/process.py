@@ -1,0 +1,376 @@
+"""``aerograv process``: run the stages of SPEC §2/§3 and write the outputs of SPEC §5.
+
+``process_survey(survey_dir, out_dir, overrides=None, progress=None) -> report``
+
+Outputs (all written atomically: temporary name, then rename):
+``lines.parquet``, ``identification.json``, ``recognition.parquet``, ``crossovers.csv``,
+``grid.nc``, ``grid.tif``, ``grid.grd``, ``grid.csv``, ``report.json``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from app.pipeline import stages
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[str, float, dict | None], None]
+
+#: Stage weights for the overall progress fraction.
+_STAGES = [("ingest", 0.10), ("measurement", 0.15), ("fir", 0.03), ("regularization", 0.07),
+           ("learning", 0.25), ("recognition", 0.05), ("nlmeans", 0.02), ("filtering", 0.18),
+           ("leveling", 0.03), ("gridding", 0.07), ("writing", 0.05)]
+
+
+class _Tracker:
+    def __init__(self, progress: Progress | None):
+        self.progress = progress
+        self.timings: dict[str, float] = {}
+        self._t0 = None
+        self._stage = None
+        self._done = 0.0
+
+    def start(self, stage: str):
+        self._finish()
+        self._stage = stage
+        self._t0 = time.perf_counter()
+        self.emit(0.0)
+
+    def emit(self, within: float, info: dict | None = None):
+        if self.progress is None or self._stage is None:
+            return
+        w = dict(_STAGES).get(self._stage, 0.0)
+        self.progress(self._stage, min(1.0, self._done + w * float(within)), info)
+
+    def _finish(self):
+        if self._stage is not None:
+            self.timings[self._stage] = round(time.perf_counter() - self._t0, 4)
+            self._done += dict(_STAGES).get(self._stage, 0.0)
+            self._stage = None
+
+    def close(self):
+        self._finish()
+        if self.progress is not None:
+            self.progress("done", 1.0, None)
+
+
+def process_survey(survey_dir, out_dir, overrides: dict | None = None,
+                   progress: Progress | None = None) -> dict:
+    """Process a survey directory (SPEC §4) into the outputs of SPEC §5.
+
+    Parameters
+    ----------
+    survey_dir : path
+        The survey directory.
+    out_dir : path
+        Output directory (created).
+    overrides : dict, optional
+        ProcessingParams overrides on top of ``survey.toml``'s ``[processing]``.
+    progress : callable, optional
+        ``progress(stage, fraction, info)``; EM iterations arrive as
+        ``info = {"em_iteration": {...}}``.
+
+    Returns
+    -------
+    dict
+        The report (also written to ``report.json``).
+    """
+    from app.io.survey import read_survey
+
+    tr = _Tracker(progress)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    warnings: list[str] = []
+
+    tr.start("ingest")
+    survey = read_survey(survey_dir, overrides)
+    cfg = survey.config
+    p = cfg.processing
+
+    tr.start("measurement")
+    flights = {}
+    names = list(survey.flights)
+    for i, name in enumerate(names):
+        flights[name] = stages.measure_flight(survey.flights[name], cfg)
+        warnings.extend(f"flight {name}: {n}" for n in flights[name].notes)
+        tr.emit((i + 1) / len(names))
+    crs = stages.survey_crs(cfg, flights)
+    lines = stages.cut_lines(survey.lines, flights, crs)
+    dt_s = float(np.median(np.concatenate([np.diff(m.t_s) for m in flights.values()])))
+
+    tr.start("fir")
+    fir = {name: stages.fir_baseline(m, p.fir_cutoff_period_s) for name, m in flights.items()}
+
+    tr.start("regularization")
+    reg = stages.regularize_lines(lines, cfg, dt_s)
+    for ln, why in reg.skipped.items():
+        warnings.append(f"line {ln} not identified: {why}")
+    learn_mask = [ln.kind != "tie" or p.include_tie_lines for ln in reg.lines]
+    if sum(learn_mask) == 0:
+        learn_mask = [True] * len(reg.lines)
+        warnings.append("no main lines could be regularized; learning on tie lines")
+
+    tr.start("learning")
+    em_rows: list[dict] = []
+
+    def on_iter(rec: dict):
+        em_rows.append(rec)
+        tr.emit(min(0.95, len(em_rows) / max(2, p.em_max_iter)), {"em_iteration": rec})
+
+    learn_reg = stages.Regularized(reg.design, reg.ma, [l for l, k in zip(reg.lines, learn_mask) if k],
+                                   [x for x, k in zip(reg.x, learn_mask) if k],
+                                   [i for i, k in zip(reg.idx, learn_mask) if k], reg.skipped)
+    em = stages.learn(learn_reg, cfg, callback=on_iter)
+    n_states = len(em.Q) * len(em.R)
+    stationary = _stationary_distribution(np.asarray(em.transition))
+    initial_all = []
+    j = 0
+    for k in learn_mask:
+        if k:
+            initial_all.append(np.asarray(em.initial[j]))
+            j += 1
+        else:
+            initial_all.append(stationary)
+
+    tr.start("recognition")
+
+    class _EMView:  # per-line initial probabilities for all regularized lines
+        Q, R, transition = em.Q, em.R, em.transition
+        initial = initial_all
+
+    paths, probs = stages.recognize(reg, _EMView)
+    rec = stages.recognition_table(reg, paths, probs)
+
+    tr.start("nlmeans")
+    labels, sprobs, _ = stages.smooth_recognition(rec, n_states, p.nlmeans_h_per_km, p.nlmeans_rho_km,
+                                                  p.nlmeans_mode)
+    rec["state_smoothed"] = labels
+    for i in range(n_states):
+        rec[f"p_{i}"] = sprobs[:, i]  # SPEC §5: p_i are the smoothed map's probabilities
+    rec_cols = ["line", "time", "easting_km", "northing_km", "x", "state_raw", "state_smoothed"] + \
+        [f"p_{i}" for i in range(n_states)]
+    rec = rec[rec_cols]
+
+    tr.start("filtering")
+    Qs = np.asarray(em.Q, float)
+    Rs = np.asarray(em.R, float)
+    n_r = len(Rs)
+    state_of = {}
+    off = 0
+    for ln, idx in zip(reg.lines, reg.idx):
+        nl = len(idx)
+        state_of[ln.line] = (idx, labels[off:off + nl])
+        off += nl
+    frames = []
+    margin = int(round(60.0 / dt_s))
+    for i, ln in enumerate(lines):
+        m = flights[ln.flight]
+        n = ln.t_s.size
+        if ln.line in state_of:
+            idx, st = state_of[ln.line]
+            s_full = stages.hold_states(n, idx, st)
+        else:
+            s_full = np.zeros(n, int)  # documented fallback: the smoothest state
+        a0 = max(0, ln.sl.start - margin)
+        a1 = min(m.t_s.size, ln.sl.stop + margin)
+        s_ext = np.concatenate([np.full(ln.sl.start - a0, s_full[0]), s_full,
+                                np.full(a1 - ln.sl.stop, s_full[-1])])
+        z_ext = m.z_mgal[a0:a1]
+        q = Qs[s_ext // n_r]
+        r = Rs[s_ext % n_r]
+        dg, std = stages.filter_line(z_ext, q, r, dt_s, p.m, p.smoother)
+        dgs, _ = stages.filter_line(z_ext, np.full_like(q, Qs[0]), np.full_like(r, Rs[0]), dt_s, p.m,
+                                    p.smoother)
+        inner = slice(ln.sl.start - a0, ln.sl.start - a0 + n)
+        frames.append(pd.DataFrame({
+            "line": ln.line, "flight": ln.flight, "kind": ln.kind, "time": ln.t_s,
+            "lat": ln.lat_deg, "lon": ln.lon_deg, "h": ln.h_m,
+            "easting_km": ln.easting_km, "northing_km": ln.northing_km,
+            "z_mgal": ln.z_mgal, "dg_mgal": dg[inner], "dg_std_mgal": std[inner],
+            "dg_unleveled_mgal": dg[inner], "dg_stationary_mgal": dgs[inner],
+            "dg_fir_mgal": fir[ln.flight][ln.sl], "state": s_full,
+            "Q_mgal2": Qs[s_full // n_r], "R_cm2s2": Rs[s_full % n_r],
+            "track": ln.track,
+        }))
+        tr.emit((i + 1) / len(lines))
+    table = pd.concat(frames, ignore_index=True)
+
+    tr.start("leveling")
+    crossovers, lev_report = _level(table, p, warnings)
+
+    tr.start("gridding")
+    grid = _grid(table, p, warnings)
+
+    tr.start("writing")
+    from app.io import export
+
+    cols = ["line", "flight", "kind", "time", "lat", "lon", "h", "easting_km", "northing_km", "z_mgal",
+            "dg_mgal", "dg_std_mgal", "dg_unleveled_mgal", "dg_stationary_mgal", "dg_fir_mgal", "state",
+            "Q_mgal2", "R_cm2s2"]
+    export.write_parquet(table[cols], out / "lines.parquet")
+    export.write_parquet(rec, out / "recognition.parquet")
+    export.write_csv(crossovers, out / "crossovers.csv")
+    ident = _identification_json(reg, em, em_rows, learn_mask, initial_all, p, dt_s)
+    export.write_json(ident, out / "identification.json")
+    if grid is not None:
+        e, nn, g, gs = grid
+        export.write_grid_netcdf(out / "grid.nc", e, nn, g, gs, crs)
+        export.write_grid_geotiff(out / "grid.tif", e, nn, g, gs, crs)
+        export.write_grid_surfer(out / "grid.grd", e, nn, g, gs)
+        export.write_grid_csv(out / "grid.csv", e, nn, g, gs)
+    tr.close()
+
+    report = _report(survey, table, flights, crs, crossovers, lev_report, reg, em, tr.timings,
+                     warnings, grid)
+    export.write_json(report, out / "report.json")
+    return report
+
+
+# --------------------------------------------------------------------------- helpers
+def _stationary_distribution(a: np.ndarray) -> np.ndarray:
+    w, v = np.linalg.eig(a.T)
+    k = int(np.argmin(np.abs(w - 1.0)))
+    pi = np.abs(np.real(v[:, k]))
+    return pi / pi.sum()
+
+
+def _tracks(table: pd.DataFrame, col: str):
+    from app.core.leveling import LineTrack
+
+    tracks = {}
+    for line, g in table.groupby("line", sort=False):
+        tracks[str(line)] = LineTrack(g["easting_km"].to_numpy(), g["northing_km"].to_numpy(),
+                                      g["time"].to_numpy(), g[col].to_numpy(), g["dg_std_mgal"].to_numpy(),
+                                      str(g["kind"].iloc[0]))
+    return tracks
+
+
+def _level(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFrame, dict]:
+    """Crossovers and leveling; on failure keep the unleveled estimate and say why."""
+    from app.core.leveling import find_crossovers, level_lines
+
+    cols = ["line_a", "line_b", "easting_km", "northing_km", "diff_before_mgal", "diff_after_mgal"]
+    try:
+        cx = find_crossovers(_tracks(table, "dg_unleveled_mgal"))
+    except ValueError as exc:
+        warnings.append(f"crossovers: {exc}")
+        return pd.DataFrame(columns=cols), {"status": f"not leveled: {exc}"}
+    if len(cx) == 0:
+        warnings.append("no crossovers between lines: leveling skipped")
+        return pd.DataFrame(columns=cols), {"status": "not leveled: no crossovers"}
+    ranges = {str(l): (float(g["time"].min()), float(g["time"].max()))
+              for l, g in table.groupby("line", sort=False)}
+    try:
+        res = level_lines(cx, ranges, degree=p.leveling_degree)
+    except ValueError as exc:
+        warnings.append(f"leveling: {exc}")
+        cx = cx.assign(diff_before_mgal=cx["dg_a"] - cx["dg_b"], diff_after_mgal=cx["dg_a"] - cx["dg_b"])
+        return cx[cols], {"status": f"not leveled: {exc}"}
+    corr = np.zeros(len(table))
+    for line, g in table.groupby("line", sort=False):
+        corr[g.index.to_numpy()] = res.correction(str(line), g["time"].to_numpy())
+    table["dg_mgal"] = table["dg_unleveled_mgal"].to_numpy() - corr
+    cx = cx.assign(diff_before_mgal=cx["dg_a"] - cx["dg_b"], diff_after_mgal=np.asarray(res.diff_after))
+    rep = {"status": "leveled", "degree": p.leveling_degree, "n_crossovers": int(len(cx)),
+           "rms_before_mgal": float(res.rms_before), "rms_after_mgal": float(res.rms_after)}
+    return cx[cols], rep
+
+
+def _grid(table: pd.DataFrame, p, warnings: list):
+    from app.core.gridding import Collocation, Spline
+
+    try:
+        est = Collocation() if p.gridding == "collocation" else Spline()
+        kw = {} if p.grid_mask_km is None else {"mask_km": p.grid_mask_km}
+        est.fit(table["easting_km"].to_numpy(), table["northing_km"].to_numpy(),
+                table["dg_mgal"].to_numpy(), table["dg_std_mgal"].to_numpy())
+        return est.grid(spacing_km=p.grid_spacing_km, **kw)
+    except ValueError as exc:
+        warnings.append(f"gridding: {exc}")
+        return None
+
+
+def _identification_json(reg, em, em_rows, learn_mask, initial_all, p, dt_s) -> dict:
+    from app.core.ma_approx import model_vs_true_spectrum
+
+    d = reg.design
+    ma = reg.ma
+    n_r = len(em.R)
+    states = [{"index": i * n_r + j, "Q": float(em.Q[i]), "R": float(em.R[j])}
+              for i in range(len(em.Q)) for j in range(n_r)]
+    f = np.linspace(0, 0.5 / (d.n * d.dt_s), 64)
+    try:
+        spec = {k: np.asarray(v).tolist() for k, v in model_vs_true_spectrum(ma, d, f).items()}
+    except Exception as exc:  # the fit display must never break processing
+        spec = {"error": str(exc)}
+    return {
+        "m": p.m,
+        "dt_s": dt_s,
+        "units": {"Q": "mGal^2 per GNSS step (dt_s)", "R": "(cm/s)^2"},
+        "regularization": {"n": int(d.n), "cutoff_hz": float(d.cutoff_hz), "stop_hz": float(d.stop_hz),
+                           "width_hz": float(d.width_hz), "attenuation_db": float(d.attenuation_db),
+                           "n_taps": int(len(d.taps)), "decimated_step_s": float(d.n * d.dt_s)},
+        "ma": {"K": int(ma.K), "L": int(ma.L), "p": int(ma.p), "c": np.asarray(ma.c).tolist(),
+               "d": np.asarray(ma.d).tolist(), "misfit_q": float(ma.misfit_q), "misfit_r": float(ma.misfit_r),
+               "spectrum": spec},
+        "em": {"iterations": em_rows or list(em.iterations), "converged": bool(getattr(em, "converged", True)),
+               "loglik": float(getattr(em, "loglik", np.nan))},
+        "transition": np.asarray(em.transition).tolist(),
+        "initial": {ln.line: np.asarray(pi).tolist() for ln, pi in zip(reg.lines, initial_all)},
+        "states": states,
+        "lines_learned": [ln.line for ln, k in zip(reg.lines, learn_mask) if k],
+        "lines_skipped": reg.skipped,
+        "nlmeans": {"h_per_km": p.nlmeans_h_per_km, "rho_km": p.nlmeans_rho_km, "mode": p.nlmeans_mode},
+    }
+
+
+def _report(survey, table, flights, crs, crossovers, lev_report, reg, em, timings, warnings, grid) -> dict:
+    from app.core import accuracy
+
+    rep = {
+        "survey": survey.config.survey.name,
+        "crs": crs,
+        "counts": {"flights": len(flights), "lines": int(table["line"].nunique()),
+                   "epochs": int(len(table)), "decimated_points": int(sum(len(x) for x in reg.x)),
+                   "crossovers": int(len(crossovers))},
+        "time_offsets": {n: {"offset_s": m.time_offset_s, "correlation": m.time_offset_corr,
+                             "applied": m.time_offset_applied} for n, m in flights.items()},
+        "crossovers": lev_report,
+        "identification": {"Q_mgal2": np.asarray(em.Q).tolist(), "R_cm2s2": np.asarray(em.R).tolist(),
+                           "transition": np.asarray(em.transition).tolist()},
+        "timings_s": timings,
+        "warnings": warnings,
+    }
+    rep["repeat_lines"] = _repeat_accuracy(table, accuracy)
+    if grid is not None:
+        rep["grid"] = {"nx": int(len(grid[0])), "ny": int(len(grid[1])),
+                       "valid_cells": int(np.isfinite(grid[2]).sum())}
+    return rep
+
+
+def _repeat_accuracy(table, accuracy) -> dict:
+    rep = table[table["kind"] == "repeat"]
+    out = {}
+    if rep.empty or "track" not in rep:
+        return out
+    for track, g in rep.groupby("track"):
+        groups = [gg for _, gg in g.groupby("line", sort=False)]
+        if len(groups) < 2:
+            continue
+        res = {}
+        for col in ("dg_mgal", "dg_fir_mgal", "dg_stationary_mgal"):
+            try:
+                res[col] = float(accuracy.repeat_line_accuracy(
+                    [(gg["easting_km"].to_numpy(), gg["northing_km"].to_numpy(), gg[col].to_numpy())
+                     for gg in groups]))
+            except (ValueError, AttributeError, TypeError) as exc:
+                res[col] = f"n/a: {exc}"
+        out[str(track)] = {"repeats": len(groups), "internal_accuracy_mgal": res}
+    return out

@@ -1,0 +1,291 @@
+"""The named stages of the method (SPEC §2 and §3), each on plain data.
+
+``process.py`` runs them in order:
+
+1. :func:`measure_flight` — corrections and the measurement ``z_k`` over a whole flight
+   (normal gravity, Eötvös, gravimeter time offset, lag/scale inversion, interval means);
+2. :func:`cut_lines` — the survey lines as GNSS-epoch tables with projected positions;
+3. :func:`fir_baseline` — the FIR 100 s low-pass (seed 004) on the whole flight;
+4. :func:`regularize_lines` — ∇^m, Kaiser low-pass, decimation, MA approximation;
+5. :func:`learn` — EM learning of Θ over all lines (the EM iteration table);
+6. :func:`recognize` — Viterbi paths and posterior state probabilities per line;
+7. :func:`smooth_recognition` — NL-means over the recognition map;
+8. :func:`filter_lines` — states held on the full-rate grid, non-stationary Kalman
+   smoother with posterior std, stationary (Q₁, R₁) smoother beside it;
+9. :func:`level` — crossovers and per-line drift polynomials;
+10. :func:`grid` — collocation grid with its std.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from app.config import SurveyConfig
+from app.core import geodesy
+from app.core import gravimeter as gm
+from app.core.measurement import anomaly_measurement_mgal
+
+log = logging.getLogger(__name__)
+
+
+# --------------------------------------------------------------------------- 1. measurement
+@dataclass
+class FlightMeasurement:
+    """Per-GNSS-epoch measurement of one flight (arrays of shape (n,))."""
+
+    flight: str
+    t_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    h_m: np.ndarray
+    vu_ms: np.ndarray
+    ve_ms: np.ndarray
+    vn_ms: np.ndarray
+    gamma_mgal: np.ndarray
+    eotvos_mgal: np.ndarray
+    fbar_ms2: np.ndarray
+    z_mgal: np.ndarray
+    time_offset_s: float = 0.0
+    time_offset_corr: float = float("nan")
+    time_offset_applied: bool = False
+    notes: list = field(default_factory=list)
+
+
+def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
+                   scale: float | None = None) -> FlightMeasurement:
+    """Corrections and the anomaly measurement ``z_k`` (SPEC §1) for one whole flight.
+
+    Parameters
+    ----------
+    flight : app.io.survey.Flight
+    cfg : SurveyConfig
+    tau_s, scale : float, optional
+        Override the gravimeter lag and scale of ``survey.toml`` (in-flight calibration).
+    """
+    p = cfg.processing
+    tau = cfg.gravimeter.tau_s if tau_s is None else tau_s
+    k = cfg.gravimeter.scale if scale is None else scale
+    gn = flight.gnss
+    t = gn["time"].to_numpy(float)
+    lat = gn["lat"].to_numpy(float)
+    lon = gn["lon"].to_numpy(float)
+    h = gn["h"].to_numpy(float)
+    vu = gn["vu"].to_numpy(float)
+    if "ve" in gn and "vn" in gn:
+        ve = gn["ve"].to_numpy(float)
+        vn = gn["vn"].to_numpy(float)
+    else:
+        ve, vn = geodesy.velocities_from_positions_ms(t, lat, lon, h)
+    gamma = geodesy.normal_gravity_mgal(lat, h, cfg.survey.normal_gravity)
+    eot = geodesy.eotvos_mgal(lat, h, ve, vn)
+
+    gr = flight.gravimeter
+    series = gm.integrate_samples(gr["time"].to_numpy(float), gr["f_z"].to_numpy(float))
+    offset, corr, applied = 0.0, float("nan"), False
+    notes = []
+    if p.estimate_time_offset:
+        try:
+            offset, corr = gm.estimate_time_offset_s(series, t, vu, tau, k, p.max_time_offset_s)
+        except ValueError as exc:  # too short a flight, etc.
+            notes.append(f"time offset not estimated: {exc}")
+            offset = 0.0
+        if p.apply_time_offset and np.isfinite(corr) and corr > 0.5 and abs(offset) < p.max_time_offset_s:
+            applied = True
+        elif p.apply_time_offset and p.estimate_time_offset:
+            notes.append(f"time offset {offset:.4f} s not applied (correlation {corr:.2f})")
+    fbar = gm.interval_means(series, t, tau, k, time_offset_s=offset if applied else 0.0)
+    z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
+    return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
+                             float(offset), float(corr), applied, notes)
+
+
+# --------------------------------------------------------------------------- 2. lines
+@dataclass
+class LineData:
+    """One survey line on the GNSS epochs inside its window."""
+
+    line: str
+    flight: str
+    kind: str
+    track: str | None
+    sl: slice                      # slice of the flight arrays
+    t_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    h_m: np.ndarray
+    easting_km: np.ndarray
+    northing_km: np.ndarray
+    z_mgal: np.ndarray
+    speed_ms: float
+
+
+def survey_crs(cfg: SurveyConfig, flights: dict[str, FlightMeasurement]) -> str:
+    """The projected CRS: ``survey.crs`` or the UTM zone of the data."""
+    if cfg.survey.crs:
+        return cfg.survey.crs
+    lon = np.concatenate([m.lon_deg[:: max(1, m.lon_deg.size // 1000)] for m in flights.values()])
+    lat = np.concatenate([m.lat_deg[:: max(1, m.lat_deg.size // 1000)] for m in flights.values()])
+    return geodesy.utm_crs_for(lon, lat)
+
+
+def cut_lines(lines: pd.DataFrame, flights: dict[str, FlightMeasurement], crs: str) -> list[LineData]:
+    """Cut every line of ``lines.csv`` out of its flight's measurement."""
+    out = []
+    for row in lines.itertuples(index=False):
+        m = flights[str(row.flight)]
+        i0 = int(np.searchsorted(m.t_s, row.t_start, side="left"))
+        i1 = int(np.searchsorted(m.t_s, row.t_end, side="right"))
+        sl = slice(i0, i1)
+        e, n = geodesy.project_km(m.lon_deg[sl], m.lat_deg[sl], crs)
+        z = m.z_mgal[sl].copy()
+        speed = float(np.nanmedian(np.hypot(m.ve_ms[sl], m.vn_ms[sl]))) if i1 > i0 else float("nan")
+        track = getattr(row, "track", None)
+        if track is not None and (isinstance(track, float) and np.isnan(track)):
+            track = None
+        out.append(LineData(str(row.line), str(row.flight), str(row.kind),
+                            None if track is None else str(track), sl, m.t_s[sl], m.lat_deg[sl],
+                            m.lon_deg[sl], m.h_m[sl], np.asarray(e), np.asarray(n), z, speed))
+    return out
+
+
+def fill_nan_mgal(z):
+    """Linear interpolation over isolated NaN (edges: nearest value)."""
+    z = np.asarray(z, dtype=float).copy()
+    bad = ~np.isfinite(z)
+    if bad.all():
+        raise ValueError("no valid measurement on the line")
+    if bad.any():
+        i = np.arange(z.size)
+        z[bad] = np.interp(i[bad], i[~bad], z[~bad])
+    return z
+
+
+# --------------------------------------------------------------------------- 3. FIR baseline
+def fir_baseline(m: FlightMeasurement, cutoff_period_s: float) -> np.ndarray:
+    """FIR 100 s low-pass (seed 004) of ``z`` over the whole flight (mGal), so line edges
+    see the run-in data as in industry practice."""
+    from app.core.baselines import fir_lowpass_mgal
+
+    dt = float(np.median(np.diff(m.t_s)))
+    return fir_lowpass_mgal(m.z_mgal, dt, cutoff_period_s)
+
+
+# --------------------------------------------------------------------------- 4. regularization
+@dataclass
+class Regularized:
+    design: object                 # app.core.regularize.RegularizationDesign
+    ma: object                     # app.core.ma_approx.MAModel
+    lines: list                    # LineData used for identification
+    x: list                        # decimated regularized sequences
+    idx: list                      # full-rate indices (into the line) of each decimated point
+    skipped: dict                  # line → reason
+
+
+def regularize_lines(lines: list[LineData], cfg: SurveyConfig, dt_s: float) -> Regularized:
+    """∇^m, Kaiser low-pass, decimation and the MA approximation (SPEC §2 step 1)."""
+    from app.core.ma_approx import fit_ma_model
+    from app.core.regularize import design_regularization, regularize_line
+
+    p = cfg.processing
+    use = [ln for ln in lines if ln.kind != "tie" or p.include_tie_lines]
+    if not use:
+        raise ValueError("no lines to identify (all are tie lines and include_tie_lines is false)")
+    speed = float(np.nanmedian([ln.speed_ms for ln in use]))
+    design = design_regularization(dt_s, speed, step_km=p.decimation_step_km, n=p.decimation_n,
+                                   cutoff_hz=p.cutoff_hz, attenuation_db=p.stopband_attenuation_db)
+    ma = fit_ma_model(design, p.m, K=p.ma_order_K, L=p.ma_order_L)
+    kept, xs, idxs, skipped = [], [], [], {}
+    for ln in use:
+        try:
+            x, idx = regularize_line(fill_nan_mgal(ln.z_mgal), p.m, design)
+        except ValueError as exc:
+            skipped[ln.line] = str(exc)
+            continue
+        if len(x) < ma.p + 3:
+            skipped[ln.line] = f"only {len(x)} decimated points (need {ma.p + 3})"
+            continue
+        kept.append(ln)
+        xs.append(np.asarray(x, float))
+        idxs.append(np.asarray(idx, int))
+    if not kept:
+        raise ValueError("every line is too short for the regularization filter: "
+                         + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
+    return Regularized(design, ma, kept, xs, idxs, skipped)
+
+
+# --------------------------------------------------------------------------- 5-7. identification
+def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
+    """EM learning of Θ = {Q_i, R_j, a_ij, π_i(w)} over all lines (SPEC §2 step 2)."""
+    from app.core.mjls_em import fit_em
+
+    p = cfg.processing
+    return fit_em(reg.x, reg.ma.c, reg.ma.d, n_q=p.n_q, n_r=p.n_r, max_iter=p.em_max_iter,
+                  tol=p.em_tol, callback=callback)
+
+
+def recognize(reg: Regularized, em) -> tuple[list, list]:
+    """Viterbi path and posterior probabilities per line (SPEC §2 step 3)."""
+    from app.core.recognition import posteriors, viterbi
+
+    paths, probs = [], []
+    for w, x in enumerate(reg.x):
+        init = em.initial[w]
+        paths.append(np.asarray(viterbi(x, reg.ma.c, reg.ma.d, em.Q, em.R, em.transition, init), int))
+        probs.append(np.asarray(posteriors(x, reg.ma.c, reg.ma.d, em.Q, em.R, em.transition, init), float))
+    return paths, probs
+
+
+def recognition_table(reg: Regularized, paths, probs) -> pd.DataFrame:
+    """The decimated points of all lines: line, time, position, x, raw state, posteriors."""
+    rows = []
+    for ln, x, idx, s, pr in zip(reg.lines, reg.x, reg.idx, paths, probs):
+        d = {"line": ln.line, "time": ln.t_s[idx], "easting_km": ln.easting_km[idx],
+             "northing_km": ln.northing_km[idx], "x": x, "state_raw": s}
+        for i in range(pr.shape[1]):
+            d[f"p_{i}"] = pr[:, i]
+        rows.append(pd.DataFrame(d))
+    return pd.concat(rows, ignore_index=True)
+
+
+def smooth_recognition(table: pd.DataFrame, n_states: int, h_per_km: float, rho_km: float,
+                       mode: str = "soft", rmap=None):
+    """NL-means smoothing of the recognition map (SPEC §2 step 4).
+
+    Returns (labels (T,), probs (T, N), rmap)."""
+    from app.core.nlmeans import RecognitionMap
+
+    if rmap is None:
+        rmap = RecognitionMap(table["easting_km"].to_numpy(), table["northing_km"].to_numpy(),
+                              max_rho_km=max(15.0, rho_km))
+    if mode == "soft":
+        src = table[[f"p_{i}" for i in range(n_states)]].to_numpy()
+    else:
+        src = table["state_raw"].to_numpy()
+    probs, labels = rmap.smooth(src, h_per_km, rho_km, mode=mode)
+    return np.asarray(labels, int), np.asarray(probs, float), rmap
+
+
+def hold_states(n_epochs: int, idx: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """Hold decimated states on the full-rate grid: each epoch takes the state of the
+    nearest decimated point (by index)."""
+    idx = np.asarray(idx, int)
+    states = np.asarray(states, int)
+    if idx.size == 0:
+        raise ValueError("no decimated points")
+    mid = 0.5 * (idx[1:] + idx[:-1])
+    k = np.searchsorted(mid, np.arange(n_epochs), side="right")
+    return states[k]
+
+
+# --------------------------------------------------------------------------- 8. filtering
+def filter_line(z_mgal, Q_mgal2, R_cm2s2, dt_s: float, m: int, method: str):
+    """Non-stationary Kalman smoother on one line: (dg_mgal, dg_std_mgal)."""
+    from app.core.smoother import kalman_smooth
+
+    res = kalman_smooth(np.asarray(z_mgal, float), np.asarray(Q_mgal2, float),
+                        np.asarray(R_cm2s2, float), dt_s, m=m, method=method)
+    return np.asarray(res.dg_mgal), np.asarray(res.dg_std_mgal)
