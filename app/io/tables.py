@@ -1,0 +1,315 @@
+"""Shared helpers to read and validate the numeric tables of a survey (SPEC §4).
+
+Everything here raises :class:`app.io.errors.InputError` with the file, the
+1-based line number in the file (header = line 1) and the column.
+
+Row bookkeeping: readers return, beside the data, an integer array ``rows`` with
+the file line number of every data row, so that checks done after parsing
+(NaN runs, time order, gaps, ranges) can point at the line an analyst opens in
+an editor.  Blank lines are kept while parsing (``skip_blank_lines=False``) so
+that the numbering stays exact; blank lines at the end of a file are dropped,
+blank lines inside it count as missing values.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from app.io.errors import InputError
+
+__all__ = [
+    "read_csv_table",
+    "locate_bad_cell",
+    "check_finite",
+    "fill_short_nan_runs",
+    "check_time_increasing",
+    "median_rate_hz",
+    "check_rate",
+    "check_range",
+    "gap_rows_in_windows",
+    "parser_error_row",
+]
+
+
+def parser_error_row(exc: Exception) -> int | None:
+    """Line number in a pandas tokenizer error ("Expected 5 fields in line 7, saw 6")."""
+    m = re.search(r"line (\d+)", str(exc))
+    return int(m.group(1)) if m else None
+
+
+def _header(path: Path, display: str, **kw) -> list[str]:
+    try:
+        head = pd.read_csv(path, nrows=0, **kw)
+    except pd.errors.EmptyDataError:
+        raise InputError(display, None, None, "the file is empty (expected a header line with column names)") from None
+    except (OSError, UnicodeDecodeError, EOFError) as exc:
+        raise InputError(display, None, None, f"cannot read the file: {exc}") from None
+    return [str(c) for c in head.columns]
+
+
+def locate_bad_cell(path: Path, display: str, usecols: Sequence[str], float_cols: Iterable[str],
+                    rename: dict[str, str], **read_kw) -> InputError | None:
+    """Find the first cell of ``float_cols`` that is not a number (slow path, only after a failure).
+
+    Re-reads the file as text and returns an :class:`InputError` for the first
+    offending cell (smallest line number; left-most column on ties), or None.
+    """
+    raw = pd.read_csv(path, usecols=list(usecols), dtype=str, skip_blank_lines=False, **read_kw)
+    raw = raw.rename(columns=rename)
+    best: tuple[int, int, str, str] | None = None
+    for j, col in enumerate(float_cols):
+        s = raw[col]
+        num = pd.to_numeric(s.str.strip(), errors="coerce")
+        bad = np.flatnonzero(num.isna().to_numpy() & s.notna().to_numpy()
+                             & (s.fillna("").str.strip() != "").to_numpy())
+        if bad.size:
+            cand = (int(bad[0]) + 2, j, col, str(s.iloc[bad[0]]))
+            if best is None or cand[:2] < best[:2]:
+                best = cand
+    if best is None:
+        return None
+    row, _, col, val = best
+    return InputError(display, row, col, f"not a number: {val!r}")
+
+
+def read_csv_table(path: Path | str, display: str, required: Sequence[str],
+                   optional: Sequence[str] = (), str_cols: Sequence[str] = (),
+                   min_rows: int = 1) -> tuple[pd.DataFrame, np.ndarray]:
+    """Read a CSV (``.csv`` or ``.csv.gz``) keeping only the named columns.
+
+    Column names are matched after stripping blanks and lower-casing; extra
+    columns are ignored (not even parsed).  Numeric columns are parsed by the
+    pandas C engine straight to float64; only when that fails is the file
+    re-read as text to locate the offending cell.
+
+    Parameters
+    ----------
+    path : path-like
+        The file.
+    display : str
+        Name used in error messages (e.g. ``"flights/F1/gnss.csv"``).
+    required, optional : sequence of str
+        Column names (lower case).  Missing required → error at row 1.
+        Optional columns are kept when present.
+    str_cols : sequence of str
+        Columns (among required/optional) read as text; all others are float64.
+    min_rows : int
+        Fewer data rows → error.
+
+    Returns
+    -------
+    df : DataFrame
+        Columns ``required`` then the present ``optional`` ones, default RangeIndex.
+    rows : ndarray of int, shape (len(df),)
+        File line number of each row (header = 1).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(display, None, None, "file not found")
+    names = _header(path, display)
+    lookup: dict[str, str] = {}
+    for n in names:
+        key = n.strip().lower()
+        lookup.setdefault(key, n)
+    for col in required:
+        if col not in lookup:
+            have = ", ".join(repr(n) for n in names) or "none"
+            raise InputError(display, 1, col, f"required column '{col}' is missing (columns found: {have})")
+    wanted = list(required) + [c for c in optional if c in lookup]
+    usecols = [lookup[c] for c in wanted]
+    rename = {lookup[c]: c for c in wanted}
+    float_cols = [c for c in wanted if c not in str_cols]
+    dtype = {lookup[c]: (str if c in str_cols else np.float64) for c in wanted}
+    try:
+        df = pd.read_csv(path, usecols=usecols, dtype=dtype, skip_blank_lines=False, engine="c")
+    except pd.errors.ParserError as exc:
+        raise InputError(display, parser_error_row(exc), None,
+                         f"the line has a different number of fields than the header ({exc})") from None
+    except ValueError as exc:
+        err = locate_bad_cell(path, display, usecols, float_cols, rename)
+        if err is not None:
+            raise err from None
+        raise InputError(display, None, None, f"cannot parse the file: {exc}") from None
+    except (OSError, UnicodeDecodeError, EOFError) as exc:
+        raise InputError(display, None, None, f"cannot read the file: {exc}") from None
+    df = df.rename(columns=rename)[wanted]
+    # drop blank lines at the end of the file
+    n = len(df)
+    if n:
+        empty = df.isna().all(axis=1).to_numpy()
+        if empty[-1]:
+            nz = np.flatnonzero(~empty)
+            n = int(nz[-1]) + 1 if nz.size else 0
+            df = df.iloc[:n]
+    rows = np.arange(2, n + 2, dtype=np.int64)
+    if n < min_rows:
+        raise InputError(display, None, None,
+                         f"the file has {n} data row(s); at least {min_rows} needed")
+    return df.reset_index(drop=True), rows
+
+
+def check_finite(df: pd.DataFrame, columns: Sequence[str], rows: np.ndarray, display: str) -> None:
+    """Reject ±inf cells (NaN is handled by :func:`fill_short_nan_runs`)."""
+    best = None
+    for j, col in enumerate(columns):
+        bad = np.flatnonzero(np.isinf(df[col].to_numpy()))
+        if bad.size and (best is None or (bad[0], j) < best[:2]):
+            best = (int(bad[0]), j, col)
+    if best is not None:
+        i, _, col = best
+        raise InputError(display, int(rows[i]), col, f"not a finite number: {df[col].iloc[i]!r}")
+
+
+def _nan_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Start indices and lengths of the runs of True in a boolean vector."""
+    m = np.concatenate(([False], mask, [False])).astype(np.int8)
+    d = np.diff(m)
+    starts = np.flatnonzero(d == 1)
+    ends = np.flatnonzero(d == -1)
+    return starts, ends - starts
+
+
+def fill_short_nan_runs(df: pd.DataFrame, columns: Sequence[str], rows: np.ndarray, display: str,
+                        max_nan_run: int, time_col: str | None = "time") -> pd.DataFrame:
+    """Interpolate runs of missing values up to ``max_nan_run`` long; longer runs are errors.
+
+    The time column (if among ``columns``) is interpolated linearly in the
+    sample index; every other column linearly in time (in the sample index when
+    there is no time column).  Runs touching the start or end of the file are
+    filled with the nearest value.  The error names the first line of the
+    earliest run that is too long.
+
+    Returns
+    -------
+    DataFrame
+        ``df`` itself, modified in place where values were filled.
+    """
+    worst = None
+    for j, col in enumerate(columns):
+        v = df[col].to_numpy()
+        mask = np.isnan(v)
+        if not mask.any():
+            continue
+        starts, lengths = _nan_runs(mask)
+        too_long = np.flatnonzero(lengths > max_nan_run)
+        if too_long.size:
+            k = too_long[0]
+            cand = (int(starts[k]), j, col, int(lengths[k]))
+            if worst is None or cand[:2] < worst[:2]:
+                worst = cand
+    if worst is not None:
+        i, _, col, length = worst
+        what = "a missing value" if length == 1 else f"{length} consecutive missing values"
+        allowed = ("no missing values are allowed" if max_nan_run == 0
+                   else f"at most {max_nan_run} in a row are interpolated")
+        raise InputError(display, int(rows[i]), col,
+                         f"{what} starting here ({allowed}; processing.max_nan_run)")
+    idx = np.arange(len(df), dtype=float)
+    ordered = list(columns)
+    if time_col in ordered:
+        ordered.remove(time_col)
+        ordered.insert(0, time_col)
+    for col in ordered:
+        v = df[col].to_numpy(dtype=float)
+        mask = np.isnan(v)
+        if not mask.any():
+            continue
+        x = idx if (time_col is None or col == time_col or time_col not in df) else df[time_col].to_numpy(dtype=float)
+        v = v.copy()
+        v[mask] = np.interp(x[mask], x[~mask], v[~mask])
+        df[col] = v
+    return df
+
+
+def check_time_increasing(t: np.ndarray, rows: np.ndarray, display: str, column: str = "time") -> None:
+    """Times must increase strictly; the error names the row where order breaks."""
+    dt = np.diff(t)
+    bad = np.flatnonzero(~(dt > 0))
+    if bad.size:
+        i = int(bad[0]) + 1
+        if dt[i - 1] == 0:
+            msg = f"time {t[i]!r} is repeated (same as the previous row)"
+        else:
+            msg = f"time goes backwards: {t[i]!r} after {t[i - 1]!r}"
+        raise InputError(display, int(rows[i]), column, msg)
+
+
+def median_rate_hz(t: np.ndarray) -> float:
+    """Sampling rate from the median interval (Hz); NaN with fewer than 2 samples."""
+    if t.size < 2:
+        return float("nan")
+    return float(1.0 / np.median(np.diff(t)))
+
+
+def check_rate(t: np.ndarray, display: str, declared_hz: float | None, tolerance: float,
+               what: str, setting: str, sanity_hz: tuple[float, float] = (1.0, 100.0)) -> float:
+    """Compare the median rate with the declared one (or a sanity range when None).
+
+    Returns
+    -------
+    float
+        The median rate (Hz).
+    """
+    rate = median_rate_hz(t)
+    if declared_hz is not None:
+        if not abs(rate - declared_hz) <= tolerance * declared_hz:
+            raise InputError(display, None, "time",
+                             f"the {what} samples come at {rate:.4g} Hz (median interval), but {declared_hz:g} Hz "
+                             f"is declared ({setting}; tolerance ±{tolerance:.0%}). Check the time column units "
+                             f"or the declared rate.")
+    elif not (sanity_hz[0] <= rate <= sanity_hz[1]):
+        raise InputError(display, None, "time",
+                         f"the {what} samples come at {rate:.4g} Hz (median interval), outside the plausible "
+                         f"{sanity_hz[0]:g}–{sanity_hz[1]:g} Hz. Check the time column units (seconds expected) "
+                         f"or declare the rate ({setting}).")
+    return rate
+
+
+def check_range(df: pd.DataFrame, column: str, lo: float, hi: float, rows: np.ndarray, display: str,
+                what: str) -> None:
+    """Values of ``column`` must lie in [lo, hi]; the error names the first row outside."""
+    v = df[column].to_numpy()
+    bad = np.flatnonzero(~((v >= lo) & (v <= hi)))
+    if bad.size:
+        i = int(bad[0])
+        raise InputError(display, int(rows[i]), column, f"{what} {v[i]!r} is outside [{lo:g}, {hi:g}]")
+
+
+def gap_rows_in_windows(t: np.ndarray, t_start: np.ndarray, t_end: np.ndarray,
+                        max_gap_s: float) -> np.ndarray:
+    """Index of the first sample after a too-long gap inside each window (−1 if none).
+
+    A gap (t_i, t_{i+1}) counts for window [a, b] when it overlaps it:
+    ``t_{i+1} > a`` and ``t_i < b``.
+
+    Parameters
+    ----------
+    t : ndarray, shape (n,)
+        Strictly increasing times (s).
+    t_start, t_end : ndarray, shape (m,)
+        Windows (s).
+    max_gap_s : float
+
+    Returns
+    -------
+    ndarray of int, shape (m,)
+        For each window, the index ``i+1`` of the sample closing the first gap
+        longer than ``max_gap_s`` that overlaps the window, or −1.
+    """
+    t = np.asarray(t, dtype=float)
+    big = np.flatnonzero(np.diff(t) > max_gap_s)  # gap between big[k] and big[k]+1
+    out = np.full(len(t_start), -1, dtype=np.int64)
+    if big.size == 0:
+        return out
+    after = t[big + 1]
+    before = t[big]
+    for w, (a, b) in enumerate(zip(np.asarray(t_start, float), np.asarray(t_end, float))):
+        k = np.searchsorted(after, a, side="right")  # first gap ending after a
+        if k < big.size and before[k] < b:
+            out[w] = big[k] + 1
+    return out

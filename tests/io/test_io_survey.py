@@ -1,0 +1,456 @@
+"""read_survey: a valid tiny survey built here, then one test per bad-input case."""
+
+from __future__ import annotations
+
+import gzip
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from app.io.errors import InputError
+from app.io.survey import path_length_km, read_survey, survey_summary
+
+T0 = 4 * 86400.0  # GPS seconds of week, Thursday 00:00
+GRAV_HZ = 18.24
+GNSS_HZ = 10.0
+SPEED_MS = 100.0
+LAT0, LON0 = 62.0, 158.0
+
+TOML = """\
+[survey]
+name = "tiny"
+normal_gravity = "WGS84"
+
+[gravimeter]
+model = "GT-1A"
+tau_s = 2.0
+scale = 1.0
+
+[processing]
+max_gap_s = 1.0
+"""
+
+
+def make_tables(flights=("F1",), duration_s=600.0, seed=0):
+    """Known-truth tables: a flight flying east at 100 m/s, gravimeter at 18.24 Hz, GNSS at 10 Hz."""
+    rng = np.random.default_rng(seed)
+    tabs = {}
+    lines = []
+    for k, f in enumerate(flights):
+        t0 = T0 + 1000.0 * k
+        n_g = int(duration_s * GRAV_HZ)
+        tg = np.round(t0 + np.arange(n_g) / GRAV_HZ, 4)
+        grav = pd.DataFrame({"time": tg, "f_z": 9.81 + 1e-3 * rng.standard_normal(n_g),
+                             "f_x": 1e-3 * rng.standard_normal(n_g), "f_y": 1e-3 * rng.standard_normal(n_g),
+                             "temperature_c": 40.0})
+        n_n = int(duration_s * GNSS_HZ)
+        tn = np.round(t0 + np.arange(n_n) / GNSS_HZ, 2)
+        # east along the parallel: dλ = v dt / ((R_N + h) cos φ); the exact length is checked with pyproj later
+        lon = LON0 + np.rad2deg(SPEED_MS * (tn - t0) / (6_394_000.0 * np.cos(np.deg2rad(LAT0))))
+        gnss = pd.DataFrame({"time": tn, "lat": LAT0, "lon": lon, "h": 3000.0 + 0.0 * tn, "vu": 0.01 * rng.standard_normal(n_n),
+                             "ve": SPEED_MS, "vn": 0.0, "n_sats": 9})
+        tabs[f] = (grav, gnss)
+        lines += [
+            {"line": f"0{k}01", "flight": f, "t_start": t0 + 20.0, "t_end": t0 + 280.0, "kind": "main", "track": ""},
+            {"line": f"0{k}02", "flight": f, "t_start": t0 + 300.0, "t_end": t0 + 450.0, "kind": "tie", "track": ""},
+            {"line": f"0{k}03", "flight": f, "t_start": t0 + 460.0, "t_end": t0 + 590.0, "kind": "repeat", "track": "A"},
+        ]
+    return pd.DataFrame(lines), tabs
+
+
+def write_survey(root: Path, lines: pd.DataFrame, tabs: dict, toml: str = TOML, gz: bool = False) -> Path:
+    root.mkdir(parents=True, exist_ok=True)
+    (root / "survey.toml").write_text(toml)
+    lines.to_csv(root / "lines.csv", index=False)
+    for f, (grav, gnss) in tabs.items():
+        d = root / "flights" / f
+        d.mkdir(parents=True, exist_ok=True)
+        ext = ".csv.gz" if gz else ".csv"
+        if grav is not None:
+            grav.to_csv(d / f"gravimeter{ext}", index=False)
+        gnss.to_csv(d / f"gnss{ext}", index=False)
+    return root
+
+
+@pytest.fixture
+def survey_dir(tmp_path):
+    lines, tabs = make_tables()
+    return write_survey(tmp_path / "s", lines, tabs), lines, tabs
+
+
+def edit_cell(path: Path, row: int, column: str, text: str) -> None:
+    """Replace one cell of a CSV as a text editor would (row = file line number, header = 1)."""
+    ls = path.read_text().splitlines()
+    header = ls[0].split(",")
+    cells = ls[row - 1].split(",")
+    cells[header.index(column)] = text
+    ls[row - 1] = ",".join(cells)
+    path.write_text("\n".join(ls) + "\n")
+
+
+def expect_error(root, file, row, column, overrides=None, match=None):
+    with pytest.raises(InputError) as ei:
+        read_survey(root, overrides)
+    err = ei.value
+    assert (err.file, err.row, err.column) == (file, row, column), str(err)
+    s = str(err)
+    assert file in s
+    if row is not None:
+        assert f"row {row}" in s
+    if column is not None:
+        assert f"'{column}'" in s
+    if match is not None:
+        assert match in s, s
+    return err
+
+
+# ------------------------------------------------------------------ valid input
+
+
+def test_valid_survey_roundtrip(survey_dir):
+    root, lines, tabs = survey_dir
+    s = read_survey(root)
+    assert s.root == root
+    assert s.config.survey.name == "tiny"
+    assert list(s.lines.columns) == ["line", "flight", "t_start", "t_end", "kind", "track"]
+    assert s.lines["line"].tolist() == ["0001", "0002", "0003"]  # read as str, leading zeros kept
+    assert s.lines["track"].tolist() == [None, None, "A"]
+    assert s.lines["kind"].tolist() == ["main", "tie", "repeat"]
+    fl = s.flights["F1"]
+    grav, gnss = tabs["F1"]
+    assert list(fl.gravimeter.columns) == ["time", "f_z", "f_x", "f_y"]  # extra column ignored
+    assert list(fl.gnss.columns) == ["time", "lat", "lon", "h", "vu", "ve", "vn"]
+    assert fl.gravimeter["time"].dtype == np.float64
+    np.testing.assert_array_equal(fl.gravimeter["time"].to_numpy(), grav["time"].to_numpy())
+    np.testing.assert_allclose(fl.gravimeter["f_z"].to_numpy(), grav["f_z"].to_numpy(), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(fl.gnss["lon"].to_numpy(), gnss["lon"].to_numpy(), rtol=0, atol=1e-12)
+    assert fl.gravimeter_path == root / "flights/F1/gravimeter.csv"
+    assert fl.gnss_path == root / "flights/F1/gnss.csv"
+
+
+def test_gz_accepted(tmp_path):
+    lines, tabs = make_tables()
+    root = write_survey(tmp_path / "s", lines, tabs, gz=True)
+    s = read_survey(root)
+    assert s.flights["F1"].gnss_path.name == "gnss.csv.gz"
+    assert s.flights["F1"].gravimeter_path.name == "gravimeter.csv.gz"
+    np.testing.assert_array_equal(s.flights["F1"].gnss["time"].to_numpy(), tabs["F1"][1]["time"].to_numpy())
+
+
+def test_optional_columns_absent_and_blank_track(tmp_path):
+    lines, tabs = make_tables()
+    grav, gnss = tabs["F1"]
+    tabs["F1"] = (grav[["time", "f_z"]], gnss[["time", "lat", "lon", "h", "vu"]])
+    root = write_survey(tmp_path / "s", lines.drop(columns="track"), tabs)
+    s = read_survey(root)
+    assert list(s.flights["F1"].gravimeter.columns) == ["time", "f_z"]
+    assert list(s.flights["F1"].gnss.columns) == ["time", "lat", "lon", "h", "vu"]
+    assert s.lines["track"].tolist() == [None, None, None]
+
+
+def test_overrides_applied(survey_dir):
+    root, *_ = survey_dir
+    s = read_survey(root, {"max_gap_s": 2.5, "n_q": 3})
+    assert s.config.processing.max_gap_s == 2.5
+    assert s.config.processing.n_q == 3
+    assert s.config.gravimeter.tau_s == 2.0  # untouched
+    with pytest.raises(InputError) as ei:
+        read_survey(root, {"max_gap_s": -1})
+    assert ei.value.file == "overrides" and ei.value.column == "processing.max_gap_s"
+    with pytest.raises(InputError) as ei:
+        read_survey(root, {"no_such_param": 1})
+    assert ei.value.column == "processing.no_such_param"
+
+
+def test_override_relaxes_gap(tmp_path):
+    lines, tabs = make_tables()
+    grav, gnss = tabs["F1"]
+    gnss = gnss.drop(index=range(1000, 1015)).reset_index(drop=True)  # 1.6 s hole inside line 0001
+    tabs["F1"] = (grav, gnss)
+    root = write_survey(tmp_path / "s", lines, tabs)
+    expect_error(root, "flights/F1/gnss.csv", 1002, "time", match="gap of 1.600 s")
+    s = read_survey(root, {"max_gap_s": 2.0})
+    assert len(s.flights["F1"].gnss) == len(gnss)
+
+
+def test_bad_survey_toml_names_key_and_row(survey_dir):
+    root, *_ = survey_dir
+    (root / "survey.toml").write_text(TOML.replace("tau_s = 2.0", "tau_s = -3"))
+    expect_error(root, "survey.toml", 7, "gravimeter.tau_s", match="-3")
+    (root / "survey.toml").write_text(TOML.replace("scale = 1.0", "scale = 1.0\ncolour = 'red'"))
+    expect_error(root, "survey.toml", 9, "gravimeter.colour", match="unknown setting")
+    (root / "survey.toml").write_text(TOML.replace('name = "tiny"', 'name = tiny'))
+    err = expect_error(root, "survey.toml", 2, None)
+    assert "TOML" in str(err)
+
+
+# ------------------------------------------------------------------ data files
+
+
+def test_missing_required_column(survey_dir):
+    root, lines, tabs = survey_dir
+    tabs["F1"][1].drop(columns="vu").to_csv(root / "flights/F1/gnss.csv", index=False)
+    expect_error(root, "flights/F1/gnss.csv", 1, "vu", match="missing")
+
+
+def test_missing_column_in_lines(survey_dir):
+    root, lines, tabs = survey_dir
+    lines.drop(columns="kind").to_csv(root / "lines.csv", index=False)
+    expect_error(root, "lines.csv", 1, "kind")
+
+
+def test_non_numeric_cell(survey_dir):
+    root, *_ = survey_dir
+    edit_cell(root / "flights/F1/gravimeter.csv", 57, "f_z", "9.8x1")
+    expect_error(root, "flights/F1/gravimeter.csv", 57, "f_z", match="'9.8x1'")
+
+
+def test_non_numeric_cell_gz(tmp_path):
+    lines, tabs = make_tables()
+    root = write_survey(tmp_path / "s", lines, tabs, gz=True)
+    p = root / "flights/F1/gnss.csv.gz"
+    text = gzip.decompress(p.read_bytes()).decode().splitlines()
+    cells = text[99].split(",")
+    cells[3] = "abc"  # h
+    text[99] = ",".join(cells)
+    p.write_bytes(gzip.compress(("\n".join(text) + "\n").encode()))
+    expect_error(root, "flights/F1/gnss.csv.gz", 100, "h", match="'abc'")
+
+
+def test_non_numeric_time_in_lines(survey_dir):
+    root, lines, _ = survey_dir
+    edit_cell(root / "lines.csv", 3, "t_start", "noon")
+    expect_error(root, "lines.csv", 3, "t_start", match="'noon'")
+
+
+def test_nan_default_is_error(survey_dir):
+    root, *_ = survey_dir
+    edit_cell(root / "flights/F1/gnss.csv", 40, "vu", "")
+    expect_error(root, "flights/F1/gnss.csv", 40, "vu", match="missing")
+
+
+def test_nan_runs_interpolated_or_rejected(tmp_path):
+    lines, tabs = make_tables()
+    grav, gnss = tabs["F1"]
+    truth = gnss["h"].to_numpy().copy()
+    gnss = gnss.copy()
+    gnss["h"] = 3000.0 + 0.5 * (gnss["time"] - T0)  # linear: interpolation must restore it exactly
+    truth = gnss["h"].to_numpy().copy()
+    gnss.loc[200:202, "h"] = np.nan  # run of 3, rows 202-204
+    tabs["F1"] = (grav, gnss)
+    root = write_survey(tmp_path / "s", lines, tabs)
+    s = read_survey(root, {"max_nan_run": 3})
+    np.testing.assert_allclose(s.flights["F1"].gnss["h"].to_numpy(), truth, rtol=0, atol=1e-9)
+    err = expect_error(root, "flights/F1/gnss.csv", 202, "h", overrides={"max_nan_run": 2})
+    assert "3 consecutive missing values" in str(err)
+
+
+def test_nan_in_time_interpolated(tmp_path):
+    lines, tabs = make_tables()
+    grav, gnss = tabs["F1"]
+    truth = grav["time"].to_numpy().copy()
+    grav = grav.copy()
+    grav.loc[500, "time"] = np.nan
+    tabs["F1"] = (grav, gnss)
+    root = write_survey(tmp_path / "s", lines, tabs)
+    s = read_survey(root, {"max_nan_run": 1})
+    assert abs(s.flights["F1"].gravimeter["time"].iloc[500] - truth[500]) < 1e-4
+
+
+def test_time_duplicated(survey_dir):
+    root, _, tabs = survey_dir
+    g = tabs["F1"][0].copy()
+    g.loc[300, "time"] = g.loc[299, "time"]
+    g.to_csv(root / "flights/F1/gravimeter.csv", index=False)
+    expect_error(root, "flights/F1/gravimeter.csv", 302, "time", match="repeated")
+
+
+def test_time_backwards(survey_dir):
+    root, _, tabs = survey_dir
+    n = tabs["F1"][1].copy()
+    n.loc[[700, 701], "time"] = n.loc[[701, 700], "time"].to_numpy()
+    n.to_csv(root / "flights/F1/gnss.csv", index=False)
+    expect_error(root, "flights/F1/gnss.csv", 703, "time", match="backwards")
+
+
+def test_gap_inside_line_is_error_outside_is_fine(tmp_path):
+    lines, tabs = make_tables()
+    grav, gnss = tabs["F1"]
+    tg = grav["time"].to_numpy()
+    # 3 s hole at t0+5..8 (before the first line: on the ground) — fine
+    hole_out = (tg > T0 + 5) & (tg < T0 + 8)
+    # 2 s hole inside line 0002 (t0+300..450)
+    hole_in = (tg > T0 + 350) & (tg < T0 + 352)
+    g_out = grav.loc[~hole_out].reset_index(drop=True)
+    root = write_survey(tmp_path / "ok", lines, {"F1": (g_out, gnss)})
+    read_survey(root)  # no error
+    g_in = grav.loc[~(hole_out | hole_in)].reset_index(drop=True)
+    root = write_survey(tmp_path / "bad", lines, {"F1": (g_in, gnss)})
+    after = int(np.flatnonzero(g_in["time"].to_numpy() > T0 + 352)[0])
+    err = expect_error(root, "flights/F1/gravimeter.csv", after + 2, "time", match="line 0002")
+    assert "max_gap_s" in str(err)
+
+
+def test_gap_straddling_line_start(tmp_path):
+    lines, tabs = make_tables()
+    grav, gnss = tabs["F1"]
+    tn = gnss["time"].to_numpy()
+    hole = (tn > T0 + 19.0) & (tn < T0 + 21.0)  # line 0001 starts at t0+20, inside the hole
+    g2 = gnss.loc[~hole].reset_index(drop=True)
+    root = write_survey(tmp_path / "s", lines, {"F1": (grav, g2)})
+    after = int(np.flatnonzero(g2["time"].to_numpy() >= T0 + 21.0)[0])
+    expect_error(root, "flights/F1/gnss.csv", after + 2, "time")
+
+
+def test_line_window_outside_data(survey_dir):
+    root, lines, tabs = survey_dir
+    l2 = lines.copy()
+    l2.loc[1, "t_start"] = T0 - 50.0
+    l2.to_csv(root / "lines.csv", index=False)
+    expect_error(root, "lines.csv", 3, "t_start", match="outside")
+    # GNSS ends earlier than the gravimeter: the end of the last line falls outside GNSS only
+    lines.to_csv(root / "lines.csv", index=False)
+    gnss = tabs["F1"][1]
+    gnss.loc[gnss["time"] < T0 + 585].to_csv(root / "flights/F1/gnss.csv", index=False)
+    err = expect_error(root, "lines.csv", 4, "t_end")
+    assert "gnss.csv" in str(err)
+
+
+def test_unknown_flight(survey_dir):
+    root, lines, _ = survey_dir
+    l2 = lines.copy()
+    l2.loc[2, "flight"] = "F9"
+    l2.to_csv(root / "lines.csv", index=False)
+    expect_error(root, "lines.csv", 4, "flight", match="'F9'")
+
+
+def test_t_end_not_after_t_start(survey_dir):
+    root, lines, _ = survey_dir
+    l2 = lines.copy()
+    l2.loc[1, "t_end"] = l2.loc[1, "t_start"]
+    l2.to_csv(root / "lines.csv", index=False)
+    expect_error(root, "lines.csv", 3, "t_end")
+
+
+def test_unknown_kind(survey_dir):
+    root, lines, _ = survey_dir
+    l2 = lines.copy()
+    l2.loc[0, "kind"] = "diagonal"
+    l2.to_csv(root / "lines.csv", index=False)
+    expect_error(root, "lines.csv", 2, "kind", match="'diagonal'")
+
+
+def test_duplicate_line_id(survey_dir):
+    root, lines, _ = survey_dir
+    l2 = lines.copy()
+    l2.loc[2, "line"] = l2.loc[0, "line"]
+    l2.to_csv(root / "lines.csv", index=False)
+    expect_error(root, "lines.csv", 4, "line", match="twice")
+
+
+def test_gravimeter_rate_far_from_declared(tmp_path):
+    lines, tabs = make_tables()
+    grav, gnss = tabs["F1"]
+    t = np.round(T0 + np.arange(6000) / 10.0, 3)  # 10 Hz instead of 18.24
+    g = pd.DataFrame({"time": t, "f_z": 9.81})
+    root = write_survey(tmp_path / "s", lines, {"F1": (g, gnss)})
+    expect_error(root, "flights/F1/gravimeter.csv", None, "time", match="18.24")
+    # declaring the rate makes it acceptable
+    toml = TOML.replace("scale = 1.0", "scale = 1.0\nrate_hz = 10.0")
+    (root / "survey.toml").write_text(toml)
+    read_survey(root)
+
+
+def test_gnss_rate(survey_dir):
+    root, *_ = survey_dir
+    read_survey(root, {"gnss_rate_hz": 10.0})
+    expect_error(root, "flights/F1/gnss.csv", None, "time", overrides={"gnss_rate_hz": 5.0}, match="5 Hz")
+
+
+def test_gnss_rate_sanity_when_undeclared(survey_dir):
+    root, _, tabs = survey_dir
+    gnss = tabs["F1"][1].copy()
+    gnss["time"] = T0 * 1000.0 + (gnss["time"] - T0) * 1000.0  # milliseconds by mistake
+    gnss.to_csv(root / "flights/F1/gnss.csv", index=False)
+    expect_error(root, "flights/F1/gnss.csv", None, "time", match="plausible")
+
+
+def test_latitude_out_of_range(survey_dir):
+    root, *_ = survey_dir
+    edit_cell(root / "flights/F1/gnss.csv", 11, "lat", "162.0")
+    expect_error(root, "flights/F1/gnss.csv", 11, "lat", match="162")
+
+
+def test_f_z_units_checked(survey_dir):
+    root, _, tabs = survey_dir
+    g = tabs["F1"][0].copy()
+    g["f_z"] = -g["f_z"]
+    g.to_csv(root / "flights/F1/gravimeter.csv", index=False)
+    expect_error(root, "flights/F1/gravimeter.csv", None, "f_z", match="up")
+
+
+def test_missing_gnss_file(survey_dir):
+    root, *_ = survey_dir
+    (root / "flights/F1/gnss.csv").unlink()
+    expect_error(root, "flights/F1/gnss.csv", None, None)
+
+
+def test_two_flights_and_summary(tmp_path):
+    from pyproj import Geod
+
+    lines, tabs = make_tables(flights=("F1", "F2"))
+    root = write_survey(tmp_path / "s", lines, tabs)
+    s = read_survey(root)
+    assert set(s.flights) == {"F1", "F2"}
+    q = survey_summary(s)
+    assert (q["level"] == "flight").sum() == 2 and (q["level"] == "line").sum() == 6
+    ln = q[q["level"] == "line"].set_index("line")
+    np.testing.assert_allclose(ln["gravimeter_rate_hz"], GRAV_HZ, rtol=2e-3)
+    np.testing.assert_allclose(ln["gnss_rate_hz"], GNSS_HZ, rtol=1e-6)
+    np.testing.assert_allclose(ln.loc["0001", "duration_s"], 260.0)
+    assert ln.loc["0001", "gnss_max_gap_s"] == pytest.approx(0.1, abs=1e-6)
+    # length against pyproj's geodesic on the ellipsoid (at h = 0) scaled to 3000 m height
+    gnss = tabs["F1"][1]
+    w = gnss[(gnss["time"] >= T0 + 20) & (gnss["time"] <= T0 + 280)]
+    geod = Geod(ellps="WGS84")
+    ref_km = geod.line_length(w["lon"].to_numpy(), w["lat"].to_numpy()) / 1000.0
+    from app.core.geodesy import radii_of_curvature_m
+    r_m, r_n = radii_of_curvature_m(LAT0)
+    ref_km *= (r_n + 3000.0) / r_n  # east-west track: radius of the parallel grows with height
+    assert ln.loc["0001", "length_km"] == pytest.approx(ref_km, rel=1e-6)
+    # and against the flown speed: 100 m/s × 260 s with the rough radius used to build the track
+    assert ln.loc["0001", "length_km"] == pytest.approx(26.0, rel=2e-3)
+
+
+def test_path_length_meridian_against_pyproj():
+    from pyproj import Geod
+
+    lat = np.linspace(50.0, 51.0, 2001)
+    lon = np.full_like(lat, 10.0)
+    ref = Geod(ellps="WGS84").inv(10.0, 50.0, 10.0, 51.0)[2] / 1000.0
+    assert path_length_km(lat, lon) == pytest.approx(ref, rel=1e-8)
+
+
+# ------------------------------------------------------------------ speed
+
+
+def test_timing_one_million_rows(tmp_path):
+    n = 1_000_000
+    t = np.round(T0 + np.arange(n) / GRAV_HZ, 4)
+    rng = np.random.default_rng(1)
+    g = pd.DataFrame({"time": t, "f_z": 9.81 + 1e-3 * rng.standard_normal(n),
+                      "f_x": 1e-3 * rng.standard_normal(n), "f_y": 1e-3 * rng.standard_normal(n)})
+    m = int(t[-1] - T0) * 10
+    tn = np.round(T0 + np.arange(m) / 10.0, 2)
+    nav = pd.DataFrame({"time": tn, "lat": LAT0, "lon": LON0 + 1e-5 * np.arange(m), "h": 3000.0, "vu": 0.0})
+    lines = pd.DataFrame([{"line": "1", "flight": "F1", "t_start": T0 + 100, "t_end": t[-1] - 100, "kind": "main"}])
+    root = write_survey(tmp_path / "s", lines, {"F1": (g, nav)})
+    t1 = time.perf_counter()
+    s = read_survey(root)
+    dt = time.perf_counter() - t1
+    print(f"read_survey: {n} gravimeter rows + {m} GNSS rows in {dt:.2f} s")
+    assert len(s.flights["F1"].gravimeter) == n
+    assert dt < 30.0  # generous: shared 2-core machine
