@@ -1,0 +1,121 @@
+"""Recognition of the Markov state path (SPEC §2 step 3; seed 000 §4.3).
+
+Uses the same one-switch window emission model as :mod:`app.core.mjls_em`
+(see its module docstring).  The super-state path is a one-to-one function of
+the chain path (the window at ``k = 0`` is constant), so the Viterbi path over
+super-states is the MAP chain path under that model.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from app.core.mjls_em import WindowModel, _layout, emission_loglik, forward_backward
+
+
+def _prepare(x, c, d, Q, R, transition, initial):
+    x = np.asarray(x, dtype=float)
+    if x.ndim != 1 or x.size == 0:
+        raise ValueError("x must be a non-empty 1-D array")
+    if not np.all(np.isfinite(x)):
+        raise ValueError("x contains NaN or infinite values")
+    Q = np.atleast_1d(np.asarray(Q, float))
+    R = np.atleast_1d(np.asarray(R, float))
+    if Q.ndim != 1 or R.ndim != 1 or np.any(~(Q > 0)) or np.any(~(R > 0)):
+        raise ValueError("Q and R must be 1-D arrays of positive variances")
+    N = Q.size * R.size
+    a = np.asarray(transition, float)
+    pi = np.asarray(initial, float).reshape(-1)
+    if a.shape != (N, N) or np.any(a < 0) or not np.allclose(a.sum(1), 1.0, atol=1e-6):
+        raise ValueError(f"transition must be a ({N},{N}) stochastic matrix")
+    if pi.shape != (N,) or np.any(pi < 0) or not np.isclose(pi.sum(), 1.0, atol=1e-6):
+        raise ValueError(f"initial must be a probability vector of length {N}")
+    model = WindowModel(np.atleast_1d(np.asarray(c, float)), np.atleast_1d(np.asarray(d, float)),
+                        Q.size, R.size)
+    data = _layout([x], model.p)
+    logb = emission_loglik(model, data, Q, R)[0]  # (T, U)
+    return model, data, logb, a, pi
+
+
+def viterbi(x, c, d, Q, R, transition, initial) -> np.ndarray:
+    """MAP state path of one line by dynamic programming.
+
+    Parameters
+    ----------
+    x : (T,) decimated sequence of the line.
+    c, d : MA coefficients (K+1,), (L+1,).
+    Q : (N1,) mGal²;  R : (N2,) (cm/s)².
+    transition : (N, N);  initial : (N,) probabilities of ``s_0`` for this line.
+
+    Returns
+    -------
+    ndarray of int, shape (T,)
+        States ``i*N2 + j`` maximising ``P(S | X, Θ)``.
+    """
+    model, _, logb, a, pi = _prepare(x, c, d, Q, R, transition, initial)
+    ch = model.chain
+    with np.errstate(divide="ignore"):
+        logA = np.log(ch.transition(a))
+        init = np.full(ch.n_super, -np.inf)
+        init[ch.const_index] = np.log(pi)
+    T, U = logb.shape
+    back = np.empty((T, U), dtype=np.int64)
+    delta = init + logb[0]
+    for k in range(1, T):
+        cand = delta[:, None] + logA  # (U_from, U_to)
+        back[k] = np.argmax(cand, axis=0)
+        delta = cand[back[k], np.arange(U)] + logb[k]
+    path = np.empty(T, dtype=np.int64)
+    path[-1] = int(np.argmax(delta))
+    for k in range(T - 1, 0, -1):
+        path[k - 1] = back[k, path[k]]
+    return ch.cur[path]
+
+
+def posteriors(x, c, d, Q, R, transition, initial) -> np.ndarray:
+    """Posterior state probabilities ``P(s_k = i | X, Θ)`` of one line, shape (T, N).
+
+    Same arguments as :func:`viterbi`; rows sum to 1.
+    """
+    model, data, logb, a, pi = _prepare(x, c, d, Q, R, transition, initial)
+    ch = model.chain
+    init_super = np.zeros((1, ch.n_super))
+    init_super[0, ch.const_index] = pi
+    gamma, _, _ = forward_backward(logb[None], data.valid, ch.transition(a), init_super)
+    return gamma[0] @ ch.onehot()
+
+
+def recognize_lines(x_list, c, d, Q, R, transition, initial):
+    """Viterbi paths and posteriors for several lines.
+
+    ``initial`` is (W, N) (one row per line) or (N,) shared.  Returns
+    ``(states_list, posteriors_list)``.
+    """
+    pis = np.asarray(initial, float)
+    if pis.ndim == 1:
+        pis = np.broadcast_to(pis, (len(x_list), pis.size))
+    if pis.shape[0] != len(x_list):
+        raise ValueError("initial must have one row per line")
+    states, probs = [], []
+    for w, x in enumerate(x_list):
+        try:
+            states.append(viterbi(x, c, d, Q, R, transition, pis[w]))
+            probs.append(posteriors(x, c, d, Q, R, transition, pis[w]))
+        except ValueError as exc:
+            raise ValueError(f"line {w}: {exc}") from None
+    return states, probs
+
+
+def loglikelihood(x, c, d, Q, R, transition, initial) -> float:
+    """Log-likelihood ``log p(X | Θ)`` of one line under the window model.
+
+    Same arguments as :func:`viterbi`.  Summed over lines this is the EM
+    objective of :func:`app.core.mjls_em.fit_em` (useful e.g. to compare MA
+    orders or ``m`` by BIC).
+    """
+    model, data, logb, a, pi = _prepare(x, c, d, Q, R, transition, initial)
+    ch = model.chain
+    init_super = np.zeros((1, ch.n_super))
+    init_super[0, ch.const_index] = pi
+    _, _, ll = forward_backward(logb[None], data.valid, ch.transition(a), init_super)
+    return float(ll[0])
