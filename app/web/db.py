@@ -1,0 +1,123 @@
+"""Persistent store: SQLAlchemy models for surveys, flights, lines, jobs and results.
+
+Metadata lives in the database (SQLite by default); arrays live in files under the
+data directory.  A survey points to its current input snapshot (``input_dir``) and
+to its current result (``current_result_id``); both pointers are switched in one
+transaction only after the new files are complete, so a failed upload or job never
+leaves a survey half-written.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+from typing import Any
+
+from sqlalchemy import JSON, Float, ForeignKey, Integer, String, Text, create_engine, event
+from sqlalchemy.engine import Engine
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship, sessionmaker
+
+JOB_STATES = ("queued", "running", "succeeded", "failed", "cancelled")
+ACTIVE_STATES = ("queued", "running")
+
+
+def utcnow() -> dt.datetime:
+    return dt.datetime.now(dt.timezone.utc).replace(tzinfo=None)
+
+
+class Base(DeclarativeBase):
+    pass
+
+
+class Survey(Base):
+    __tablename__ = "surveys"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    name: Mapped[str] = mapped_column(String(200))
+    created_at: Mapped[dt.datetime] = mapped_column(default=utcnow)
+    input_dir: Mapped[str | None] = mapped_column(Text, nullable=True)  # current input snapshot
+    current_result_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    crs: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    flights: Mapped[list["Flight"]] = relationship(back_populates="survey", cascade="all, delete-orphan",
+                                                   order_by="Flight.name")
+    lines: Mapped[list["Line"]] = relationship(back_populates="survey", cascade="all, delete-orphan",
+                                               order_by="Line.id")
+
+
+class Flight(Base):
+    __tablename__ = "flights"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    survey_id: Mapped[int] = mapped_column(ForeignKey("surveys.id"), index=True)
+    name: Mapped[str] = mapped_column(String(200))
+    qc: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    survey: Mapped[Survey] = relationship(back_populates="flights")
+
+
+class Line(Base):
+    __tablename__ = "lines"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    survey_id: Mapped[int] = mapped_column(ForeignKey("surveys.id"), index=True)
+    line: Mapped[str] = mapped_column(String(200))
+    flight: Mapped[str] = mapped_column(String(200))
+    kind: Mapped[str] = mapped_column(String(16))
+    t_start: Mapped[float] = mapped_column(Float)
+    t_end: Mapped[float] = mapped_column(Float)
+    qc: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    survey: Mapped[Survey] = relationship(back_populates="lines")
+
+
+class Job(Base):
+    __tablename__ = "jobs"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    survey_id: Mapped[int] = mapped_column(ForeignKey("surveys.id"), index=True)
+    kind: Mapped[str] = mapped_column(String(16))
+    params: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    status: Mapped[str] = mapped_column(String(16), default="queued", index=True)
+    progress: Mapped[float] = mapped_column(Float, default=0.0)
+    stage: Mapped[str | None] = mapped_column(String(200), nullable=True)
+    em_iterations: Mapped[list[dict[str, Any]]] = mapped_column(JSON, default=list)
+    error: Mapped[str | None] = mapped_column(Text, nullable=True)
+    backend: Mapped[str] = mapped_column(String(16), default="local")
+    worker_pid: Mapped[int | None] = mapped_column(Integer, nullable=True)
+    input_dir: Mapped[str | None] = mapped_column(Text, nullable=True)
+    out_dir: Mapped[str | None] = mapped_column(Text, nullable=True)
+    created_at: Mapped[dt.datetime] = mapped_column(default=utcnow)
+    started_at: Mapped[dt.datetime | None] = mapped_column(nullable=True)
+    finished_at: Mapped[dt.datetime | None] = mapped_column(nullable=True)
+
+
+class Result(Base):
+    __tablename__ = "results"
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    survey_id: Mapped[int] = mapped_column(ForeignKey("surveys.id"), index=True)
+    job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id"))
+    dir: Mapped[str] = mapped_column(Text)
+    report: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    created_at: Mapped[dt.datetime] = mapped_column(default=utcnow)
+
+
+_ENGINES: dict[str, Engine] = {}
+
+
+def get_engine(url: str) -> Engine:
+    """One engine per URL and process; SQLite in WAL mode with a generous busy timeout
+    so that worker processes and the server can write concurrently."""
+    eng = _ENGINES.get(url)
+    if eng is None:
+        if url.startswith("sqlite"):
+            eng = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
+
+            @event.listens_for(eng, "connect")
+            def _pragmas(dbapi_conn, _rec):  # pragma: no cover - trivial
+                cur = dbapi_conn.cursor()
+                cur.execute("PRAGMA journal_mode=WAL")
+                cur.execute("PRAGMA synchronous=NORMAL")
+                cur.execute("PRAGMA foreign_keys=ON")
+                cur.close()
+        else:
+            eng = create_engine(url, pool_pre_ping=True)
+        Base.metadata.create_all(eng)
+        _ENGINES[url] = eng
+    return eng
+
+
+def session_factory(url: str) -> sessionmaker:
+    return sessionmaker(bind=get_engine(url), expire_on_commit=False)

@@ -1,0 +1,288 @@
+"""Processing jobs: the worker-side job function and the server-side job manager.
+
+The same function, :func:`execute_job`, runs in a local worker process (default:
+one ``multiprocessing`` *spawn* process per job) or on a Dask worker (when
+``AEROGRAV_DASK_SCHEDULER`` is set).  It reports progress, the stage and every EM
+iteration through the database, writes the outputs into a job-specific directory
+(``<out_dir>.partial`` renamed to ``<out_dir>`` when complete) and, only when it
+succeeded, switches the survey's result pointer in the same transaction that marks
+the job succeeded.  Every status change is a conditional update, so a job cancelled
+or declared dead by the server can never overwrite the survey's results afterwards.
+
+The server-side :class:`JobManager` starts workers, cancels them, and watches them:
+a worker process that dies (killed, out of memory, segfault) turns its job into
+``failed`` with the reason; the survey and its previous results are untouched.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import multiprocessing
+import os
+import shutil
+import signal
+import threading
+import time
+import traceback
+from pathlib import Path
+from typing import Any, Callable
+
+from sqlalchemy import select, update
+
+from .db import ACTIVE_STATES, Job, Result, Survey, session_factory, utcnow
+
+log = logging.getLogger("aerograv.web.jobs")
+
+
+class JobCancelled(Exception):
+    """Raised inside the worker when the job was cancelled meanwhile."""
+
+
+def load_entry(entry: str) -> Callable:
+    """Resolve ``'module:function'``."""
+    mod, _, fn = entry.partition(":")
+    return getattr(importlib.import_module(mod), fn)
+
+
+def _jsonable(x: Any) -> Any:
+    """numpy scalars/arrays and nested containers → plain JSON values."""
+    try:
+        import numpy as np
+    except ImportError:  # pragma: no cover
+        np = None
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_jsonable(v) for v in x]
+    if np is not None:
+        if isinstance(x, np.ndarray):
+            return _jsonable(x.tolist())
+        if isinstance(x, np.generic):
+            return x.item()
+    if isinstance(x, float) and x != x:  # NaN
+        return None
+    return x
+
+
+def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: str,
+                kind: str, params: dict[str, Any]) -> str:
+    """Run one job to completion (in a worker).  Returns the final status."""
+    Session = session_factory(db_url)
+    with Session() as s:
+        res = s.execute(update(Job).where(Job.id == job_id, Job.status == "queued")
+                        .values(status="running", started_at=utcnow(), worker_pid=os.getpid(),
+                                stage="starting", progress=0.0))
+        s.commit()
+        if res.rowcount != 1:
+            return "not-started"
+
+    em_rows: list[dict[str, Any]] = []
+    last = {"t": 0.0, "stage": None}
+
+    def write(values: dict[str, Any]) -> None:
+        with Session() as s:
+            r = s.execute(update(Job).where(Job.id == job_id, Job.status == "running").values(**values))
+            s.commit()
+            if r.rowcount != 1:
+                raise JobCancelled()
+
+    def progress(stage: str, fraction: float, info: dict | None = None) -> None:
+        now = time.monotonic()
+        values: dict[str, Any] = {}
+        if info and "em_iteration" in info:
+            em_rows.append(_jsonable(dict(info["em_iteration"])))
+            values["em_iterations"] = list(em_rows)
+        if values or stage != last["stage"] or now - last["t"] > 0.3:
+            values.update(stage=str(stage), progress=float(min(max(fraction, 0.0), 0.999)))
+            last["t"], last["stage"] = now, stage
+            write(values)
+
+    out = Path(out_dir)
+    partial = out.with_name(out.name + ".partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    partial.mkdir(parents=True)
+    try:
+        fn = load_entry(entry)
+        report = fn(input_dir, str(partial), overrides=params or None, progress=progress)
+        if out.exists():
+            shutil.rmtree(out)
+        os.replace(partial, out)
+        with Session() as s:
+            r = s.execute(update(Job).where(Job.id == job_id, Job.status == "running")
+                          .values(status="succeeded", progress=1.0, stage="done", finished_at=utcnow(),
+                                  em_iterations=list(em_rows) if em_rows else Job.em_iterations))
+            if r.rowcount != 1:
+                s.rollback()
+                raise JobCancelled()
+            job = s.get(Job, job_id)
+            result = Result(survey_id=job.survey_id, job_id=job_id, dir=str(out),
+                            report=_jsonable(report) if isinstance(report, dict) else {})
+            s.add(result)
+            s.flush()
+            s.execute(update(Survey).where(Survey.id == job.survey_id).values(current_result_id=result.id))
+            s.commit()
+        return "succeeded"
+    except JobCancelled:
+        shutil.rmtree(partial, ignore_errors=True)
+        return "cancelled"
+    except BaseException as exc:  # noqa: BLE001 - every failure is reported on the job
+        shutil.rmtree(partial, ignore_errors=True)
+        msg = str(exc) or type(exc).__name__
+        if type(exc).__name__ != "InputError":
+            msg = f"{type(exc).__name__}: {msg}"
+            log.error("job %s failed:\n%s", job_id, traceback.format_exc())
+        with Session() as s:
+            s.execute(update(Job).where(Job.id == job_id, Job.status == "running")
+                      .values(status="failed", error=msg[:4000], finished_at=utcnow()))
+            s.commit()
+        if isinstance(exc, (KeyboardInterrupt, SystemExit)):
+            raise
+        return "failed"
+
+
+def _death_reason(exitcode: int | None) -> str:
+    if exitcode is None:
+        return "worker process vanished"
+    if exitcode < 0:
+        try:
+            name = signal.Signals(-exitcode).name
+        except ValueError:
+            name = f"signal {-exitcode}"
+        return f"worker process died: killed by {name}"
+    return f"worker process died with exit code {exitcode}"
+
+
+class JobManager:
+    """Starts, cancels and watches jobs (local processes or a Dask cluster)."""
+
+    def __init__(self, settings, Session):
+        self.settings = settings
+        self.Session = Session
+        self._procs: dict[int, multiprocessing.process.BaseProcess] = {}
+        self._futures: dict[int, Any] = {}
+        self._lock = threading.Lock()
+        self._client = None
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    # -- lifecycle ---------------------------------------------------------
+    def recover(self) -> int:
+        """At start-up: jobs left queued/running by a previous server are failed."""
+        with self.Session() as s:
+            r = s.execute(update(Job).where(Job.status.in_(ACTIVE_STATES))
+                          .values(status="failed", error="server restarted", finished_at=utcnow()))
+            s.commit()
+            return r.rowcount or 0
+
+    def start(self) -> None:
+        self._thread = threading.Thread(target=self._monitor, name="aerograv-job-monitor", daemon=True)
+        self._thread.start()
+
+    def shutdown(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+        with self._lock:
+            procs = list(self._procs.values())
+            self._procs.clear()
+        for p in procs:  # the next start-up marks their jobs "server restarted"
+            if p.is_alive():
+                p.terminate()
+            p.join(timeout=5)
+        if self._client is not None:
+            try:
+                self._client.close()
+            except Exception:  # pragma: no cover
+                pass
+            self._client = None
+
+    # -- submission --------------------------------------------------------
+    @property
+    def backend(self) -> str:
+        return "dask" if self.settings.dask_scheduler else "local"
+
+    def _dask_client(self):
+        if self._client is None:
+            from distributed import Client
+            self._client = Client(self.settings.dask_scheduler, set_as_default=False, timeout="20s")
+        return self._client
+
+    def submit(self, job: Job) -> None:
+        args = (job.id, self.settings.db_url, self.settings.pipeline_entry, job.input_dir, job.out_dir,
+                job.kind, dict(job.params or {}))
+        with self._lock:
+            if self.backend == "dask":
+                fut = self._dask_client().submit(execute_job, *args, pure=False, key=f"aerograv-job-{job.id}")
+                self._futures[job.id] = fut
+            else:
+                ctx = multiprocessing.get_context("spawn")
+                p = ctx.Process(target=execute_job, args=args, name=f"aerograv-job-{job.id}")
+                p.start()
+                self._procs[job.id] = p
+
+    def cancel(self, job_id: int) -> bool:
+        """Mark the job cancelled (if still active) and stop its worker."""
+        with self.Session() as s:
+            r = s.execute(update(Job).where(Job.id == job_id, Job.status.in_(ACTIVE_STATES))
+                          .values(status="cancelled", finished_at=utcnow(), stage="cancelled"))
+            s.commit()
+            changed = (r.rowcount or 0) == 1
+        with self._lock:
+            p = self._procs.get(job_id)
+            fut = self._futures.get(job_id)
+        if p is not None and p.is_alive():
+            p.terminate()
+        if fut is not None:
+            fut.cancel()  # a running Dask task stops at its next progress report
+        return changed
+
+    def worker_pid(self, job_id: int) -> int | None:
+        with self._lock:
+            p = self._procs.get(job_id)
+        return p.pid if p is not None else None
+
+    # -- watching ----------------------------------------------------------
+    def _fail_if_active(self, job_id: int, reason: str) -> None:
+        with self.Session() as s:
+            s.execute(update(Job).where(Job.id == job_id, Job.status.in_(ACTIVE_STATES))
+                      .values(status="failed", error=reason, finished_at=utcnow()))
+            s.commit()
+        out = None
+        with self.Session() as s:
+            job = s.get(Job, job_id)
+            out = job.out_dir if job else None
+        if out:
+            shutil.rmtree(out + ".partial", ignore_errors=True)
+
+    def check(self) -> None:
+        """One pass of the monitor (also called by tests)."""
+        with self._lock:
+            dead = [(jid, p) for jid, p in self._procs.items() if not p.is_alive()]
+            for jid, _ in dead:
+                del self._procs[jid]
+            done = [(jid, f) for jid, f in self._futures.items() if f.done()]
+            for jid, _ in done:
+                del self._futures[jid]
+        for jid, p in dead:
+            p.join(timeout=1)
+            self._fail_if_active(jid, _death_reason(p.exitcode))
+        for jid, f in done:
+            if f.status == "error":
+                try:
+                    exc = f.exception(timeout=1)
+                    reason = f"dask worker failed: {type(exc).__name__}: {exc}"
+                except Exception as e:  # pragma: no cover
+                    reason = f"dask worker failed: {e}"
+            elif f.status == "cancelled":
+                reason = "dask task cancelled or lost"
+            else:
+                reason = "job ended without reporting its result"
+            self._fail_if_active(jid, reason)
+
+    def _monitor(self) -> None:
+        while not self._stop.wait(self.settings.poll_interval_s):
+            try:
+                self.check()
+            except Exception:  # pragma: no cover - keep watching
+                log.exception("job monitor pass failed")

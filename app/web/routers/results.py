@@ -1,0 +1,269 @@
+"""Results of the survey's current (last successful) job: lines, profiles, the
+recognition map with interactive NL-means re-smoothing, the grid and exports."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pandas as pd
+from fastapi import APIRouter, Depends, HTTPException, Query
+from fastapi.responses import FileResponse, Response
+from sqlalchemy.orm import Session
+
+from ..db import Line, Result, Survey
+from ..deps import get_cache, get_db, get_survey_or_404
+from ..schemas import GridOut, LineOut, ProfileOut, RecognitionOut
+from ..store import ResultCache
+
+router = APIRouter(prefix="/api/surveys", tags=["results"])
+
+EXPORTS = {
+    "geotiff": ("grid.tif", "image/tiff"),
+    "netcdf": ("grid.nc", "application/x-netcdf"),
+    "surfer": ("grid.grd", "text/plain"),
+    "csv": ("grid.csv", "text/csv"),
+    "parquet": ("lines.parquet", "application/vnd.apache.parquet"),
+    "crossovers": ("crossovers.csv", "text/csv"),
+    "report": ("report.json", "application/json"),
+}
+
+
+def _json(obj: Any) -> Response:
+    return Response(json.dumps(obj, separators=(",", ":"), allow_nan=False), media_type="application/json")
+
+
+def _clean(a, nd: int = 3) -> list:
+    """Array → JSON list, rounded, NaN/inf → null."""
+    a = np.asarray(a, dtype=float)
+    r = np.round(a, nd)
+    ok = np.isfinite(r)
+    if ok.all():
+        return r.tolist()
+    out = r.astype(object)
+    out[~ok] = None
+    return out.tolist()
+
+
+def _ints(a) -> list:
+    a = np.asarray(a)
+    if a.dtype.kind == "f":
+        ok = np.isfinite(a)
+        out = np.where(ok, a, -1).astype(int).astype(object)
+        out[~ok] = None
+        return out.tolist()
+    return a.astype(int).tolist()
+
+
+def current_result(s: Survey, db: Session) -> Result:
+    if s.current_result_id is None:
+        raise HTTPException(404, f"survey {s.id} has no results yet: run a 'process' job")
+    r = db.get(Result, s.current_result_id)
+    if r is None or not Path(r.dir).is_dir():
+        raise HTTPException(404, f"the results of survey {s.id} are missing on disk")
+    return r
+
+
+# ---------------------------------------------------------------- loaders (cached)
+def _load_lines(r: Result) -> dict[str, Any]:
+    df = pd.read_parquet(Path(r.dir) / "lines.parquet")
+    df["line"] = df["line"].astype(str)
+    groups = {k: g.sort_values("time").reset_index(drop=True) for k, g in df.groupby("line", sort=False)}
+    return {"groups": groups}
+
+
+def _load_identification(r: Result) -> dict:
+    p = Path(r.dir) / "identification.json"
+    return json.loads(p.read_text()) if p.exists() else {}
+
+
+class _FallbackRecognitionMap:  # used only if app.core.nlmeans is unavailable
+    def __init__(self, easting_km, northing_km, max_rho_km: float = 15.0):
+        from scipy.spatial import cKDTree
+        xy = np.column_stack([easting_km, northing_km])
+        self.n = len(xy)
+        self.D = cKDTree(xy).sparse_distance_matrix(cKDTree(xy), max_rho_km, output_type="coo_matrix")
+
+    def smooth(self, labels_or_probs, h_per_km, rho_km, mode="soft"):
+        import scipy.sparse as sp
+        x = np.asarray(labels_or_probs)
+        if x.ndim == 1:
+            n_states = int(x.max()) + 1
+            x = np.eye(n_states)[x.astype(int)]
+        if mode == "hard":
+            x = np.eye(x.shape[1])[np.argmax(x, axis=1)]
+        D = self.D
+        keep = (D.data <= rho_km) & (D.row != D.col)
+        W = sp.coo_matrix((np.exp(-h_per_km * D.data[keep]), (D.row[keep], D.col[keep])), shape=D.shape).tocsr()
+        W = W + sp.identity(self.n, format="csr")  # each point weighs itself with d = 0
+        num = W @ x
+        probs = num / np.maximum(num.sum(axis=1, keepdims=True), 1e-300)
+        return probs, np.argmax(probs, axis=1)
+
+
+def _load_recognition(r: Result) -> dict[str, Any]:
+    df = pd.read_parquet(Path(r.dir) / "recognition.parquet")
+    pcols = sorted([c for c in df.columns if c.startswith("p_")], key=lambda c: int(c[2:]))
+    e = df["easting_km"].to_numpy(float)
+    n = df["northing_km"].to_numpy(float)
+    try:
+        from app.core.nlmeans import RecognitionMap
+        impl = "app.core.nlmeans"
+    except ImportError:
+        RecognitionMap, impl = _FallbackRecognitionMap, "fallback"
+    rmap = RecognitionMap(e, n, max_rho_km=15)
+    probs = df[pcols].to_numpy(float) if pcols else None
+    raw = df["state_raw"].to_numpy(int)
+    ident = _load_identification(r)
+    states = ident.get("states") or []
+    n_states = len(pcols) or len(states) or int(raw.max()) + 1
+    coords = {"easting_km": _clean(e, 3), "northing_km": _clean(n, 3), "line": df["line"].astype(str).tolist(),
+              "state_raw": raw.tolist(), "time": _clean(df["time"], 2) if "time" in df else None}
+    return {"map": rmap, "impl": impl, "probs": probs, "raw": raw, "n_states": n_states,
+            "states": states, "coords": coords, "n": len(df)}
+
+
+# ---------------------------------------------------------------- endpoints
+@router.get("/{survey_id}/lines", response_model=list[LineOut])
+def list_lines(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+               cache: ResultCache = Depends(get_cache)) -> list[LineOut]:
+    """Survey lines with QC and, once processed, statistics of the final anomaly (mGal)."""
+    groups: dict = {}
+    if s.current_result_id is not None:
+        try:
+            r = current_result(s, db)
+            groups = cache.get(("lines", r.id), lambda: _load_lines(r))["groups"]
+        except HTTPException:
+            groups = {}
+    out = []
+    for l in s.lines:
+        stats = None
+        g = groups.get(l.line)
+        if g is not None and len(g):
+            dg = g["dg_mgal"].to_numpy(float)
+            stats = {"n": int(len(g)), "dg_mean_mgal": _clean([np.nanmean(dg)])[0],
+                     "dg_std_mgal": _clean([np.nanstd(dg)])[0], "dg_min_mgal": _clean([np.nanmin(dg)])[0],
+                     "dg_max_mgal": _clean([np.nanmax(dg)])[0],
+                     "sigma_mean_mgal": _clean([np.nanmean(g["dg_std_mgal"])])[0] if "dg_std_mgal" in g else None}
+        out.append(LineOut(id=l.id, line=l.line, flight=l.flight, kind=l.kind, t_start=l.t_start, t_end=l.t_end,
+                           qc=l.qc or {}, stats=stats))
+    return out
+
+
+@router.get("/{survey_id}/lines/{line}", response_model=ProfileOut)
+def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, description="decimate to about this many points"),
+                 z_lowpass_s: float = Query(20.0, ge=0, le=600, description="moving-average window applied to z (s)"),
+                 s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+                 cache: ResultCache = Depends(get_cache)):
+    """Profile series of one line: z low-passed, final δg ± σ, stationary, FIR, state (decimated)."""
+    r = current_result(s, db)
+    groups = cache.get(("lines", r.id), lambda: _load_lines(r))["groups"]
+    g = groups.get(line)
+    if g is None:
+        raise HTTPException(404, f"line {line!r} not in the results of survey {s.id}")
+    n = len(g)
+    t = g["time"].to_numpy(float)
+    e, nn = g["easting_km"].to_numpy(float), g["northing_km"].to_numpy(float)
+    dist = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(e), np.diff(nn)))])
+    z = g["z_mgal"].to_numpy(float)
+    dt = float(np.median(np.diff(t))) if n > 1 else 0.1
+    w = max(1, int(round(z_lowpass_s / dt))) if z_lowpass_s > 0 else 1
+    if w > 1:
+        from scipy.ndimage import uniform_filter1d
+        zf = np.where(np.isfinite(z), z, np.nanmean(z))
+        z = uniform_filter1d(zf, size=min(w, n), mode="nearest")
+    step = max(1, math.ceil(n / max_points))
+    sl = slice(None, None, step)
+
+    def col(name):
+        return _clean(g[name].to_numpy(float)[sl]) if name in g else [None] * len(t[sl])
+
+    return _json(ProfileOut(
+        survey_id=s.id, line=line, flight=str(g["flight"].iloc[0]) if "flight" in g else "",
+        kind=str(g["kind"].iloc[0]) if "kind" in g else "", n_total=n, step=step, z_lowpass_s=z_lowpass_s,
+        time=_clean(t[sl], 2), distance_km=_clean(dist[sl], 4), z_lowpassed=_clean(z[sl]),
+        dg=col("dg_mgal"), dg_std=col("dg_std_mgal"), dg_stationary=col("dg_stationary_mgal"),
+        dg_fir=col("dg_fir_mgal"), dg_unleveled=col("dg_unleveled_mgal"),
+        state=_ints(g["state"].to_numpy()[sl]) if "state" in g else [None] * len(t[sl]),
+    ).model_dump())
+
+
+@router.get("/{survey_id}/recognition", response_model=RecognitionOut)
+def recognition(h: float = Query(1.4, ge=0, le=100, description="NL-means weight decay h (1/km)"),
+                rho: float = Query(5.0, ge=0, le=15, description="NL-means radius ρ (km), at most 15"),
+                mode: Literal["hard", "soft"] = Query("soft", description="smooth hard labels or probabilities"),
+                coords: bool = Query(True, description="include positions, lines and raw states"),
+                s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+                cache: ResultCache = Depends(get_cache)):
+    """Recognition states re-smoothed with NL-means at (h, ρ), computed synchronously."""
+    t0 = time.perf_counter()
+    r = current_result(s, db)
+    rec = cache.get(("recognition", r.id), lambda: _load_recognition(r))
+    src = rec["probs"] if (mode == "soft" and rec["probs"] is not None) else rec["raw"]
+    probs, labels = rec["map"].smooth(src, h, rho, mode)
+    probs = np.asarray(probs, float)
+    pmax = probs.max(axis=1) if probs.ndim == 2 else np.ones(len(labels))
+    body = {"survey_id": s.id, "result_id": r.id, "h": h, "rho": rho, "mode": mode, "n_states": rec["n_states"],
+            "states": rec["states"], "n_points": rec["n"], "smoother": rec["impl"],
+            "state": np.asarray(labels).astype(int).tolist(), "p_max": _clean(pmax, 3)}
+    if coords:
+        body.update(rec["coords"])
+    body["elapsed_ms"] = round(1000 * (time.perf_counter() - t0), 2)
+    return _json(body)
+
+
+def _load_grid(r: Result) -> dict[str, Any]:
+    import xarray as xr
+    with xr.open_dataset(Path(r.dir) / "grid.nc") as ds:
+        ds = ds.load()
+    dg = ds["dg"]
+    ydim, xdim = dg.dims[-2], dg.dims[-1]
+    out = {"easting_km": _clean(ds[xdim].values, 4), "northing_km": _clean(ds[ydim].values, 4),
+           "dg": [_clean(row, 3) for row in dg.values],
+           "dg_std": [_clean(row, 3) for row in ds["dg_std"].values] if "dg_std" in ds else None,
+           "crs": ds.attrs.get("crs") or (ds["crs"].attrs.get("crs_wkt") if "crs" in ds else None)}
+    lines_path = Path(r.dir) / "lines.parquet"
+    tracks = []
+    if lines_path.exists():
+        df = pd.read_parquet(lines_path, columns=["line", "kind", "easting_km", "northing_km", "time"])
+        for name, g in df.groupby("line", sort=False):
+            g = g.sort_values("time")
+            step = max(1, len(g) // 200)
+            tracks.append({"line": str(name), "kind": str(g["kind"].iloc[0]),
+                           "easting_km": _clean(g["easting_km"].to_numpy()[::step], 3),
+                           "northing_km": _clean(g["northing_km"].to_numpy()[::step], 3)})
+    out["lines"] = tracks
+    cx = Path(r.dir) / "crossovers.csv"
+    if cx.exists():
+        c = pd.read_csv(cx)
+        c = c.astype(object).where(pd.notna(c), None)
+        out["crossovers"] = c.to_dict(orient="records")
+    else:
+        out["crossovers"] = []
+    return out
+
+
+@router.get("/{survey_id}/grid", response_model=GridOut)
+def grid(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+         cache: ResultCache = Depends(get_cache)):
+    """Anomaly grid δg and its posterior σ (mGal) with lines and crossovers for overlays."""
+    r = current_result(s, db)
+    g = cache.get(("grid", r.id), lambda: _load_grid(r))
+    return _json({"survey_id": s.id, "result_id": r.id, **g, "report": r.report or {}})
+
+
+@router.get("/{survey_id}/export")
+def export(format: Literal["geotiff", "netcdf", "surfer", "csv", "parquet", "crossovers", "report"] = Query(...),
+           s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db)):
+    """Download a stored output of the current result."""
+    r = current_result(s, db)
+    fname, media = EXPORTS[format]
+    p = Path(r.dir) / fname
+    if not p.exists():
+        raise HTTPException(404, f"{fname} is not among the stored results")
+    safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in s.name)
+    return FileResponse(p, media_type=media, filename=f"{safe}_{fname}")

@@ -1,0 +1,176 @@
+"""Surveys: create, list, import a zipped survey directory, upload flights, QC."""
+
+from __future__ import annotations
+
+import io
+import shutil
+from pathlib import Path
+from typing import Callable
+
+import pandas as pd
+from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from app.io.errors import InputError
+
+from ..db import Flight, Job, Line, Survey
+from ..deps import get_db, get_store, get_survey_or_404, get_survey_reader
+from ..schemas import FlightOut, JobOut, LineOut, QCOut, SurveyCreate, SurveyOut
+from ..store import SAFE_NAME, Store, extract_survey_zip, relativize, survey_qc
+
+router = APIRouter(prefix="/api/surveys", tags=["surveys"])
+
+
+def job_out(j: Job) -> JobOut:
+    return JobOut(id=j.id, survey_id=j.survey_id, kind=j.kind, status=j.status, progress=j.progress or 0.0,
+                  stage=j.stage, em_iterations=j.em_iterations or [], error=j.error, params=j.params or {},
+                  backend=j.backend, created_at=j.created_at, started_at=j.started_at, finished_at=j.finished_at)
+
+
+def survey_out(db: Session, s: Survey) -> SurveyOut:
+    last = db.scalars(select(Job).where(Job.survey_id == s.id).order_by(Job.id.desc()).limit(1)).first()
+    return SurveyOut(id=s.id, name=s.name, created_at=s.created_at, crs=s.crs,
+                     flights=[f.name for f in s.flights], n_lines=len(s.lines), has_input=bool(s.input_dir),
+                     current_result_id=s.current_result_id, last_job=job_out(last) if last else None)
+
+
+def _validate(reader: Callable, root: Path):
+    try:
+        return reader(root)
+    except InputError as e:
+        raise relativize(e, root)
+
+
+def _replace_metadata(db: Session, s: Survey, survey) -> None:
+    flights, lines = survey_qc(survey)
+    s.flights.clear()
+    s.lines.clear()
+    db.flush()
+    for name, qc in flights.items():
+        s.flights.append(Flight(name=name, qc=qc))
+    for ln in lines:
+        s.lines.append(Line(line=ln["line"], flight=ln["flight"], kind=ln["kind"], t_start=ln["t_start"],
+                            t_end=ln["t_end"], qc={**ln["qc"], "track": ln["track"]}))
+    crs = getattr(getattr(getattr(survey, "config", None), "survey", None), "crs", None)
+    if crs:
+        s.crs = crs
+
+
+def _install_snapshot(db: Session, store: Store, s: Survey, staged_root: Path, survey) -> None:
+    """Rename the validated staging dir into place and switch the pointer in one commit."""
+    final = store.new_input_dir(s.id)
+    store.commit_dir(staged_root, final)
+    try:
+        s.input_dir = str(final)
+        _replace_metadata(db, s, survey)
+        db.commit()
+    except Exception:
+        db.rollback()
+        shutil.rmtree(final, ignore_errors=True)
+        raise
+
+
+@router.post("", response_model=SurveyOut, status_code=201)
+def create_survey(body: SurveyCreate, db: Session = Depends(get_db)) -> SurveyOut:
+    """An empty survey; add flights with POST /api/surveys/{id}/flights."""
+    s = Survey(name=body.name)
+    db.add(s)
+    db.commit()
+    return survey_out(db, s)
+
+
+@router.get("", response_model=list[SurveyOut])
+def list_surveys(db: Session = Depends(get_db)) -> list[SurveyOut]:
+    return [survey_out(db, s) for s in db.scalars(select(Survey).order_by(Survey.id))]
+
+
+@router.get("/{survey_id}", response_model=SurveyOut)
+def get_survey(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db)) -> SurveyOut:
+    return survey_out(db, s)
+
+
+@router.post("/import", response_model=SurveyOut, status_code=201)
+def import_survey(file: UploadFile = File(..., description="zip of a survey directory (may be nested one level)"),
+                  db: Session = Depends(get_db), store: Store = Depends(get_store),
+                  reader: Callable = Depends(get_survey_reader)) -> SurveyOut:
+    """Validate a zipped survey directory, then store it atomically."""
+    staging = store.staging_dir()
+    try:
+        root = extract_survey_zip(file.file, staging)
+        survey = _validate(reader, root)
+        name = getattr(getattr(getattr(survey, "config", None), "survey", None), "name", None)
+        if not name or name == "survey":
+            name = Path(file.filename or "survey.zip").stem
+        s = Survey(name=name)
+        db.add(s)
+        db.flush()
+        try:
+            _install_snapshot(db, store, s, root, survey)
+        except Exception:
+            db.rollback()
+            raise
+        return survey_out(db, s)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+def _write_upload(up: UploadFile, dest: Path) -> None:
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    with open(dest, "wb") as fh:
+        shutil.copyfileobj(up.file, fh, 1 << 20)
+
+
+@router.post("/{survey_id}/flights", response_model=SurveyOut, status_code=201)
+def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv (or GT-1A/GT-2A G file)"),
+                  gnss: UploadFile = File(..., description="gnss.csv"),
+                  lines: UploadFile | None = File(None, description="lines.csv rows for this flight"),
+                  flight: str | None = Form(None, description="flight name (directory name)"),
+                  s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+                  store: Store = Depends(get_store), reader: Callable = Depends(get_survey_reader)) -> SurveyOut:
+    """Add (or replace) one flight: the new survey snapshot is validated before it replaces the old one."""
+    name = flight or f"flight{len(s.flights) + 1}"
+    if not SAFE_NAME.match(name):
+        raise HTTPException(422, {"file": None, "row": None, "column": "flight",
+                                  "message": f"flight name {name!r}: use letters, digits, '_', '-', '.'"})
+    staging = store.staging_dir()
+    try:
+        root = staging / "survey"
+        if s.input_dir and Path(s.input_dir).is_dir():
+            shutil.copytree(s.input_dir, root)
+        else:
+            root.mkdir()
+            (root / "survey.toml").write_text(f'[survey]\nname = "{s.name.replace(chr(34), "")}"\n')
+        fdir = root / "flights" / name
+        shutil.rmtree(fdir, ignore_errors=True)
+        _write_upload(gravimeter, fdir / "gravimeter.csv")
+        _write_upload(gnss, fdir / "gnss.csv")
+        if lines is not None:
+            raw = lines.file.read()
+            try:
+                new = pd.read_csv(io.BytesIO(raw), dtype=str, keep_default_na=False)
+            except Exception as e:
+                raise InputError("lines.csv", None, None, f"cannot read the uploaded lines file: {e}")
+            if "flight" not in new.columns:
+                new.insert(1 if len(new.columns) else 0, "flight", name)
+            else:
+                new["flight"] = new["flight"].replace("", name)
+            lp = root / "lines.csv"
+            if lp.exists():
+                old = pd.read_csv(lp, dtype=str, keep_default_na=False)
+                old = old[old["flight"] != name] if "flight" in old.columns else old
+                new = pd.concat([old, new], ignore_index=True).fillna("")
+            new.to_csv(lp, index=False)
+        survey = _validate(reader, root)
+        _install_snapshot(db, store, s, root, survey)
+        return survey_out(db, s)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+
+@router.get("/{survey_id}/qc", response_model=QCOut)
+def survey_qc_view(s: Survey = Depends(get_survey_or_404)) -> QCOut:
+    """Per flight and per line: sampling rates, longest gaps, duration, length."""
+    return QCOut(survey_id=s.id, flights=[FlightOut.model_validate(f) for f in s.flights],
+                 lines=[LineOut(id=l.id, line=l.line, flight=l.flight, kind=l.kind, t_start=l.t_start,
+                                t_end=l.t_end, qc=l.qc or {}) for l in s.lines])

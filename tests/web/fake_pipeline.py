@@ -1,0 +1,122 @@
+"""TEST FIXTURE ONLY: a stand-in for ``app.pipeline.process.process_survey``.
+
+It validates the survey with the real ``read_survey`` and writes SPEC §5-shaped
+outputs quickly and deterministically, reporting progress and EM iterations like
+the real pipeline.  Used for the web tests that exercise job mechanics (kill,
+cancel, concurrency, restart, Dask) where the science does not matter.  The delay
+between progress reports comes from ``AEROGRAV_FAKE_DELAY_S`` (default 0.05 s).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+N_STATES = 2
+
+
+def write_outputs(out: Path, lines_df: pd.DataFrame, crs: str = "EPSG:32657", seed: int = 0) -> dict:
+    """Write lines.parquet, recognition.parquet, identification.json, crossovers.csv, grid.* and
+    report.json from a frame with ``line, flight, kind, time, lat, lon, h, easting_km, northing_km``."""
+    rng = np.random.default_rng(seed)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    df = lines_df.copy()
+    e, n = df["easting_km"].to_numpy(), df["northing_km"].to_numpy()
+    truth = 20 * np.sin(e / 7.0) * np.cos(n / 9.0) + 0.5 * e
+    state = (np.sin(e / 5.0) > 0.3).astype(int)
+    df["z_mgal"] = truth + rng.normal(0, 50, len(df))
+    df["dg_mgal"] = truth + rng.normal(0, 0.3, len(df))
+    df["dg_std_mgal"] = 0.5 + 0.3 * state
+    df["dg_unleveled_mgal"] = df["dg_mgal"] + 1.0
+    df["dg_stationary_mgal"] = truth + rng.normal(0, 0.6, len(df))
+    df["dg_fir_mgal"] = truth + rng.normal(0, 1.0, len(df))
+    df["state"] = state
+    df["Q_mgal2"] = np.where(state == 1, 0.35, 0.04)
+    df["R_cm2s2"] = 1.7
+    df.to_parquet(out / "lines.parquet", index=False)
+
+    # decimated recognition points: every 10th epoch
+    rec = df.groupby("line", sort=False).nth(slice(None, None, 10)).reset_index(drop=True)
+    p1 = 1 / (1 + np.exp(-3 * np.sin(rec["easting_km"].to_numpy() / 5.0) + 0.9)) * 0.8 + rng.uniform(0, 0.2, len(rec))
+    p1 = np.clip(p1, 0, 1)
+    recog = pd.DataFrame({"line": rec["line"], "time": rec["time"], "easting_km": rec["easting_km"],
+                          "northing_km": rec["northing_km"], "x": rng.normal(0, 1, len(rec)),
+                          "state_raw": (p1 > 0.5).astype(int), "state_smoothed": (p1 > 0.5).astype(int),
+                          "p_0": 1 - p1, "p_1": p1})
+    recog.to_parquet(out / "recognition.parquet", index=False)
+
+    ident = {"em": {"iterations": [{"iteration": i, "Q": [0.1, 1.0], "R": [10.0], "objective": -100.0 + i}
+                                   for i in range(3)]},
+             "transition": [[0.98, 0.02], [0.03, 0.97]], "initial": {},
+             "states": [{"index": 0, "Q": 0.041, "R": 1.679}, {"index": 1, "Q": 0.353, "R": 1.679}]}
+    (out / "identification.json").write_text(json.dumps(ident))
+
+    pd.DataFrame({"line_a": ["L1"], "line_b": ["T1"], "easting_km": [float(np.mean(e))],
+                  "northing_km": [float(np.mean(n))], "diff_before_mgal": [1.2],
+                  "diff_after_mgal": [0.1]}).to_csv(out / "crossovers.csv", index=False)
+
+    xs = np.arange(np.floor(e.min()), np.ceil(e.max()) + 1, 1.0)
+    ys = np.arange(np.floor(n.min()) - 1, np.ceil(n.max()) + 2, 1.0)
+    X, Y = np.meshgrid(xs, ys)
+    G = 20 * np.sin(X / 7.0) * np.cos(Y / 9.0) + 0.5 * X
+    S = 0.5 + 0.1 * np.abs(Y - Y.mean())
+    G[0, 0] = np.nan
+    import xarray as xr
+    ds = xr.Dataset({"dg": (("northing_km", "easting_km"), G, {"units": "mGal"}),
+                     "dg_std": (("northing_km", "easting_km"), S, {"units": "mGal"})},
+                    coords={"easting_km": xs, "northing_km": ys}, attrs={"crs": crs})
+    ds.to_netcdf(out / "grid.nc")
+    import rasterio
+    from rasterio.transform import from_origin
+    with rasterio.open(out / "grid.tif", "w", driver="GTiff", height=len(ys), width=len(xs), count=1,
+                       dtype="float32", crs=crs, nodata=np.nan,
+                       transform=from_origin((xs[0] - 0.5) * 1000, (ys[-1] + 0.5) * 1000, 1000, 1000)) as dst:
+        dst.write(G[::-1].astype("float32"), 1)
+    with open(out / "grid.grd", "w") as fh:
+        fh.write(f"DSAA\n{len(xs)} {len(ys)}\n{xs[0]} {xs[-1]}\n{ys[0]} {ys[-1]}\n{np.nanmin(G)} {np.nanmax(G)}\n")
+        for row in np.where(np.isnan(G), 1.70141e38, G):
+            fh.write(" ".join(f"{v:.4f}" for v in row) + "\n")
+    pd.DataFrame({"easting_km": X.ravel(), "northing_km": Y.ravel(), "dg_mgal": G.ravel(),
+                  "dg_std_mgal": S.ravel()}).to_csv(out / "grid.csv", index=False)
+    report = {"crossover_rms_before_mgal": 1.2, "crossover_rms_after_mgal": 0.1, "n_lines": int(df["line"].nunique()),
+              "fake": True}
+    (out / "report.json").write_text(json.dumps(report))
+    return report
+
+
+def process_survey(survey_dir, out_dir, overrides=None, progress=None) -> dict:
+    from app.io.survey import read_survey
+
+    delay = float(os.environ.get("AEROGRAV_FAKE_DELAY_S", "0.05"))
+    cb = progress or (lambda *a, **k: None)
+    cb("ingest", 0.05, None)
+    survey = read_survey(survey_dir, overrides)
+    frames = []
+    for row in survey.lines.itertuples(index=False):
+        g = survey.flights[row.flight].gnss
+        m = (g["time"] >= row.t_start) & (g["time"] <= row.t_end)
+        d = g.loc[m, ["time", "lat", "lon", "h"]].copy()
+        d.insert(0, "kind", row.kind)
+        d.insert(0, "flight", row.flight)
+        d.insert(0, "line", str(row.line))
+        frames.append(d)
+    df = pd.concat(frames, ignore_index=True)
+    lat0 = df["lat"].mean()
+    df["easting_km"] = (df["lon"] - df["lon"].min()) * 111.32 * np.cos(np.deg2rad(lat0))
+    df["northing_km"] = (df["lat"] - df["lat"].min()) * 110.57
+    for i in range(3):
+        time.sleep(delay)
+        cb("identification", 0.2 + 0.15 * i, {"em_iteration": {
+            "iteration": i, "Q": [0.1 / (i + 1), 1.0 / (i + 1)], "R": [10.0 / (i + 1)], "objective": -100.0 + i,
+            "transition": [[0.98, 0.02], [0.03, 0.97]]}})
+    for k in range(10):
+        time.sleep(delay)
+        cb("filtering", 0.7 + 0.02 * k, None)
+    cb("outputs", 0.95, None)
+    return write_outputs(out_dir, df, crs=survey.config.survey.crs or "EPSG:32657")
