@@ -1,0 +1,295 @@
+"""Moving-average approximation on the decimated grid (seed 000 eq. 13–14).
+
+After :func:`app.core.regularize.regularize_line`, each component of the
+decimated ``x`` is an exactly known finite moving average of the *full-rate*
+white noises (``q`` in mGal per GNSS step, ``r`` in cm/s), with impulse response
+``g`` from :func:`app.core.regularize.component_filters`.  Its exact decimated
+autocovariance per unit variance is ``γ_j = Σ_i g_i g_{i+jn}``, zero for
+``|j| > J = ⌊(len(g) − 1)/n⌋``.  We approximate it by a short MA driven by
+decimated white noises of the *same* variances Q and R::
+
+    x(τ_k) = Σ_{l=0..K} c_l q'(τ_{k−l}) + Σ_{l=0..L} d_l r'(τ_{k−l}),
+    Var q' = Q (mGal², full-rate meaning),  Var r' = R ((cm/s)²),
+
+so all scaling lives in ``c`` (dimensionless) and ``d`` (mGal per cm/s), and
+nothing depends on Q or R.
+
+Fit: least squares in the spectral domain,
+``min_c ∫_{−π}^{π} (|C(e^{iω})|² − S(ω))² dω`` with ``S(ω) = Σ_j γ_j e^{−iωj}``;
+by Parseval this equals ``2π Σ_{j∈ℤ} (Σ_l c_l c_{l+j} − γ_j)²``, which is what is
+minimised (exactly, no frequency grid).  The start point is the minimum-phase
+spectral factor (Fejér–Riesz, from the roots of the autocovariance polynomial)
+truncated to the order; for order ≥ J the factor is exact.
+
+Order criterion: the smallest order whose relative spectral misfit
+``‖|C|² − S‖₂ / ‖S‖₂`` (L2 over ω, = two-sided L2 norm of the autocovariance
+error) is below ``tol`` (default 1 %), capped at ``max_order`` (default 20).
+Only second-order statistics matter: the coefficients are a minimum-phase-like
+factor, their sign and phase carry no meaning.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import optimize, signal
+
+from app.core.regularize import RegularizationDesign, component_filters
+
+DEFAULT_TOL = 0.01
+DEFAULT_MAX_ORDER = 20
+
+
+@dataclass(frozen=True)
+class MAModel:
+    """Decimated mixture-of-MA model ``x_k = Σ c_l q_{k−l} + Σ d_l r_{k−l}``.
+
+    Attributes
+    ----------
+    c : ndarray, shape (K+1,)
+        Anomaly coefficients (dimensionless: Var q' = Q, mGal² per GNSS step).
+    d : ndarray, shape (L+1,)
+        GNSS-noise coefficients, mGal per (cm/s) (Var r' = R, (cm/s)²).
+    K, L : int
+        MA orders; ``p = max(K, L)`` is the correlation radius.
+    dt_dec_s : float
+        Decimated step, s.
+    m : int
+        Difference order the model was built for.
+    misfit_q, misfit_r : float
+        Relative L2 spectral misfit of each component (0.01 = 1 %).
+    """
+
+    c: np.ndarray
+    d: np.ndarray
+    K: int
+    L: int
+    p: int
+    dt_dec_s: float
+    m: int
+    misfit_q: float
+    misfit_r: float
+
+
+def decimated_autocovariance(g: np.ndarray, n: int) -> np.ndarray:
+    """Exact autocovariance of ``y[kn]``, ``y = g * w`` with unit white ``w``.
+
+    Returns
+    -------
+    ndarray, shape (J+1,)
+        ``γ_j = Σ_i g_i g_{i+jn}`` for ``j = 0..J``, ``J = ⌊(len(g) − 1)/n⌋``.
+    """
+    g = np.asarray(g, dtype=float)
+    full = np.correlate(g, g, mode="full")  # lags −(N−1)..N−1
+    mid = g.size - 1
+    return full[mid::n].copy()
+
+
+def ma_autocovariance(coef: np.ndarray, maxlag: int | None = None) -> np.ndarray:
+    """Autocovariance ``Σ_l b_l b_{l+j}``, ``j = 0..maxlag`` (default len−1), unit noise."""
+    b = np.asarray(coef, dtype=float)
+    full = np.correlate(b, b, mode="full")[b.size - 1:]
+    if maxlag is None:
+        return full
+    out = np.zeros(int(maxlag) + 1)
+    k = min(out.size, full.size)
+    out[:k] = full[:k]
+    return out
+
+
+def _weights(n: int) -> np.ndarray:
+    w = np.full(n, np.sqrt(2.0))
+    w[0] = 1.0
+    return w
+
+
+def _misfit(acov_model: np.ndarray, gamma: np.ndarray) -> float:
+    size = max(acov_model.size, gamma.size)
+    a = np.zeros(size)
+    a[:acov_model.size] = acov_model
+    g = np.zeros(size)
+    g[:gamma.size] = gamma
+    w = _weights(size)
+    return float(np.linalg.norm(w * (a - g)) / np.linalg.norm(w * g))
+
+
+def spectral_factor(gamma: np.ndarray) -> np.ndarray:
+    """Minimum-phase MA factor ``b`` (len J+1) with ``Σ_l b_l b_{l+j} ≈ γ_j``.
+
+    From the roots of ``Σ_{|j|≤J} γ_|j| z^{J+j}`` inside the unit circle.
+    """
+    gamma = np.asarray(gamma, dtype=float)
+    J = gamma.size - 1
+    if J == 0:
+        return np.array([np.sqrt(max(gamma[0], 0.0))])
+    poly = np.concatenate([gamma[:0:-1], gamma])
+    roots = np.roots(poly)
+    roots = roots[np.argsort(np.abs(roots))][:J]  # the J innermost (reciprocal pairs)
+    b = np.real(np.poly(roots))
+    a = ma_autocovariance(b)
+    s2 = float(a @ gamma) / float(a @ a)
+    return b * np.sqrt(max(s2, 0.0))
+
+
+def _fit_order(gamma: np.ndarray, order: int, b_full: np.ndarray) -> tuple[np.ndarray, float]:
+    """Least-squares MA(order) fit of the autocovariance ``gamma`` (two-sided L2)."""
+    J = gamma.size - 1
+    scale = np.sqrt(gamma[0])
+    gn = gamma / gamma[0]
+    nres = max(J, order) + 1
+    gpad = np.zeros(nres)
+    gpad[:gn.size] = gn
+    w = _weights(nres)
+
+    def resid(c):
+        return w * (ma_autocovariance(c, nres - 1) - gpad)
+
+    def jac(c):
+        K = c.size - 1
+        Jm = np.zeros((nres, K + 1))
+        for j in range(nres):
+            for l in range(K + 1):
+                v = 0.0
+                if l + j <= K:
+                    v += c[l + j]
+                if 0 <= l - j <= K:
+                    v += c[l - j]
+                Jm[j, l] = v
+        return w[:, None] * Jm
+
+    b = b_full / scale
+    starts = []
+    c0 = np.zeros(order + 1)
+    k = min(order + 1, b.size)
+    c0[:k] = b[:k]
+    starts.append(c0)
+    if order < J:  # second start: factor of the Bartlett-tapered, truncated autocovariance
+        taper = 1.0 - np.arange(order + 1) / (order + 1)
+        starts.append(spectral_factor(gn[:order + 1] * taper))
+    best = None
+    for s in starts:
+        if order >= J:
+            c = s
+        else:
+            c = optimize.least_squares(resid, s, jac=jac, method="lm", xtol=1e-14, ftol=1e-14,
+                                       gtol=1e-14, max_nfev=2000).x
+        f = _misfit(ma_autocovariance(c), gn)
+        if best is None or f < best[1]:
+            best = (c, f)
+    c, f = best
+    if c[0] < 0:  # sign convention: leading coefficient positive
+        c = -c
+    return c * scale, f
+
+
+def fit_ma_component(
+    gamma: np.ndarray, order: int | None = None, tol: float = DEFAULT_TOL,
+    max_order: int = DEFAULT_MAX_ORDER,
+) -> tuple[np.ndarray, int, float]:
+    """Fit one component's decimated autocovariance ``gamma`` (shape (J+1,)).
+
+    Returns ``(coef, order, misfit)``; with ``order=None`` the smallest order
+    whose misfit is below ``tol`` (≤ ``max_order``; the exact factor has order J).
+    """
+    gamma = np.asarray(gamma, dtype=float)
+    if gamma.ndim != 1 or gamma.size == 0 or not np.all(np.isfinite(gamma)) or gamma[0] <= 0:
+        raise ValueError("gamma must be a finite 1-D autocovariance with gamma[0] > 0")
+    J = gamma.size - 1
+    b_full = spectral_factor(gamma)
+    if order is not None:
+        if isinstance(order, bool) or int(order) != order or order < 0:
+            raise ValueError(f"MA order must be an integer ≥ 0, got {order!r}")
+        c, f = _fit_order(gamma, int(order), b_full)
+        return c, int(order), f
+    if not (0 < tol < 1):
+        raise ValueError(f"tol must be in (0, 1), got {tol}")
+    for k in range(0, min(J, int(max_order)) + 1):
+        c, f = _fit_order(gamma, k, b_full)
+        if f < tol:
+            return c, k, f
+    return c, k, f
+
+
+def fit_ma_model(
+    design: RegularizationDesign, m: int, K: int | None = None, L: int | None = None,
+    tol: float = DEFAULT_TOL, max_order: int = DEFAULT_MAX_ORDER,
+) -> MAModel:
+    """Fit the decimated MA model for difference order ``m``.
+
+    Parameters
+    ----------
+    design : RegularizationDesign
+    m : int ≥ 1
+    K, L : int, optional
+        MA orders of the anomaly / GNSS components; chosen by the misfit
+        criterion (smallest order with relative spectral misfit < ``tol``,
+        capped at ``max_order``) when None.
+    tol : float
+        Misfit threshold (0.01 = 1 %).
+    max_order : int
+
+    Returns
+    -------
+    MAModel
+        Independent of Q and R.
+    """
+    if isinstance(m, bool) or int(m) != m or m < 1:
+        raise ValueError(f"m must be an integer ≥ 1, got {m!r}")
+    m = int(m)
+    g_q, g_r = component_filters(design, m)
+    gam_q = decimated_autocovariance(g_q, design.n)
+    gam_r = decimated_autocovariance(g_r, design.n)
+    c, K, fq = fit_ma_component(gam_q, K, tol, max_order)
+    d, L, fr = fit_ma_component(gam_r, L, tol, max_order)
+    return MAModel(c=c, d=d, K=K, L=L, p=max(K, L), dt_dec_s=design.dt_dec_s, m=m,
+                   misfit_q=fq, misfit_r=fr)
+
+
+def autocovariance(model: MAModel, Q, R, maxlag: int) -> np.ndarray:
+    """Autocovariance of the MA model, lags ``0..maxlag``.
+
+    Parameters
+    ----------
+    Q : float — mGal² per GNSS step.  R : float — (cm/s)².
+
+    Returns
+    -------
+    ndarray, shape (maxlag+1,), mGal².
+    """
+    if int(maxlag) != maxlag or maxlag < 0:
+        raise ValueError(f"maxlag must be an integer ≥ 0, got {maxlag!r}")
+    return float(Q) * ma_autocovariance(model.c, int(maxlag)) + float(R) * ma_autocovariance(model.d, int(maxlag))
+
+
+def _psd_from_coef(b: np.ndarray, f_hz: np.ndarray, T: float) -> np.ndarray:
+    l = np.arange(b.size)
+    C = np.exp(-2j * np.pi * np.outer(f_hz, l) * T) @ b
+    return T * np.abs(C) ** 2
+
+
+def model_vs_true_spectrum(model: MAModel, design: RegularizationDesign, f_hz) -> dict:
+    """Two-sided PSDs on the decimated grid per unit Q and per unit R.
+
+    The true spectrum is the aliased sum ``Σ_{k=0}^{n−1} Δt·|G(f − k/T)|²`` of the
+    full-rate component filter (``T = nΔt``), independent of the autocovariance
+    path used by the fit; the model spectrum is ``T·|C(e^{−2πifT})|²``.  Both
+    integrate over (−1/2T, 1/2T) to the decimated variance.
+
+    Returns
+    -------
+    dict with ``f_hz``, ``true_q``, ``model_q`` (mGal²/Hz per mGal²) and
+    ``true_r``, ``model_r`` (mGal²/Hz per (cm/s)²), arrays of the shape of ``f_hz``.
+    """
+    f = np.atleast_1d(np.asarray(f_hz, dtype=float))
+    T = design.dt_dec_s
+    dt = design.dt_s
+    g_q, g_r = component_filters(design, model.m)
+    out = {"f_hz": f}
+    for name, g, b in (("q", g_q, model.c), ("r", g_r, model.d)):
+        fk = (f[None, :] - np.arange(design.n)[:, None] / T).ravel()
+        _, G = signal.freqz(g, worN=fk, fs=1.0 / dt)
+        true = dt * (np.abs(G) ** 2).reshape(design.n, f.size).sum(axis=0)
+        out[f"true_{name}"] = true
+        out[f"model_{name}"] = _psd_from_coef(b, f, T)
+    return out

@@ -1,0 +1,189 @@
+"""Tests for app.core.ma_approx: analytic decimated autocovariance and Monte-Carlo truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.special import comb
+
+from app.core.ma_approx import (
+    autocovariance,
+    fit_ma_model,
+    ma_autocovariance,
+    model_vs_true_spectrum,
+)
+from app.core.regularize import design_regularization, regularize_line
+
+DT = 0.1
+
+
+@pytest.fixture(scope="module", params=["decimated", "full"])
+def design(request):
+    return design_regularization(DT, 100.0, difference_grid=request.param)
+
+
+def _analytic_gammas(design, m):
+    """Decimated autocovariances per unit Q and R, built here from first principles."""
+    h = design.taps
+    n = design.n
+    if design.difference_grid == "decimated":
+        # ∇_n^m (h*z) = h * (1 + B + … + B^{n−1})^m * ∇^m z
+        gq = h.copy()
+        for _ in range(m):
+            gq = np.convolve(gq, np.ones(n))
+    else:
+        gq = h.copy()
+    nab = np.array([(-1) ** i * comb(m + 1, i, exact=True) for i in range(m + 2)], float)
+    gr = 1000.0 / DT * np.convolve(gq, nab)
+
+    def acov(g):
+        J = (g.size - 1) // n
+        return np.array([np.dot(g[: g.size - j * n], g[j * n:]) for j in range(J + 1)])
+
+    return acov(gq), acov(gr)
+
+
+def _rel_l2(a, b):
+    size = max(a.size, b.size)
+    A = np.zeros(size)
+    B = np.zeros(size)
+    A[: a.size] = a
+    B[: b.size] = b
+    w = np.full(size, np.sqrt(2.0))
+    w[0] = 1
+    return np.linalg.norm(w * (A - B)) / np.linalg.norm(w * B)
+
+
+@pytest.mark.parametrize("m", [1, 2])
+def test_model_autocovariance_matches_analytic(design, m):
+    model = fit_ma_model(design, m)
+    gq, gr = _analytic_gammas(design, m)
+    maxlag = max(gq.size, gr.size) + 3
+    aq = autocovariance(model, 1.0, 0.0, maxlag)
+    ar = autocovariance(model, 0.0, 1.0, maxlag)
+    assert _rel_l2(aq, gq) < 0.01
+    assert _rel_l2(ar, gr) < 0.01
+    assert np.max(np.abs(aq[: gq.size] - gq)) < 0.01 * gq[0]
+    assert np.max(np.abs(ar[: gr.size] - gr)) < 0.01 * gr[0]
+    # reported misfits are the measured ones
+    assert model.misfit_q == pytest.approx(_rel_l2(aq, gq), rel=1e-6, abs=1e-12)
+    assert model.misfit_r == pytest.approx(_rel_l2(ar, gr), rel=1e-6, abs=1e-12)
+    # coefficients as plain arrays, sizes and p consistent, p small
+    assert model.c.shape == (model.K + 1,) and model.d.shape == (model.L + 1,)
+    assert model.p == max(model.K, model.L) <= 10
+    assert model.dt_dec_s == pytest.approx(10.0)
+
+
+@pytest.mark.parametrize("m", [1, 2])
+def test_full_order_is_exact_factor(design, m):
+    gq, gr = _analytic_gammas(design, m)
+    model = fit_ma_model(design, m, K=gq.size - 1, L=gr.size - 1)
+    np.testing.assert_allclose(ma_autocovariance(model.c), gq, rtol=1e-6, atol=1e-9 * gq[0])
+    np.testing.assert_allclose(ma_autocovariance(model.d), gr, rtol=1e-5, atol=1e-9 * gr[0])
+
+
+def test_order_criterion_is_minimal(design):
+    m = 2
+    model = fit_ma_model(design, m)
+    if model.K > 0:
+        lower = fit_ma_model(design, m, K=model.K - 1, L=model.L)
+        assert lower.misfit_q >= 0.01
+    if model.L > 0:
+        lower = fit_ma_model(design, m, K=model.K, L=model.L - 1)
+        assert lower.misfit_r >= 0.01
+    looser = fit_ma_model(design, m, tol=0.05)
+    assert looser.K <= model.K and looser.L <= model.L
+    assert looser.misfit_q < 0.05 and looser.misfit_r < 0.05
+
+
+def test_override_orders_and_validation(design):
+    model = fit_ma_model(design, 1, K=2, L=3)
+    assert model.c.shape == (3,) and model.d.shape == (4,) and model.p == 3
+    with pytest.raises(ValueError, match="order"):
+        fit_ma_model(design, 1, K=-1)
+    with pytest.raises(ValueError, match="m must"):
+        fit_ma_model(design, 0)
+    with pytest.raises(ValueError, match="maxlag"):
+        autocovariance(model, 1.0, 1.0, -1)
+
+
+def _simulate_x(design, m, Q, R, component, n_lines, line_len, rng):
+    """Full-rate simulation → regularize_line; returns the list of decimated lines."""
+    out = []
+    for _ in range(n_lines):
+        if component == "q":
+            dg = rng.normal(scale=np.sqrt(Q), size=line_len)
+            for _ in range(m):
+                dg = np.cumsum(dg)
+            z = dg
+        else:
+            r = rng.normal(scale=np.sqrt(R), size=line_len + 1)  # cm/s
+            z = -1000.0 * np.diff(r) / DT
+        x, _ = regularize_line(z, m, design)
+        out.append(x)
+    return out
+
+
+def _pooled_acov(lines, maxlag):
+    num = np.zeros(maxlag + 1)
+    cnt = np.zeros(maxlag + 1)
+    for x in lines:
+        for j in range(maxlag + 1):
+            num[j] += np.dot(x[: x.size - j], x[j:])
+            cnt[j] += x.size - j
+    return num / cnt, cnt
+
+
+@pytest.mark.parametrize("m", [1, 2])
+@pytest.mark.parametrize("component", ["q", "r"])
+def test_monte_carlo_autocovariance(m, component):
+    design = design_regularization(DT, 100.0)
+    model = fit_ma_model(design, m)
+    Q, R = (0.04, 0.0) if component == "q" else (0.0, 1.7)
+    rng = np.random.default_rng(1000 * m + (component == "r"))
+    lines = _simulate_x(design, m, Q, R, component, n_lines=120, line_len=50_000, rng=rng)
+    maxlag = model.p + 3
+    est, cnt = _pooled_acov(lines, maxlag)
+    # exact target (analytic), and the model's
+    gq, gr = _analytic_gammas(design, m)
+    gamma = Q * gq if component == "q" else R * gr
+    g = np.zeros(maxlag + 40)
+    g[: gamma.size] = gamma
+    model_acov = autocovariance(model, Q, R, maxlag)
+    # Bartlett's large-sample standard error of the lag-j sample autocovariance
+    # (zero-mean Gaussian): Var ≈ (1/N) Σ_v (γ_v² + γ_{v+j} γ_{v−j})
+    gg = np.concatenate([g[:0:-1], g])  # lags −(len−1)..len−1
+    c0 = g.size - 1
+    se = np.array([
+        np.sqrt(sum(gg[c0 + v] ** 2 + gg[c0 + v + j] * gg[c0 + v - j]
+                    for v in range(-(g.size - 1 - j), g.size - j)) / cnt[j])
+        for j in range(maxlag + 1)
+    ])
+    assert np.all(np.abs(est - g[: maxlag + 1]) < 5 * se)  # the simulation agrees with theory
+    misfit = model.misfit_q if component == "q" else model.misfit_r
+    allowance = misfit * np.linalg.norm(gamma) * np.sqrt(2)
+    assert np.all(np.abs(est - model_acov) < 5 * se + allowance)
+    # and the sampling error is small enough for this to be a real check
+    assert 5 * se[0] < 0.05 * g[0]
+
+
+def test_spectrum_fold_sum_vs_model(design):
+    m = 1
+    model = fit_ma_model(design, m)
+    T = design.dt_dec_s
+    f = (np.arange(256) + 0.5) / 256 * (0.5 / T)  # midpoints on (0, 1/2T)
+    spec = model_vs_true_spectrum(model, design, f)
+    gq, gr = _analytic_gammas(design, m)
+    for name, gamma, mis in (("q", gq, model.misfit_q), ("r", gr, model.misfit_r)):
+        true = spec[f"true_{name}"]
+        mod = spec[f"model_{name}"]
+        # Parseval: the aliased fold-sum integrates to the analytic decimated variance
+        var = 2 * np.sum(true) * (0.5 / T) / f.size
+        assert var == pytest.approx(gamma[0], rel=1e-3)
+        # and matches the trig polynomial of the analytic autocovariance
+        j = np.arange(1, gamma.size)
+        trig = T * (gamma[0] + 2 * np.cos(2 * np.pi * np.outer(f, j) * T) @ gamma[1:])
+        np.testing.assert_allclose(true, trig, rtol=1e-6, atol=1e-9 * trig.max())
+        # relative L2 spectral misfit equals the reported one (Parseval)
+        rel = np.linalg.norm(mod - true) / np.linalg.norm(true)
+        assert rel == pytest.approx(mis, rel=0.05, abs=1e-6)
