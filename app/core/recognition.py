@@ -10,7 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.core.mjls_em import WindowModel, _layout, emission_loglik, forward_backward
+from app.core.mjls_em import (WindowModel, _layout, emission_loglik, forward_backward,
+                              single_thread_blas)
 
 
 def _prepare(x, c, d, Q, R, transition, initial):
@@ -97,12 +98,13 @@ def recognize_lines(x_list, c, d, Q, R, transition, initial):
     if pis.shape[0] != len(x_list):
         raise ValueError("initial must have one row per line")
     states, probs = [], []
-    for w, x in enumerate(x_list):
-        try:
-            states.append(viterbi(x, c, d, Q, R, transition, pis[w]))
-            probs.append(posteriors(x, c, d, Q, R, transition, pis[w]))
-        except ValueError as exc:
-            raise ValueError(f"line {w}: {exc}") from None
+    with single_thread_blas():
+        for w, x in enumerate(x_list):
+            try:
+                states.append(viterbi(x, c, d, Q, R, transition, pis[w]))
+                probs.append(posteriors(x, c, d, Q, R, transition, pis[w]))
+            except ValueError as exc:
+                raise ValueError(f"line {w}: {exc}") from None
     return states, probs
 
 
