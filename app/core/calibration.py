@@ -146,6 +146,33 @@ class CalibrationSpectra:
         if self.d_f_mgal2_s == 0 and gnss_level == 0:
             raise ValueError("spectra: at least one of the gravimeter or GNSS noise levels must be > 0")
 
+    @classmethod
+    def from_epoch_variances(cls, dt_s: float, *, f_var_mgal2: float, dg_step_var_mgal2: float,
+                             gnss: str = "doppler", r_cm2s2: float = 0.0, h_var_m2: float = 0.0,
+                             discrete: bool = True) -> "CalibrationSpectra":
+        """Spectra from per-GNSS-epoch variances (the pipeline's units).
+
+        Parameters
+        ----------
+        dt_s : float
+            GNSS step Δt (s).
+        f_var_mgal2 : float
+            Variance of the gravimeter interval-mean noise per epoch (mGal²): ``d_f = var·Δt``.
+        dg_step_var_mgal2 : float
+            Variance of the anomaly's increment per epoch (random walk, the m = 1
+            ``Q`` in mGal² per GNSS step): ``d_δg = var/Δt``.
+        r_cm2s2 : float
+            GNSS vertical-velocity noise variance per epoch ((cm/s)², SPEC's R):
+            ``d_V = R·1e-4·Δt``.
+        h_var_m2 : float
+            GNSS height noise variance per epoch (m²): ``d_h = var·Δt``.
+        """
+        if not (np.isfinite(dt_s) and dt_s > 0):
+            raise ValueError(f"dt_s must be > 0, got {dt_s}")
+        return cls(d_f_mgal2_s=f_var_mgal2 * dt_s, d_dg_mgal2_s=dg_step_var_mgal2 / dt_s,
+                   gnss=gnss, d_v_m2_s=r_cm2s2 * 1e-4 * dt_s, d_h_m2_s=h_var_m2 * dt_s,
+                   discrete=discrete)
+
     def density_ms2(self, omega_rad_s, dt_s: float) -> np.ndarray:
         """Total two-sided density ``S_δg + S_r`` ((m/s²)² per rad/s); ``inf`` at ω = 0
         when ``d_dg > 0``.

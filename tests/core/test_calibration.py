@@ -197,6 +197,12 @@ def test_spectra_match_simulated_noise_periodogram():
     model = sp.density_ms2(2 * np.pi * f_hz, DT)
     band = (f_hz > 0.05) & (f_hz < 4.9)
     assert np.median(s_two_sided_rad[band] / model[band]) == pytest.approx(1.0, abs=0.05)
+    # per-epoch variances of the same noise give the same spectra
+    sp3 = CalibrationSpectra.from_epoch_variances(DT, f_var_mgal2=np.var(1e5 * (noise - np.diff(dv) / DT)),
+                                                  dg_step_var_mgal2=0.0,
+                                                  r_cm2s2=np.var(1e2 * dv))
+    assert sp3.d_v_m2_s == pytest.approx(sp.d_v_m2_s, rel=0.02)
+    assert sp3.d_f_mgal2_s == pytest.approx(sp.d_f_mgal2_s, rel=0.02)
     # continuous forms of seed 001: ω² S_V + S_δf + d/(2πω²)
     sp2 = CalibrationSpectra(d_f_mgal2_s=25.0, d_dg_mgal2_s=2.0, d_v_m2_s=1e-5, discrete=False)
     w = np.array([0.01, 0.3, 3.0])
