@@ -1,0 +1,170 @@
+"""Tests of the gridding estimators against simulated fields with known covariance."""
+
+import numpy as np
+import pytest
+
+from app.core.gridding import (Collocation, Spline, block_thin, empirical_covariance, fit_gm2,
+                               gm2_covariance, line_spacing_km)
+
+VAR, LEN = 25.0, 3.0          # mGal², km of the simulated field
+
+
+def _simulate(seed, noise=1.0, spacing=2.0, step=0.25, nlines=8, length=24.0, grid_step=1.0):
+    """GM2 random field sampled jointly on lines and on grid nodes (exact, by Cholesky)."""
+    rng = np.random.default_rng(seed)
+    e_l, n_l, lab = [], [], []
+    for k in range(nlines):
+        x = np.arange(0.0, length + 1e-9, step)
+        e_l.append(x)
+        n_l.append(np.full_like(x, k * spacing))
+        lab.append(np.full(x.size, f"M{k}"))
+    for j in range(3):  # ties
+        y = np.arange(0.0, (nlines - 1) * spacing + 1e-9, step)
+        e_l.append(np.full_like(y, 2.0 + j * 10.0))
+        n_l.append(y)
+        lab.append(np.full(y.size, f"T{j}"))
+    e = np.concatenate(e_l)
+    n = np.concatenate(n_l)
+    lab = np.concatenate(lab)
+    ge = np.arange(0.0, length + 1e-9, grid_step)
+    gn = np.arange(0.0, (nlines - 1) * spacing + 1e-9, grid_step)
+    GE, GN = np.meshgrid(ge, gn)
+    xe = np.concatenate([e, GE.ravel()])
+    xn = np.concatenate([n, GN.ravel()])
+    C = gm2_covariance(np.hypot(xe[:, None] - xe[None], xn[:, None] - xn[None]), VAR, LEN)
+    Lc = np.linalg.cholesky(C + 1e-8 * np.eye(xe.size))
+    f = Lc @ rng.standard_normal(xe.size) + 100.0 + 0.4 * xe - 0.2 * xn
+    obs = f[:e.size] + noise * rng.standard_normal(e.size)
+    truth = f[e.size:].reshape(GE.shape)
+    return e, n, obs, lab, ge, gn, truth
+
+
+def test_gm2_covariance_shape_and_fit_recovers_parameters():
+    d = np.linspace(0, 20, 50)
+    c = gm2_covariance(d, 4.0, 2.0)
+    assert c[0] == pytest.approx(4.0)
+    # half-value distance of (1+x)e^-x is x = 1.678...
+    assert gm2_covariance(1.6783469900166608 * 2.0, 4.0, 2.0) == pytest.approx(2.0, rel=1e-9)
+    var, length, off = fit_gm2(d[1:], c[1:], np.ones(49), 0.1, 50.0)
+    assert var == pytest.approx(4.0, rel=1e-4) and length == pytest.approx(2.0, rel=1e-4)
+    assert off == pytest.approx(0.0, abs=1e-6)
+    # a negative offset (bias of the mean removal) is separated from the model
+    var, length, off = fit_gm2(d[1:], c[1:] - 0.7, np.ones(49), 0.1, 50.0)
+    assert (var, length, off) == pytest.approx((4.0, 2.0, -0.7), rel=1e-4)
+
+
+def test_block_thin_means_and_white_error_reduction():
+    e = np.array([0.1, 0.2, 0.3, 1.1, 1.2])
+    n = np.zeros(5)
+    v = np.array([1.0, 2.0, 3.0, 10.0, 20.0])
+    s = np.full(5, 2.0)
+    te, tn, tv, ts, cnt = block_thin(e, n, v, s, thin_km=1.0)
+    np.testing.assert_allclose(tv, [2.0, 15.0])
+    np.testing.assert_allclose(ts, [2.0 / np.sqrt(3), 2.0 / np.sqrt(2)])
+    # fully correlated errors (correlation length ≫ block): no reduction
+    *_, ts2, _ = block_thin(e, n, v, s, thin_km=1.0, error_corr_km=100.0, step_km=0.1)
+    np.testing.assert_allclose(ts2, [2.0, 2.0])
+
+
+def test_collocation_on_simulated_field_accuracy_and_calibration():
+    errs, stds, rms_rel = [], [], []
+    est = []
+    for seed in range(3):
+        # 14 lines 1.5 km apart, 40 km long, 1 mGal white noise every 0.5 km
+        e, n, obs, lab, ge, gn, truth = _simulate(seed, spacing=1.5, step=0.5, nlines=14, length=40.0)
+        col = Collocation(thin_km=0.5).fit(e, n, obs, np.full(e.size, 1.0), line=lab)
+        est.append((col.variance_mgal2_, col.length_km_, col.nugget_mgal2_))
+        x, y, dg, sd = col.grid(region=(0, 40, 0, 19.5), spacing_km=1.0)
+        np.testing.assert_allclose(x, ge)
+        np.testing.assert_allclose(y, gn)
+        m = np.isfinite(dg)
+        assert m.mean() > 0.9
+        err = dg[m] - truth[m]
+        errs.append(err)
+        stds.append(sd[m])
+        rms_rel.append(np.sqrt(np.mean(err ** 2)) / np.sqrt(VAR))
+    err = np.concatenate(errs)
+    std = np.concatenate(stds)
+    frac = np.mean(np.abs(err) < 2 * std)
+    print("estimates", est, "rms/sigma", rms_rel, "frac2sigma", frac)
+    assert np.mean(rms_rel) < 0.2             # lines 1.5 km apart, L = 3 km
+    assert 0.88 <= frac <= 0.99               # ≈ 95 %
+    # the error std predicted matches the realised RMS within 30 %
+    assert np.sqrt(np.mean(err ** 2)) == pytest.approx(np.sqrt(np.mean(std ** 2)), rel=0.3)
+    v, L, _ = np.median(np.array(est), axis=0)
+    assert 0.4 * VAR < v < 2.5 * VAR
+    assert 0.5 * LEN < L < 2.0 * LEN
+
+
+def test_local_collocation_equals_global_dense_solve():
+    rng = np.random.default_rng(7)
+    e = rng.uniform(0, 10, 150)
+    n = rng.uniform(0, 8, 150)
+    v = np.sin(e / 2) * 5 + n + rng.normal(0, 0.5, e.size)
+    s = rng.uniform(0.2, 1.0, e.size)
+    var, L, nug = 9.0, 2.0, 0.1
+    pe = rng.uniform(-1, 11, 40)
+    pn = rng.uniform(-1, 9, 40)
+    col = Collocation(var, L, nug, thin_km=1e-4, max_points=10_000, search_radius_km=1e3,
+                      block_km=3.0, mask_km=100.0).fit(e, n, v, s)
+    got, got_s = col.predict(pe, pn, return_std=True)
+    # dense global LSC written out independently
+    G = np.column_stack([np.ones_like(e), e - e.mean(), n - n.mean()])
+    beta = np.linalg.lstsq(G, v, rcond=None)[0]
+    r = v - G @ beta
+    cov = lambda d: var * (1 + d / L) * np.exp(-d / L)
+    K = cov(np.hypot(e[:, None] - e, n[:, None] - n)) + np.diag(s ** 2 + nug)
+    k = cov(np.hypot(pe[:, None] - e, pn[:, None] - n))
+    want = k @ np.linalg.solve(K, r) + np.column_stack([np.ones_like(pe), pe - e.mean(), pn - n.mean()]) @ beta
+    want_s = np.sqrt(var - np.einsum("ij,ji->i", k, np.linalg.solve(K, k.T)))
+    np.testing.assert_allclose(got, want, rtol=1e-7, atol=1e-7)
+    np.testing.assert_allclose(got_s, want_s, rtol=1e-6, atol=1e-7)
+    # the default local neighbourhood (nearest 60 points) stays close to the global solution
+    loc = Collocation(var, L, nug, thin_km=1e-4, max_points=60, block_km=2.0,
+                      mask_km=100.0).fit(e, n, v, s)
+    lv = loc.predict(pe, pn)
+    assert np.max(np.abs(lv - want)) < 0.1 * np.sqrt(var)
+
+
+def test_mask_and_errors():
+    e, n, obs, lab, *_ = _simulate(0, nlines=4, length=10.0)
+    col = Collocation(thin_km=0.5).fit(e, n, obs, 1.0, line=lab)
+    assert col.line_spacing_km_ == pytest.approx(2.0, rel=0.05)
+    assert col.mask_distance_km_ == pytest.approx(3.0, rel=0.05)
+    x, y, dg, sd = col.grid(region=(-10, 20, 0, 6), spacing_km=1.0)
+    far = x < -3.1
+    assert np.all(np.isnan(dg[:, far])) and np.all(np.isnan(sd[:, far]))
+    assert np.all(np.isfinite(dg[:, (x >= 0) & (x <= 10)]))
+    with pytest.raises(ValueError, match="empty grid area"):
+        col.grid(region=(100, 110, 100, 110))
+    with pytest.raises(ValueError, match="no finite data"):
+        Collocation().fit([], [], [])
+    with pytest.raises(ValueError, match="no finite data"):
+        Spline().fit([np.nan], [1.0], [1.0])
+    with pytest.raises(ValueError, match="fit"):
+        Collocation().grid()
+
+
+def test_spline_reproduces_smooth_field():
+    e, n, obs, lab, ge, gn, _ = _simulate(0, noise=0.0, nlines=6)
+    f = lambda x, y: 3 * np.sin(x / 4.0) + 0.5 * y
+    obs = f(e, n)
+    sp = Spline(thin_km=0.25).fit(e, n, obs, 0.1, line=lab)
+    x, y, dg, sd = sp.grid(spacing_km=1.0)
+    X, Y = np.meshgrid(x, y)
+    m = np.isfinite(dg)
+    assert m.mean() > 0.8
+    assert np.sqrt(np.mean((dg[m] - f(X, Y)[m]) ** 2)) < 0.1
+
+
+def test_line_spacing_and_empirical_covariance():
+    e = np.concatenate([np.linspace(0, 10, 101)] * 3)
+    n = np.repeat([0.0, 1.5, 3.0], 101)
+    lab = np.repeat([0, 1, 2], 101)
+    assert line_spacing_km(e, n, lab) == pytest.approx(1.5)
+    assert np.isnan(line_spacing_km(e[:101], n[:101], lab[:101]))
+    # white residuals: zero covariance at every lag, c0 = variance
+    r = np.random.default_rng(0).normal(0, 2.0, e.size)
+    lag, cov, cnt, c0 = empirical_covariance(e, n, r, 5.0)
+    assert c0 == pytest.approx(4.0, rel=0.2)
+    assert np.sum(cnt * cov) / np.sum(cnt) == pytest.approx(0.0, abs=0.2)
