@@ -1,0 +1,216 @@
+"""Accuracy measures of a survey (SPEC §3 "Accuracy", seeds 001 and 004).
+
+- crossover RMS of the differences at line intersections;
+- repeat-line internal accuracy ``ε = sqrt(Σ_i Σ_j (g_ij − ḡ_j)² / (n (K−1)))``
+  over K repeats of one track at n common points;
+- RMS against a reference, std calibration (fraction of errors within k σ);
+- grid RMS against a true grid inside the convex hull of the lines.
+
+All values in mGal, coordinates in km.  Pure functions on numpy arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def crossover_rms(diff_mgal) -> float:
+    """RMS of crossover differences (mGal); NaNs ignored.
+
+    The error of one line value is ``crossover_rms / √2`` if both lines are
+    equally accurate and independent.
+
+    Raises
+    ------
+    ValueError
+        No finite difference.
+    """
+    d = np.asarray(diff_mgal, dtype=float).ravel()
+    d = d[np.isfinite(d)]
+    if d.size == 0:
+        raise ValueError("no crossover differences")
+    return float(np.sqrt(np.mean(d ** 2)))
+
+
+def internal_accuracy(values_mgal) -> float:
+    """Repeat-line internal accuracy from values at common points.
+
+    ``ε = sqrt(Σ_i Σ_j (g_ij − ḡ_j)² / (n (K−1)))`` with i over the K repeats and
+    j over the n common points, ``ḡ_j`` the mean of the repeats at point j.
+
+    Parameters
+    ----------
+    values_mgal : array_like, shape (K, n)
+        K ≥ 2 repeats at n ≥ 1 common points.
+
+    Returns
+    -------
+    float
+        ε (mGal): the std of one repeat's error.
+    """
+    g = np.asarray(values_mgal, dtype=float)
+    if g.ndim != 2 or g.shape[0] < 2 or g.shape[1] < 1:
+        raise ValueError(f"need an array of shape (K ≥ 2, n ≥ 1), got {g.shape}")
+    if not np.all(np.isfinite(g)):
+        raise ValueError("repeat values must be finite")
+    k, n = g.shape
+    return float(np.sqrt(np.sum((g - g.mean(axis=0)) ** 2) / (n * (k - 1))))
+
+
+@dataclass
+class RepeatAccuracy:
+    """Result of :func:`repeat_line_accuracy`.
+
+    Attributes
+    ----------
+    epsilon_mgal : float
+        Internal accuracy ε (mGal).
+    along_km : ndarray, shape (n,)
+        Common along-track positions (km, along the track's principal axis).
+    values_mgal : ndarray, shape (K, n)
+        The repeats interpolated on ``along_km``.
+    mean_mgal : ndarray, shape (n,)
+        Mean of the repeats.
+    """
+
+    epsilon_mgal: float
+    along_km: np.ndarray
+    values_mgal: np.ndarray
+    mean_mgal: np.ndarray
+
+    @property
+    def n_points(self) -> int:
+        return int(self.along_km.size)
+
+    @property
+    def n_repeats(self) -> int:
+        return int(self.values_mgal.shape[0])
+
+
+def repeat_line_accuracy(easting_km, northing_km, dg_mgal, step_km: float = 0.1) -> RepeatAccuracy:
+    """Internal accuracy of K repeats of one track.
+
+    Every repeat is projected on the principal axis of all the repeats' points
+    (so repeats flown in opposite directions line up), sorted along it and
+    linearly interpolated onto common positions every ``step_km`` over the
+    interval all repeats cover.
+
+    Parameters
+    ----------
+    easting_km, northing_km, dg_mgal : sequence of K array_like
+        One array per repeat (km, km, mGal).
+    step_km : float
+        Spacing of the common points (km).
+
+    Returns
+    -------
+    RepeatAccuracy
+
+    Raises
+    ------
+    ValueError
+        Fewer than 2 repeats, mismatched lengths, or no common interval.
+    """
+    if step_km <= 0:
+        raise ValueError("step_km must be positive")
+    es = [np.asarray(a, dtype=float).ravel() for a in easting_km]
+    ns = [np.asarray(a, dtype=float).ravel() for a in northing_km]
+    gs = [np.asarray(a, dtype=float).ravel() for a in dg_mgal]
+    if not (len(es) == len(ns) == len(gs)) or len(es) < 2:
+        raise ValueError("need at least 2 repeats with easting, northing and dg each")
+    for k, (e, n, g) in enumerate(zip(es, ns, gs)):
+        if not (e.size == n.size == g.size) or e.size < 2:
+            raise ValueError(f"repeat {k}: arrays must have the same size ≥ 2")
+    allp = np.column_stack([np.concatenate(es), np.concatenate(ns)])
+    centre = allp.mean(axis=0)
+    _, _, vt = np.linalg.svd(allp - centre, full_matrices=False)
+    axis = vt[0]
+    along = []
+    for e, n in zip(es, ns):
+        along.append((e - centre[0]) * axis[0] + (n - centre[1]) * axis[1])
+    lo = max(a.min() for a in along)
+    hi = min(a.max() for a in along)
+    if not hi > lo:
+        raise ValueError("the repeats have no common along-track interval")
+    pos = np.arange(lo, hi + 1e-12, step_km)
+    vals = np.empty((len(gs), pos.size))
+    for k, (a, g) in enumerate(zip(along, gs)):
+        o = np.argsort(a, kind="stable")
+        vals[k] = np.interp(pos, a[o], g[o])
+    return RepeatAccuracy(internal_accuracy(vals), pos - lo, vals, vals.mean(axis=0))
+
+
+def rms_vs_reference(estimate_mgal, reference_mgal) -> float:
+    """RMS of ``estimate − reference`` over the points where both are finite (mGal)."""
+    a = np.asarray(estimate_mgal, dtype=float)
+    b = np.asarray(reference_mgal, dtype=float)
+    if a.shape != b.shape:
+        raise ValueError(f"shapes differ: {a.shape} vs {b.shape}")
+    d = (a - b)[np.isfinite(a) & np.isfinite(b)]
+    if d.size == 0:
+        raise ValueError("no common finite values")
+    return float(np.sqrt(np.mean(d ** 2)))
+
+
+def std_calibration(error_mgal, std_mgal, k: float = 2.0) -> float:
+    """Fraction of errors within ``k`` standard deviations, ``mean(|err| < k σ)``.
+
+    For Gaussian errors with a correct σ: 0.683 (k=1), 0.954 (k=2), 0.997 (k=3).
+    Points where either input is not finite are ignored.
+    """
+    e = np.asarray(error_mgal, dtype=float)
+    s = np.asarray(std_mgal, dtype=float)
+    e, s = np.broadcast_arrays(e, s)
+    ok = np.isfinite(e) & np.isfinite(s)
+    if not np.any(ok):
+        raise ValueError("no finite error/std pairs")
+    return float(np.mean(np.abs(e[ok]) < k * s[ok]))
+
+
+def points_in_hull(point_e_km, point_n_km, hull_e_km, hull_n_km):
+    """Boolean mask of the points inside the convex hull of the hull points."""
+    from scipy.spatial import Delaunay
+
+    hull_pts = np.column_stack([np.asarray(hull_e_km, float).ravel(),
+                                np.asarray(hull_n_km, float).ravel()])
+    hull_pts = hull_pts[np.all(np.isfinite(hull_pts), axis=1)]
+    if hull_pts.shape[0] < 3:
+        raise ValueError("need at least 3 points for a convex hull")
+    pe = np.asarray(point_e_km, dtype=float)
+    pn = np.asarray(point_n_km, dtype=float)
+    pe, pn = np.broadcast_arrays(pe, pn)
+    tri = Delaunay(hull_pts)
+    return (tri.find_simplex(np.column_stack([pe.ravel(), pn.ravel()])) >= 0).reshape(pe.shape)
+
+
+def grid_rms_in_hull(easting_km, northing_km, dg_mgal, true_dg_mgal, line_easting_km,
+                     line_northing_km) -> float:
+    """RMS of ``dg − true`` over grid nodes inside the convex hull of the lines.
+
+    Parameters
+    ----------
+    easting_km : ndarray, shape (nx,)
+    northing_km : ndarray, shape (ny,)
+    dg_mgal, true_dg_mgal : ndarray, shape (ny, nx)
+    line_easting_km, line_northing_km : array_like
+        Coordinates of the line points (any shape, flattened).
+
+    Returns
+    -------
+    float
+        RMS (mGal) over nodes inside the hull where both grids are finite.
+    """
+    e = np.asarray(easting_km, dtype=float)
+    n = np.asarray(northing_km, dtype=float)
+    g = np.asarray(dg_mgal, dtype=float)
+    t = np.asarray(true_dg_mgal, dtype=float)
+    if g.shape != (n.size, e.size) or t.shape != g.shape:
+        raise ValueError(f"grids must have shape (ny, nx) = {(n.size, e.size)}; got {g.shape}, {t.shape}")
+    E, N = np.meshgrid(e, n)
+    inside = points_in_hull(E, N, line_easting_km, line_northing_km)
+    d = (g - t)[inside & np.isfinite(g) & np.isfinite(t)]
+    if d.size == 0:
+        raise ValueError("no grid node inside the convex hull of the lines")
+    return float(np.sqrt(np.mean(d ** 2)))

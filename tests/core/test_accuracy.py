@@ -1,0 +1,91 @@
+"""Tests of the accuracy measures against hand computations and simulations."""
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+from app.core.accuracy import (crossover_rms, grid_rms_in_hull, internal_accuracy, points_in_hull,
+                               repeat_line_accuracy, rms_vs_reference, std_calibration)
+
+
+def test_internal_accuracy_by_hand():
+    # means (2, 3); deviations ±1 everywhere: Σ = 4, n (K-1) = 2 -> sqrt(2)
+    assert internal_accuracy([[1.0, 2.0], [3.0, 4.0]]) == pytest.approx(np.sqrt(2.0))
+    # K = 3 at one point: values 0, 3, 6 -> mean 3, Σ = 18, n(K-1) = 2 -> 3
+    assert internal_accuracy([[0.0], [3.0], [6.0]]) == pytest.approx(3.0)
+    with pytest.raises(ValueError):
+        internal_accuracy([[1.0, 2.0]])
+
+
+def _smooth_noise(rng, n, sigma, corr_samples):
+    """AR(1)-filtered white noise scaled to std sigma (correlated over corr_samples)."""
+    a = np.exp(-1.0 / corr_samples)
+    x = lfilter([np.sqrt(1 - a * a)], [1, -a], rng.standard_normal(n + 5 * corr_samples))
+    return sigma * x[5 * corr_samples:]
+
+
+def test_repeat_line_accuracy_recovers_known_noise():
+    rng = np.random.default_rng(0)
+    sigma = 0.7
+    truth = lambda s: 15 * np.sin(s / 9.0) + 4 * np.cos(s / 2.3)
+    es, ns, gs = [], [], []
+    direction = np.array([np.cos(0.4), np.sin(0.4)])
+    for k in range(6):
+        # 100 km track, 10 m sampling, start offsets and directions differ, small cross-track wobble
+        s = np.arange(-1.0 + 0.3 * k, 101.0 - 0.2 * k, 0.01)
+        if k % 2:
+            s = s[::-1]
+        cross = 0.05 * np.sin(s / 7.0 + k)
+        e = 500.0 + s * direction[0] - cross * direction[1]
+        n = 7000.0 + s * direction[1] + cross * direction[0]
+        es.append(e)
+        ns.append(n)
+        gs.append(truth(s) + _smooth_noise(rng, s.size, sigma, 100))   # noise correlated over 1 km
+    res = repeat_line_accuracy(es, ns, gs, step_km=0.1)
+    assert res.n_repeats == 6
+    assert res.along_km[-1] == pytest.approx(99.99 - 0.5, abs=0.12)   # common interval [0.5, 99.99]
+    assert res.epsilon_mgal == pytest.approx(sigma, rel=0.1)
+    # the mean of the repeats tracks the truth (the principal axis may point either way)
+    fwd = rms_vs_reference(res.mean_mgal, truth(0.5 + res.along_km))
+    bwd = rms_vs_reference(res.mean_mgal, truth(99.99 - res.along_km))
+    assert min(fwd, bwd) < sigma
+
+
+def test_repeat_line_errors():
+    with pytest.raises(ValueError, match="at least 2"):
+        repeat_line_accuracy([np.arange(3.0)], [np.zeros(3)], [np.zeros(3)])
+    with pytest.raises(ValueError, match="common"):
+        repeat_line_accuracy([np.arange(3.0), np.arange(3.0) + 10], [np.zeros(3)] * 2, [np.zeros(3)] * 2)
+
+
+def test_crossover_rms_and_reference():
+    assert crossover_rms([3.0, -4.0, np.nan]) == pytest.approx(np.sqrt(12.5))
+    with pytest.raises(ValueError):
+        crossover_rms([np.nan])
+    assert rms_vs_reference([1.0, 2.0, np.nan], [0.0, 0.0, 5.0]) == pytest.approx(np.sqrt(2.5))
+
+
+def test_std_calibration_gaussian():
+    rng = np.random.default_rng(1)
+    s = rng.uniform(0.5, 2.0, 200_000)
+    e = rng.standard_normal(s.size) * s
+    assert std_calibration(e, s, 2.0) == pytest.approx(0.9545, abs=0.003)
+    assert std_calibration(e, s, 1.0) == pytest.approx(0.6827, abs=0.003)
+    assert std_calibration(e, 2 * s, 1.0) == pytest.approx(0.9545, abs=0.003)
+
+
+def test_grid_rms_inside_hull_of_lines():
+    # lines on the border of the square [0, 10]²
+    t = np.linspace(0, 10, 101)
+    le = np.concatenate([t, t, np.zeros_like(t), np.full_like(t, 10.0)])
+    ln = np.concatenate([np.zeros_like(t), np.full_like(t, 10.0), t, t])
+    x = np.arange(-5.0, 15.5, 1.0)
+    y = np.arange(-5.0, 15.5, 1.0)
+    X, Y = np.meshgrid(x, y)
+    inside = (X >= 0) & (X <= 10) & (Y >= 0) & (Y <= 10)
+    est = np.where(inside, 1.0, 100.0)
+    est[0, 0] = np.nan
+    assert grid_rms_in_hull(x, y, est, np.zeros_like(est), le, ln) == pytest.approx(1.0)
+    assert points_in_hull(5.0, 5.0, le, ln) and not points_in_hull(11.0, 5.0, le, ln)
+    with pytest.raises(ValueError, match="shape"):
+        grid_rms_in_hull(x, y, est[1:], est[1:], le, ln)
