@@ -1,0 +1,795 @@
+"""Non-stationary Kalman filtering and fixed-interval smoothing (SPEC §2 step 5).
+
+Two groups of functions:
+
+* The seed-000 anomaly model (see :mod:`app.core.statespace`) with per-epoch
+  ``Q_k`` (mGal² per GNSS step) and ``R_k`` ((cm/s)²):
+  :func:`kalman_smooth` (one line), :func:`smooth_many` (many lines),
+  :func:`kalman_loglik` (filter only, for likelihood fits).  The epoch loops are
+  numba-compiled and use the sparse structure of ``A`` (a companion block plus a
+  shift), so a step costs O(n²) with n = m + 2.
+
+  - ``method='bf'`` (default): Kalman filter + modified Bryson–Frazier smoother
+    (Bierman 1973).  The backward pass propagates the adjoint ``λ̂`` and its
+    information matrix ``Λ̂``; it needs no inverse of ``A`` (which is singular
+    here) nor of the predicted covariance.  Only row 0 of the filtered
+    covariance is stored per epoch (memory O(n·T)).
+  - ``method='rts'``: Kalman filter + Rauch–Tung–Striebel smoother.  The gain
+    ``G_k = P_k Aᵀ (P⁻_{k+1})⁻¹`` is obtained by a Cholesky solve (the
+    predicted covariance of this model is positive definite because Q, R > 0).
+
+  Numerics: the filtered covariance is updated in Joseph form
+  ``P = (I − K C) P⁻ (I − K C)ᵀ`` (there is no measurement-noise term; the
+  congruence is evaluated as two rank-one corrections) and symmetrised every
+  step.  Internally the GNSS error is carried as ``ρ = 1000·r/Δt`` (mGal) so
+  that all state components share a unit; results are unchanged by this
+  scaling.
+
+  Initial state ("diffuse-ish" start, used when ``x0``/``P0`` are not given):
+  the δg components start at the mean of the finite measurements of the first
+  100 s of the line (at least ``m + 2`` samples) with variance
+  ``(1000 mGal)²`` each, independent; ``r_0`` and ``r_{−1}`` start at 0 with
+  variance ``R_0``.  ``x0``/``P0`` are the prior of ``y_0`` *before* the
+  measurement ``z_0`` is used (no prediction step at k = 0).
+
+* Generic linear-Gaussian models ``x_k = A x_{k−1} + u_k + w_k``,
+  ``z_k = C x_k + v_k``: :func:`kalman_filter`, :func:`rts_smooth`,
+  :func:`two_filter_smooth` (plain numpy, meant for small problems such as the
+  seed-002 experiment).
+
+References: Bierman, G. J. (1973), "Fixed interval smoothing with discrete
+measurements", Int. J. Control 18(1); Rauch, Tung & Striebel (1965), AIAA J.
+3(8); Fraser & Potter (1969), IEEE TAC 14(4).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+from numba import njit
+
+from app.core.statespace import MGAL_PER_CMS2, _check_dt, _check_m, ar_coefficients
+
+_LOG_2PI = float(np.log(2.0 * np.pi))
+#: Std (mGal) of each δg component of the default diffuse-ish prior.
+PRIOR_DG_STD_MGAL = 1000.0
+#: Seconds of data averaged for the default prior mean of δg.
+PRIOR_MEAN_WINDOW_S = 100.0
+
+
+@dataclass(frozen=True)
+class SmootherResult:
+    """Output of :func:`kalman_smooth` for one line.
+
+    Attributes
+    ----------
+    dg_mgal : ndarray, shape (T,)
+        Smoothed anomaly ``E[δg_k | z_0..z_{T−1}]`` (mGal).
+    dg_std_mgal : ndarray, shape (T,)
+        Posterior standard deviation of ``δg_k`` (mGal).
+    loglik : float
+        Log-likelihood ``log p(z | Q, R)`` of the finite measurements (innovations
+        form, natural log), including the prior of ``y_0``.
+    filtered_mgal : ndarray, shape (T,)
+        Filtered anomaly ``E[δg_k | z_0..z_k]`` (mGal).
+    """
+
+    dg_mgal: np.ndarray
+    dg_std_mgal: np.ndarray
+    loglik: float
+    filtered_mgal: np.ndarray
+
+
+# ---------------------------------------------------------------------------
+# numba kernels for the seed-000 model (state scaled: ρ = 1000 r / Δt in mGal)
+# C = e_0 − e_m + e_{m+1}
+# ---------------------------------------------------------------------------
+
+
+@njit(cache=True, inline="always")
+def _cdot(v, m):
+    return v[0] - v[m] + v[m + 1]
+
+
+@njit(cache=True)
+def _predict(a, m, x, P, xp, Pp, T, Qk, Rk):
+    """xp = A x ; Pp = A P Aᵀ + diag(Q at 0, R at m).  T is scratch (n×n)."""
+    n = m + 2
+    s = 0.0
+    for j in range(m):
+        s += a[j] * x[j]
+    xp[0] = s
+    for i in range(1, m):
+        xp[i] = x[i - 1]
+    xp[m] = 0.0
+    xp[m + 1] = x[m]
+    # T = A P (row operations)
+    for col in range(n):
+        s = 0.0
+        for j in range(m):
+            s += a[j] * P[j, col]
+        T[0, col] = s
+        for i in range(1, m):
+            T[i, col] = P[i - 1, col]
+        T[m, col] = 0.0
+        T[m + 1, col] = P[m, col]
+    # Pp = T Aᵀ (column operations)
+    for row in range(n):
+        s = 0.0
+        for j in range(m):
+            s += a[j] * T[row, j]
+        Pp[row, 0] = s
+        for i in range(1, m):
+            Pp[row, i] = T[row, i - 1]
+        Pp[row, m] = 0.0
+        Pp[row, m + 1] = T[row, m]
+    Pp[0, 0] += Qk
+    Pp[m, m] += Rk
+
+
+@njit(cache=True)
+def _update(m, xp, Pp, zk, x, P, K, g, h):
+    """Measurement update with C = e0 − e_m + e_{m+1}, no measurement noise.
+
+    Joseph form P = (I − K cᵀ) Pp (I − K cᵀ)ᵀ.  Returns (nu, s)."""
+    n = m + 2
+    for i in range(n):
+        g[i] = Pp[i, 0] - Pp[i, m] + Pp[i, m + 1]
+    s = g[0] - g[m] + g[m + 1]
+    for i in range(n):
+        K[i] = g[i] / s
+    nu = zk - _cdot(xp, m)
+    for i in range(n):
+        x[i] = xp[i] + K[i] * nu
+    # M = (I − K cᵀ) Pp = Pp − K gᵀ      (cᵀ Pp = gᵀ by symmetry)
+    for i in range(n):
+        for j in range(n):
+            P[i, j] = Pp[i, j] - K[i] * g[j]
+    # P = M (I − c Kᵀ) = M − (M c) Kᵀ
+    for i in range(n):
+        h[i] = P[i, 0] - P[i, m] + P[i, m + 1]
+    for i in range(n):
+        for j in range(n):
+            P[i, j] -= h[i] * K[j]
+    for i in range(n):
+        for j in range(i + 1, n):
+            v = 0.5 * (P[i, j] + P[j, i])
+            P[i, j] = v
+            P[j, i] = v
+    return nu, s
+
+
+@njit(cache=True)
+def _forward_bf(z, Qs, Rs, a, m, x0, P0, xf0, prow, Kst, nust, sinv):
+    """Kalman filter storing what the modified Bryson–Frazier pass needs."""
+    n = m + 2
+    N = z.shape[0]
+    x = x0.copy()
+    P = P0.copy()
+    xp = x0.copy()
+    Pp = P0.copy()
+    T = np.empty((n, n))
+    K = np.zeros(n)
+    g = np.empty(n)
+    h = np.empty(n)
+    ll = 0.0
+    for k in range(N):
+        if k > 0:
+            _predict(a, m, x, P, xp, Pp, T, Qs[k], Rs[k])
+        zk = z[k]
+        if zk == zk:  # finite
+            nu, s = _update(m, xp, Pp, zk, x, P, K, g, h)
+            ll -= 0.5 * (_LOG_2PI + np.log(s) + nu * nu / s)
+            for i in range(n):
+                Kst[k, i] = K[i]
+            nust[k] = nu
+            sinv[k] = 1.0 / s
+        else:
+            for i in range(n):
+                x[i] = xp[i]
+                Kst[k, i] = 0.0
+                for j in range(n):
+                    P[i, j] = Pp[i, j]
+            nust[k] = 0.0
+            sinv[k] = 0.0
+        xf0[k] = x[0]
+        for j in range(n):
+            prow[k, j] = P[0, j]
+    return ll
+
+
+@njit(cache=True)
+def _backward_bf(a, m, xf0, prow, Kst, nust, sinv, out_mean, out_var):
+    """Modified Bryson–Frazier backward pass (no inverses).
+
+    λ̂_{N−1} = 0, Λ̂_{N−1} = 0;  x_{k|N} = x_{k|k} − P_{k|k} λ̂_k,
+    P_{k|N} = P_{k|k} − P_{k|k} Λ̂_k P_{k|k};
+    λ̃_k = −c ν_k/s_k + Ĉ_kᵀ λ̂_k,  Λ̃_k = c cᵀ/s_k + Ĉ_kᵀ Λ̂_k Ĉ_k,  Ĉ_k = I − K_k cᵀ;
+    λ̂_{k−1} = Aᵀ λ̃_k,  Λ̂_{k−1} = Aᵀ Λ̃_k A.
+    """
+    n = m + 2
+    N = xf0.shape[0]
+    lam = np.zeros(n)
+    Lam = np.zeros((n, n))
+    lt = np.empty(n)
+    Lt = np.empty((n, n))
+    T = np.empty((n, n))
+    u = np.empty(n)
+    c = np.zeros(n)
+    c[0] = 1.0
+    c[m] = -1.0
+    c[m + 1] = 1.0
+    for k in range(N - 1, -1, -1):
+        # smoothed δg and its variance
+        s1 = 0.0
+        s2 = 0.0
+        for i in range(n):
+            pi = prow[k, i]
+            s1 += pi * lam[i]
+            t = 0.0
+            for j in range(n):
+                t += Lam[i, j] * prow[k, j]
+            s2 += pi * t
+        out_mean[k] = xf0[k] - s1
+        out_var[k] = prow[k, 0] - s2
+        if k == 0:
+            break
+        si = sinv[k]
+        if si > 0.0:
+            # u = Λ̂ K, β = Kᵀ u, γ = Kᵀ λ̂
+            beta = 0.0
+            gam = 0.0
+            for i in range(n):
+                t = 0.0
+                for j in range(n):
+                    t += Lam[i, j] * Kst[k, j]
+                u[i] = t
+            for i in range(n):
+                beta += Kst[k, i] * u[i]
+                gam += Kst[k, i] * lam[i]
+            for i in range(n):
+                lt[i] = lam[i] - c[i] * (gam + nust[k] * si)
+            # Λ̃ = Ĉᵀ (Λ̂ Ĉ) + c cᵀ/s as an explicit congruence: N = Λ̂ − u cᵀ; Λ̃ = N − c (Kᵀ N)
+            for i in range(n):
+                for j in range(n):
+                    Lt[i, j] = Lam[i, j] - u[i] * c[j]
+            for j in range(n):
+                t = 0.0
+                for i in range(n):
+                    t += Kst[k, i] * Lt[i, j]
+                u[j] = t
+            for i in range(n):
+                for j in range(n):
+                    Lt[i, j] -= c[i] * u[j]
+            for i in range(n):
+                for j in range(i, n):
+                    v = 0.5 * (Lt[i, j] + Lt[j, i]) + si * c[i] * c[j]
+                    Lt[i, j] = v
+                    Lt[j, i] = v
+        else:
+            for i in range(n):
+                lt[i] = lam[i]
+                for j in range(n):
+                    Lt[i, j] = Lam[i, j]
+        # λ̂ = Aᵀ λ̃ : (Aᵀv)[j] = a_j v_0 + v_{j+1} (j<m−1); a_{m−1} v_0 (j=m−1); v_{m+1} (j=m); 0
+        for j in range(m - 1):
+            lam[j] = a[j] * lt[0] + lt[j + 1]
+        lam[m - 1] = a[m - 1] * lt[0]
+        lam[m] = lt[m + 1]
+        lam[m + 1] = 0.0
+        # T = Aᵀ Λ̃ (columns), Λ̂ = T A = (Aᵀ Tᵀ)ᵀ (rows)
+        for col in range(n):
+            for j in range(m - 1):
+                T[j, col] = a[j] * Lt[0, col] + Lt[j + 1, col]
+            T[m - 1, col] = a[m - 1] * Lt[0, col]
+            T[m, col] = Lt[m + 1, col]
+            T[m + 1, col] = 0.0
+        for row in range(n):
+            for j in range(m - 1):
+                Lam[row, j] = a[j] * T[row, 0] + T[row, j + 1]
+            Lam[row, m - 1] = a[m - 1] * T[row, 0]
+            Lam[row, m] = T[row, m + 1]
+            Lam[row, m + 1] = 0.0
+
+
+@njit(cache=True)
+def _smooth_bf(z, Qs, Rs, a, m, x0, P0, out_mean, out_var, out_filt):
+    N = z.shape[0]
+    n = m + 2
+    prow = np.empty((N, n))
+    Kst = np.empty((N, n))
+    nust = np.empty(N)
+    sinv = np.empty(N)
+    ll = _forward_bf(z, Qs, Rs, a, m, x0, P0, out_filt, prow, Kst, nust, sinv)
+    _backward_bf(a, m, out_filt, prow, Kst, nust, sinv, out_mean, out_var)
+    return ll
+
+
+@njit(cache=True)
+def _loglik_only(z, Qs, Rs, a, m, x0, P0):
+    n = m + 2
+    N = z.shape[0]
+    x = x0.copy()
+    P = P0.copy()
+    xp = x0.copy()
+    Pp = P0.copy()
+    T = np.empty((n, n))
+    K = np.zeros(n)
+    g = np.empty(n)
+    h = np.empty(n)
+    ll = 0.0
+    for k in range(N):
+        if k > 0:
+            _predict(a, m, x, P, xp, Pp, T, Qs[k], Rs[k])
+        zk = z[k]
+        if zk == zk:
+            nu, s = _update(m, xp, Pp, zk, x, P, K, g, h)
+            ll -= 0.5 * (_LOG_2PI + np.log(s) + nu * nu / s)
+        else:
+            for i in range(n):
+                x[i] = xp[i]
+                for j in range(n):
+                    P[i, j] = Pp[i, j]
+    return ll
+
+
+@njit(cache=True)
+def _chol_solve_inplace(S, Bm):
+    """Solve S X = Bm for symmetric positive definite S (n×n), Bm (n×p) overwritten."""
+    n = S.shape[0]
+    L = np.zeros((n, n))
+    for i in range(n):
+        for j in range(i + 1):
+            s = S[i, j]
+            for k in range(j):
+                s -= L[i, k] * L[j, k]
+            if i == j:
+                if s <= 0.0:
+                    s = 1e-300
+                L[i, i] = np.sqrt(s)
+            else:
+                L[i, j] = s / L[j, j]
+    p = Bm.shape[1]
+    for c in range(p):
+        for i in range(n):
+            s = Bm[i, c]
+            for k in range(i):
+                s -= L[i, k] * Bm[k, c]
+            Bm[i, c] = s / L[i, i]
+        for i in range(n - 1, -1, -1):
+            s = Bm[i, c]
+            for k in range(i + 1, n):
+                s -= L[k, i] * Bm[k, c]
+            Bm[i, c] = s / L[i, i]
+
+
+@njit(cache=True)
+def _smooth_rts(z, Qs, Rs, a, m, x0, P0, out_mean, out_var, out_filt):
+    n = m + 2
+    N = z.shape[0]
+    xs = np.empty((N, n))
+    Ps = np.empty((N, n, n))
+    xps = np.empty((N, n))
+    Pps = np.empty((N, n, n))
+    x = x0.copy()
+    P = P0.copy()
+    xp = x0.copy()
+    Pp = P0.copy()
+    T = np.empty((n, n))
+    K = np.zeros(n)
+    g = np.empty(n)
+    h = np.empty(n)
+    ll = 0.0
+    for k in range(N):
+        if k > 0:
+            _predict(a, m, x, P, xp, Pp, T, Qs[k], Rs[k])
+        zk = z[k]
+        if zk == zk:
+            nu, s = _update(m, xp, Pp, zk, x, P, K, g, h)
+            ll -= 0.5 * (_LOG_2PI + np.log(s) + nu * nu / s)
+        else:
+            for i in range(n):
+                x[i] = xp[i]
+                for j in range(n):
+                    P[i, j] = Pp[i, j]
+        xs[k] = x
+        Ps[k] = P
+        xps[k] = xp
+        Pps[k] = Pp
+        out_filt[k] = x[0]
+    # backward
+    xsm = xs[N - 1].copy()
+    Psm = Ps[N - 1].copy()
+    out_mean[N - 1] = xsm[0]
+    out_var[N - 1] = Psm[0, 0]
+    AP = np.empty((n, n))
+    G = np.empty((n, n))
+    dx = np.empty(n)
+    D = np.empty((n, n))
+    GD = np.empty((n, n))
+    xtmp = np.empty(n)
+    for k in range(N - 2, -1, -1):
+        # AP = A P_k  (= (P_k Aᵀ)ᵀ);  solve P⁻_{k+1} Gᵀ = A P_k
+        Pk = Ps[k]
+        for col in range(n):
+            s = 0.0
+            for j in range(m):
+                s += a[j] * Pk[j, col]
+            AP[0, col] = s
+            for i in range(1, m):
+                AP[i, col] = Pk[i - 1, col]
+            AP[m, col] = 0.0
+            AP[m + 1, col] = Pk[m, col]
+        _chol_solve_inplace(Pps[k + 1], AP)  # AP now holds Gᵀ
+        for i in range(n):
+            for j in range(n):
+                G[i, j] = AP[j, i]
+        for i in range(n):
+            dx[i] = xsm[i] - xps[k + 1, i]
+            for j in range(n):
+                D[i, j] = Psm[i, j] - Pps[k + 1, i, j]
+        for i in range(n):
+            s = 0.0
+            for j in range(n):
+                s += G[i, j] * dx[j]
+            xtmp[i] = xs[k, i] + s
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for l in range(n):
+                    s += G[i, l] * D[l, j]
+                GD[i, j] = s
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for l in range(n):
+                    s += GD[i, l] * G[j, l]
+                Psm[i, j] = Pk[i, j] + s
+        for i in range(n):
+            for j in range(i + 1, n):
+                v = 0.5 * (Psm[i, j] + Psm[j, i])
+                Psm[i, j] = v
+                Psm[j, i] = v
+        for i in range(n):
+            xsm[i] = xtmp[i]
+        out_mean[k] = xsm[0]
+        out_var[k] = Psm[0, 0]
+    return ll
+
+
+# ---------------------------------------------------------------------------
+# Input validation and the public entry points
+# ---------------------------------------------------------------------------
+
+
+def _per_epoch(name: str, v, N: int) -> np.ndarray:
+    arr = np.asarray(v, dtype=float)
+    if arr.ndim == 0:
+        arr = np.full(N, float(arr))
+    elif arr.ndim != 1:
+        raise ValueError(f"{name} must be a scalar or a 1-D array, got shape {arr.shape}")
+    elif arr.shape[0] != N:
+        raise ValueError(f"{name} has length {arr.shape[0]} but z has length {N}")
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains NaN or infinite values")
+    if np.any(arr <= 0.0):
+        raise ValueError(f"{name} must be > 0 at every epoch (min {arr.min():g})")
+    return np.ascontiguousarray(arr)
+
+
+def _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0):
+    m = _check_m(m)
+    dt = _check_dt(dt_s)
+    z = np.ascontiguousarray(np.asarray(z_mgal, dtype=float))
+    if z.ndim != 1:
+        raise ValueError(f"z_mgal must be 1-D, got shape {z.shape}")
+    if np.any(np.isinf(z)):
+        raise ValueError("z_mgal contains infinite values (use NaN for missing epochs)")
+    N = z.shape[0]
+    finite = np.isfinite(z)
+    nfin = int(finite.sum())
+    if N < m + 2 or nfin < m + 2:
+        raise ValueError(
+            f"line too short for m={m}: need at least {m + 2} finite epochs, "
+            f"got {nfin} finite of {N}")
+    Q = _per_epoch("Q_mgal2", Q_mgal2, N)
+    R = _per_epoch("R_cm2s2", R_cm2s2, N)
+    scale = MGAL_PER_CMS2 / dt
+    Rs = R * (scale * scale)  # variance of ρ = 1000 r/Δt (mGal²)
+    n = m + 2
+    if x0 is None:
+        nwin = max(int(round(PRIOR_MEAN_WINDOW_S / dt)), m + 2)
+        idx = np.flatnonzero(finite)
+        sel = idx[idx < nwin]
+        if sel.size < m + 2:
+            sel = idx[: m + 2]
+        mean0 = float(np.mean(z[sel]))
+        x0v = np.zeros(n)
+        x0v[:m] = mean0
+    else:
+        x0v = np.asarray(x0, dtype=float).reshape(-1).copy()
+        if x0v.shape != (n,):
+            raise ValueError(f"x0 must have shape ({n},), got {np.shape(x0)}")
+        x0v[m:] *= scale
+    if P0 is None:
+        P0v = np.zeros((n, n))
+        for i in range(m):
+            P0v[i, i] = PRIOR_DG_STD_MGAL ** 2
+        P0v[m, m] = Rs[0]
+        P0v[m + 1, m + 1] = Rs[0]
+    else:
+        P0v = np.array(P0, dtype=float)
+        if P0v.shape != (n, n):
+            raise ValueError(f"P0 must have shape ({n}, {n}), got {P0v.shape}")
+        if not np.allclose(P0v, P0v.T) or np.any(np.linalg.eigvalsh(P0v) < -1e-12 * np.abs(P0v).max()):
+            raise ValueError("P0 must be symmetric positive semi-definite")
+        P0v[m:, :] *= scale
+        P0v[:, m:] *= scale
+    if not np.all(np.isfinite(x0v)) or not np.all(np.isfinite(P0v)):
+        raise ValueError("x0 / P0 must be finite")
+    return m, z, Q, Rs, ar_coefficients(m), np.ascontiguousarray(x0v), np.ascontiguousarray(P0v)
+
+
+def kalman_smooth(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, method: str = "bf",
+                  x0=None, P0=None) -> SmootherResult:
+    """Fixed-interval smoothing of one line under the seed-000 model.
+
+    Parameters
+    ----------
+    z_mgal : array_like, shape (T,)
+        Anomaly measurements ``z_k`` (mGal); NaN = no measurement at that epoch.
+    Q_mgal2 : float or array_like, shape (T,)
+        Variance of ``q_k = ∇^m δg_k`` (mGal² per GNSS step), > 0.  ``Q[0]`` is unused
+        (the prior covers epoch 0).
+    R_cm2s2 : float or array_like, shape (T,)
+        Variance of the GNSS vertical-velocity error ``r_k`` ((cm/s)²), > 0.
+    dt_s : float
+        GNSS step Δt (s).
+    m : int, default 2
+        Order of the anomaly model, 1..3.
+    method : {'bf', 'rts'}
+        Modified Bryson–Frazier (default, no matrix inverse) or Rauch–Tung–Striebel.
+    x0, P0 : array_like, optional
+        Prior mean (m+2,) and covariance (m+2, m+2) of ``y_0`` in model units
+        (δg in mGal, r in cm/s).  Default: the diffuse-ish prior described in the
+        module docstring.
+
+    Returns
+    -------
+    SmootherResult
+
+    Raises
+    ------
+    ValueError
+        Bad ``m``, ``dt_s``, ``method``; Q or R ≤ 0 or non-finite; length mismatch;
+        fewer than ``m + 2`` finite measurements.
+    """
+    if method not in ("bf", "rts"):
+        raise ValueError(f"method must be 'bf' or 'rts', got {method!r}")
+    m, z, Q, Rs, a, x0v, P0v = _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0)
+    N = z.shape[0]
+    mean = np.empty(N)
+    var = np.empty(N)
+    filt = np.empty(N)
+    fn = _smooth_bf if method == "bf" else _smooth_rts
+    ll = fn(z, Q, Rs, a, m, x0v, P0v, mean, var, filt)
+    if np.any(var < 0.0):
+        # Only round-off can produce this; report rather than hide it.
+        neg = var.min()
+        if neg < -1e-9 * max(1.0, float(np.max(np.abs(var)))):
+            raise FloatingPointError(f"negative posterior variance {neg:g} (numerical breakdown)")
+        var = np.maximum(var, 0.0)
+    return SmootherResult(dg_mgal=mean, dg_std_mgal=np.sqrt(var), loglik=float(ll),
+                          filtered_mgal=filt)
+
+
+def kalman_loglik(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, x0=None, P0=None) -> float:
+    """Innovations log-likelihood of one line (Kalman filter only; same prior as
+    :func:`kalman_smooth`).  Units and validation as in :func:`kalman_smooth`."""
+    m, z, Q, Rs, a, x0v, P0v = _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0)
+    return float(_loglik_only(z, Q, Rs, a, m, x0v, P0v))
+
+
+def smooth_many(z_lines: Sequence, Q_lines, R_lines, dt_s, m: int = 2,
+                method: str = "bf") -> list[SmootherResult]:
+    """Smooth many lines independently (each with its own default prior).
+
+    Parameters
+    ----------
+    z_lines : sequence of array_like
+        One measurement array per line (mGal).
+    Q_lines, R_lines : sequence (one entry per line) of float or array_like, or a single float
+        Per-line Q (mGal² per step) and R ((cm/s)²), scalar or per-epoch.
+    dt_s, m, method
+        As in :func:`kalman_smooth`.
+
+    Returns
+    -------
+    list of SmootherResult, in the order of ``z_lines``.
+    """
+    L = len(z_lines)
+
+    def _expand(v, name):
+        if np.ndim(v) == 0:
+            return [v] * L
+        if len(v) != L:
+            raise ValueError(f"{name} has {len(v)} entries but there are {L} lines")
+        return list(v)
+
+    Qs = _expand(Q_lines, "Q_lines")
+    Rs = _expand(R_lines, "R_lines")
+    return [kalman_smooth(z, q, r, dt_s, m=m, method=method)
+            for z, q, r in zip(z_lines, Qs, Rs)]
+
+
+# ---------------------------------------------------------------------------
+# Generic linear-Gaussian models (numpy; small problems)
+# ---------------------------------------------------------------------------
+
+
+def _generic_inputs(A, Qmat, C, Rmeas, z, x0, P0, u):
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    n = A.shape[0]
+    if A.shape != (n, n):
+        raise ValueError(f"A must be square, got {A.shape}")
+    C = np.atleast_2d(np.asarray(C, dtype=float))
+    p = C.shape[0]
+    if C.shape[1] != n:
+        raise ValueError(f"C must have {n} columns, got {C.shape}")
+    z = np.asarray(z, dtype=float)
+    if z.ndim == 1:
+        z = z[:, None]
+    if z.ndim != 2 or z.shape[1] != p:
+        raise ValueError(f"z must have shape (T, {p}), got {np.shape(z)}")
+    N = z.shape[0]
+    if N < 2:
+        raise ValueError("need at least 2 epochs")
+
+    def _cov_seq(M, name, d):
+        M = np.asarray(M, dtype=float)
+        if M.ndim == 0 and d == 1:
+            M = M.reshape(1, 1)
+        elif M.ndim == 1 and d == 1 and M.shape[0] == N:
+            M = M.reshape(N, 1, 1)
+        if M.ndim == 2:
+            M = np.broadcast_to(M, (N, d, d))
+        if M.shape != (N, d, d):
+            raise ValueError(f"{name} must be ({d},{d}) or ({N},{d},{d}), got {M.shape}")
+        return M
+
+    Qm = _cov_seq(Qmat, "Qmat", n)
+    Rm = _cov_seq(Rmeas, "Rmeas", p)
+    x0 = np.asarray(x0, dtype=float).reshape(n)
+    P0 = np.asarray(P0, dtype=float).reshape(n, n)
+    if u is None:
+        u = np.zeros((N, n))
+    else:
+        u = np.asarray(u, dtype=float)
+        if u.ndim == 1 and n == 1:
+            u = u[:, None]
+        if u.shape != (N, n):
+            raise ValueError(f"u must have shape ({N}, {n}), got {u.shape}")
+    return A, Qm, C, Rm, z, x0, P0, u
+
+
+def kalman_filter(A, Qmat, C, Rmeas, z, x0, P0, u=None):
+    """Kalman filter for ``x_k = A x_{k−1} + u_k + w_k``, ``z_k = C x_k + v_k``.
+
+    Parameters
+    ----------
+    A : (n, n); Qmat : (n, n) or (T, n, n); C : (p, n); Rmeas : (p, p) or (T, p, p)
+    z : (T,) or (T, p), NaN rows = no measurement
+    x0, P0 : prior of x_0 before z_0 (no prediction at k = 0)
+    u : (T, n), optional known input (u_0 unused)
+
+    Returns
+    -------
+    xf (T, n), Pf (T, n, n), xp (T, n), Pp (T, n, n), loglik (float).
+    The update uses the Joseph form.
+    """
+    A, Qm, C, Rm, z, x0, P0, u = _generic_inputs(A, Qmat, C, Rmeas, z, x0, P0, u)
+    N, n = z.shape[0], A.shape[0]
+    xf = np.empty((N, n)); Pf = np.empty((N, n, n))
+    xp = np.empty((N, n)); Pp = np.empty((N, n, n))
+    x, P = x0.copy(), P0.copy()
+    ll = 0.0
+    I = np.eye(n)
+    for k in range(N):
+        if k > 0:
+            x = A @ x + u[k]
+            P = A @ P @ A.T + Qm[k]
+        xp[k], Pp[k] = x, P
+        if np.all(np.isfinite(z[k])):
+            S = C @ P @ C.T + Rm[k]
+            Kt = np.linalg.solve(S, C @ P)  # Kᵀ
+            K = Kt.T
+            nu = z[k] - C @ x
+            x = x + K @ nu
+            IKC = I - K @ C
+            P = IKC @ P @ IKC.T + K @ Rm[k] @ K.T
+            P = 0.5 * (P + P.T)
+            sign, logdet = np.linalg.slogdet(S)
+            ll -= 0.5 * (len(nu) * _LOG_2PI + logdet + nu @ np.linalg.solve(S, nu))
+        xf[k], Pf[k] = x, P
+    return xf, Pf, xp, Pp, float(ll)
+
+
+def rts_smooth(A, Qmat, C, Rmeas, z, x0, P0, u=None):
+    """Rauch–Tung–Striebel fixed-interval smoother for a generic linear-Gaussian model.
+
+    Same arguments as :func:`kalman_filter`.  The gain ``G = P_k Aᵀ (P⁻_{k+1})⁻¹`` uses a
+    least-squares solve (pseudo-inverse if the predicted covariance is singular).
+
+    Returns
+    -------
+    xs (T, n), Ps (T, n, n), loglik (float).
+    """
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    xf, Pf, xp, Pp, ll = kalman_filter(A, Qmat, C, Rmeas, z, x0, P0, u)
+    N = xf.shape[0]
+    xs = xf.copy(); Ps = Pf.copy()
+    for k in range(N - 2, -1, -1):
+        Gt = np.linalg.lstsq(Pp[k + 1], A @ Pf[k], rcond=None)[0]
+        G = Gt.T
+        xs[k] = xf[k] + G @ (xs[k + 1] - xp[k + 1])
+        Pk = Pf[k] + G @ (Ps[k + 1] - Pp[k + 1]) @ G.T
+        Ps[k] = 0.5 * (Pk + Pk.T)
+    return xs, Ps, ll
+
+
+def two_filter_smooth(A, Qmat, C, Rmeas, z, x0, P0, u=None):
+    """Two-filter (Fraser–Potter) fixed-interval smoother.
+
+    Forward: Kalman filter (:func:`kalman_filter`).  Backward: an information filter
+    run from k = T−1 down to 0 with no prior information at the end, carrying the
+    information matrix ``I_k`` and vector ``i_k`` of the measurements ``z_{k+1..T−1}``
+    about ``x_k``.  The backward prediction is written as
+    ``I_{k} = Aᵀ (I + M Q)⁻¹ M A``, ``i_k = Aᵀ (I + M Q)⁻¹ (j − M u_{k+1})`` with
+    ``M, j`` the information after using ``z_{k+1}``, which avoids the inverses of
+    ``A``, of ``Q`` and of the (possibly singular) information matrix; the fusion is
+    ``P_s = (I + P_f I_B)⁻¹ P_f``, ``x_s = (I + P_f I_B)⁻¹ (x_f + P_f i_B)``, which avoids
+    the inverse of the filtered covariance.  The classical form of seed 002 inverts
+    ``A`` in the backward model; this form gives the same numbers where that one
+    exists.
+
+    Same arguments as :func:`kalman_filter`; ``Rmeas`` must be positive definite (the
+    backward information update uses ``Cᵀ R⁻¹ C``), so the seed-000 model, which has no
+    measurement noise, is smoothed with :func:`kalman_smooth` instead.
+
+    Returns
+    -------
+    xs (T, n), Ps (T, n, n), loglik (float) of the forward filter.
+    """
+    A, Qm, C, Rm, zz, x0v, P0v, uu = _generic_inputs(A, Qmat, C, Rmeas, z, x0, P0, u)
+    if np.any(np.linalg.eigvalsh(np.asarray(Rm)) <= 0.0):
+        raise ValueError("two_filter_smooth needs a positive definite measurement covariance "
+                         "(the backward information filter uses R⁻¹); use the Bryson–Frazier "
+                         "or RTS smoother for models without measurement noise")
+    xf, Pf, _, _, ll = kalman_filter(A, Qmat, C, Rmeas, z, x0, P0, u)
+    N, n = xf.shape
+    I = np.eye(n)
+    IB = np.zeros((n, n))  # information about x_k from z_{k+1..}
+    iB = np.zeros(n)
+    xs = np.empty_like(xf); Ps = np.empty_like(Pf)
+    for k in range(N - 1, -1, -1):
+        # fuse
+        F = I + Pf[k] @ IB
+        Psk = np.linalg.solve(F, Pf[k])
+        Ps[k] = 0.5 * (Psk + Psk.T)
+        xs[k] = np.linalg.solve(F, xf[k] + Pf[k] @ iB)
+        if k == 0:
+            break
+        # add z_k
+        M = IB.copy(); j = iB.copy()
+        if np.all(np.isfinite(zz[k])):
+            CtRi = np.linalg.solve(Rm[k], C).T  # Cᵀ R⁻¹ (R symmetric)
+            M = M + CtRi @ C
+            j = j + CtRi @ zz[k]
+        # predict backwards to k−1 through x_k = A x_{k−1} + u_k + w_k
+        W = np.linalg.solve(I + M @ Qm[k], np.column_stack([M, j - M @ uu[k]]))
+        IB = A.T @ W[:, :n] @ A
+        IB = 0.5 * (IB + IB.T)
+        iB = A.T @ W[:, n]
+    return xs, Ps, ll
