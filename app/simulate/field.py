@@ -1,0 +1,123 @@
+"""Anomaly field at flight height: harmonica point masses on a grid, bicubic interpolant.
+
+Two parts: a "mountainous" part (many shallow sources, inside ridge bands, short
+wavelengths) and a "plain" part (sparse deep sources everywhere, smooth).  The
+gravity disturbance δg (mGal, positive for a mass excess) is harmonica's
+``g_z`` (downward component) of the sources, evaluated on a regular grid at the
+flight height and interpolated with a bicubic spline.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import RectBivariateSpline
+
+
+@dataclass
+class Ridges:
+    """Mountain mask: union of straight bands (km relative to the survey centre)."""
+
+    x_km: np.ndarray        # a point on each ridge axis
+    y_km: np.ndarray
+    angle_rad: np.ndarray   # axis direction, from north, clockwise
+    half_width_km: np.ndarray
+
+    def contains(self, x_km, y_km) -> np.ndarray:
+        """Boolean mask, same shape as the broadcast inputs."""
+        x = np.asarray(x_km, dtype=float)
+        y = np.asarray(y_km, dtype=float)
+        inside = np.zeros(np.broadcast(x, y).shape, dtype=bool)
+        for xc, yc, a, w in zip(self.x_km, self.y_km, self.angle_rad, self.half_width_km):
+            # distance from the axis through (xc, yc) with direction (sin a, cos a)
+            d = np.abs((x - xc) * np.cos(a) - (y - yc) * np.sin(a))
+            inside |= d < w
+        return inside
+
+
+def make_ridges(width_km: float, rng) -> Ridges:
+    """Ridge bands crossing the east–west lines, about 35 % of the area."""
+    n = max(1, int(round(width_km / 70.0)))
+    cell = width_km / n
+    xs = -width_km / 2 + (np.arange(n) + 0.5) * cell + rng.uniform(-0.15, 0.15, n) * cell
+    ang = np.deg2rad(rng.uniform(-25.0, 25.0, n))
+    w = np.clip(0.18 * cell, 3.0, 15.0) * rng.uniform(0.85, 1.15, n)
+    return Ridges(xs, np.zeros(n), ang, w)
+
+
+@dataclass
+class AnomalyField:
+    """Gridded δg at flight height and its bicubic interpolant (coordinates in km, absolute CRS)."""
+
+    easting_km: np.ndarray      # (nx,)
+    northing_km: np.ndarray     # (ny,)
+    dg_mgal: np.ndarray         # (ny, nx)
+    e0_km: float                # survey centre in the CRS
+    n0_km: float
+    ridges: Ridges
+    info: dict
+
+    def __post_init__(self):
+        self._spl = RectBivariateSpline(self.northing_km, self.easting_km, self.dg_mgal, kx=3, ky=3)
+
+    def __call__(self, easting_km, northing_km) -> np.ndarray:
+        """δg (mGal) at absolute projected coordinates (km)."""
+        return self._spl.ev(np.asarray(northing_km, float), np.asarray(easting_km, float))
+
+    def terrain_mountain(self, easting_km, northing_km) -> np.ndarray:
+        return self.ridges.contains(np.asarray(easting_km) - self.e0_km, np.asarray(northing_km) - self.n0_km)
+
+
+def make_field(cfg, extent_km, e0_km: float, n0_km: float, rng) -> AnomalyField:
+    """Forward-model the anomaly on a grid covering ``extent_km`` plus a margin.
+
+    Parameters
+    ----------
+    extent_km : (xmin, xmax, ymin, ymax)
+        Extent of the flight paths relative to the survey centre (km).
+    e0_km, n0_km : float
+        Survey centre in the projected CRS (km).
+    """
+    import harmonica as hm
+
+    xmin, xmax, ymin, ymax = extent_km
+    m = cfg.grid_margin_km
+    sp = cfg.grid_spacing_km
+    xg = np.arange(np.floor((xmin - m) / sp) * sp, xmax + m + sp, sp)
+    yg = np.arange(np.floor((ymin - m) / sp) * sp, ymax + m + sp, sp)
+    X, Y = np.meshgrid(xg, yg)
+    ridges = make_ridges(xmax - xmin, rng)
+    obs = (X.ravel() * 1000.0, Y.ravel() * 1000.0, np.full(X.size, cfg.height_m))
+    # a little beyond the grid so edges are not source-free
+    sx0, sx1, sy0, sy1 = xg[0] - 5, xg[-1] + 5, yg[0] - 5, yg[-1] + 5
+    area = (sx1 - sx0) * (sy1 - sy0)
+    # mountains: shallow sources inside the ridge bands (0.3-2.5 km below a 500 m surface)
+    n_try = int(cfg.mountain_sources_per_km2 * area)
+    px = rng.uniform(sx0, sx1, n_try)
+    py = rng.uniform(sy0, sy1, n_try)
+    keep = ridges.contains(px, py)
+    px, py = px[keep], py[keep]
+    pz = 500.0 - rng.uniform(300.0, 2500.0, px.size)
+    mass = rng.standard_normal(px.size) * 1e10
+    g_m = np.zeros(X.size)
+    if px.size:
+        g_m = hm.point_gravity(obs, (px * 1000.0, py * 1000.0, pz), mass, field="g_z", parallel=True)
+    mask_grid = ridges.contains(X, Y).ravel()
+    s = np.std(g_m[mask_grid]) if mask_grid.any() else np.std(g_m)
+    g_m = g_m * (cfg.mountain_std_mgal / s) if s > 0 else g_m
+    # plain: sparse deep sources everywhere
+    n_p = max(8, int(cfg.plain_sources_per_km2 * area))
+    qx = rng.uniform(sx0 - 20, sx1 + 20, n_p)
+    qy = rng.uniform(sy0 - 20, sy1 + 20, n_p)
+    qz = -rng.uniform(6000.0, 20000.0, n_p)
+    g_p = hm.point_gravity(obs, (qx * 1000.0, qy * 1000.0, qz), rng.standard_normal(n_p) * 1e12,
+                           field="g_z", parallel=True)
+    g_p = (g_p - np.mean(g_p)) * (cfg.plain_std_mgal / np.std(g_p))
+    dg = (g_m + g_p).reshape(X.shape)
+    info = {"n_mountain_sources": int(px.size), "n_plain_sources": int(n_p),
+            "mountain_fraction_of_grid": float(mask_grid.mean()),
+            "ridges": [{"x_km": float(a), "y_km": float(b), "angle_deg": float(np.rad2deg(c)),
+                        "half_width_km": float(d)} for a, b, c, d in
+                       zip(ridges.x_km, ridges.y_km, ridges.angle_rad, ridges.half_width_km)]}
+    return AnomalyField(xg + e0_km, yg + n0_km, dg, e0_km, n0_km, ridges, info)

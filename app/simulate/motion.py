@@ -1,0 +1,269 @@
+"""Aircraft motion: flight plan, horizontal trajectory, vertical motion.
+
+Horizontal motion is a piecewise polynomial in time in the projected plane
+(metres, relative to the survey centre): straight segments at constant speed on
+lines (level, unaccelerated), quintic Hermite transitions (turns, transits) that
+match position, velocity and zero acceleration at both ends, so the horizontal
+acceleration is continuous.
+
+Vertical motion is an acceleration ``a_up(t)`` defined as the not-a-knot cubic
+spline through samples on a fine uniform grid (≥100 Hz) of a band-limited random
+process (phugoid + coloured turbulence).  Velocity and height are its exact
+antiderivatives (``scipy.interpolate.PPoly``), so for any interval
+``(V(b) − V(a))/(b − a)`` is exactly the mean of ``a_up`` over ``(a, b]``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline, PPoly
+
+
+@dataclass
+class PlannedLine:
+    """One survey line in the plane (km relative to the survey centre)."""
+
+    line: str
+    kind: str              # main | tie | repeat
+    track: str | None
+    start_km: tuple[float, float]   # (east, north) where the line window starts
+    end_km: tuple[float, float]
+
+
+def layout_lines(cfg) -> list[PlannedLine]:
+    """Main, tie and repeat lines in flying order (headings alternate).
+
+    Returns
+    -------
+    list of PlannedLine
+        Main lines (east–west, south to north), then tie lines (north–south,
+        west to east), then the repeat track flown ``cfg.n_repeat`` times.
+    """
+    out: list[PlannedLine] = []
+    L = cfg.main_length_km
+    ys = (np.arange(cfg.n_main) - (cfg.n_main - 1) / 2.0) * cfg.main_spacing_km
+    for i, y in enumerate(ys):
+        xa, xb = (-L / 2, L / 2) if i % 2 == 0 else (L / 2, -L / 2)
+        out.append(PlannedLine(f"M{i + 1:03d}", "main", None, (xa, float(y)), (xb, float(y))))
+    if cfg.n_tie > 0:
+        y_lo = float(ys.min()) - cfg.tie_margin_km
+        y_hi = float(ys.max()) + cfg.tie_margin_km
+        xs = (np.arange(cfg.n_tie) + 0.5) / cfg.n_tie * L - L / 2
+        for j, x in enumerate(xs):
+            ya, yb = (y_lo, y_hi) if j % 2 == 0 else (y_hi, y_lo)
+            out.append(PlannedLine(f"T{j + 1:02d}", "tie", None, (float(x), ya), (float(x), yb)))
+    if cfg.n_repeat > 0:
+        Lr = cfg.repeat_length_km or L
+        # midway between the two central main lines
+        y = 0.0 if cfg.n_main % 2 == 0 else 0.5 * cfg.main_spacing_km
+        for r in range(cfg.n_repeat):   # all passes in the same direction (racetrack)
+            xa, xb = (-Lr / 2, Lr / 2)
+            out.append(PlannedLine(f"R1-{r + 1}", "repeat", "R1", (xa, y), (xb, y)))
+    return out
+
+
+def _quintic(p0, v0, p1, v1, T):
+    """Coefficients (highest power first) of the quintic with p(0)=p0, p'(0)=v0,
+    p''(0)=0, p(T)=p1, p'(T)=v1, p''(T)=0 in local time s ∈ [0, T]."""
+    M = np.array([[T ** 3, T ** 4, T ** 5],
+                  [3 * T ** 2, 4 * T ** 3, 5 * T ** 4],
+                  [6 * T, 12 * T ** 2, 20 * T ** 3]])
+    rhs = np.array([p1 - p0 - v0 * T, v1 - v0, 0.0])
+    c3, c4, c5 = np.linalg.solve(M, rhs)
+    return np.array([c5, c4, c3, 0.0, v0, p0])
+
+
+def _turn(a, b, r):
+    """Displacement (m) and angle (rad) of a circular turn of radius r from heading a to b.
+
+    Left turn when ``a × b ≥ 0`` (exact reversals turn left):
+    ``Y − X = ±r·(rot90(a) − rot90(b))``.
+    """
+    cross = a[0] * b[1] - a[1] * b[0]
+    sgn = 1.0 if cross >= 0 else -1.0
+    th = float(np.arccos(np.clip(np.dot(a, b), -1.0, 1.0)))
+    rot = lambda u: np.array([-u[1], u[0]])  # noqa: E731
+    return sgn * r * (rot(a) - rot(b)), th
+
+
+@dataclass
+class FlightPath:
+    """Horizontal trajectory of one flight and the line windows it contains."""
+
+    name: str
+    t0: float
+    t1: float
+    x_pp: PPoly            # easting relative to centre (m) as a function of time
+    y_pp: PPoly            # northing relative to centre (m)
+    windows: list[tuple[PlannedLine, float, float]]
+
+
+def plan_flight(name: str, lines: list[PlannedLine], t0: float, cfg, rng) -> FlightPath:
+    """Build the horizontal trajectory of one flight flying ``lines`` in order.
+
+    All segment durations are multiples of 0.1 s, so line windows start and end on
+    GNSS epochs (``t0`` is a whole second).
+    """
+    v = cfg.speed_ms
+    breaks = [t0]
+    cx, cy = [], []
+    windows = []
+    t = t0
+    prev_end = None  # (x, y, vx, vy)
+    for k, ln in enumerate(lines):
+        a = np.array(ln.start_km) * 1000.0
+        b = np.array(ln.end_km) * 1000.0
+        d = b - a
+        length = float(np.hypot(*d))
+        u = d / length
+        dur = round(length / v, 1)
+        vv = u * (length / dur)                 # exact speed so the window is a whole number of 0.1 s
+        pre = cfg.run_in_s + (cfg.lead_s if k == 0 else 0.0)
+        post = cfg.run_out_s + (cfg.tail_s if k == len(lines) - 1 else 0.0)
+        s0 = a - vv * pre                       # start of the straight segment
+        s1 = b + vv * post
+        if prev_end is not None:
+            px, py, pvx, pvy = prev_end
+            P = np.array([px, py])
+            vp = np.array([pvx, pvy])
+            dist = float(np.hypot(*(s0 - P)))
+            T = round(float(rng.uniform(*cfg.turn_s)), 1)
+            if dist <= 2.5 * cfg.main_spacing_km * 1000.0 + 1.0:
+                # turn onto a neighbouring line: one smooth transition
+                cx.append(_quintic(P[0], vp[0], s0[0], vv[0], T))
+                cy.append(_quintic(P[1], vp[1], s0[1], vv[1], T))
+                t = round(t + T, 1)
+                breaks.append(t)
+            else:
+                # transit: circular-like turn towards the target, straight at cruise speed,
+                # turn onto the line (reversals become racetrack turns of radius r)
+                r = v * T / np.pi
+                up = vp / np.hypot(*vp)
+                un = vv / np.hypot(*vv)
+                ut = (s0 - P) / dist
+                for _ in range(4):
+                    D1, th1 = _turn(up, ut, r)
+                    D2, th2 = _turn(ut, un, r)
+                    W1, W2 = P + D1, s0 - D2
+                    ut_new = (W2 - W1) / max(float(np.hypot(*(W2 - W1))), 1e-9)
+                    if np.allclose(ut_new, ut, atol=1e-9):
+                        break
+                    ut = ut_new
+                Ls = float(np.dot(W2 - W1, ut))
+                if Ls < 500.0:
+                    # target too close for a turn–straight–turn: one smooth transition
+                    Tq = round(max(T, dist / v * 1.3 + 30.0), 1)
+                    cx.append(_quintic(P[0], vp[0], s0[0], vv[0], Tq))
+                    cy.append(_quintic(P[1], vp[1], s0[1], vv[1], Tq))
+                    t = round(t + Tq, 1)
+                    breaks.append(t)
+                else:
+                    Ts = round(Ls / v, 1)
+                    vt = (W2 - W1) / Ts
+                    pieces = []
+                    if th1 > 0.05:
+                        pieces.append(("q", P, vp, W1, vt, round(max(r * th1 / v, 5.0), 1)))
+                    else:
+                        W1 = P
+                        Ts = round(float(np.hypot(*(W2 - W1))) / v, 1)
+                        vt = (W2 - W1) / Ts
+                    pieces.append(("s", W1, vt, None, None, Ts))
+                    if th2 > 0.05:
+                        pieces.append(("q", W2, vt, s0, vv, round(max(r * th2 / v, 5.0), 1)))
+                    else:   # no final turn: stretch the straight to s0
+                        pieces[-1] = ("s", W1, (s0 - W1) / Ts, None, None, Ts)
+                    for kind_, A, va, B, vb, TT in pieces:
+                        if kind_ == "q":
+                            cx.append(_quintic(A[0], va[0], B[0], vb[0], TT))
+                            cy.append(_quintic(A[1], va[1], B[1], vb[1], TT))
+                        else:
+                            cx.append(np.array([0, 0, 0, 0, va[0], A[0]], dtype=float))
+                            cy.append(np.array([0, 0, 0, 0, va[1], A[1]], dtype=float))
+                        t = round(t + TT, 1)
+                        breaks.append(t)
+        seg_T = round(pre + dur + post, 1)
+        cx.append(np.array([0, 0, 0, 0, vv[0], s0[0]], dtype=float))
+        cy.append(np.array([0, 0, 0, 0, vv[1], s0[1]], dtype=float))
+        windows.append((ln, round(t + pre, 1), round(t + pre + dur, 1)))
+        t = round(t + seg_T, 1)
+        breaks.append(t)
+        prev_end = (s0[0] + vv[0] * seg_T, s0[1] + vv[1] * seg_T, vv[0], vv[1])
+    x_pp = PPoly(np.array(cx).T, np.array(breaks))
+    y_pp = PPoly(np.array(cy).T, np.array(breaks))
+    return FlightPath(name, t0, t, x_pp, y_pp, windows)
+
+
+def _band_noise(n: int, fs: float, gain_fn, rng) -> np.ndarray:
+    """Real Gaussian noise of length n at rate fs with amplitude response gain_fn(f)."""
+    w = rng.standard_normal(n)
+    W = np.fft.rfft(w)
+    f = np.fft.rfftfreq(n, 1.0 / fs)
+    x = np.fft.irfft(W * gain_fn(f), n)
+    return x
+
+
+def vertical_motion(t0: float, t1: float, cfg, rng):
+    """Vertical acceleration of one flight as an exact piecewise cubic.
+
+    Parameters
+    ----------
+    t0, t1 : float
+        Flight time span (s).
+    cfg : SimConfig
+    rng : numpy.random.Generator
+
+    Returns
+    -------
+    a_pp, v_pp, h_pp : PPoly
+        Vertical acceleration (m/s², up), velocity (m/s) and height offset (m)
+        about the nominal flight height; ``v_pp`` and ``h_pp`` are exact
+        antiderivatives of ``a_pp`` (``v`` shifted to zero mean).
+    info : dict
+        Realised RMS of the turbulence acceleration and phugoid period.
+    """
+    fs = cfg.fine_rate_hz
+    pad = 20.0
+    n = int(np.ceil((t1 - t0 + 2 * pad) * fs)) + 1
+    tf = t0 - pad + np.arange(n) / fs
+    f_lo, f_hi = cfg.turbulence_band_hz
+    fmax = cfg.motion_max_hz
+
+    def turb_gain(f):
+        g = (f / f_lo) ** 2 / (1.0 + (f / f_lo) ** 2) / (1.0 + (f / f_hi) ** 4)
+        return np.where(f < fmax, g, 0.0)
+
+    turb = _band_noise(n, fs, turb_gain, rng)
+    turb /= max(np.std(turb), 1e-300)
+    # slowly varying intensity (correlation ~10 min), per-flight level drawn in the range
+    lvl_lo, lvl_hi = cfg.turbulence_rms_ms2
+    env = _band_noise(n, fs, lambda f: np.exp(-(f * 600.0) ** 2), rng)
+    env = env / max(np.std(env), 1e-300)
+    env = np.exp(0.5 * env)
+    env = env / np.mean(env) * rng.uniform(lvl_lo, lvl_hi)
+    a = turb * env
+    # phugoid: narrow band around 1/T_p with height amplitude ~ phugoid_amp_m
+    Tp = float(rng.uniform(*cfg.phugoid_period_s))
+    fp = 1.0 / Tp
+    ph = _band_noise(n, fs, lambda f: np.exp(-0.5 * ((f - fp) / (0.08 * fp)) ** 2), rng)
+    ph = ph / max(np.std(ph), 1e-300) * cfg.phugoid_amp_m * (2 * np.pi * fp) ** 2 / np.sqrt(2.0)
+    a = a + ph
+    # band-limit the sum (the envelope spreads the spectrum a little)
+    A = np.fft.rfft(a)
+    f = np.fft.rfftfreq(n, 1.0 / fs)
+    A[f > fmax * 1.25] = 0.0
+    A[f < 1.0 / 2000.0] = 0.0
+    a = np.fft.irfft(A, n)
+    a_pp = CubicSpline(tf, a, bc_type="not-a-knot")
+    a_pp = PPoly(a_pp.c, a_pp.x)
+    v_pp = a_pp.antiderivative()
+    # zero-mean velocity (an integration constant), then height offset about zero mean
+    vbar = float(np.mean(v_pp(tf)))
+    v_pp.c[-1] -= vbar
+    h_pp = v_pp.antiderivative()
+    hbar = float(np.mean(h_pp(tf)))
+    h_pp.c[-1] -= hbar
+    info = {"turbulence_rms_ms2": float(np.std(turb * env)), "phugoid_period_s": Tp,
+            "a_rms_ms2": float(np.std(a))}
+    return a_pp, v_pp, h_pp, info

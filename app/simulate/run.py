@@ -1,0 +1,354 @@
+"""Survey simulator: ``simulate_survey(preset, out_dir, seed, progress, **overrides)``.
+
+Physics (SPEC §1, "up" positive).  For every flight, on one time scale:
+
+* true vertical specific force (m/s²)
+  ``f = a_up + γ(φ, h)/1e5 + δg/1e5 − E/1e5 + drift/1e5 + noise``
+  with γ from :func:`app.core.geodesy.normal_gravity_mgal` (the survey's model) and
+  E from :func:`app.core.geodesy.eotvos_mgal` at the true position and velocity;
+* gravimeter output ``f'`` from ``τ·ḟ' + k·f' = f`` (solved exactly), sampled at
+  18.24 Hz as the mean of ``f'`` over each sampling interval, stamped at the
+  interval centre + ``time_offset_s`` and rounded to 1 ms;
+* GNSS at 10 Hz on exact multiples of 0.1 s: true position/velocity + white noise
+  (vertical velocity noise with noisy episodes).
+
+The injected δg is built so that its mean over every GNSS interval (t_{k−1}, t_k]
+is exactly ``dg_true_mgal[k]`` of ``truth/lines.parquet``; the true vertical
+velocity is the exact integral of the true vertical acceleration.  So with all
+noise, drift, lag and scale error switched off,
+``z_k = f̄_k − (V_k − V_{k−1})/Δt − γ_k + E_k = dg_true_k`` up to the difference
+between the interval means and the epoch values of γ and E (≪ 0.01 mGal on lines).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time as _time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.interpolate import CubicSpline, PPoly
+
+from app.core.geodesy import (OMEGA_EARTH, eotvos_mgal, normal_gravity_mgal, project_km,
+                              radii_of_curvature_m, unproject_km)
+from app.simulate.field import make_field
+from app.simulate.markov import empirical_transition, make_state_map, markov_line
+from app.simulate.motion import layout_lines, plan_flight, vertical_motion
+from app.simulate.presets import PRESETS, SimConfig
+from app.simulate.sensors import (LaggedResponse, noise_episodes, quadratic_from_means,
+                                  sigma_factor)
+
+MGAL = 1e-5  # m/s² per mGal
+
+
+def _cubic_pp(t, y) -> PPoly:
+    cs = CubicSpline(t, y, bc_type="not-a-knot")
+    return PPoly(cs.c, cs.x)
+
+
+def _geo_state(path, tq, h, cfg, e0_km, n0_km):
+    """Latitude, longitude and geographic velocities at times ``tq`` (exact path)."""
+    x = path.x_pp(tq) / 1000.0 + e0_km
+    y = path.y_pp(tq) / 1000.0 + n0_km
+    lon, lat = unproject_km(x, y, cfg.crs)
+    dt = 0.005
+    lon_p, lat_p = unproject_km(path.x_pp(tq + dt) / 1000.0 + e0_km, path.y_pp(tq + dt) / 1000.0 + n0_km, cfg.crs)
+    lon_m, lat_m = unproject_km(path.x_pp(tq - dt) / 1000.0 + e0_km, path.y_pp(tq - dt) / 1000.0 + n0_km, cfg.crs)
+    r_m, r_n = radii_of_curvature_m(lat)
+    dlat = np.deg2rad(lat_p - lat_m) / (2 * dt)
+    dlon = np.deg2rad(lon_p - lon_m) / (2 * dt)
+    ve = dlon * (r_n + h) * np.cos(np.deg2rad(lat))
+    vn = dlat * (r_m + h)
+    return x, y, lat, lon, ve, vn
+
+
+def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight_idx: int = 0):
+    """Simulate one flight.
+
+    Parameters
+    ----------
+    path : FlightPath
+    dg_means_fn : callable
+        ``dg_means_fn(t_epochs, x_km_mid, y_km_mid) -> (dg_mgal, extra)``: the mean of δg over
+        each GNSS interval (t_{k−1}, t_k] (mGal); positions are absolute projected km
+        at the interval midpoints.
+
+    Returns
+    -------
+    dict with ``gravimeter`` and ``gnss`` DataFrames, ``epochs`` (truth per GNSS epoch),
+    ``info`` (per-flight truth for truth.json).
+    """
+    t0, t1 = path.t0, path.t1
+    n = int(round((t1 - t0) * cfg.gnss_rate_hz)) + 1
+    tg = t0 + np.arange(n) / cfg.gnss_rate_hz
+    dt = 1.0 / cfg.gnss_rate_hz
+    # --- vertical motion (exact piecewise cubic acceleration and its integrals)
+    a_pp, v_pp, h_pp, motion_info = vertical_motion(t0, t1, cfg, rng)
+    h = cfg.height_m + h_pp(tg)
+    vu = v_pp(tg)
+    x, y, lat, lon, ve, vn = _geo_state(path, tg, h, cfg, e0_km, n0_km)
+    gamma = normal_gravity_mgal(lat, h, cfg.normal_gravity)
+    eot = eotvos_mgal(lat, h, ve, vn)
+    # --- anomaly: interval means over (t_{k-1}, t_k] from positions at the midpoints
+    tm = tg - 0.5 * dt
+    xm = path.x_pp(tm) / 1000.0 + e0_km
+    ym = path.y_pp(tm) / 1000.0 + n0_km
+    dg, extra = dg_means_fn(tg, xm, ym)
+    # --- drift (mGal): offset + linear + random walk on a 10 s grid
+    rate = float(rng.uniform(*cfg.drift_rate_mgal_h)) * float(rng.choice([-1.0, 1.0]))
+    if cfg.drift_rate_mgal_h[1] == 0.0:
+        rate = 0.0
+    off = float(rng.normal(0.0, cfg.drift_offset_std_mgal)) if cfg.drift_offset_std_mgal > 0 else 0.0
+    td = np.arange(t0 - 30.0, t1 + 40.0, 10.0)
+    rw = np.cumsum(rng.standard_normal(td.size)) * cfg.drift_rw_mgal_rth * np.sqrt(10.0 / 3600.0)
+    drift_d = off + rate * (td - t0) / 3600.0 + rw
+    drift_pp = _cubic_pp(td, drift_d * MGAL)
+    drift_at = drift_pp(tg) / MGAL
+    # --- inputs of the gravimeter ODE, each an exact piecewise polynomial (m/s²)
+    slow = (gamma - eot) * MGAL
+    cref = float(np.round(np.mean(slow), 3))
+    comps = [a_pp, _cubic_pp(tg, slow - cref), quadratic_from_means(tg, dg * MGAL), drift_pp]
+    fs = cfg.fine_rate_hz
+    noise_sd_mgal = cfg.grav_noise_mgal_rthz * np.sqrt(fs)
+    if cfg.grav_noise_mgal_rthz > 0:
+        tn = np.arange(t0 - 10.0, t1 + 10.0, 1.0 / fs)
+        comps.append(_cubic_pp(tn, rng.standard_normal(tn.size) * noise_sd_mgal * MGAL))
+    # --- gravimeter sampling intervals (true time), 18.24 Hz
+    rate_g = cfg.gravimeter_rate_hz
+    phase = float(rng.uniform(0.0, 1.0 / rate_g))
+    g_start = t0 + 20.0 + phase      # ≥ 10 τ after the ODE inputs start
+    m = int(np.floor((t1 - 1.0 - g_start) * rate_g))
+    edges = g_start + np.arange(m + 1) / rate_g
+    fz = np.full(m, cref / cfg.scale_true)
+    for pp in comps:
+        fz += LaggedResponse(pp, cfg.tau_true_s, cfg.scale_true).interval_means(edges)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    # horizontal specific force (east, north) at the centres: kinematic + Coriolis
+    ae = path.x_pp.derivative(2)(centres)
+    an = path.y_pp.derivative(2)(centres)
+    latc = np.interp(centres, tg, lat)
+    vec = np.interp(centres, tg, ve)
+    vnc = np.interp(centres, tg, vn)
+    vuc = np.interp(centres, tg, vu)
+    s_, c_ = np.sin(np.deg2rad(latc)), np.cos(np.deg2rad(latc))
+    fx = ae + 2 * OMEGA_EARTH * (c_ * vuc - s_ * vnc) + rng.standard_normal(m) * cfg.horizontal_noise_ms2
+    fy = an + 2 * OMEGA_EARTH * s_ * vec + rng.standard_normal(m) * cfg.horizontal_noise_ms2
+    grav = pd.DataFrame({"time": np.round(centres + cfg.time_offset_s, 3), "f_z": fz, "f_x": fx, "f_y": fy})
+    # --- GNSS
+    episodes = noise_episodes(t0, t1, cfg.episode_rate_per_h, cfg.episode_len_s, cfg.episode_factor, rng)
+    sig_vu = cfg.sigma_vu_cms / 100.0 * sigma_factor(tg, episodes)       # m/s
+    r_m, r_n = radii_of_curvature_m(lat)
+    gnss = pd.DataFrame({
+        "time": tg,
+        "lat": lat + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / (r_m + h)),
+        "lon": lon + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / ((r_n + h) * np.cos(np.deg2rad(lat)))),
+        "h": h + rng.standard_normal(n) * cfg.sigma_h_m,
+        "vu": vu + rng.standard_normal(n) * sig_vu,
+        "ve": ve + rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
+        "vn": vn + rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
+        # receiver's formal sigma: follows the true level, imperfectly
+        "sigma_v": sig_vu * np.exp(rng.normal(0.0, 0.2, n)),
+    })
+    # truth per epoch, rounded far below every noise level (keeps the committed sample small)
+    epochs = pd.DataFrame({
+        "time": np.round(tg, 1), "easting_km": np.round(x, 6), "northing_km": np.round(y, 6),
+        "dg_true_mgal": np.round(dg, 5), "R_true_cm2s2": (sig_vu * 100.0) ** 2,
+        "drift_mgal": np.round(drift_at, 4), "vu_true_ms": np.round(vu, 5),
+    })
+    for k, v in extra.items():
+        epochs[k] = v
+    epochs["state_true"] = epochs["state_true"].astype(np.int8)
+    epochs = epochs[["time", "easting_km", "northing_km", "dg_true_mgal", "terrain", "state_true",
+                     "Q_true_mgal2", "R_true_cm2s2", "drift_mgal", "vu_true_ms"]]
+    info = {"t0": t0, "t1": t1, "drift_offset_mgal": off, "drift_rate_mgal_h": rate,
+            "drift_rw_mgal_rth": cfg.drift_rw_mgal_rth, "gravimeter_first_interval_start": g_start,
+            "gnss_noisy_episodes": [{"t_start": s, "t_end": e, "sigma_factor": f} for s, e, f in episodes],
+            **motion_info}
+    return {"gravimeter": grav, "gnss": gnss, "epochs": epochs, "info": info}
+
+
+def _extent(paths):
+    xs, ys = [], []
+    for p in paths:
+        t = np.arange(p.t0, p.t1, 1.0)
+        xs.append(p.x_pp(t) / 1000.0)
+        ys.append(p.y_pp(t) / 1000.0)
+    x = np.concatenate(xs)
+    y = np.concatenate(ys)
+    return float(x.min()), float(x.max()), float(y.min()), float(y.max())
+
+
+def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overrides) -> Path:
+    """Simulate a survey and write it (SPEC §4) with its ``truth/`` folder.
+
+    Parameters
+    ----------
+    preset : str
+        A key of :data:`PRESETS` (``tiny``, ``omolon-mini``, ``omolon``, ``kalgoorlie``, ``markov``).
+    out_dir : path
+        Destination directory (replaced atomically if it exists).
+    seed : int
+        Seed of the random generator; same seed, same survey.
+    progress : callable, optional
+        ``progress(stage: str, fraction: float, info: dict | None)``.
+    **overrides
+        Any :class:`SimConfig` field.
+
+    Returns
+    -------
+    pathlib.Path
+        The survey directory.
+    """
+    from app.io.survey_writer import write_survey
+
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
+    cfg = PRESETS[preset].replace(**overrides)
+    rng = np.random.default_rng(seed)
+    clock = _time.perf_counter()
+
+    def report(stage, frac, info=None):
+        if progress is not None:
+            progress(stage, float(frac), info)
+
+    report("plan", 0.0)
+    e0, n0 = (float(v) for v in project_km(cfg.lon0_deg, cfg.lat0_deg, cfg.crs))
+    planned = layout_lines(cfg)
+    chunks = np.array_split(np.arange(len(planned)), max(1, min(cfg.n_flights, len(planned))))
+    paths = []
+    for i, ch in enumerate(chunks):
+        t0 = float(round(cfg.epoch_offset_s + i * cfg.flight_spacing_s + rng.uniform(0, 3600)))
+        paths.append(plan_flight(f"F{i + 1:02d}", [planned[j] for j in ch], t0, cfg, rng))
+    ext = _extent(paths)
+    report("field", 0.05)
+
+    truth_extra: dict = {}
+    if cfg.field_kind == "sources":
+        fld = make_field(cfg, ext, e0, n0, rng)
+        truth_extra["field"] = fld.info
+
+        def dg_fn_for(path):
+            def fn(tg, xm, ym):
+                mnt = fld.terrain_mountain(xm, ym)
+                return fld(xm, ym), {"terrain": np.where(mnt, "mountain", "plain"),
+                                     "state_true": mnt.astype(np.int64),
+                                     "Q_true_mgal2": np.full(tg.size, np.nan)}
+            return fn
+    elif cfg.field_kind == "markov":
+        smap = make_state_map(ext, cfg.markov_a11, cfg.markov_a22, rng, cfg.markov_map_step_km)
+        block_paths = []
+
+        def dg_fn_for(path):
+            def fn(tg, xm, ym):
+                nq = tg.size
+                dg = np.full(nq, np.nan)
+                state = np.zeros(nq, np.int64)
+                Q = np.full(nq, np.nan)
+                for ln, ts, te in path.windows:
+                    i0 = int(round((ts - tg[0]) * cfg.gnss_rate_hz))
+                    i1 = int(round((te - tg[0]) * cfg.gnss_rate_hz))
+                    ne = i1 - i0 + 1
+                    nb = int(np.ceil(ne / cfg.markov_block_epochs))
+                    bc = i0 + np.minimum(np.arange(nb) * cfg.markov_block_epochs + cfg.markov_block_epochs // 2, ne - 1)
+                    sb = smap.state(xm[bc] - e0, ym[bc] - n0)
+                    if ln.kind == "main":
+                        block_paths.append(sb)
+                    d, s, q = markov_line(ne, sb, cfg.markov_block_epochs, cfg.markov_Q_mgal2,
+                                          float(rng.normal(0.0, cfg.markov_dg0_std_mgal)), rng)
+                    dg[i0:i1 + 1], state[i0:i1 + 1], Q[i0:i1 + 1] = d, s, q
+                ok = np.isfinite(dg)
+                dg = np.interp(tg, tg[ok], dg[ok])     # linear ramps through turns
+                st = smap.state(xm - e0, ym - n0)
+                state = np.where(np.isfinite(Q), state, st)
+                return dg, {"terrain": np.where(state == 1, "mountain", "plain"),
+                            "state_true": state, "Q_true_mgal2": Q}
+            return fn
+    else:
+        raise ValueError(f"unknown field_kind {cfg.field_kind!r}")
+
+    flights = {}
+    truth_rows = []
+    lines_rows = []
+    flight_info = {}
+    for i, path in enumerate(paths):
+        report(f"flight {path.name}", 0.1 + 0.75 * i / len(paths), {"flight": path.name})
+        res = simulate_flight(path, cfg, rng, e0, n0, dg_fn_for(path), i)
+        flights[path.name] = (res["gravimeter"], res["gnss"])
+        flight_info[path.name] = res["info"]
+        ep = res["epochs"]
+        for ln, ts, te in path.windows:
+            lines_rows.append({"line": ln.line, "flight": path.name, "t_start": ts, "t_end": te,
+                               "kind": ln.kind, "track": ln.track})
+            sel = ep[(ep["time"] >= ts - 1e-6) & (ep["time"] <= te + 1e-6)].copy()
+            sel.insert(0, "kind", ln.kind)
+            sel.insert(0, "flight", path.name)
+            sel.insert(0, "line", ln.line)
+            sel.insert(3, "track", ln.track)
+            truth_rows.append(sel)
+    truth_lines = pd.concat(truth_rows, ignore_index=True)
+    lines = pd.DataFrame(lines_rows)
+
+    report("truth", 0.88)
+    import xarray as xr
+    if cfg.field_kind == "sources":
+        grid = xr.Dataset({"dg": (("northing_km", "easting_km"), fld.dg_mgal,
+                                  {"units": "mGal", "long_name": "true gravity disturbance at flight height"}),
+                           "mountain": (("northing_km", "easting_km"),
+                                        fld.terrain_mountain(*np.meshgrid(fld.easting_km, fld.northing_km)).astype(np.int8))},
+                          coords={"northing_km": fld.northing_km, "easting_km": fld.easting_km},
+                          attrs={"crs": cfg.crs, "height_m": cfg.height_m})
+    else:
+        xg, yg = smap.x_km + e0, smap.y_km + n0
+        X, Y = np.meshgrid(smap.x_km, smap.y_km)
+        st = smap.state(X, Y).astype(np.int8)
+        # the Markov anomaly exists on the lines only: grid it by linear interpolation (NaN outside)
+        from scipy.interpolate import LinearNDInterpolator
+        sub = truth_lines.iloc[::50]
+        lin = LinearNDInterpolator(sub[["easting_km", "northing_km"]].to_numpy(), sub["dg_true_mgal"].to_numpy())
+        dgg = lin(X + e0, Y + n0)
+        grid = xr.Dataset({"dg": (("northing_km", "easting_km"), dgg, {"units": "mGal"}),
+                           "state": (("northing_km", "easting_km"), st)},
+                          coords={"northing_km": yg, "easting_km": xg},
+                          attrs={"crs": cfg.crs, "height_m": cfg.height_m,
+                                 "note": "Markov preset: dg interpolated linearly between lines"})
+
+    truth_json = {
+        "preset": preset, "seed": seed, "config": dataclasses.asdict(cfg),
+        "tau_s": cfg.tau_true_s, "scale": cfg.scale_true,
+        "tau_declared_s": cfg.tau_declared_s, "scale_declared": cfg.scale_declared,
+        "time_offset_s": cfg.time_offset_s,
+        "time_offset_convention": "gravimeter time stamp = true interval centre + time_offset_s (then rounded to 1 ms)",
+        "gravimeter_noise_mgal_rthz": cfg.grav_noise_mgal_rthz,
+        "gravimeter_noise_std_per_fine_sample_mgal": cfg.grav_noise_mgal_rthz * np.sqrt(cfg.fine_rate_hz),
+        "gravimeter_noise_note": "white noise at fine_rate_hz added to the ODE input (before lag and scale)",
+        "gravimeter_model_note": "tau*df'/dt + k*f' = f + drift + noise; f_x, f_y are east/north specific force, no lag, no misalignment",
+        "sigma_vu_cms": cfg.sigma_vu_cms, "sigma_vh_cms": cfg.sigma_vh_cms,
+        "sigma_pos_m": cfg.sigma_pos_m, "sigma_h_m": cfg.sigma_h_m,
+        "dg_true_definition": "mean of the injected anomaly over the GNSS interval (t_{k-1}, t_k]",
+        "normal_gravity": cfg.normal_gravity, "crs": cfg.crs,
+        "survey_centre_km": [e0, n0],
+        "flights": flight_info,
+        **truth_extra,
+    }
+    if cfg.field_kind == "markov":
+        P = empirical_transition(block_paths)
+        pi = np.bincount(np.concatenate(block_paths), minlength=2) / sum(len(b) for b in block_paths)
+        truth_json["markov"] = {
+            "m": 1, "Q_mgal2": list(cfg.markov_Q_mgal2), "Q_step": "per GNSS step (0.1 s)",
+            "R_cm2s2": [cfg.sigma_vu_cms ** 2],
+            "transition_target": [[cfg.markov_a11, 1 - cfg.markov_a11], [1 - cfg.markov_a22, cfg.markov_a22]],
+            "transition_empirical": P.tolist(),
+            "transition_grid_km": cfg.markov_map_step_km,
+            "state_fraction": pi.tolist(),
+            "state_map_sigma_km": smap.sigma_km,
+            "initial_state_per_line": [int(b[0]) for b in block_paths],
+        }
+    toml = {"survey": {"name": cfg.name, "crs": cfg.crs, "normal_gravity": cfg.normal_gravity},
+            "gravimeter": {"model": cfg.gravimeter_model, "tau_s": cfg.tau_declared_s,
+                           "scale": cfg.scale_declared, "rate_hz": cfg.gravimeter_rate_hz},
+            "processing": dict(cfg.processing)}
+    report("write", 0.9)
+    out = write_survey(out_dir, toml, lines, flights, truth_lines, grid, truth_json, compress=cfg.compress)
+    report("done", 1.0, {"seconds": _time.perf_counter() - clock})
+    return out
