@@ -220,7 +220,10 @@ class WindowModel:
             return np.zeros(S.shape[:2] + (0,)), S[..., 0, 0].copy()
         Spp = S[..., :p, :p]
         s = S[..., :p, p]
-        beta = np.linalg.solve(Spp, s[..., None])[..., 0]
+        try:
+            beta = np.linalg.solve(Spp, s[..., None])[..., 0]
+        except np.linalg.LinAlgError as exc:
+            raise FloatingPointError("window covariance is singular") from exc
         var = S[..., p, p] - np.einsum("mux,mux->mu", s, beta)
         return beta, var
 
@@ -568,14 +571,18 @@ def fit_em(x_list, c, d, n_q: int = 2, n_r: int = 1, Q_init=None, R_init=None,
     Returns
     -------
     EMResult
-        States sorted so Q (then R) ascend.  Record ``iteration = 0`` holds the
+        States sorted so Q (then R) ascend (records of the iteration table too).  Record ``iteration = 0`` holds the
         initial values; record ``i`` the values after the i-th M-step, with
         ``objective`` = log-likelihood at those values.
 
     Notes
     -----
     The emission model is the one-switch window model described in the module
-    docstring.  ``a_ij`` and ``π(w)`` are updated in closed form; ``Q``, ``R``
+    docstring.  π(w) is the posterior of ``s_0`` on line ``w`` (at the previous
+    iterate); with a single line π therefore equals that line's posterior and
+    carries no prior information.  A Q level may collapse towards 0 when the
+    data do not support it (e.g. variability that is really in R): compare
+    ``loglik`` across (n_q, n_r) choices.  ``a_ij`` and ``π(w)`` are updated in closed form; ``Q``, ``R``
     by L-BFGS on log-variances of the expected complete-data log-likelihood,
     warm-started at the current values, accepted only when it increases.
     BLAS is limited to one thread during the fit (see :func:`single_thread_blas`).
@@ -639,7 +646,11 @@ def _fit_em(x_list, c, d, n_q, n_r, Q_init, R_init, transition_init, max_iter, t
 
     it = 0
     while True:
-        gamma, xi, ll = estep(Q, R, a, pi)
+        try:
+            gamma, xi, ll = estep(Q, R, a, pi)
+        except FloatingPointError as exc:  # only possible at the start: steps are guarded
+            raise ValueError(f"cannot evaluate the likelihood at the initial values: {exc} "
+                             "(check c, d and the initial variances)") from None
         Qs_, Rs_, as_, _ = _sort_states(Q, R, a, pi, n_r)
         rec = {"iteration": it, "Q": Qs_.tolist(), "R": Rs_.tolist(), "objective": ll,
                "transition": as_.tolist()}

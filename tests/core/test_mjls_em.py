@@ -85,6 +85,21 @@ def test_objective_never_decreases(n_q, n_r, seed):
     assert obj[-1] > obj[0]
 
 
+def test_stationary_data_with_two_states_is_safe():
+    """Over-parametrised model (N = 2 on stationary data): no failure, monotone, finite."""
+    rng = np.random.default_rng(8)
+    c, d = np.array([1.0, 0.6]), np.array([0.4, -0.4])
+    xs, _ = _simulate(rng, c, d, [0.3], [2.0], np.ones((1, 1)), 80, 6)
+    res = fit_em(xs, c, d, n_q=2, n_r=1, max_iter=30, tol=0.0)
+    obj = np.array([r["objective"] for r in res.iterations])
+    assert np.all(np.diff(obj) >= -1e-9 * np.abs(obj[:-1]))
+    assert np.all(np.isfinite(res.Q)) and np.all(res.Q > 0) and np.all(np.isfinite(res.transition))
+    # stationary fit for comparison: the 2-state likelihood is at least as high
+    one = fit_em(xs, c, d, n_q=1, n_r=1, max_iter=60, tol=1e-10)
+    assert one.Q[0] == pytest.approx(0.3, rel=0.25) and one.R[0] == pytest.approx(2.0, rel=0.25)
+    assert res.loglik >= one.loglik - 1e-6 * abs(one.loglik)
+
+
 # ----------------------------------------------------------------- parameter recovery
 def test_recovery_two_states_realistic_ma():
     rng = np.random.default_rng(2024)
