@@ -61,6 +61,7 @@ class Line(Base):
     t_start: Mapped[float] = mapped_column(Float)
     t_end: Mapped[float] = mapped_column(Float)
     qc: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
+    track: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)  # decimated easting_km/northing_km
     survey: Mapped[Survey] = relationship(back_populates="lines")
 
 

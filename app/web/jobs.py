@@ -28,7 +28,7 @@ import traceback
 from pathlib import Path
 from typing import Any, Callable
 
-from sqlalchemy import select, update
+from sqlalchemy import update
 
 from .db import ACTIVE_STATES, Job, Result, Survey, session_factory, utcnow
 

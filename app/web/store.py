@@ -13,10 +13,8 @@ transaction.  A rejected upload leaves nothing behind.
 
 from __future__ import annotations
 
-import io
 import os
 import re
-import shutil
 import threading
 import uuid
 import zipfile
@@ -114,12 +112,24 @@ def _length_km(lat: np.ndarray, lon: np.ndarray) -> float:
     return float(np.hypot(dx, dy).sum())
 
 
+def _round_list(a, nd: int = 3) -> list:
+    a = np.round(np.asarray(a, float), nd)
+    return [None if not np.isfinite(v) else float(v) for v in a]
+
+
 def _f(x: float, nd: int = 4) -> float | None:
     return None if x is None or not np.isfinite(x) else round(float(x), nd)
 
 
-def survey_qc(survey) -> tuple[dict[str, dict], list[dict]]:
-    """Per-flight and per-line QC from a validated ``Survey`` (rates, gaps, duration, length)."""
+def survey_qc(survey, track_points: int = 150) -> tuple[dict[str, dict], list[dict]]:
+    """Per-flight and per-line QC from a validated ``Survey`` (rates, gaps, duration, length),
+    plus each line's decimated track in the survey CRS (km) for the line map."""
+    from app.core.geodesy import project_km, utm_crs_for
+
+    crs = getattr(getattr(getattr(survey, "config", None), "survey", None), "crs", None)
+    if not crs:
+        g0 = next(iter(survey.flights.values())).gnss if survey.flights else None
+        crs = utm_crs_for(g0["lon"], g0["lat"]) if g0 is not None and len(g0) else "EPSG:4326"
     flights: dict[str, dict] = {}
     for name, fl in survey.flights.items():
         tg = np.asarray(fl.gravimeter["time"], float)
@@ -139,6 +149,7 @@ def survey_qc(survey) -> tuple[dict[str, dict], list[dict]]:
     for row in survey.lines.itertuples(index=False):
         fl = survey.flights.get(row.flight)
         q: dict[str, Any] = {"duration_s": _f(row.t_end - row.t_start, 2)}
+        map_track: dict = {}
         if fl is not None:
             g = fl.gnss
             m = (g["time"] >= row.t_start) & (g["time"] <= row.t_end)
@@ -148,6 +159,12 @@ def survey_qc(survey) -> tuple[dict[str, dict], list[dict]]:
             tg = tg[(tg >= row.t_start) & (tg <= row.t_end)]
             gmed, gmx = _gaps(tg)
             length = _length_km(np.asarray(g["lat"][m], float), np.asarray(g["lon"][m], float))
+            step = max(1, int(m.sum()) // track_points)
+            try:
+                e, n = project_km(g["lon"][m].to_numpy()[::step], g["lat"][m].to_numpy()[::step], crs)
+                map_track = {"easting_km": _round_list(e), "northing_km": _round_list(n), "crs": crs}
+            except Exception:  # pragma: no cover - bad CRS string: no map, QC still shown
+                map_track = {}
             q.update({
                 "gnss_samples": int(tn.size), "gnss_rate_hz": _f(1.0 / med if med else np.nan, 3),
                 "gnss_max_gap_s": _f(mx, 3), "gravimeter_samples": int(tg.size),
@@ -159,7 +176,7 @@ def survey_qc(survey) -> tuple[dict[str, dict], list[dict]]:
         track = getattr(row, "track", None)
         lines.append({"line": str(row.line), "flight": str(row.flight), "kind": str(row.kind),
                       "track": None if track is None or (isinstance(track, float) and np.isnan(track)) else str(track),
-                      "t_start": float(row.t_start), "t_end": float(row.t_end), "qc": q})
+                      "t_start": float(row.t_start), "t_end": float(row.t_end), "qc": q, "map_track": map_track})
     return flights, lines
 
 

@@ -225,3 +225,15 @@ def test_frontend_and_docs_served(client):
     assert client.get("/js/api.js").status_code == 200
     assert client.get("/docs").status_code == 200
     assert "/api/surveys/{survey_id}/recognition" in client.get("/openapi.json").json()["paths"]
+
+
+def test_tracks_for_line_map(client, tiny_zip):
+    sid = import_zip(client, tiny_zip).json()["id"]
+    t = client.get(f"/api/surveys/{sid}/tracks").json()
+    assert t["crs"] == "EPSG:32657" and [l["line"] for l in t["lines"]] == ["L1", "L2", "T1"]
+    l1 = t["lines"][0]
+    assert 50 <= len(l1["easting_km"]) == len(l1["northing_km"]) <= 400
+    # flying east ~13 km along the line, in UTM km
+    assert 10 < l1["easting_km"][-1] - l1["easting_km"][0] < 15
+    assert abs(l1["northing_km"][-1] - l1["northing_km"][0]) < 1.0
+    assert client.get(f"/api/surveys/{sid}/qc").json()["lines"][0]["qc"]["track"] is None

@@ -11,10 +11,11 @@ from sqlalchemy.orm import Session
 
 from app.config import ProcessingParams
 
-from ..db import ACTIVE_STATES, Job, Survey, utcnow
+from ..db import ACTIVE_STATES, Job, Survey
 from ..deps import get_db, get_jobs, get_store, get_survey_or_404
 from ..jobs import JobManager
 from ..schemas import JobCreate, JobOut
+from ..services import JobConflict, start_job
 from ..store import Store
 from .surveys import job_out
 
@@ -29,23 +30,10 @@ def create_job(body: JobCreate, s: Survey = Depends(get_survey_or_404), db: Sess
         params = ProcessingParams.model_validate(body.params).model_dump(exclude_unset=True, mode="json")
     except ValidationError as e:
         raise HTTPException(422, json.loads(e.json(include_url=False)))
-    if not s.input_dir:
-        raise HTTPException(409, "the survey has no data yet: import a survey or upload a flight first")
-    active = db.scalars(select(Job).where(Job.survey_id == s.id, Job.status.in_(ACTIVE_STATES))).first()
-    if active is not None:
-        raise HTTPException(409, f"job {active.id} is still {active.status} on this survey; cancel it or wait")
-    job = Job(survey_id=s.id, kind=body.kind, params=params, status="queued", progress=0.0, stage="queued",
-              em_iterations=[], backend=jobs.backend, input_dir=s.input_dir)
-    db.add(job)
-    db.flush()
-    job.out_dir = str(store.job_out_dir(s.id, job.id))
-    db.commit()
     try:
-        jobs.submit(job)
-    except Exception as e:  # e.g. the Dask scheduler is unreachable
-        job.status, job.error, job.finished_at = "failed", f"could not start the job: {e}", utcnow()
-        db.commit()
-    db.refresh(job)
+        job = start_job(db, store, jobs, s, body.kind, params)
+    except JobConflict as e:
+        raise HTTPException(409, str(e))
     return job_out(job)
 
 

@@ -15,7 +15,7 @@ from fastapi import APIRouter, Depends, HTTPException, Query
 from fastapi.responses import FileResponse, Response
 from sqlalchemy.orm import Session
 
-from ..db import Line, Result, Survey
+from ..db import Result, Survey
 from ..deps import get_cache, get_db, get_survey_or_404
 from ..schemas import GridOut, LineOut, ProfileOut, RecognitionOut
 from ..store import ResultCache
@@ -88,12 +88,11 @@ class _FallbackRecognitionMap:  # used only if app.core.nlmeans is unavailable
         self.n = len(xy)
         self.D = cKDTree(xy).sparse_distance_matrix(cKDTree(xy), max_rho_km, output_type="coo_matrix")
 
-    def smooth(self, labels_or_probs, h_per_km, rho_km, mode="soft"):
+    def smooth(self, labels_or_probs, h_per_km, rho_km, mode="soft", n_states=None):
         import scipy.sparse as sp
         x = np.asarray(labels_or_probs)
         if x.ndim == 1:
-            n_states = int(x.max()) + 1
-            x = np.eye(n_states)[x.astype(int)]
+            x = np.eye(n_states or int(x.max()) + 1)[x.astype(int)]
         if mode == "hard":
             x = np.eye(x.shape[1])[np.argmax(x, axis=1)]
         D = self.D
@@ -204,7 +203,7 @@ def recognition(h: float = Query(1.4, ge=0, le=100, description="NL-means weight
     r = current_result(s, db)
     rec = cache.get(("recognition", r.id), lambda: _load_recognition(r))
     src = rec["probs"] if (mode == "soft" and rec["probs"] is not None) else rec["raw"]
-    probs, labels = rec["map"].smooth(src, h, rho, mode)
+    probs, labels = rec["map"].smooth(src, h, rho, mode, n_states=rec["n_states"])
     probs = np.asarray(probs, float)
     pmax = probs.max(axis=1) if probs.ndim == 2 else np.ones(len(labels))
     body = {"survey_id": s.id, "result_id": r.id, "h": h, "rho": rho, "mode": mode, "n_states": rec["n_states"],

@@ -14,10 +14,11 @@ from sqlalchemy.orm import Session
 
 from app.io.errors import InputError
 
-from ..db import Flight, Job, Line, Survey
+from ..db import Job, Survey
 from ..deps import get_db, get_store, get_survey_or_404, get_survey_reader
 from ..schemas import FlightOut, JobOut, LineOut, QCOut, SurveyCreate, SurveyOut
-from ..store import SAFE_NAME, Store, extract_survey_zip, relativize, survey_qc
+from ..services import import_survey_tree, install_snapshot, validate
+from ..store import SAFE_NAME, Store, extract_survey_zip
 
 router = APIRouter(prefix="/api/surveys", tags=["surveys"])
 
@@ -33,42 +34,6 @@ def survey_out(db: Session, s: Survey) -> SurveyOut:
     return SurveyOut(id=s.id, name=s.name, created_at=s.created_at, crs=s.crs,
                      flights=[f.name for f in s.flights], n_lines=len(s.lines), has_input=bool(s.input_dir),
                      current_result_id=s.current_result_id, last_job=job_out(last) if last else None)
-
-
-def _validate(reader: Callable, root: Path):
-    try:
-        return reader(root)
-    except InputError as e:
-        raise relativize(e, root)
-
-
-def _replace_metadata(db: Session, s: Survey, survey) -> None:
-    flights, lines = survey_qc(survey)
-    s.flights.clear()
-    s.lines.clear()
-    db.flush()
-    for name, qc in flights.items():
-        s.flights.append(Flight(name=name, qc=qc))
-    for ln in lines:
-        s.lines.append(Line(line=ln["line"], flight=ln["flight"], kind=ln["kind"], t_start=ln["t_start"],
-                            t_end=ln["t_end"], qc={**ln["qc"], "track": ln["track"]}))
-    crs = getattr(getattr(getattr(survey, "config", None), "survey", None), "crs", None)
-    if crs:
-        s.crs = crs
-
-
-def _install_snapshot(db: Session, store: Store, s: Survey, staged_root: Path, survey) -> None:
-    """Rename the validated staging dir into place and switch the pointer in one commit."""
-    final = store.new_input_dir(s.id)
-    store.commit_dir(staged_root, final)
-    try:
-        s.input_dir = str(final)
-        _replace_metadata(db, s, survey)
-        db.commit()
-    except Exception:
-        db.rollback()
-        shutil.rmtree(final, ignore_errors=True)
-        raise
 
 
 @router.post("", response_model=SurveyOut, status_code=201)
@@ -98,18 +63,7 @@ def import_survey(file: UploadFile = File(..., description="zip of a survey dire
     staging = store.staging_dir()
     try:
         root = extract_survey_zip(file.file, staging)
-        survey = _validate(reader, root)
-        name = getattr(getattr(getattr(survey, "config", None), "survey", None), "name", None)
-        if not name or name == "survey":
-            name = Path(file.filename or "survey.zip").stem
-        s = Survey(name=name)
-        db.add(s)
-        db.flush()
-        try:
-            _install_snapshot(db, store, s, root, survey)
-        except Exception:
-            db.rollback()
-            raise
+        s = import_survey_tree(db, store, reader, root, Path(file.filename or "survey.zip").stem)
         return survey_out(db, s)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -161,8 +115,8 @@ def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv
                 old = old[old["flight"] != name] if "flight" in old.columns else old
                 new = pd.concat([old, new], ignore_index=True).fillna("")
             new.to_csv(lp, index=False)
-        survey = _validate(reader, root)
-        _install_snapshot(db, store, s, root, survey)
+        survey = validate(reader, root)
+        install_snapshot(db, store, s, root, survey)
         return survey_out(db, s)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
@@ -174,3 +128,12 @@ def survey_qc_view(s: Survey = Depends(get_survey_or_404)) -> QCOut:
     return QCOut(survey_id=s.id, flights=[FlightOut.model_validate(f) for f in s.flights],
                  lines=[LineOut(id=l.id, line=l.line, flight=l.flight, kind=l.kind, t_start=l.t_start,
                                 t_end=l.t_end, qc=l.qc or {}) for l in s.lines])
+
+
+@router.get("/{survey_id}/tracks")
+def survey_tracks(s: Survey = Depends(get_survey_or_404)) -> dict:
+    """Decimated line tracks in the survey CRS (km) for the line map (available before processing)."""
+    return {"survey_id": s.id, "crs": s.crs or next((l.track.get("crs") for l in s.lines if l.track), None),
+            "lines": [{"line": l.line, "flight": l.flight, "kind": l.kind,
+                       "easting_km": (l.track or {}).get("easting_km", []),
+                       "northing_km": (l.track or {}).get("northing_km", [])} for l in s.lines]}

@@ -1,0 +1,24 @@
+// Exports of the stored results (GeoTIFF, netCDF, Surfer, CSV, Parquet) and the report.
+import { el } from "../plots.js";
+
+const FORMATS = [
+  ["geotiff", "GeoTIFF grid (.tif, with CRS)"],
+  ["netcdf", "CF-netCDF grid (.nc: dg, dg_std)"],
+  ["surfer", "Surfer ASCII grid (.grd)"],
+  ["csv", "Grid as CSV"],
+  ["parquet", "Line data (lines.parquet)"],
+  ["crossovers", "Crossovers (CSV)"],
+  ["report", "Report (JSON)"],
+];
+
+export async function render(sec, ctx) {
+  const s = ctx.survey;
+  if (!s.current_result_id) {
+    sec.replaceChildren(el("div", { class: "empty" }, "No results yet: run a processing job first."));
+    return;
+  }
+  sec.replaceChildren(el("div", { class: "card" }, el("h3", {}, `Exports of result ${s.current_result_id} (job ${s.last_job ? s.last_job.id : "?"})`),
+    el("div", { class: "buttons" }, FORMATS.map(([f, label]) =>
+      el("a", { href: `/api/surveys/${s.id}/export?format=${f}`, download: "", id: `export-${f}` }, label))),
+    el("p", { class: "note" }, "Every plot has a “Save PNG” button (and the camera icon in its toolbar).")));
+}

@@ -1,0 +1,156 @@
+// Processing: parameters form (defaults + explanations from ProcessingParams), job progress, live EM table.
+import { endpoints } from "../api.js";
+import { el, fmt, showError } from "../plots.js";
+
+let poller = null;
+let schemaCache = null;
+
+function fieldInfo(prop) {
+  let p = prop, nullable = false;
+  if (prop.anyOf) {
+    nullable = prop.anyOf.some((a) => a.type === "null");
+    p = { ...prop, ...(prop.anyOf.find((a) => a.type !== "null") || {}) };
+  }
+  return { type: p.type, enum: p.enum || (p.const !== undefined ? [p.const] : null), nullable,
+    min: p.minimum ?? p.exclusiveMinimum, max: p.maximum ?? p.exclusiveMaximum, title: prop.title, description: prop.description };
+}
+
+function buildForm(schema, defaults) {
+  const grid = el("div", { class: "params" });
+  for (const [name, prop] of Object.entries(schema.properties)) {
+    const f = fieldInfo(prop);
+    const def = defaults[name];
+    let input;
+    if (f.enum) {
+      input = el("select", { name }, f.enum.map((v) => el("option", { value: v, selected: v === def }, v)));
+    } else if (f.type === "boolean") {
+      input = el("input", { type: "checkbox", name, checked: !!def });
+    } else {
+      input = el("input", { type: "number", name, step: f.type === "integer" ? 1 : "any", min: f.min, max: f.max,
+        value: def ?? "", placeholder: def === null ? "auto" : "" });
+    }
+    input.dataset.default = JSON.stringify(def);
+    input.dataset.kind = f.enum ? "enum" : f.type;
+    const range = f.min !== undefined || f.max !== undefined ? ` [${f.min ?? "−∞"} … ${f.max ?? "∞"}]` : "";
+    grid.append(el("label", {}, el("span", { class: "name" }, name), " ", input,
+      el("span", { class: "desc" }, (f.description || "") + (def === null ? " (auto when empty)" : ` (default ${def})`) + range)));
+  }
+  return grid;
+}
+
+function collectParams(form) {
+  const out = {};
+  for (const input of form.querySelectorAll("input, select")) {
+    const def = JSON.parse(input.dataset.default);
+    let v;
+    if (input.type === "checkbox") v = input.checked;
+    else if (input.dataset.kind === "enum") v = input.value;
+    else if (input.value === "") v = null;
+    else v = input.dataset.kind === "integer" ? parseInt(input.value, 10) : parseFloat(input.value);
+    if (JSON.stringify(v) !== JSON.stringify(def)) out[input.name] = v;
+  }
+  return out;
+}
+
+function emTable(rows) {
+  if (!rows.length) return el("p", { class: "note", id: "em-empty" }, "EM iterations appear here while the identification runs.");
+  const nq = rows[0].Q.length, nr = rows[0].R.length;
+  const hasA = rows.some((r) => r.transition);
+  const head = ["Iteration", ...Array.from({ length: nq }, (_, i) => `Q${i + 1} (mGal²)`),
+    ...Array.from({ length: nr }, (_, j) => `R${j + 1} ((cm/s)²)`), "Objective"];
+  const nstates = hasA ? rows.find((r) => r.transition).transition.length : 0;
+  for (let i = 0; i < nstates; i++) head.push(`a${i + 1}${i + 1}`);
+  return el("table", { id: "em-table" }, el("thead", {}, el("tr", {}, head.map((h) => el("th", {}, h)))),
+    el("tbody", {}, rows.map((r) => el("tr", { class: "em-row" },
+      el("td", {}, r.iteration), r.Q.map((q) => el("td", {}, fmt(q, 4))), r.R.map((x) => el("td", {}, fmt(x, 4))),
+      el("td", {}, fmt(r.objective, 6)),
+      Array.from({ length: nstates }, (_, i) => el("td", {}, r.transition ? fmt(r.transition[i][i], 4) : "—"))))));
+}
+
+function renderJob(box, job) {
+  const pct = Math.round(100 * (job.progress || 0));
+  box.replaceChildren(
+    el("div", { class: "row" },
+      el("div", {}, el("strong", {}, `Job ${job.id}`), ` (${job.kind}, ${job.backend}) — `,
+        el("span", { class: `badge ${job.status}`, id: "job-status" }, job.status),
+        " stage ", el("span", { class: "stage", id: "job-stage" }, job.stage || "—"), ` — ${pct}%`)),
+    el("progress", { id: "job-progress", max: 1, value: job.progress || 0 }),
+    job.error ? el("div", { class: "error", id: "job-error" }, job.error) : null,
+    el("h3", {}, "EM iterations (identification of Q, R and the transition matrix)"),
+    el("div", { class: "scroll" }, emTable(job.em_iterations || [])));
+  const cancel = el("button", { id: "job-cancel", disabled: !["queued", "running"].includes(job.status) }, "Cancel job");
+  cancel.addEventListener("click", async () => {
+    try { renderJob(box, await endpoints.cancelJob(job.id)); } catch (e) { showError(box, e); }
+  });
+  box.firstChild.append(cancel);
+}
+
+function watch(box, jobId, ctx, onDone) {
+  if (poller) clearInterval(poller);
+  let busy = false;
+  const tick = async () => {
+    if (busy) return;
+    busy = true;
+    try {
+      const job = await endpoints.job(jobId);
+      renderJob(box, job);
+      if (!["queued", "running"].includes(job.status)) {
+        clearInterval(poller); poller = null;
+        if (job.status === "succeeded") ctx.resultsChanged();
+        await ctx.refreshSurvey();
+        onDone && onDone(job);
+      }
+    } catch (e) { showError(box, e); } finally { busy = false; }
+  };
+  poller = setInterval(tick, 500);
+  tick();
+}
+
+export async function render(sec, ctx) {
+  const s = ctx.survey;
+  schemaCache = schemaCache || await endpoints.paramsSchema();
+  const form = el("form", { id: "params-form" });
+  const kind = el("select", { name: "kind", id: "job-kind" },
+    el("option", { value: "process" }, "process — identification, recognition, filtering, leveling, grid"),
+    el("option", { value: "identify" }, "identify — as process (EM learning is the core)"),
+    el("option", { value: "filter" }, "filter — as process"));
+  const run = el("button", { type: "submit", class: "primary", id: "run-job", disabled: !s.has_input }, "Run processing");
+  const reset = el("button", { type: "button" }, "Reset to defaults");
+  form.append(el("div", { class: "controls" }, el("label", {}, "Job ", kind), run, reset),
+    el("details", {}, el("summary", {}, "Processing parameters (defaults shown; only changed values are sent)"),
+      buildForm(schemaCache.schema, schemaCache.defaults)));
+  const jobBox = el("div", { class: "card", id: "job-box" }, el("p", { class: "note" }, "No job yet."));
+  const history = el("div", { class: "card" }, el("h3", {}, "Jobs of this survey"), el("div", { id: "job-history" }));
+  sec.replaceChildren(el("div", { class: "card" }, el("h3", {}, "Run a job"), form), jobBox, history);
+
+  const loadHistory = async () => {
+    const jobs = await endpoints.jobs(s.id);
+    history.querySelector("#job-history").replaceChildren(jobs.length ? el("table", {},
+      el("thead", {}, el("tr", {}, ["Job", "Kind", "Status", "Progress", "Created (UTC)", "Finished", "Error"].map((h) => el("th", { class: "l" }, h)))),
+      el("tbody", {}, jobs.map((j) => {
+        const tr = el("tr", { style: "cursor:pointer" }, el("td", { class: "l" }, j.id), el("td", { class: "l" }, j.kind),
+          el("td", { class: "l" }, el("span", { class: `badge ${j.status}` }, j.status)), el("td", {}, `${Math.round(100 * j.progress)}%`),
+          el("td", { class: "l" }, j.created_at.replace("T", " ").slice(0, 19)), el("td", { class: "l" }, (j.finished_at || "").replace("T", " ").slice(0, 19)),
+          el("td", { class: "l" }, j.error || ""));
+        tr.addEventListener("click", () => renderJob(jobBox, j));
+        return tr;
+      }))) : el("p", { class: "note" }, "none"));
+  };
+
+  reset.addEventListener("click", () => { sec.querySelector("details").replaceChildren(el("summary", {}, "Processing parameters"), buildForm(schemaCache.schema, schemaCache.defaults)); });
+  form.addEventListener("submit", async (ev) => {
+    ev.preventDefault();
+    showError(jobBox, null);
+    try {
+      const job = await endpoints.submitJob(s.id, kind.value, collectParams(form));
+      renderJob(jobBox, job);
+      watch(jobBox, job.id, ctx, loadHistory);
+      loadHistory();
+    } catch (e) { showError(jobBox, e); }
+  });
+  await loadHistory();
+  if (s.last_job) {
+    renderJob(jobBox, s.last_job);
+    if (["queued", "running"].includes(s.last_job.status)) watch(jobBox, s.last_job.id, ctx, loadHistory);
+  }
+}

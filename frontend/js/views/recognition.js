@@ -1,0 +1,82 @@
+// Recognition state map: decimated points coloured by state; h and ρ re-smooth on the server (NL-means).
+import { endpoints } from "../api.js";
+import { el, fmt, mapLayout, plotConfig, pngButton, stateColor } from "../plots.js";
+
+function stateLabel(states, i) {
+  const st = states.find((x) => x.index === i);
+  return st ? `state ${i}: Q=${fmt(st.Q, 3)} mGal², R=${fmt(st.R, 3)} (cm/s)²` : `state ${i}`;
+}
+
+function signature(arr) {
+  let h = 0;
+  for (let i = 0; i < arr.length; i++) h = (h * 31 + arr[i] + 1) | 0;
+  return (h >>> 0).toString(16);
+}
+
+export async function render(sec, ctx) {
+  const s = ctx.survey;
+  if (!s.current_result_id) {
+    sec.replaceChildren(el("div", { class: "empty" }, "No results yet: run a processing job first."));
+    return;
+  }
+  const hIn = el("input", { type: "range", id: "rec-h", min: 0, max: 5, step: 0.1, value: 1.4 });
+  const rhoIn = el("input", { type: "range", id: "rec-rho", min: 0, max: 15, step: 0.5, value: 5 });
+  const hOut = el("output", { id: "rec-h-val" }, "1.4");
+  const rhoOut = el("output", { id: "rec-rho-val" }, "5.0");
+  const modeIn = el("select", { id: "rec-mode" }, el("option", { value: "soft" }, "soft (probabilities)"), el("option", { value: "hard" }, "hard (labels)"));
+  const showIn = el("select", { id: "rec-show" }, el("option", { value: "smoothed" }, "smoothed states"), el("option", { value: "raw" }, "raw (Viterbi) states"));
+  const status = el("div", { class: "note", id: "rec-status" }, "loading…");
+  const plot = el("div", { class: "plot square", id: "rec-map" });
+  sec.replaceChildren(el("div", { class: "card" },
+    el("h3", {}, "Recognition map — NL-means smoothing of the Markov states"),
+    el("p", { class: "note" }, "Each decimated point is re-estimated from all points within ρ, weighted by exp(−h·d) with d in km. ",
+      "Larger ρ or smaller h → smoother map."),
+    el("div", { class: "controls" },
+      el("label", {}, "h (km⁻¹)", hIn, hOut), el("label", {}, "ρ (km)", rhoIn, rhoOut),
+      el("label", {}, "mode", modeIn), el("label", {}, "show", showIn)),
+    status, plot));
+
+  const base = await endpoints.recognition(s.id, { h: 1.4, rho: 5, mode: "soft" });
+  let current = base.state;
+  const legend = Array.from({ length: base.n_states }, (_, i) => ({
+    x: [null], y: [null], type: "scattergl", mode: "markers", name: stateLabel(base.states, i),
+    marker: { color: stateColor(i), size: 9 }, hoverinfo: "skip" }));
+  const colors = (arr) => arr.map((v) => stateColor(v));
+  const text = base.line.map((l) => `line ${l}`);
+  const trace = { x: base.easting_km, y: base.northing_km, type: "scattergl", mode: "markers", showlegend: false,
+    marker: { color: colors(current), size: 5 }, text,
+    hovertemplate: "%{text}<br>E %{x:.2f} km, N %{y:.2f} km<extra></extra>" };
+  await Plotly.newPlot(plot, [trace, ...legend], mapLayout(`${s.name}: recognised states`), plotConfig(`${s.name}-recognition`));
+  plot.after(pngButton(plot, `${s.name}-recognition`));
+
+  const update = (r, rtt) => {
+    current = r.state;
+    const shown = showIn.value === "raw" ? base.state_raw : current;
+    Plotly.restyle(plot, { "marker.color": [colors(shown)] }, [0]);
+    const counts = Array.from({ length: base.n_states }, (_, i) => shown.filter((v) => v === i).length);
+    status.textContent = `${base.n_points} points · h=${r.h} km⁻¹, ρ=${r.rho} km (${r.mode}) · server ${fmt(r.elapsed_ms, 1)} ms, round trip ${Math.round(rtt)} ms · ` +
+      counts.map((c, i) => `state ${i}: ${c}`).join(", ");
+    plot.dataset.signature = signature(shown);
+    plot.dataset.h = r.h; plot.dataset.rho = r.rho; plot.dataset.show = showIn.value;
+  };
+  update(base, 0);
+
+  let inflight = false, pending = false;
+  const request = async () => {
+    if (inflight) { pending = true; return; }
+    inflight = true;
+    const t0 = performance.now();
+    try {
+      const r = await endpoints.recognition(s.id, { h: hIn.value, rho: rhoIn.value, mode: modeIn.value, coords: false });
+      update(r, performance.now() - t0);
+    } catch (e) { status.textContent = `Error: ${e.message}`; status.classList.add("error"); }
+    finally {
+      inflight = false;
+      if (pending) { pending = false; request(); }
+    }
+  };
+  hIn.addEventListener("input", () => { hOut.textContent = (+hIn.value).toFixed(1); request(); });
+  rhoIn.addEventListener("input", () => { rhoOut.textContent = (+rhoIn.value).toFixed(1); request(); });
+  modeIn.addEventListener("change", request);
+  showIn.addEventListener("change", () => update({ state: current, h: +hIn.value, rho: +rhoIn.value, mode: modeIn.value, elapsed_ms: 0 }, 0));
+}
