@@ -76,6 +76,11 @@ class Survey:
 
 def _toml_key_row(text: str, loc: tuple) -> int | None:
     """Line number of ``key`` in table ``[section]`` of a TOML text (best effort)."""
+    if len(loc) == 1:  # an unknown or bad table: point at its header
+        for i, line in enumerate(text.splitlines(), start=1):
+            if re.match(rf"^\[\s*\"?{re.escape(str(loc[0]))}\"?\s*\]", line.strip()):
+                return i
+        return None
     if len(loc) < 2:
         return None
     section, key = str(loc[0]), str(loc[1])

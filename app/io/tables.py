@@ -14,6 +14,7 @@ blank lines inside it count as missing values.
 from __future__ import annotations
 
 import re
+import warnings
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -77,6 +78,12 @@ def locate_bad_cell(path: Path, display: str, usecols: Sequence[str], float_cols
     return InputError(display, row, col, f"not a number: {val!r}")
 
 
+def _read_all_columns(path: Path, dtype: dict) -> pd.DataFrame:
+    # All columns are tokenized (extra ones are dropped afterwards): with ``usecols`` pandas would
+    # silently drop surplus fields on a line, hiding a stray separator ("9,81").
+    return pd.read_csv(path, dtype=dtype, skip_blank_lines=False, engine="c", low_memory=False, index_col=False)
+
+
 def read_csv_table(path: Path | str, display: str, required: Sequence[str],
                    optional: Sequence[str] = (), str_cols: Sequence[str] = (),
                    min_rows: int = 1) -> tuple[pd.DataFrame, np.ndarray]:
@@ -126,10 +133,17 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
     float_cols = [c for c in wanted if c not in str_cols]
     dtype = {lookup[c]: (str if c in str_cols else np.float64) for c in wanted}
     try:
-        df = pd.read_csv(path, usecols=usecols, dtype=dtype, skip_blank_lines=False, engine="c")
+        with warnings.catch_warnings():
+            # the first data line having more fields than the header only warns: make it an error
+            warnings.simplefilter("error", pd.errors.ParserWarning)
+            df = _read_all_columns(path, dtype)
+    except pd.errors.ParserWarning:
+        raise InputError(display, 2, None, f"this line has more fields than the header ({len(names)}): "
+                                           f"a stray separator or a decimal comma?") from None
     except pd.errors.ParserError as exc:
         raise InputError(display, parser_error_row(exc), None,
-                         f"the line has a different number of fields than the header ({exc})") from None
+                         f"this line has more fields than the header ({len(names)}): a stray separator "
+                         f"or a decimal comma? ({exc})") from None
     except ValueError as exc:
         err = locate_bad_cell(path, display, usecols, float_cols, rename)
         if err is not None:
@@ -204,11 +218,11 @@ def fill_short_nan_runs(df: pd.DataFrame, columns: Sequence[str], rows: np.ndarr
                 worst = cand
     if worst is not None:
         i, _, col, length = worst
-        what = "a missing value" if length == 1 else f"{length} consecutive missing values"
+        what = "missing value" if length == 1 else f"{length} consecutive missing values starting here"
         allowed = ("no missing values are allowed" if max_nan_run == 0
                    else f"at most {max_nan_run} in a row are interpolated")
         raise InputError(display, int(rows[i]), col,
-                         f"{what} starting here ({allowed}; processing.max_nan_run)")
+                         f"{what} ({allowed}; processing.max_nan_run)")
     idx = np.arange(len(df), dtype=float)
     ordered = list(columns)
     if time_col in ordered:

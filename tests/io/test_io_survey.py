@@ -454,3 +454,9 @@ def test_timing_one_million_rows(tmp_path):
     print(f"read_survey: {n} gravimeter rows + {m} GNSS rows in {dt:.2f} s")
     assert len(s.flights["F1"].gravimeter) == n
     assert dt < 30.0  # generous: shared 2-core machine
+
+
+def test_unknown_toml_table(survey_dir):
+    root, *_ = survey_dir
+    (root / "survey.toml").write_text(TOML + "\n[plotting]\ncolour = 1\n")
+    expect_error(root, "survey.toml", 13, "plotting", match="unknown")

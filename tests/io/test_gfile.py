@@ -1,0 +1,192 @@
+"""GT-1A/GT-2A "G" file reader: synthetic files built from known values."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from app.io.errors import InputError
+from app.io.gfile import is_gfile_name, read_gfile
+from app.io.survey import read_survey
+
+MSG_HZ = 9.12  # two half-interval samples per message → 18.24 Hz
+T_MSG = 1.0 / MSG_HZ
+
+
+def hhmmss(sod):
+    sod = np.asarray(sod, dtype=float) % 86400.0
+    hh = np.floor(sod / 3600.0)
+    mm = np.floor((sod - 3600.0 * hh) / 60.0)
+    ss = sod - 3600.0 * hh - 60.0 * mm
+    return hh * 10000.0 + mm * 100.0 + ss
+
+
+def make_messages(n, t0_sod, seed=0, n_cc=3):
+    """Message table with known values; message k's interval ends at t0 + (k+1)·T (true times)."""
+    rng = np.random.default_rng(seed)
+    t_end = t0_sod + (np.arange(n) + 1) * T_MSG
+    whole = np.floor(t_end)
+    sub = np.round(t_end - whole, 4)  # sub-second field (s), hhmmss carries whole seconds
+    m = {
+        "message_id": np.arange(n) + 100,
+        "t_pow": 5000.0 + np.arange(n) * T_MSG,
+        "utc": hhmmss(whole),
+        "sub": sub,
+    }
+    for name, base in (("fz", 9.81), ("cz", 9.80), ("x", 0.0), ("y", 0.0)):
+        m[name + "1"] = base + 0.01 * rng.standard_normal(n)
+        m[name + "2"] = base + 0.01 * rng.standard_normal(n)
+    m["temp"] = 0.5 + 0.01 * rng.standard_normal(n)
+    for i in range(n_cc):
+        m[f"cc{i}"] = rng.standard_normal(n)
+    m["pm"] = 1e-3 * rng.standard_normal(n)
+    m["sat"] = np.zeros(n, dtype=int)
+    return pd.DataFrame(m), t_end
+
+
+def write_g(path: Path, msgs: pd.DataFrame, sep=" ", scale=1.0):
+    """Write messages as a G file; accelerations divided by ``scale`` (file units)."""
+    out = ["GT-1A G file  id  t_pow  utc  sub  fz1 fz2 cz1 cz2 x1 x2 y1 y2 temp cc... pm sat chk"]
+    cc = [c for c in msgs.columns if c.startswith("cc")]
+    for r in msgs.itertuples(index=False):
+        d = r._asdict()
+        acc = [d[k] / scale for k in ("fz1", "fz2", "cz1", "cz2", "x1", "x2", "y1", "y2")]
+        f = ([f"{d['message_id']:d}", f"{d['t_pow']:.4f}", f"{d['utc']:09.2f}", f"{d['sub']:.4f}"]
+             + [repr(float(a)) for a in acc] + [repr(float(d["temp"]))] + [repr(float(d[c])) for c in cc]
+             + [repr(float(d["pm"])), f"{d['sat']:d}", f"{(d['message_id'] * 7) % 256:02X}"])
+        out.append(sep.join(f))
+    path.write_text("\n".join(out) + "\n")
+
+
+def interleave(a, b):
+    out = np.empty(2 * len(a))
+    out[0::2], out[1::2] = a, b
+    return out
+
+
+def test_reader_reproduces_values_and_centres(tmp_path):
+    msgs, t_end = make_messages(200, t0_sod=3600.0 * 5 + 17.3)
+    p = tmp_path / "flight.G"
+    write_g(p, msgs)
+    df = read_gfile(p)
+    assert len(df) == 400
+    np.testing.assert_allclose(df["f_z"], interleave(msgs["fz1"], msgs["fz2"]), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(df["f_z_coarse"], interleave(msgs["cz1"], msgs["cz2"]), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(df["f_x"], interleave(msgs["x1"], msgs["x2"]), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(df["f_y"], interleave(msgs["y1"], msgs["y2"]), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(df["cc_3"], np.repeat(msgs["cc2"], 2), rtol=0, atol=1e-14)
+    np.testing.assert_allclose(df["temperature"], np.repeat(msgs["temp"], 2), rtol=0, atol=1e-14)
+    # the true half-interval centres: interval k is (t_end_k − T, t_end_k]
+    centres = interleave(t_end - 0.75 * T_MSG, t_end - 0.25 * T_MSG)
+    np.testing.assert_allclose(df["time"], centres, rtol=0, atol=2e-4)  # sub-second rounded to 1e-4 s
+    assert df["source_row"].tolist()[:4] == [2, 2, 3, 3]
+    assert df["half"].tolist()[:4] == [1, 2, 1, 2]
+    assert not df["saturated"].any()
+    rate = 1.0 / np.median(np.diff(df["time"]))
+    assert rate == pytest.approx(18.24, rel=1e-3)
+
+
+def test_comma_separated_no_cross_coupling_scale_and_offset(tmp_path):
+    msgs, t_end = make_messages(50, t0_sod=100.0, n_cc=0)
+    p = tmp_path / "G0001.dat"
+    write_g(p, msgs, sep=", ", scale=1e-5)  # file in mGal-like units (1e-5 m/s²)
+    df = read_gfile(p, scale_to_ms2=1e-5, time_offset_s=3 * 86400.0 + 18.0)
+    np.testing.assert_allclose(df["f_z"], interleave(msgs["fz1"], msgs["fz2"]), rtol=1e-12)
+    assert not any(c.startswith("cc_") for c in df.columns)
+    centres = interleave(t_end - 0.75 * T_MSG, t_end - 0.25 * T_MSG) + 3 * 86400.0 + 18.0
+    np.testing.assert_allclose(df["time"], centres, rtol=0, atol=2e-4)
+
+
+def test_stamp_start(tmp_path):
+    msgs, t_end = make_messages(30, t0_sod=1000.0)
+    p = tmp_path / "gravimeter.g"
+    write_g(p, msgs)
+    df = read_gfile(p, stamp="start")
+    centres = interleave(t_end + 0.25 * T_MSG, t_end + 0.75 * T_MSG)
+    np.testing.assert_allclose(df["time"], centres, rtol=0, atol=2e-4)
+
+
+def test_midnight_rollover(tmp_path):
+    msgs, t_end = make_messages(100, t0_sod=86400.0 - 5.0)
+    p = tmp_path / "x.G"
+    write_g(p, msgs)
+    assert msgs["utc"].iloc[-1] < msgs["utc"].iloc[0]  # the file really crosses 00:00
+    df = read_gfile(p)
+    centres = interleave(t_end - 0.75 * T_MSG, t_end - 0.25 * T_MSG)
+    np.testing.assert_allclose(df["time"], centres, rtol=0, atol=2e-4)
+
+
+def test_saturation_policies(tmp_path):
+    msgs, _ = make_messages(40, t0_sod=500.0)
+    msgs.loc[[10, 11], "sat"] = 1
+    p = tmp_path / "s.G"
+    write_g(p, msgs)
+    with pytest.warns(UserWarning, match="2 saturated"):
+        df = read_gfile(p)
+    assert len(df) == 2 * 38 and df.attrs["saturated_messages"] == 2
+    assert 12 not in set(df["source_row"]) and 13 not in set(df["source_row"])
+    flagged = read_gfile(p, on_saturation="flag")
+    assert len(flagged) == 80 and flagged["saturated"].sum() == 4
+    with pytest.raises(InputError) as ei:
+        read_gfile(p, on_saturation="error", display="s.G")
+    assert (ei.value.file, ei.value.row, ei.value.column) == ("s.G", 12, "saturation")
+
+
+def test_non_numeric_and_backwards(tmp_path):
+    msgs, _ = make_messages(20, t0_sod=500.0)
+    p = tmp_path / "a.G"
+    write_g(p, msgs)
+    lines = p.read_text().splitlines()
+    f = lines[6].split(" ")
+    f[8] = "1.2.3"  # x_1
+    lines[6] = " ".join(f)
+    p.write_text("\n".join(lines) + "\n")
+    with pytest.raises(InputError) as ei:
+        read_gfile(p)
+    assert (ei.value.row, ei.value.column) == (7, "x_1") and "'1.2.3'" in str(ei.value)
+
+    msgs2 = msgs.copy()
+    msgs2.loc[8, ["utc", "sub"]] = msgs2.loc[6, ["utc", "sub"]].to_numpy()
+    write_g(p, msgs2)
+    with pytest.raises(InputError) as ei:
+        read_gfile(p)
+    assert (ei.value.row, ei.value.column) == (10, "utc_hhmmss")
+
+
+def test_too_few_fields(tmp_path):
+    p = tmp_path / "b.G"
+    p.write_text("header\n1 2 3 4 5\n")
+    with pytest.raises(InputError) as ei:
+        read_gfile(p)
+    assert ei.value.row == 2
+
+
+def test_names():
+    assert is_gfile_name("gravimeter.g") and is_gfile_name("F12.G") and is_gfile_name("G0001.dat")
+    assert not is_gfile_name("gnss.csv") and not is_gfile_name("data.dat")
+
+
+def test_g_file_in_survey(tmp_path):
+    """A flight with a G file instead of gravimeter.csv; GNSS in GPS seconds of week (day 4)."""
+    day = 4 * 86400.0
+    msgs, t_end = make_messages(int(300 * MSG_HZ), t0_sod=3600.0)
+    root = tmp_path / "s"
+    d = root / "flights" / "F1"
+    d.mkdir(parents=True)
+    write_g(d / "F1.G", msgs)
+    tn = np.round(day + 3600.0 + np.arange(3000) / 10.0, 2)
+    pd.DataFrame({"time": tn, "lat": 60.0, "lon": 150.0 + 1e-5 * np.arange(3000), "h": 2000.0, "vu": 0.0}).to_csv(
+        d / "gnss.csv", index=False)
+    pd.DataFrame([{"line": "L1", "flight": "F1", "t_start": day + 3650.0, "t_end": day + 3850.0, "kind": "main"}]).to_csv(
+        root / "lines.csv", index=False)
+    (root / "survey.toml").write_text('[survey]\nname = "g"\n')
+    s = read_survey(root)
+    g = s.flights["F1"].gravimeter
+    assert list(g.columns) == ["time", "f_z", "f_x", "f_y"]
+    assert s.flights["F1"].gravimeter_path.name == "F1.G"
+    centres = interleave(t_end - 0.75 * T_MSG, t_end - 0.25 * T_MSG) + day  # day offset inferred from GNSS
+    np.testing.assert_allclose(g["time"], centres, rtol=0, atol=2e-4)

@@ -1,0 +1,81 @@
+"""Shared table helpers checked against brute-force references."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from app.io.errors import InputError
+from app.io.tables import check_time_increasing, fill_short_nan_runs, gap_rows_in_windows, read_csv_table
+
+
+def brute_gaps(t, a, b, max_gap):
+    for i in range(len(t) - 1):
+        if t[i + 1] - t[i] > max_gap and t[i + 1] > a and t[i] < b:
+            return i + 1
+    return -1
+
+
+def test_gap_rows_in_windows_matches_brute_force():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        dt = rng.choice([0.1, 0.1, 0.1, 0.1, 2.5], size=400)
+        t = np.cumsum(dt)
+        a = rng.uniform(0, t[-1], 50)
+        b = a + rng.uniform(0.01, 20.0, 50)
+        got = gap_rows_in_windows(t, a, b, 1.0)
+        ref = [brute_gaps(t, x, y, 1.0) for x, y in zip(a, b)]
+        assert got.tolist() == ref
+
+
+def test_fill_short_nan_runs_linear_in_time():
+    t = np.array([0.0, 1.0, 3.0, 4.0, 10.0])
+    v = np.array([0.0, np.nan, np.nan, 8.0, 20.0])  # true line v = 2 t
+    df = pd.DataFrame({"time": t, "v": v})
+    fill_short_nan_runs(df, ["time", "v"], np.arange(2, 7), "x.csv", max_nan_run=2)
+    np.testing.assert_allclose(df["v"], 2 * t)
+    df = pd.DataFrame({"time": t, "v": v})
+    with pytest.raises(InputError) as ei:
+        fill_short_nan_runs(df, ["time", "v"], np.arange(2, 7), "x.csv", max_nan_run=1)
+    assert (ei.value.row, ei.value.column) == (3, "v")
+
+
+def test_time_check_rows():
+    with pytest.raises(InputError) as ei:
+        check_time_increasing(np.array([0.0, 1.0, 2.0, 1.5]), np.array([2, 3, 4, 5]), "f")
+    assert ei.value.row == 5
+
+
+def test_header_case_blank_lines_and_parse_error(tmp_path):
+    p = tmp_path / "a.csv"
+    p.write_text(" Time ,F_Z,extra\n1,9.8,x\n\n3,9.8,y\n\n\n")
+    df, rows = read_csv_table(p, "a.csv", ("time", "f_z"))
+    assert rows.tolist() == [2, 3, 4]  # the inner blank line is a row of missing values, trailing ones dropped
+    assert np.isnan(df["time"].iloc[1])
+    p.write_text('time,f_z\n1,9.8\n2,9.8\n3,9.8\n4,"9,8"\n')
+    with pytest.raises(InputError) as ei:
+        read_csv_table(p, "a.csv", ("time", "f_z"))
+    assert (ei.value.row, ei.value.column) == (5, "f_z") and "'9,8'" in str(ei.value)
+    p.write_text("time,f_z\n1,9.8\n2,9.8\n3,9.8\n4,9.8,7\n")
+    with pytest.raises(InputError) as ei:
+        read_csv_table(p, "a.csv", ("time", "f_z"))
+    assert ei.value.row == 5
+
+
+def test_surplus_field_is_reported(tmp_path):
+    p = tmp_path / "a.csv"
+    p.write_text("time,f_z,extra\n1,9.8,a\n2,9,81,b\n3,9.8,c\n")  # decimal comma on line 3
+    with pytest.raises(InputError) as ei:
+        read_csv_table(p, "a.csv", ("time", "f_z"))
+    assert ei.value.row == 3 and "more fields" in str(ei.value)
+
+
+def test_surplus_field_is_reported(tmp_path):
+    p = tmp_path / "a.csv"
+    for text, row in (("time,f_z,extra\n1,9.8,a\n2,9,81,b\n3,9.8,c\n", 3),  # decimal comma on line 3
+                      ("time,f_z\n1,9,8\n2,9.8\n", 2)):
+        p.write_text(text)
+        with pytest.raises(InputError) as ei:
+            read_csv_table(p, "a.csv", ("time", "f_z"))
+        assert ei.value.row == row, str(ei.value)
