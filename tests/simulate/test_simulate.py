@@ -1,0 +1,290 @@
+"""Survey simulator: file format, physical consistency (z = δg), Markov statistics.
+
+Checks against independent things: analytic ODE solutions, app.core.geodesy applied to the
+written files, sampling statistics of the known truth.
+"""
+
+from __future__ import annotations
+
+import gzip
+import json
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.interpolate import CubicSpline, PPoly, RegularGridInterpolator
+
+from app.core.geodesy import eotvos_mgal, normal_gravity_mgal
+from app.simulate import PRESETS, SimConfig, simulate_survey
+from app.simulate.sensors import LaggedResponse, quadratic_from_means
+
+NOISE_OFF = dict(grav_noise_mgal_rthz=0.0, drift_rate_mgal_h=(0.0, 0.0), drift_offset_std_mgal=0.0,
+                 drift_rw_mgal_rth=0.0, sigma_vu_cms=0.0, sigma_vh_cms=0.0, sigma_pos_m=0.0,
+                 sigma_h_m=0.0, horizontal_noise_ms2=0.0)
+SMALL = dict(n_main=2, main_length_km=20.0, n_tie=1, grid_margin_km=4.0)
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    """Noise-free, lag-free tiny survey (turbulence and turns still on)."""
+    out = tmp_path_factory.mktemp("sim") / "clean"
+    return simulate_survey("tiny", out, seed=3, tau_true_s=0.0, scale_true=1.0, time_offset_s=0.0,
+                           **NOISE_OFF, **SMALL)
+
+
+@pytest.fixture(scope="module")
+def lagged(tmp_path_factory):
+    """Noise-free, with lag, scale error and time offset."""
+    out = tmp_path_factory.mktemp("sim") / "lagged"
+    return simulate_survey("tiny", out, seed=4, tau_true_s=2.0, scale_true=1.0 + 2e-4,
+                           time_offset_s=0.05, **NOISE_OFF, **SMALL)
+
+
+@pytest.fixture(scope="module")
+def noisy(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sim") / "noisy"
+    return simulate_survey("tiny", out, seed=5, episode_rate_per_h=6.0, **SMALL)
+
+
+# ---------------------------------------------------------------- exact lag solver
+
+def test_lag_matches_analytic_sinusoid():
+    tau, k, w = 2.0, 1.0002, 2 * np.pi * 0.3
+    x = np.arange(0.0, 60.0, 0.01)
+    cs = CubicSpline(x, np.sin(w * x))
+    lr = LaggedResponse(PPoly(cs.c, cs.x), tau, k)
+    t = np.linspace(40.0, 59.0, 777)          # start-up transient exp(−t/T) gone
+    exact = (k * np.sin(w * t) - tau * w * np.cos(w * t)) / (k ** 2 + tau ** 2 * w ** 2)
+    assert np.max(np.abs(lr.y(t) - exact)) < 1e-8
+    # interval means against the integral of the analytic solution
+    e = np.linspace(40.0, 59.0, 500)
+    Y = (-k * np.cos(w * e) / w - tau * np.sin(w * e)) / (k ** 2 + tau ** 2 * w ** 2)
+    assert np.max(np.abs(lr.interval_means(e) - np.diff(Y) / np.diff(e))) < 1e-8
+
+
+def test_lag_zero_tau_is_scaled_input():
+    x = np.linspace(0, 10, 101)
+    cs = CubicSpline(x, x ** 2)
+    lr = LaggedResponse(PPoly(cs.c, cs.x), 0.0, 2.0)
+    e = np.array([1.0, 3.0, 7.5])
+    assert np.allclose(lr.interval_means(e), np.diff(e ** 3 / 3) / np.diff(e) / 2.0)
+
+
+def test_quadratic_from_means_has_exact_interval_means():
+    rng = np.random.default_rng(0)
+    t = 100.0 + np.arange(200) * 0.1
+    m = np.cumsum(rng.standard_normal(200))
+    pp = quadratic_from_means(t, m)
+    got = np.diff(pp.antiderivative()(t)) / np.diff(t)
+    assert np.max(np.abs(got - m[1:])) < 1e-9
+
+
+# ---------------------------------------------------------------- file format
+
+def _read(p: Path, name: str, flight: str) -> pd.DataFrame:
+    f = p / "flights" / flight / f"{name}.csv"
+    return pd.read_csv(f if f.exists() else f.with_suffix(".csv.gz"))
+
+
+def test_directory_has_spec_columns(noisy):
+    p = Path(noisy)
+    cfg = tomllib.loads((p / "survey.toml").read_text())
+    assert cfg["survey"]["crs"] == "EPSG:32657" and cfg["survey"]["normal_gravity"] == "WGS84"
+    assert cfg["gravimeter"]["tau_s"] == 2.0 and cfg["gravimeter"]["scale"] == 1.0
+    lines = pd.read_csv(p / "lines.csv")
+    assert list(lines.columns) == ["line", "flight", "t_start", "t_end", "kind", "track"]
+    assert set(lines.kind) == {"main", "tie"}
+    for fl, grp in lines.groupby("flight"):
+        g = _read(p, "gravimeter", fl)
+        n = _read(p, "gnss", fl)
+        assert list(g.columns) == ["time", "f_z", "f_x", "f_y"]
+        assert list(n.columns) == ["time", "lat", "lon", "h", "vu", "ve", "vn", "sigma_v"]
+        assert np.all(np.diff(g.time) > 0) and np.all(np.diff(n.time) > 0)
+        # GNSS on exact multiples of 0.1 s; gravimeter stamps rounded to 1 ms and not uniform
+        assert np.allclose(n.time * 10, np.round(n.time * 10), atol=1e-6)
+        assert np.allclose(g.time * 1000, np.round(g.time * 1000), atol=1e-5)
+        assert len(np.unique(np.round(np.diff(g.time), 3))) >= 2
+        assert abs(len(g) / (g.time.iloc[-1] - g.time.iloc[0]) - 18.24) < 0.01
+        assert 9.7 < g.f_z.median() < 9.9                 # up positive, ≈ +g at rest
+        # line windows inside both files, with margin for filters
+        assert grp.t_start.min() > g.time.iloc[0] + 20 and grp.t_end.max() < g.time.iloc[-1] - 5
+        assert grp.t_start.min() >= n.time.iloc[0] and grp.t_end.max() <= n.time.iloc[-1]
+    truth = pd.read_parquet(p / "truth" / "lines.parquet")
+    for c in ["line", "flight", "kind", "time", "easting_km", "northing_km", "dg_true_mgal", "terrain",
+              "state_true", "Q_true_mgal2", "R_true_cm2s2"]:
+        assert c in truth.columns
+    assert set(truth.terrain) <= {"mountain", "plain"}
+    import xarray as xr
+    grid = xr.open_dataset(p / "truth" / "grid.nc")
+    assert grid["dg"].dims == ("northing_km", "easting_km") and grid.attrs["crs"] == "EPSG:32657"
+    assert np.diff(grid.easting_km.values).max() <= 0.5 + 1e-9
+    tj = json.loads((p / "truth" / "truth.json").read_text())
+    assert tj["tau_s"] == 2.0 and tj["scale"] == PRESETS["tiny"].scale_true
+
+
+def test_compressed_output_and_atomic_replace(tmp_path):
+    out = tmp_path / "s"
+    out.mkdir()
+    (out / "stale.txt").write_text("old")
+    simulate_survey("tiny", out, seed=1, compress=True, n_main=1, n_tie=0, main_length_km=8.0,
+                    grid_margin_km=3.0)
+    assert not (out / "stale.txt").exists()
+    f = out / "flights" / "F01" / "gnss.csv.gz"
+    with gzip.open(f, "rt") as fh:
+        assert fh.readline().strip() == "time,lat,lon,h,vu,ve,vn,sigma_v"
+    assert not [q for q in tmp_path.iterdir() if q.name.startswith(".")]
+
+
+def test_unknown_override_rejected(tmp_path):
+    with pytest.raises(TypeError):
+        simulate_survey("tiny", tmp_path / "x", no_such_parameter=1)
+    assert isinstance(PRESETS["omolon"], SimConfig)
+    om = PRESETS["omolon"]
+    assert om.n_main + om.n_tie == 74 and om.n_tie == 17 and om.n_flights == 12
+
+
+# ---------------------------------------------------------------- physics: z = δg
+
+def _z_from_files(p: Path, flight: str, tau: float, k: float, offset: float):
+    """z per GNSS epoch from the written files with app.core.geodesy.
+
+    f̄ over (t_{k−1}, t_k]: samples are interval means, so the cumulative integral is exact at the
+    sample edges (recovered from a linear fit of the stamps), then a cubic spline of it; the lag
+    is undone exactly on the interval: f̄ = τ·Δf'/Δt + k·mean(f').
+    """
+    g = _read(p, "gravimeter", flight)
+    n = _read(p, "gnss", flight)
+    j = np.arange(len(g))
+    a1, a0 = np.polyfit(j, g.time.to_numpy() - offset, 1)
+    edges = a0 - a1 / 2 + a1 * np.arange(len(g) + 1)
+    F = CubicSpline(edges, np.concatenate([[0.0], np.cumsum(g.f_z.to_numpy() * np.diff(edges))]))
+    tk = n.time.to_numpy()
+    dt = np.diff(tk)
+    fbar = (tau * np.diff(F(tk, 1)) + k * np.diff(F(tk))) / dt
+    dv = np.diff(n.vu.to_numpy()) / dt
+    lat, h = n.lat.to_numpy()[1:], n.h.to_numpy()[1:]
+    z = (fbar - dv) * 1e5 - normal_gravity_mgal(lat, h, "WGS84") \
+        + eotvos_mgal(lat, h, n.ve.to_numpy()[1:], n.vn.to_numpy()[1:])
+    return pd.Series(z, index=np.round(tk[1:], 1))
+
+
+def _line_errors(p: Path, tau, k, offset, kernel):
+    truth = pd.read_parquet(p / "truth" / "lines.parquet")
+    zs = {fl: _z_from_files(p, fl, tau, k, offset) for fl in truth.flight.unique()}
+    out = {}
+    for line, d in truth[truth.kind == "main"].groupby("line"):
+        err = zs[d.flight.iloc[0]].reindex(np.round(d.time.to_numpy(), 1)).to_numpy() - d.dg_true_mgal.to_numpy()
+        assert np.isfinite(err).all()
+        out[line] = (np.std(err), np.convolve(err, kernel, "valid"))
+    return out
+
+
+def test_z_equals_true_anomaly_without_lag(clean):
+    errs = _line_errors(Path(clean), 0.0, 1.0, 0.0, np.ones(1000) / 1000.0)   # 100 s moving average
+    for line, (raw, ma) in errs.items():
+        assert raw > 0.1                     # the motion is there (not a trivial pass)
+        assert np.max(np.abs(ma)) < 0.05, line
+
+
+def test_z_equals_true_anomaly_with_lag_scale_offset(lagged):
+    tj = json.loads((Path(lagged) / "truth" / "truth.json").read_text())
+    w = np.blackman(1001)
+    errs = _line_errors(Path(lagged), tj["tau_s"], tj["scale"], tj["time_offset_s"], w / w.sum())
+    for line, (raw, ma) in errs.items():
+        assert np.max(np.abs(ma)) < 0.02, line
+    # ignoring the scale error costs (k−1)·f ≈ 196 mGal: the test can fail
+    errs_bad = _line_errors(Path(lagged), tj["tau_s"], 1.0, tj["time_offset_s"], w / w.sum())
+    assert all(np.abs(ma).max() > 100 for _, ma in errs_bad.values())
+
+
+def test_eotvos_alternates_and_motion_is_realistic(clean):
+    p = Path(clean)
+    n = _read(p, "gnss", "F01")
+    lines = pd.read_csv(p / "lines.csv")
+    for _, ln in lines[lines.kind == "main"].iterrows():
+        s = n[(n.time >= ln.t_start) & (n.time <= ln.t_end)]
+        E = eotvos_mgal(s.lat, s.h, s.ve, s.vn)
+        assert 400 < abs(E.mean()) < 900
+        assert np.ptp(np.hypot(s.ve, s.vn)) < 0.2          # straight, constant speed on the window
+        a = np.diff(s.vu) / 0.1
+        assert 0.05 < np.std(a) < 1.5
+        assert np.ptp(s.h) < 40
+    es = [np.sign(eotvos_mgal(*n[(n.time >= r.t_start) & (n.time <= r.t_end)][["lat", "h", "ve", "vn"]].T.values).mean())
+          for _, r in lines[lines.kind == "main"].iterrows()]
+    assert es[0] != es[1]
+
+
+def test_truth_follows_grid_interpolant(clean):
+    import xarray as xr
+    p = Path(clean)
+    grid = xr.open_dataset(p / "truth" / "grid.nc")
+    truth = pd.read_parquet(p / "truth" / "lines.parquet")
+    rgi = RegularGridInterpolator((grid.northing_km.values, grid.easting_km.values), grid.dg.values, method="cubic")
+    # truth is the interval mean ≈ value at the interval midpoint (5 m back along the track)
+    d = truth[truth.line == "M001"]
+    ve = np.gradient(d.easting_km.to_numpy(), 0.1)
+    vn = np.gradient(d.northing_km.to_numpy(), 0.1)
+    pts = np.column_stack([d.northing_km - 0.05 * vn, d.easting_km - 0.05 * ve])
+    assert np.max(np.abs(rgi(pts) - d.dg_true_mgal.to_numpy())) < 0.05
+    assert d.dg_true_mgal.std() > 1.0
+
+
+def test_gnss_noise_matches_recorded_R(noisy):
+    p = Path(noisy)
+    truth = pd.read_parquet(p / "truth" / "lines.parquet")
+    n = _read(p, "gnss", "F01").set_index(np.round(_read(p, "gnss", "F01").time, 1))
+    d = truth.set_index(np.round(truth.time, 1))
+    r_cm = (n.vu.reindex(d.index).to_numpy() - d.vu_true_ms.to_numpy()) * 100.0
+    for R in np.unique(np.round(d.R_true_cm2s2, 6)):
+        m = np.isclose(d.R_true_cm2s2.to_numpy(), R)
+        if m.sum() < 500:
+            continue
+        v = np.var(r_cm[m])
+        assert abs(v / R - 1) < 5 * np.sqrt(2 / m.sum()) + 0.02, (R, v)
+
+
+# ---------------------------------------------------------------- Markov preset
+
+@pytest.fixture(scope="module")
+def markov(tmp_path_factory):
+    out = tmp_path_factory.mktemp("sim") / "markov"
+    return simulate_survey("markov", out, seed=2, n_main=8, main_length_km=100.0, n_flights=2)
+
+
+def test_markov_statistics(markov):
+    p = Path(markov)
+    assert tomllib.loads((p / "survey.toml").read_text())["processing"]["m"] == 1
+    tj = json.loads((p / "truth" / "truth.json").read_text())["markov"]
+    assert tj["Q_mgal2"] == [0.0414, 0.3533] and tj["R_cm2s2"] == [pytest.approx(1.6787)]
+    truth = pd.read_parquet(p / "truth" / "lines.parquet")
+    assert truth.line.nunique() == 8 and truth.groupby("line").size().min() >= 10000
+    counts = np.zeros((2, 2))
+    for s in (0, 1):
+        d = np.concatenate([np.diff(g.dg_true_mgal.to_numpy())[g.state_true.to_numpy()[1:] == s]
+                            for _, g in truth.groupby("line")])
+        assert d.size > 2000
+        Q = tj["Q_mgal2"][s]
+        assert abs(d.var() / Q - 1) < 5 * np.sqrt(2 / d.size), (s, d.var())
+        assert np.allclose(truth.Q_true_mgal2[truth.state_true == s], Q)
+    for _, g in truth.groupby("line"):
+        st = g.state_true.to_numpy()
+        blocks = st[::100]
+        assert all(len(np.unique(st[i:i + 100])) == 1 for i in range(0, st.size - 1, 100))
+        np.add.at(counts, (blocks[:-1], blocks[1:]), 1)
+    P = counts / counts.sum(axis=1, keepdims=True)
+    assert np.allclose(P, tj["transition_empirical"], atol=1e-12)
+    # spatially coherent: neighbouring lines mostly share the state at the same easting
+    agree = []
+    lines = sorted(truth.line.unique())
+    for a, b in zip(lines[:-1], lines[1:]):
+        A, B = truth[truth.line == a], truth[truth.line == b]
+        sb = np.interp(A.easting_km, np.sort(B.easting_km), B.state_true.to_numpy()[np.argsort(B.easting_km)])
+        agree.append(np.mean(np.round(sb) == A.state_true.to_numpy()))
+    assert np.mean(agree) > 0.85
+    # GNSS noise R = 1.6787 (cm/s)² without episodes
+    n = pd.concat([_read(p, "gnss", f) for f in truth.flight.unique()])
+    r = (n.set_index(np.round(n.time, 1)).vu.reindex(np.round(truth.time, 1)).to_numpy()
+         - truth.vu_true_ms.to_numpy()) * 100
+    assert abs(np.var(r) / 1.6787 - 1) < 0.03
