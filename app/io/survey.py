@@ -443,6 +443,9 @@ def survey_summary(survey: Survey) -> pd.DataFrame:
                          t_end=b, duration_s=b - a, gravimeter_rate_hz=rg, gnss_rate_hz=rn,
                          gravimeter_max_gap_s=gg, gnss_max_gap_s=gn, n_gravimeter=ng, n_gnss=nn,
                          length_km=path_length_km(g["lat"].to_numpy(), g["lon"].to_numpy(), g["h"].to_numpy())))
-    return pd.DataFrame(rows, columns=["level", "flight", "line", "kind", "track", "t_start", "t_end", "duration_s",
-                                       "gravimeter_rate_hz", "gnss_rate_hz", "gravimeter_max_gap_s",
-                                       "gnss_max_gap_s", "n_gravimeter", "n_gnss", "length_km"])
+    out = pd.DataFrame(rows, columns=["level", "flight", "line", "kind", "track", "t_start", "t_end", "duration_s",
+                                      "gravimeter_rate_hz", "gnss_rate_hz", "gravimeter_max_gap_s",
+                                      "gnss_max_gap_s", "n_gravimeter", "n_gnss", "length_km"])
+    for c in ("line", "kind", "track"):  # keep None (not NaN) on flight rows
+        out[c] = pd.Series([r[c] for r in rows], index=out.index, dtype=object)
+    return out

@@ -253,11 +253,19 @@ def check_time_increasing(t: np.ndarray, rows: np.ndarray, display: str, column:
         raise InputError(display, int(rows[i]), column, msg)
 
 
-def median_rate_hz(t: np.ndarray) -> float:
-    """Sampling rate from the median interval (Hz); NaN with fewer than 2 samples."""
+def median_rate_hz(t: np.ndarray, span: int = 10) -> float:
+    """Sampling rate from the median interval (Hz); NaN with fewer than 2 samples.
+
+    The median is taken over ``span``-sample intervals divided by ``span``
+    (when there are enough samples): robust to gaps like a plain median, but
+    not biased by time stamps rounded to a few decimals (18.24 Hz stamped to
+    1 ms would otherwise read as 1/0.055 = 18.18 Hz).
+    """
+    t = np.asarray(t, dtype=float)
     if t.size < 2:
         return float("nan")
-    return float(1.0 / np.median(np.diff(t)))
+    k = span if t.size > 2 * span else 1
+    return float(k / np.median(t[k:] - t[:-k]))
 
 
 def check_rate(t: np.ndarray, display: str, declared_hz: float | None, tolerance: float,

@@ -408,7 +408,8 @@ def test_two_flights_and_summary(tmp_path):
     q = survey_summary(s)
     assert (q["level"] == "flight").sum() == 2 and (q["level"] == "line").sum() == 6
     ln = q[q["level"] == "line"].set_index("line")
-    np.testing.assert_allclose(ln["gravimeter_rate_hz"], GRAV_HZ, rtol=2e-3)
+    np.testing.assert_allclose(ln["gravimeter_rate_hz"], GRAV_HZ, rtol=2e-4)
+    assert q.loc[q["level"] == "flight", "line"].tolist() == [None, None]
     np.testing.assert_allclose(ln["gnss_rate_hz"], GNSS_HZ, rtol=1e-6)
     np.testing.assert_allclose(ln.loc["0001", "duration_s"], 260.0)
     assert ln.loc["0001", "gnss_max_gap_s"] == pytest.approx(0.1, abs=1e-6)
@@ -447,7 +448,12 @@ def test_timing_one_million_rows(tmp_path):
     tn = np.round(T0 + np.arange(m) / 10.0, 2)
     nav = pd.DataFrame({"time": tn, "lat": LAT0, "lon": LON0 + 1e-5 * np.arange(m), "h": 3000.0, "vu": 0.0})
     lines = pd.DataFrame([{"line": "1", "flight": "F1", "t_start": T0 + 100, "t_end": t[-1] - 100, "kind": "main"}])
-    root = write_survey(tmp_path / "s", lines, {"F1": (g, nav)})
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+
+    root = write_survey(tmp_path / "s", lines, {"F1": (g.iloc[:10], nav.iloc[:10])})
+    for df, name in ((g, "gravimeter.csv"), (nav, "gnss.csv")):  # fast writer (pandas to_csv takes ~10 s)
+        pacsv.write_csv(pa.Table.from_pandas(df, preserve_index=False), root / "flights/F1" / name)
     t1 = time.perf_counter()
     s = read_survey(root)
     dt = time.perf_counter() - t1

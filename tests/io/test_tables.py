@@ -79,3 +79,11 @@ def test_surplus_field_is_reported(tmp_path):
         with pytest.raises(InputError) as ei:
             read_csv_table(p, "a.csv", ("time", "f_z"))
         assert ei.value.row == row, str(ei.value)
+
+
+def test_median_rate_not_biased_by_rounded_stamps():
+    from app.io.tables import median_rate_hz
+
+    t = np.round(1000.0 + np.arange(5000) / 18.24, 3)  # stamps rounded to 1 ms
+    assert median_rate_hz(t) == pytest.approx(18.24, rel=2e-3)
+    assert 1.0 / np.median(np.diff(t)) == pytest.approx(18.18, rel=1e-3)  # what a plain median gives
