@@ -99,9 +99,11 @@ def decimated_autocovariance(g: np.ndarray, n: int) -> np.ndarray:
         ``γ_j = Σ_i g_i g_{i+jn}`` for ``j = 0..J``, ``J = ⌊(len(g) − 1)/n⌋``.
     """
     g = np.asarray(g, dtype=float)
-    full = np.correlate(g, g, mode="full")  # lags −(N−1)..N−1
-    mid = g.size - 1
-    return full[mid::n].copy()
+    if isinstance(n, bool) or int(n) != n or n < 1:
+        raise ValueError(f"n must be an integer ≥ 1, got {n!r}")
+    n = int(n)
+    J = (g.size - 1) // n
+    return np.array([np.dot(g[: g.size - j * n], g[j * n:]) for j in range(J + 1)])
 
 
 def ma_autocovariance(coef: np.ndarray, maxlag: int | None = None) -> np.ndarray:
@@ -163,17 +165,14 @@ def _fit_order(gamma: np.ndarray, order: int, b_full: np.ndarray) -> tuple[np.nd
     def resid(c):
         return w * (ma_autocovariance(c, nres - 1) - gpad)
 
-    def jac(c):
-        K = c.size - 1
-        Jm = np.zeros((nres, K + 1))
-        for j in range(nres):
-            for l in range(K + 1):
-                v = 0.0
-                if l + j <= K:
-                    v += c[l + j]
-                if 0 <= l - j <= K:
-                    v += c[l - j]
-                Jm[j, l] = v
+    jj = np.arange(nres)[:, None]
+    ll = np.arange(order + 1)[None, :]
+    up, down = ll + jj, ll - jj
+    up_ok, down_ok = up <= order, down >= 0
+    up_i, down_i = np.minimum(up, order), np.maximum(down, 0)
+
+    def jac(c):  # ∂(Σ_i c_i c_{i+j})/∂c_l = c_{l+j} + c_{l−j}
+        Jm = np.where(up_ok, c[up_i], 0.0) + np.where(down_ok, c[down_i], 0.0)
         return w[:, None] * Jm
 
     b = b_full / scale
