@@ -324,6 +324,21 @@ def forward_backward(logb: np.ndarray, valid: np.ndarray, A: np.ndarray, init_su
 
 
 # --------------------------------------------------------------------------- M-step for Q, R
+def _spd_inverse_from_cholesky(L: np.ndarray) -> np.ndarray:
+    """Inverse of SPD matrices from their lower Cholesky factors, batched (..., n, n).
+
+    Row-wise forward substitution vectorised over the batch (n steps), then
+    ``Σ⁻¹ = L⁻ᵀ L⁻¹``; much cheaper than ``np.linalg.inv`` for many small matrices.
+    """
+    n = L.shape[-1]
+    X = np.zeros_like(L)
+    eye = np.eye(n)
+    for i in range(n):
+        row = eye[i] - (L[..., i:i + 1, :i] @ X[..., :i, :])[..., 0, :] if i else eye[0]
+        X[..., i, :] = row / L[..., i, i, None]
+    return np.swapaxes(X, -1, -2) @ X
+
+
 def _qr_objective(theta, model: WindowModel, S: np.ndarray, n: np.ndarray):
     """Expected emission log-likelihood and its gradient in log-variances.
 
@@ -339,16 +354,21 @@ def _qr_objective(theta, model: WindowModel, S: np.ndarray, n: np.ndarray):
         L = np.linalg.cholesky(Sig)
     except np.linalg.LinAlgError:
         return np.inf, np.zeros_like(theta)
-    logdet = 2.0 * np.log(np.diagonal(L, axis1=-2, axis2=-1)).sum(-1)
-    Sinv = np.linalg.inv(Sig)
+    diag = np.diagonal(L, axis1=-2, axis2=-1)
+    if np.any(~(diag > 0)):
+        return np.inf, np.zeros_like(theta)
+    logdet = 2.0 * np.log(diag).sum(-1)
+    Sinv = _spd_inverse_from_cholesky(L)
     SiS = Sinv @ S
     val = -0.5 * (n * logdet + np.trace(SiS, axis1=-2, axis2=-1))
     G = -0.5 * (n[..., None, None] * Sinv - SiS @ Sinv)
     if p > 0:
-        Spp = Sig[..., :p, :p]
-        Lp = np.linalg.cholesky(Spp)
-        logdetp = 2.0 * np.log(np.diagonal(Lp, axis1=-2, axis2=-1)).sum(-1)
-        Pinv = np.linalg.inv(Spp)
+        # past block by the Schur complement of the full inverse:
+        # Σ_pp⁻¹ = A − b bᵀ / c,  log det Σ_pp = log det Σ + log c
+        c_ll = Sinv[..., p, p]
+        b = Sinv[..., :p, p]
+        Pinv = Sinv[..., :p, :p] - b[..., :, None] * b[..., None, :] / c_ll[..., None, None]
+        logdetp = logdet + np.log(c_ll)
         PiS = Pinv @ S[..., :p, :p]
         val = val + 0.5 * (n * logdetp + np.trace(PiS, axis1=-2, axis2=-1))
         G[..., :p, :p] += 0.5 * (n[..., None, None] * Pinv - PiS @ Pinv)
