@@ -30,7 +30,9 @@ both
   (default 5 % with ``floor_db = 20``): the model is within 5 % of the true
   spectrum wherever that is within 20 dB of its peak,
 
-capped at ``max_order`` (default 20).  The L2 criterion alone is not enough:
+capped at ``max_order`` (default 20; if the cap is reached the criterion is not
+met and the reported misfits say by how much — this happens only for very
+narrow transition bands, e.g. ``cutoff_hz`` ≥ 0.9·ω_stop).  The L2 criterion alone is not enough:
 for m = 2 it accepts L = 6, whose error near the decimated Nyquist biases the
 maximum-likelihood Q by −9 % (Q = 1e-5) to −38 % (Q = 1e-6); the band criterion
 takes L = 7 and the bias falls below 0.3 % (asymptotic Whittle estimate).
