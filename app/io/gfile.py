@@ -109,13 +109,13 @@ def _read_raw(path: Path, display: str) -> tuple[pd.DataFrame, np.ndarray]:
     kw = dict(sep=",", skipinitialspace=True) if comma else dict(sep=r"\s+")
     try:
         df = pd.read_csv(path, header=None, skiprows=1, names=names, dtype=dtype,
-                         skip_blank_lines=False, engine="c", **kw)
+                         skip_blank_lines=False, engine="c", low_memory=False, **kw)
     except pd.errors.ParserError as exc:
         raise InputError(display, parser_error_row(exc), None,
                          f"the line has a different number of fields than the first message ({exc})") from None
     except ValueError:
         raw = pd.read_csv(path, header=None, skiprows=1, names=names, dtype=str,
-                          skip_blank_lines=False, engine="c", **kw)
+                          skip_blank_lines=False, engine="c", low_memory=False, **kw)
         for i_col, col in enumerate(names[:-1]):
             s = raw[col]
             num = pd.to_numeric(s.str.strip(), errors="coerce")

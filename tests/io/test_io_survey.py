@@ -382,6 +382,9 @@ def test_latitude_out_of_range(survey_dir):
     root, *_ = survey_dir
     edit_cell(root / "flights/F1/gnss.csv", 11, "lat", "162.0")
     expect_error(root, "flights/F1/gnss.csv", 11, "lat", match="162")
+    edit_cell(root / "flights/F1/gnss.csv", 11, "lat", "62.0")
+    edit_cell(root / "flights/F1/gnss.csv", 4000, "lon", "-200.5")
+    expect_error(root, "flights/F1/gnss.csv", 4000, "lon", match="-200.5")
 
 
 def test_f_z_units_checked(survey_dir):
