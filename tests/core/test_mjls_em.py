@@ -185,3 +185,21 @@ def test_data_driven_initialisation_is_sensible():
     R0 = res.iterations[0]["R"][0]
     assert 0.005 < Q0[0] < Q0[1] < 3.0
     assert 0.5 < R0 < 8.0
+
+
+def test_mstep_gradient_matches_finite_differences():
+    from app.core.mjls_em import WindowModel, _layout, _qr_objective, _window_stats
+
+    rng = np.random.default_rng(12)
+    c, d = np.array([2.0, 1.0, 0.5]), np.array([0.1, -0.2])
+    model = WindowModel(c, d, 2, 2)
+    xs = [rng.standard_normal(30) for _ in range(3)]
+    data = _layout(xs, model.p)
+    gamma = rng.dirichlet(np.ones(model.chain.n_super), size=(3, 30))
+    S, n = _window_stats(data, gamma, model.p)
+    theta = np.log([0.05, 0.4, 1.0, 3.0])
+    f, g = _qr_objective(theta, model, S, n)
+    eps = 1e-6
+    num = np.array([(_qr_objective(theta + eps * e, model, S, n)[0]
+                     - _qr_objective(theta - eps * e, model, S, n)[0]) / (2 * eps) for e in np.eye(4)])
+    np.testing.assert_allclose(g, num, rtol=1e-5, atol=1e-6 * abs(f))
