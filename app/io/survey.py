@@ -270,8 +270,13 @@ def _find_file(d: Path, stem: str) -> Path | None:
     return None
 
 
-def _find_gfile(d: Path) -> Path | None:
+def _find_gfile(d: Path, root: Path) -> Path | None:
     cands = sorted(p for p in d.iterdir() if p.is_file() and is_gfile_name(p.name))
+    if len(cands) > 1:
+        names = ", ".join(p.name for p in cands)
+        raise InputError(_rel(root, d) + "/", None, None,
+                         f"several gravimeter G files in one flight ({names}): keep one per flight directory "
+                         f"(merge split recordings into one file, or make each a flight of its own)")
     return cands[0] if cands else None
 
 
@@ -329,7 +334,7 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
         gnss_path = _find_file(d, "gnss")
         if gnss_path is None:
             raise InputError(_rel(root, d / "gnss.csv"), None, None, f"flight {name} has no gnss.csv (or gnss.csv.gz)")
-        grav_path = _find_file(d, "gravimeter") or _find_gfile(d)
+        grav_path = _find_file(d, "gravimeter") or _find_gfile(d, root)
         if grav_path is None:
             raise InputError(_rel(root, d / "gravimeter.csv"), None, None,
                              f"flight {name} has no gravimeter.csv (or .csv.gz, or a G file: gravimeter.g, *.G, G*.dat)")

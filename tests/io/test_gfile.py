@@ -190,3 +190,20 @@ def test_g_file_in_survey(tmp_path):
     assert s.flights["F1"].gravimeter_path.name == "F1.G"
     centres = interleave(t_end - 0.75 * T_MSG, t_end - 0.25 * T_MSG) + day  # day offset inferred from GNSS
     np.testing.assert_allclose(g["time"], centres, rtol=0, atol=2e-4)
+
+
+def test_two_g_files_in_a_flight_is_an_error(tmp_path):
+    day = 4 * 86400.0
+    msgs, _ = make_messages(200, t0_sod=3600.0)
+    d = tmp_path / "s" / "flights" / "F1"
+    d.mkdir(parents=True)
+    write_g(d / "A.G", msgs)
+    write_g(d / "G2.dat", msgs)
+    tn = np.round(day + 3600.0 + np.arange(300) / 10.0, 2)
+    pd.DataFrame({"time": tn, "lat": 60.0, "lon": 150.0, "h": 2000.0, "vu": 0.0}).to_csv(d / "gnss.csv", index=False)
+    pd.DataFrame([{"line": "L1", "flight": "F1", "t_start": day + 3605.0, "t_end": day + 3615.0, "kind": "main"}]).to_csv(
+        tmp_path / "s" / "lines.csv", index=False)
+    (tmp_path / "s" / "survey.toml").write_text("")
+    with pytest.raises(InputError) as ei:
+        read_survey(tmp_path / "s")
+    assert ei.value.file == "flights/F1/" and "A.G" in str(ei.value) and "G2.dat" in str(ei.value)
