@@ -49,6 +49,9 @@ class ProcessingParams(_Strict):
     decimation_step_km: float = Field(1.0, gt=0)
     cutoff_hz: float | None = Field(None, gt=0, description="Kaiser low-pass cut-off ω_s (Hz); from n when None")
     stopband_attenuation_db: float = Field(60.0, gt=10)
+    regularization_difference_grid: Literal["decimated", "full"] = Field(
+        "decimated", description="Where ∇^m is taken: on the decimated grid (default; keeps the GNSS noise "
+        "from aliasing through the Kaiser side-lobes) or at full rate (the literal order of seed 000)")
     ma_order_K: int | None = Field(None, ge=0)
     ma_order_L: int | None = Field(None, ge=0)
     # --- EM learning (step 2)

@@ -196,7 +196,8 @@ def regularize_lines(lines: list[LineData], cfg: SurveyConfig, dt_s: float) -> R
         raise ValueError("no lines to identify (all are tie lines and include_tie_lines is false)")
     speed = float(np.nanmedian([ln.speed_ms for ln in use]))
     design = design_regularization(dt_s, speed, step_km=p.decimation_step_km, n=p.decimation_n,
-                                   cutoff_hz=p.cutoff_hz, attenuation_db=p.stopband_attenuation_db)
+                                   cutoff_hz=p.cutoff_hz, attenuation_db=p.stopband_attenuation_db,
+                                   difference_grid=p.regularization_difference_grid)
     ma = fit_ma_model(design, p.m, K=p.ma_order_K, L=p.ma_order_L)
     kept, xs, idxs, skipped = [], [], [], {}
     for ln in use:
