@@ -280,3 +280,28 @@ def test_bad_input(kwargs, match):
 def test_smooth_many_length_mismatch():
     with pytest.raises(ValueError):
         smooth_many([np.ones(20), np.ones(30)], [1e-3], 1.0, 0.1)
+
+
+def test_seed002_sphere_tfs_equals_rts():
+    """Seed 002 buried sphere (R 400 m, top 100 m, Δρ 0.15 g/cm³, 4000 m at 4 m, noise 20 mGal²),
+    the seed's state model with the analytic gradient as known input: TFS = RTS."""
+    G = 6.674e-11
+    M = 4.0 / 3.0 * np.pi * 400.0**3 * 150.0
+    D = 500.0
+    x = np.arange(0.0, 4000.0 + 1e-9, 4.0)
+    dx = x - 2000.0
+    g = G * M * D / (dx**2 + D**2) ** 1.5 * 1e5
+    assert g.max() == pytest.approx(1.0735, abs=1e-3)  # G M / D² in mGal
+    grad = -3.0 * G * M * D * dx / (dx**2 + D**2) ** 2.5 * 1e5
+    rng = np.random.default_rng(0)
+    z = g + rng.normal(0, np.sqrt(20.0), x.size)
+    u = np.zeros((x.size, 1))
+    u[1:, 0] = 4.0 * grad[:-1]
+    args = (np.array([[1.0]]), np.array([[1e-4]]), np.array([[1.0]]), np.array([[20.0]]), z,
+            np.array([z[0]]), np.array([[20.0]]))
+    xt, Pt, _ = two_filter_smooth(*args, u=u)
+    xr, Pr, _ = rts_smooth(*args, u=u)
+    np.testing.assert_allclose(xt, xr, rtol=0, atol=1e-6)
+    np.testing.assert_allclose(Pt, Pr, rtol=1e-6)
+    # the smoother is near the one-offset floor sqrt(20/1001) = 0.14 mGal, far below the noise
+    assert np.sqrt(np.mean((xr[:, 0] - g) ** 2)) < 0.5
