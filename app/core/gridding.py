@@ -44,11 +44,12 @@ import numpy as np
 from scipy.linalg import cho_factor, solve_triangular
 from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
+from scipy.spatial.distance import cdist
 
 
 # --------------------------------------------------------------------------- helpers
 
-def _single_thread_blas():
+def single_thread_blas():
     """Limit BLAS to one thread for the many small local solves.
 
     Multi-threaded OpenBLAS on small (≤ 1000²) matrices on a loaded machine
@@ -76,6 +77,16 @@ def gm2_covariance(d_km, variance_mgal2: float, length_km: float):
     """
     x = np.asarray(d_km, dtype=float) / length_km
     return variance_mgal2 * (1.0 + x) * np.exp(-x)
+
+
+def _gm2_inplace(d_km, variance_mgal2, length_km):
+    """:func:`gm2_covariance` overwriting the distance array (saves memory passes)."""
+    d_km /= length_km
+    e = np.exp(-d_km)
+    d_km += 1.0
+    d_km *= e
+    d_km *= variance_mgal2
+    return d_km
 
 
 def _check_xyz(easting_km, northing_km, values, std=None):
@@ -407,7 +418,7 @@ class Collocation(_LineGridder):
 
     def __init__(self, variance_mgal2=None, length_km=None, nugget_mgal2=None, *,
                  thin_km: float = 0.5, error_corr_km: float = 0.0, trend: str = "plane",
-                 block_km: float = 5.0, max_points: int = 500, search_radius_km=None,
+                 block_km: float = 5.0, max_points: int = 400, search_radius_km=None,
                  mask_km=None, seed: int = 0):
         self.variance_mgal2 = variance_mgal2
         self.length_km = length_km
@@ -509,7 +520,7 @@ class Collocation(_LineGridder):
         key = bx * (by.max() + 1) + by
         order = np.argsort(key, kind="stable")
         bounds = np.flatnonzero(np.diff(key[order])) + 1
-        with _single_thread_blas():
+        with single_thread_blas():
             self._solve_blocks(np.split(order, bounds), pe, pn, var, L, radius + half_diag, k,
                                out_v, out_s)
         return out_v + self._trend_at(pe, pn), out_s
@@ -525,11 +536,9 @@ class Collocation(_LineGridder):
                 out_s[grp] = np.sqrt(var)
                 continue
             xy = self._xy[idx]
-            dd = np.hypot(xy[:, 0, None] - xy[None, :, 0], xy[:, 1, None] - xy[None, :, 1])
-            K = gm2_covariance(dd, var, L)
-            K[np.diag_indices_from(K)] += self._noise[idx]
-            dg_ = np.hypot(xy[:, 0, None] - pe[grp][None, :], xy[:, 1, None] - pn[grp][None, :])
-            Cdg = gm2_covariance(dg_, var, L)
+            K = _gm2_inplace(cdist(xy, xy), var, L)
+            K.flat[::K.shape[0] + 1] += self._noise[idx]
+            Cdg = _gm2_inplace(cdist(xy, np.column_stack([pe[grp], pn[grp]])), var, L)
             c, low = cho_factor(K, lower=True, check_finite=False)
             A = solve_triangular(c, Cdg, lower=True, check_finite=False)
             b = solve_triangular(c, self._resid[idx], lower=True, check_finite=False)
@@ -560,14 +569,16 @@ class Spline(_LineGridder):
     def fit(self, easting_km, northing_km, dg_mgal, std_mgal=None, line=None):
         """Fit to scattered line data (see :meth:`Collocation.fit`). Returns self."""
         from scipy.interpolate import CloughTocher2DInterpolator, LinearNDInterpolator
+        from scipy.spatial import Delaunay
 
         te, tn, tv, ts = self._prepare(easting_km, northing_km, dg_mgal, std_mgal, line)
         if te.size < 3:
             raise ValueError("Spline needs at least 3 distinct data blocks")
         pts = np.column_stack([te, tn])
         try:
-            self._interp = CloughTocher2DInterpolator(pts, tv)
-            self._interp_std = LinearNDInterpolator(pts, ts)
+            tri = Delaunay(pts)  # one triangulation for both interpolants
+            self._interp = CloughTocher2DInterpolator(tri, tv)
+            self._interp_std = LinearNDInterpolator(tri, ts)
         except Exception as exc:  # collinear data (one straight line)
             raise ValueError(f"cannot triangulate the data (all on one straight line?): {exc}") from exc
         return self

@@ -394,7 +394,10 @@ def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 
     _fill(lb, tb, -1.0)
     w = 1.0 / np.sqrt(var)
     if ncol:
-        x, *_ = np.linalg.lstsq(A * w[:, None], diff * w, rcond=rcond)
+        from app.core.gridding import single_thread_blas
+
+        with single_thread_blas():  # small dense problem: threads only contend
+            x, *_ = np.linalg.lstsq(A * w[:, None], diff * w, rcond=rcond)
     else:
         x = np.zeros(1)
     coefs = {}
