@@ -28,6 +28,9 @@ class GravimeterSection(_Strict):
     scale: float = Field(1.0, gt=0.0, description="Scale k of the gravimeter model τ·ḟ' + k·f' = f_g + …")
     base_gravity_mgal: float | None = Field(None, description="Absolute gravity at the parking place (mGal)")
     rate_hz: float = Field(18.24, gt=0.0, description="Declared sampling rate of the gravimeter (Hz)")
+    time_offset_s: float | None = Field(
+        None, description="G file only: seconds added to UTC seconds of day to reach the survey time scale "
+        "(e.g. day·86400 + GPS−UTC leap seconds); whole days inferred from the GNSS times when None")
 
 
 class ProcessingParams(_Strict):
