@@ -106,7 +106,9 @@ def find_crossovers(lines: dict[str, LineTrack], *, include_repeat: bool = False
     full-rate ``dg`` and ``dg_std`` are interpolated at that time.
 
     Main–tie crossings are the usual ones; main–main and tie–tie pairs are
-    included when they really intersect.  Repeat lines are excluded unless
+    included when they really intersect.  No crossing is reported inside a
+    data gap (a decimated segment longer than ``max(3·decimate_km, 5×`` the
+    line's median sample step``)``).  Repeat lines are excluded unless
     ``include_repeat``.
 
     Parameters
@@ -134,14 +136,21 @@ def find_crossovers(lines: dict[str, LineTrack], *, include_repeat: bool = False
         if not isinstance(tr, LineTrack):
             raise ValueError(f"line {name!r} is not a LineTrack")
         idx = _decimate_indices(tr.easting_km, tr.northing_km, decimate_km)
-        seg_line.append(np.full(idx.size - 1, li))
-        seg_i0.append(idx[:-1])
-        seg_i1.append(idx[1:])
+        # drop segments that bridge a data gap (no data to interpolate there)
+        raw_step = np.hypot(np.diff(tr.easting_km), np.diff(tr.northing_km))
+        gap_km = max(3.0 * decimate_km, 5.0 * float(np.median(raw_step)))
+        seg_len = np.hypot(np.diff(tr.easting_km[idx]), np.diff(tr.northing_km[idx]))
+        good = seg_len <= gap_km
+        seg_line.append(np.full(int(good.sum()), li))
+        seg_i0.append(idx[:-1][good])
+        seg_i1.append(idx[1:][good])
     empty = pd.DataFrame({c: pd.Series(dtype=object if c.startswith("line") else float)
                           for c in CROSSOVER_COLUMNS})
     if len(names) < 2:
         return empty
     seg_line = np.concatenate(seg_line)
+    if seg_line.size == 0:
+        return empty
     seg_i0 = np.concatenate(seg_i0)
     seg_i1 = np.concatenate(seg_i1)
     # segment end points (global arrays)

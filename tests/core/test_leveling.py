@@ -85,6 +85,20 @@ def test_parallel_and_repeat_lines():
     assert np.allclose(np.sort(x.northing_km), [0, 1])
 
 
+def test_no_crossing_inside_a_data_gap():
+    e, n, t = _straight(0, 0, 10, 0, 0.0)
+    keep = (e < 4.0) | (e > 6.0)                      # 2 km gap around e = 5
+    e3, n3, t3 = _straight(5, -1, 5, 2, 2000.0)
+    e4, n4, t4 = _straight(2, -1, 2, 2, 3000.0)
+    z = np.zeros
+    lines = {"A": LineTrack(e[keep], n[keep], t[keep], z(keep.sum()), z(keep.sum()), "main"),
+             "T5": LineTrack(e3, n3, t3, z(t3.size), z(t3.size), "tie"),
+             "T2": LineTrack(e4, n4, t4, z(t4.size), z(t4.size), "tie")}
+    x = find_crossovers(lines)
+    assert list(x.line_b) == ["T2"]
+    assert x.easting_km.iloc[0] == pytest.approx(2.0)
+
+
 def test_grid_crossover_count_and_positions():
     lines, _, _ = _survey()
     x = find_crossovers(lines)
