@@ -44,6 +44,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 _LOG2PI = float(np.log(2.0 * np.pi))
+_MSTEP_MAXITER = 100
 
 
 def single_thread_blas():
@@ -699,7 +700,7 @@ def _fit_em(x_list, c, d, n_q, n_r, Q_init, R_init, transition_init, max_iter, t
         f0, _ = _qr_objective(theta, model, S, n)
         res = minimize(_qr_objective, theta, args=(model, S, n), jac=True, method="L-BFGS-B",
                        bounds=[(t - 25.0, t + 25.0) for t in theta],
-                       options={"maxiter": 100, "ftol": 1e-12, "gtol": 1e-8})
+                       options={"maxiter": _MSTEP_MAXITER, "ftol": 1e-12, "gtol": 1e-8})
         if np.all(np.isfinite(res.x)) and res.fun < f0:
             theta = res.x
         Q, R = np.exp(theta[:n_q]), np.exp(theta[n_q:])
