@@ -390,7 +390,10 @@ class Collocation(_LineGridder):
         Block size of the thinning (km).
     error_corr_km : float
         Along-line correlation length of the data errors used to shrink the
-        std of block means (0: white errors).
+        std of block means: ``n_eff = clip(n·step/error_corr_km, 1, n)``.
+        0 means white errors (std / √n).  The default 1 km suits smoothed
+        line estimates (a 0.5 km block mean keeps the points' std); set it to
+        the smoother's correlation length.
     trend : {"plane", "mean", "none"}
         Deterministic part removed before covariance estimation and added back.
     block_km : float
@@ -405,6 +408,15 @@ class Collocation(_LineGridder):
     seed : int
         Seed of the subsampling in the covariance estimation.
 
+    Notes
+    -----
+    The posterior std is that of simple kriging around the fitted trend: it
+    does not include the trend's own uncertainty, nor correlations of the
+    errors between different thinning blocks (errors correlated along lines
+    over several km make it optimistic; raise ``error_corr_km`` or the
+    ``nugget_mgal2``).  Leveling residuals that are constant per line are not
+    modelled either.
+
     Attributes (after ``fit``)
     --------------------------
     variance_mgal2_, length_km_, nugget_mgal2_ : float
@@ -417,7 +429,7 @@ class Collocation(_LineGridder):
     """
 
     def __init__(self, variance_mgal2=None, length_km=None, nugget_mgal2=None, *,
-                 thin_km: float = 0.5, error_corr_km: float = 0.0, trend: str = "plane",
+                 thin_km: float = 0.5, error_corr_km: float = 1.0, trend: str = "plane",
                  block_km: float = 5.0, max_points: int = 400, search_radius_km=None,
                  mask_km=None, seed: int = 0):
         self.variance_mgal2 = variance_mgal2

@@ -72,7 +72,7 @@ def test_collocation_on_simulated_field_accuracy_and_calibration():
     for seed in range(3):
         # 14 lines 1.5 km apart, 40 km long, 1 mGal white noise every 0.5 km
         e, n, obs, lab, ge, gn, truth = _simulate(seed, spacing=1.5, step=0.5, nlines=14, length=40.0)
-        col = Collocation(thin_km=0.5).fit(e, n, obs, np.full(e.size, 1.0), line=lab)
+        col = Collocation(thin_km=0.5, error_corr_km=0.0).fit(e, n, obs, np.full(e.size, 1.0), line=lab)
         est.append((col.variance_mgal2_, col.length_km_, col.nugget_mgal2_))
         x, y, dg, sd = col.grid(region=(0, 40, 0, 19.5), spacing_km=1.0)
         np.testing.assert_allclose(x, ge)
@@ -168,3 +168,28 @@ def test_line_spacing_and_empirical_covariance():
     lag, cov, cnt, c0 = empirical_covariance(e, n, r, 5.0)
     assert c0 == pytest.approx(4.0, rel=0.2)
     assert np.sum(cnt * cov) / np.sum(cnt) == pytest.approx(0.0, abs=0.2)
+
+
+def test_collocation_with_along_line_correlated_errors_is_not_overconfident():
+    """10 Hz-like data (50 m) with 1 mGal errors correlated over ~1 km on a
+    deterministic field (a sum of Gaussian bumps, not the model's covariance)."""
+    from scipy.ndimage import uniform_filter1d
+
+    rng = np.random.default_rng(0)
+    ce, cn = rng.uniform(-5, 35, 60), rng.uniform(-5, 25, 60)
+    w, a = rng.uniform(2, 8, 60), rng.normal(0, 15, 60)
+
+    def truth(x, y):
+        return np.sum(a * np.exp(-((x[..., None] - ce) ** 2 + (y[..., None] - cn) ** 2) / (2 * w ** 2)), axis=-1)
+
+    x = np.arange(0, 30.0001, 0.05)
+    e = np.concatenate([x] * 21)
+    n = np.repeat(np.arange(21.0), x.size)
+    lab = np.repeat(np.arange(21), x.size)
+    noise = uniform_filter1d(rng.standard_normal(e.size), 20) * np.sqrt(20)   # std ≈ 1 mGal
+    col = Collocation(error_corr_km=1.0).fit(e, n, truth(e, n) + noise, 1.0, line=lab)
+    ge, gn, g, s = col.grid(region=(0, 30, 0, 20))
+    GE, GN = np.meshgrid(ge, gn)
+    err = g - truth(GE, GN)
+    assert np.sqrt(np.nanmean(err ** 2)) < 1.0
+    assert np.nanmean(np.abs(err) < 2 * s) >= 0.9
