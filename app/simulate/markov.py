@@ -59,7 +59,8 @@ def empirical_transition(paths) -> np.ndarray:
     return P
 
 
-def make_state_map(extent_km, a11: float, a22: float, rng, step_km: float = 1.0) -> StateMap:
+def make_state_map(extent_km, a11: float, a22: float, rng, step_km: float = 1.0,
+                   rows_y_km=None, row_x_km=None, n_draws: int = 6) -> StateMap:
     """Thresholded smooth random field whose along-x switching matches (a11, a22).
 
     Parameters
@@ -68,24 +69,36 @@ def make_state_map(extent_km, a11: float, a22: float, rng, step_km: float = 1.0)
         Area relative to the survey centre (km), a margin is added.
     a11, a22 : float
         Target probabilities of staying in state 0 / state 1 per ``step_km``.
+    rows_y_km : array_like, optional
+        Northings of the east–west lines; the fit (threshold and smoothness) is done on
+        these rows, between ``row_x_km = (x0, x1)``, so the realised line statistics are close
+        to the targets.  Default: every grid row of the extent.
+    n_draws : int
+        Independent white-noise draws tried; the best (draw, smoothness) pair is kept.
     """
     xmin, xmax, ymin, ymax = extent_km
     m = 60.0
     x = np.arange(xmin - m, xmax + m + step_km, step_km)
     y = np.arange(ymin - m, ymax + m + step_km, step_km)
-    white = rng.standard_normal((y.size, x.size))
     p1 = (1 - a11) / ((1 - a11) + (1 - a22))     # stationary probability of state 1
-    inner = (slice(int(m / step_km), -int(m / step_km)),) * 2
+    if rows_y_km is None:
+        iy = np.nonzero((y >= ymin) & (y <= ymax))[0]
+    else:
+        iy = np.unique(np.clip(np.round((np.asarray(rows_y_km) - y[0]) / step_km).astype(int), 0, y.size - 1))
+    x0, x1 = (xmin, xmax) if row_x_km is None else row_x_km
+    ix = np.nonzero((x >= x0) & (x <= x1))[0]
     best = None
-    for sig in np.geomspace(2.0, 40.0, 24):
-        f = gaussian_filter(white, sig / step_km, mode="wrap")
-        thr = float(np.quantile(f[inner], 1.0 - p1))
-        s = (f[inner] > thr).astype(np.int64)
-        P = empirical_transition(list(s))
-        err = abs(np.log(max(1 - P[0, 0], 1e-6)) - np.log(1 - a11)) + \
-            abs(np.log(max(1 - P[1, 1], 1e-6)) - np.log(1 - a22))
-        if best is None or err < best[0]:
-            best = (err, sig, f, thr)
+    for _ in range(n_draws):
+        white = rng.standard_normal((y.size, x.size))
+        for sig in np.geomspace(3.0, 40.0, 16):
+            f = gaussian_filter(white, sig / step_km, mode="wrap")
+            rows = f[np.ix_(iy, ix)]
+            thr = float(np.quantile(rows, 1.0 - p1))
+            P = empirical_transition(list((rows > thr).astype(np.int64)))
+            err = abs(np.log(max(1 - P[0, 0], 1e-6)) - np.log(1 - a11)) + \
+                abs(np.log(max(1 - P[1, 1], 1e-6)) - np.log(1 - a22))
+            if best is None or err < best[0]:
+                best = (err, sig, f, thr)
     _, sig, f, thr = best
     return StateMap(x, y, f, thr, float(sig))
 

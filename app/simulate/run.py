@@ -236,7 +236,10 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
                                      "Q_true_mgal2": np.full(tg.size, np.nan)}
             return fn
     elif cfg.field_kind == "markov":
-        smap = make_state_map(ext, cfg.markov_a11, cfg.markov_a22, rng, cfg.markov_map_step_km)
+        rows = [ln.start_km[1] for ln in planned if ln.kind == "main"]
+        half = cfg.main_length_km / 2.0
+        smap = make_state_map(ext, cfg.markov_a11, cfg.markov_a22, rng, cfg.markov_map_step_km,
+                              rows_y_km=rows, row_x_km=(-half, half))
         block_paths = []
 
         def dg_fn_for(path):
@@ -327,6 +330,10 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
         "sigma_pos_m": cfg.sigma_pos_m, "sigma_h_m": cfg.sigma_h_m,
         "dg_true_definition": "mean of the injected anomaly over the GNSS interval (t_{k-1}, t_k]",
         "normal_gravity": cfg.normal_gravity, "crs": cfg.crs,
+        "time_scale": "seconds since the survey time origin (GNSS epochs on exact multiples of 0.1 s; "
+                      "flights on successive days)",
+        "gnss_sigma_v_note": "sigma_v column = true vu noise std in force x lognormal(0, 0.2) per epoch",
+        "horizontal_note": "f_x = east, f_y = north specific force (kinematic + Coriolis) at the sample centre",
         "survey_centre_km": [e0, n0],
         "flights": flight_info,
         **truth_extra,
