@@ -22,9 +22,9 @@ def _simulate(rng, T, m, Q, R, dt):
     """Draw (z, δg) from the model with per-epoch Q, R (arrays of length T)."""
     q = rng.normal(size=T) * np.sqrt(Q)
     dg = q.copy()
-    dg[0] = 50.0
     for _ in range(m):
         dg = np.cumsum(dg)
+    dg += 50.0
     r = rng.normal(size=T + 1) * np.sqrt(np.r_[R[0], R])
     z = dg - 1000.0 * (r[1:] - r[:-1]) / dt
     return z, dg
@@ -79,11 +79,7 @@ def test_bf_equals_rts_time_varying_with_gaps():
     rts = kalman_smooth(z, Q, R, dt, m=m, method="rts", x0=x0, P0=P0)
     scale = np.abs(rts.dg_mgal).max()
     np.testing.assert_allclose(bf.dg_mgal, rts.dg_mgal, rtol=0, atol=1e-8 * scale)
-    # Variances: the BF form P − PΛ̂P cancels where smoothing shrinks the variance most
-    # (diffuse start, Q = 1e-5 stretches); measured worst case 3e-7 relative in std, see
-    # test_exact_arithmetic_reference for the accuracy of each method against 50 digits.
-    np.testing.assert_allclose(bf.dg_std_mgal, rts.dg_std_mgal, rtol=1e-6)
-    assert np.median(np.abs(bf.dg_std_mgal / rts.dg_std_mgal - 1)) < 1e-9
+    np.testing.assert_allclose(bf.dg_std_mgal, rts.dg_std_mgal, rtol=1e-8)
     np.testing.assert_array_equal(bf.filtered_mgal, rts.filtered_mgal)
     assert bf.loglik == rts.loglik
     # and both equal the generic numpy RTS on the same model and prior
@@ -174,9 +170,9 @@ def test_exact_arithmetic_reference(m):
     P0 = np.diag([1e6] * m + [R[0], R[0]])
     P0s = P0.copy(); P0s[m:, m:] *= c * c
     mean, var = _exact_rts(A, C[0] / np.r_[np.ones(m), c, c], z, Q, R * c * c, m, x0, P0s)
-    for method, tol in (("bf", 1e-6), ("rts", 1e-7)):
+    for method, tol in (("bf", 1e-8), ("rts", 1e-8)):
         res = kalman_smooth(z, Q, R, dt, m=m, method=method, x0=x0, P0=P0)
-        np.testing.assert_allclose(res.dg_mgal, mean, rtol=0, atol=1e-7 * np.abs(mean).max())
+        np.testing.assert_allclose(res.dg_mgal, mean, rtol=0, atol=1e-9 * np.abs(mean).max())
         np.testing.assert_allclose(res.dg_std_mgal, np.sqrt(var), rtol=tol)
 
 
@@ -200,7 +196,7 @@ def test_posterior_std_calibrated_on_simulation():
     frac = np.mean(np.abs(err) < 2.0 * sd)
     assert 0.93 <= frac <= 0.97, frac
     # normalised errors have unit variance
-    assert np.std(err / sd) == pytest.approx(1.0, abs=0.1)
+    assert np.sqrt(np.mean((err / sd) ** 2)) == pytest.approx(1.0, abs=0.1)
 
 
 def test_no_negative_variance_extreme_ratios_200k():
@@ -214,12 +210,10 @@ def test_no_negative_variance_extreme_ratios_200k():
     bf = kalman_smooth(z, Q, R, dt, m=m, method="bf")
     assert np.all(np.isfinite(bf.dg_std_mgal)) and np.all(bf.dg_std_mgal > 0)
     rts = kalman_smooth(z, Q, R, dt, m=m, method="rts")
-    # Posterior std spans 0.3 .. 1e3 mGal against a measurement noise of up to 1.4e5 mGal:
-    # double precision leaves ~1e-5 relative agreement between the two algorithms here
-    # (each is within ~1e-7 of a 50-digit computation on shorter extreme sequences).
-    np.testing.assert_allclose(bf.dg_std_mgal, rts.dg_std_mgal, rtol=1e-4)
+    # Posterior std spans 0.3 .. 1e3 mGal against a measurement noise of up to 1.4e5 mGal.
+    np.testing.assert_allclose(bf.dg_std_mgal, rts.dg_std_mgal, rtol=1e-7)
     e = (bf.dg_mgal - dg) / bf.dg_std_mgal
-    assert np.std(e) == pytest.approx(1.0, abs=0.15)
+    assert np.sqrt(np.mean(e**2)) == pytest.approx(1.0, abs=0.15)
 
 
 def test_two_filter_equals_rts_generic_model():
