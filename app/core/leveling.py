@@ -242,19 +242,23 @@ class LevelingResult:
     Attributes
     ----------
     coefs : dict of str to ndarray
-        Drift polynomial coefficients per line (mGal), power basis in the
-        normalised time ``τ = 2 (t − t0)/(t1 − t0) − 1`` of the line's time range.
-        Lines without crossings have no entry (their correction is zero).
+        Drift polynomial coefficients per drift unit (mGal), power basis in the
+        normalised time ``τ = 2 (t − t0)/(t1 − t0) − 1`` of the unit's time
+        range.  A unit is a line, or a group of lines (e.g. a flight) when
+        ``groups`` was given.  Units without crossings have no entry (their
+        lines' correction is zero).
     degrees : dict of str to int
-        Degree actually used per line (reduced when a line has too few crossings).
+        Degree actually used per unit (reduced when it has too few crossings).
     time_ranges : dict of str to (float, float)
-        ``(t0, t1)`` per line (s).
+        ``(t0, t1)`` per unit (s).
     rms_before, rms_after : float
         Crossover RMS of ``dg_a − dg_b`` before and after leveling (mGal).
     diff_before, diff_after : ndarray, shape (n_crossovers,)
         Crossover differences before and after (mGal), row order of the input.
     reference : str or None
-        The reference line (zero drift), or None for the minimum-norm solution.
+        The reference unit (zero drift), or None for the minimum-norm solution.
+    unit_of : dict of str to str
+        Drift unit of every line (the line itself without ``groups``).
     """
 
     coefs: dict
@@ -268,18 +272,20 @@ class LevelingResult:
     sigma0_mgal: float = 0.0
     n_crossovers: int = 0
     unleveled_lines: list = field(default_factory=list)
+    unit_of: dict = field(default_factory=dict)
 
     def correction(self, line: str, time_s) -> np.ndarray:
         """Drift of ``line`` at ``time_s`` (mGal): subtract it from the line's ``dg``.
 
-        Lines that had no crossing get zero.
+        Lines whose drift unit had no crossing get zero.
         """
         t = np.asarray(time_s, dtype=float)
-        if line not in self.coefs:
+        unit = self.unit_of.get(str(line), str(line))
+        if unit not in self.coefs:
             return np.zeros_like(t)
-        t0, t1 = self.time_ranges[line]
+        t0, t1 = self.time_ranges[unit]
         tau = 2.0 * (t - t0) / (t1 - t0) - 1.0
-        return _basis(tau.ravel(), self.degrees[line]).dot(self.coefs[line]).reshape(t.shape)
+        return _basis(tau.ravel(), self.degrees[unit]).dot(self.coefs[unit]).reshape(t.shape)
 
     def apply(self, line: str, time_s, dg_mgal) -> np.ndarray:
         """Leveled anomaly ``dg − correction(line, time)`` (mGal)."""
@@ -293,7 +299,7 @@ def _rms(x):
 
 def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 1,
                 reference: str | None = None, sigma0_mgal: float = 0.5,
-                rcond: float = 1e-6) -> LevelingResult:
+                rcond: float = 1e-6, groups: dict | None = None) -> LevelingResult:
     """Per-line polynomial drift in time from crossover differences.
 
     Model, per crossover k between lines a and b::
@@ -332,6 +338,11 @@ def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 
         unmodelled errors); must be > 0 if the stds can be zero.
     rcond : float
         Relative singular-value cut-off of the minimum-norm solve.
+    groups : dict of str to str, optional
+        Line → group (e.g. flight).  Lines of one group share one drift
+        polynomial in time over the group's time span (seed 001: "the trend
+        common to all lines of a flight"); ``reference`` then names a group.
+        Lines missing from the mapping are their own unit.
 
     Returns
     -------
@@ -364,15 +375,23 @@ def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 
         raise ValueError("crossovers contain non-finite values")
     if np.any(var <= 0):
         raise ValueError("zero crossover variance: give sigma0_mgal > 0")
-    ranges = {str(k): (float(v[0]), float(v[1])) for k, v in line_time_ranges.items()}
-    involved = sorted(set(la) | set(lb))
-    for name in involved:
-        if name not in ranges:
+    line_ranges = {str(k): (float(v[0]), float(v[1])) for k, v in line_time_ranges.items()}
+    for name in sorted(set(la) | set(lb)):
+        if name not in line_ranges:
             raise ValueError(f"line {name!r} of the crossovers has no time range")
-        if not ranges[name][1] > ranges[name][0]:
+        if not line_ranges[name][1] > line_ranges[name][0]:
             raise ValueError(f"line {name!r}: time range must have t_end > t_start")
+    grp = {str(k): str(v) for k, v in (groups or {}).items()}
+    unit_of = {ln: grp.get(ln, ln) for ln in line_ranges}
+    ranges = {}
+    for ln, u in unit_of.items():
+        t0, t1 = line_ranges[ln]
+        ranges[u] = (min(t0, ranges[u][0]), max(t1, ranges[u][1])) if u in ranges else (t0, t1)
+    la = np.array([unit_of[x] for x in la], dtype=object)
+    lb = np.array([unit_of[x] for x in lb], dtype=object)
+    involved = sorted(set(la) | set(lb))
     if reference is not None and reference != "min-norm" and str(reference) not in involved:
-        raise ValueError(f"reference line {reference!r} has no crossovers")
+        raise ValueError(f"reference line/group {reference!r} has no crossovers")
     ref = None if reference in (None, "min-norm") else str(reference)
 
     counts = pd.Series(np.concatenate([la, lb])).value_counts()
@@ -417,8 +436,8 @@ def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 
             coefs[n] = x[offsets[n]:offsets[n] + degrees[n] + 1].copy()
     model = A.dot(x) if ncol else np.zeros(nx)
     diff_after = diff - model
-    unleveled = sorted(set(ranges) - set(involved))
-    return LevelingResult(coefs=coefs, degrees=degrees, time_ranges=ranges,
+    unleveled = sorted(ln for ln, u in unit_of.items() if u not in involved)
+    return LevelingResult(coefs=coefs, degrees=degrees, time_ranges=ranges, unit_of=unit_of,
                           rms_before=_rms(diff), rms_after=_rms(diff_after),
                           diff_before=diff, diff_after=diff_after, reference=ref,
                           sigma0_mgal=float(sigma0_mgal), n_crossovers=int(nx),

@@ -197,3 +197,35 @@ def test_leveling_errors():
         level_lines(x, {k: v for k, v in ranges.items() if k != "M0"})
     with pytest.raises(ValueError):
         LineTrack([0, 1], [0, 1], [1, 0], [0, 0], [0, 0])
+
+
+def test_per_flight_drift_with_groups():
+    """Seed 001's alternative: one drift polynomial per flight, shared by its lines."""
+    lines, truth, ranges = _survey(drift_deg=0, noise=0.0, seed=11)
+    flight = {k: ("F1" if k in ("M0", "M1", "M2", "M3", "T0", "T1") else "F2") for k in lines}
+    span = {}
+    for k, f in flight.items():
+        t0, t1 = ranges[k]
+        span[f] = (min(t0, span.get(f, (t0, t1))[0]), max(t1, span.get(f, (t0, t1))[1]))
+    coef = {"F1": (2.0, -4.0), "F2": (-1.0, 3.0)}            # mGal, mGal per half span
+    new_truth = {}
+    for k, tr in lines.items():
+        f = flight[k]
+        tau = 2 * (tr.time_s - span[f][0]) / (span[f][1] - span[f][0]) - 1
+        d = coef[f][0] + coef[f][1] * tau
+        tr.dg_mgal = tr.dg_mgal - truth[k] + d               # replace the line offsets by flight drift
+        new_truth[k] = d
+    x = find_crossovers(lines)
+    res = level_lines(x, ranges, degree=1, groups=flight)
+    assert set(res.coefs) == {"F1", "F2"} and res.unit_of["M5"] == "F2"
+    assert res.time_ranges["F1"] == pytest.approx(span["F1"])
+    assert res.rms_after < 1e-3 * res.rms_before
+    # recovered up to the common constant
+    r = np.concatenate([new_truth[k] - res.correction(k, lines[k].time_s) for k in lines])
+    assert np.ptp(r) < 1e-3
+    np.testing.assert_allclose(res.coefs["F1"][1], -4.0, atol=1e-3)
+    np.testing.assert_allclose(res.coefs["F2"][1], 3.0, atol=1e-3)
+    # a reference flight carries zero drift; its own slope then stays in the data
+    res_ref = level_lines(x, ranges, degree=1, groups=flight, reference="F1")
+    assert np.all(res_ref.coefs["F1"] == 0) and np.all(res_ref.correction("M0", [1e3, 2e3]) == 0)
+    assert res_ref.rms_after < res_ref.rms_before
