@@ -514,6 +514,17 @@ class Collocation(_LineGridder):
         self._tree = cKDTree(self._xy)
         return self
 
+    def summary(self) -> dict:
+        """JSON-able covariance model and data counts of the fit."""
+        if not hasattr(self, "variance_mgal2_"):
+            raise ValueError("call fit() first")
+        return {"method": "collocation", "covariance": "gm2",
+                "variance_mgal2": self.variance_mgal2_, "length_km": self.length_km_,
+                "nugget_mgal2": self.nugget_mgal2_, "offset_mgal2": self.covariance_offset_mgal2_,
+                "trend": self.trend, "trend_coef": [float(c) for c in self.trend_coef_],
+                "n_data": self.n_data_, "n_thinned": self.n_thinned_,
+                "line_spacing_km": self.line_spacing_km_, "mask_km": self.mask_distance_km_}
+
     def _trend_at(self, pe, pn):
         G = _trend_design(pe, pn, self.trend, self._origin)
         return G.dot(self.trend_coef_) if G.shape[1] else np.zeros(pe.size)

@@ -19,7 +19,9 @@ directions — is unobservable (a 4-dimensional null space).  The
 degeneracy is removed either by a reference line whose drift is fixed to zero
 (the paper's choice; the remaining null space, e.g. the plane, is then removed
 by the minimum-norm rule) or by the minimum-norm solution (truncated SVD of the
-whitened design matrix).
+whitened design matrix).  Instead of one polynomial per line, the lines of one
+flight may share one polynomial in time (``groups``), the alternative seed 001
+mentions.
 
 Units: coordinates km, times s, anomalies and drifts mGal.
 """
@@ -286,6 +288,18 @@ class LevelingResult:
         t0, t1 = self.time_ranges[unit]
         tau = 2.0 * (t - t0) / (t1 - t0) - 1.0
         return _basis(tau.ravel(), self.degrees[unit]).dot(self.coefs[unit]).reshape(t.shape)
+
+    def summary(self) -> dict:
+        """JSON-able summary for ``report.json`` (mGal, s)."""
+        return {
+            "rms_before_mgal": self.rms_before, "rms_after_mgal": self.rms_after,
+            "n_crossovers": self.n_crossovers, "reference": self.reference,
+            "sigma0_mgal": self.sigma0_mgal,
+            "degrees": dict(self.degrees),
+            "coefs_mgal": {k: [float(c) for c in v] for k, v in self.coefs.items()},
+            "time_ranges_s": {k: [float(a), float(b)] for k, (a, b) in self.time_ranges.items()},
+            "unleveled_lines": list(self.unleveled_lines),
+        }
 
     def apply(self, line: str, time_s, dg_mgal) -> np.ndarray:
         """Leveled anomaly ``dg − correction(line, time)`` (mGal)."""

@@ -131,6 +131,8 @@ def test_mask_and_errors():
     col = Collocation(thin_km=0.5).fit(e, n, obs, 1.0, line=lab)
     assert col.line_spacing_km_ == pytest.approx(2.0, rel=0.05)
     assert col.mask_distance_km_ == pytest.approx(3.0, rel=0.05)
+    summ = col.summary()
+    assert summ["length_km"] == col.length_km_ and summ["mask_km"] == col.mask_distance_km_
     x, y, dg, sd = col.grid(region=(-10, 20, 0, 6), spacing_km=1.0)
     far = x < -3.1
     assert np.all(np.isnan(dg[:, far])) and np.all(np.isnan(sd[:, far]))

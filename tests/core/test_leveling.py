@@ -158,6 +158,9 @@ def test_leveling_constant_offsets_recovered_up_to_constant_and_reference():
     tru = np.array([truth[k][0] for k in lines])
     np.testing.assert_allclose(est - est.mean(), tru - tru.mean(), atol=1e-4)
     assert abs(est.sum()) < 1e-8                       # minimum norm: zero mean offset
+    summ = res.summary()
+    assert summ["n_crossovers"] == 32 and summ["rms_before_mgal"] == res.rms_before
+    assert summ["coefs_mgal"]["M0"] == [res.coefs["M0"][0]]
     res_ref = level_lines(x, ranges, degree=0, reference="T2")
     assert np.all(res_ref.coefs["T2"] == 0)
     est_r = np.array([res_ref.coefs[k][0] for k in lines])
