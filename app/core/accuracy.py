@@ -80,6 +80,9 @@ class RepeatAccuracy:
     values_mgal: np.ndarray
     mean_mgal: np.ndarray
 
+    def __float__(self) -> float:
+        return float(self.epsilon_mgal)
+
     @property
     def n_points(self) -> int:
         return int(self.along_km.size)
@@ -89,7 +92,7 @@ class RepeatAccuracy:
         return int(self.values_mgal.shape[0])
 
 
-def repeat_line_accuracy(easting_km, northing_km, dg_mgal, step_km: float = 0.1) -> RepeatAccuracy:
+def repeat_line_accuracy(easting_km, northing_km=None, dg_mgal=None, step_km: float = 0.1) -> RepeatAccuracy:
     """Internal accuracy of K repeats of one track.
 
     Every repeat is projected on the principal axis of all the repeats' points
@@ -100,13 +103,16 @@ def repeat_line_accuracy(easting_km, northing_km, dg_mgal, step_km: float = 0.1)
     Parameters
     ----------
     easting_km, northing_km, dg_mgal : sequence of K array_like
-        One array per repeat (km, km, mGal).
+        One array per repeat (km, km, mGal).  Alternatively pass one sequence
+        of K ``(easting_km, northing_km, dg_mgal)`` tuples as the first
+        argument and leave the others None.
     step_km : float
         Spacing of the common points (km).
 
     Returns
     -------
     RepeatAccuracy
+        ``float(result)`` is ε in mGal.
 
     Raises
     ------
@@ -115,6 +121,11 @@ def repeat_line_accuracy(easting_km, northing_km, dg_mgal, step_km: float = 0.1)
     """
     if step_km <= 0:
         raise ValueError("step_km must be positive")
+    if northing_km is None and dg_mgal is None:
+        try:
+            easting_km, northing_km, dg_mgal = zip(*easting_km)
+        except (TypeError, ValueError) as exc:
+            raise ValueError("pass (easting, northing, dg) per repeat or three sequences") from exc
     es = [np.asarray(a, dtype=float).ravel() for a in easting_km]
     ns = [np.asarray(a, dtype=float).ravel() for a in northing_km]
     gs = [np.asarray(a, dtype=float).ravel() for a in dg_mgal]

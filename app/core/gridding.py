@@ -317,12 +317,12 @@ class _LineGridder:
         self.region_ = (float(e.min()), float(e.max()), float(n.min()), float(n.max()))
         return te, tn, tv, ts
 
-    def _mask(self, pe, pn):
+    def _mask(self, pe, pn, mask_km=None):
         d, _ = self._mask_tree.query(np.column_stack([pe, pn]), k=1,
-                                     distance_upper_bound=self.mask_distance_km_)
+                                     distance_upper_bound=mask_km or self.mask_distance_km_)
         return np.isfinite(d)
 
-    def grid(self, region=None, spacing_km: float = 1.0):
+    def grid(self, region=None, spacing_km: float = 1.0, mask_km: float | None = None):
         """Predict on a regular grid.
 
         Parameters
@@ -330,6 +330,9 @@ class _LineGridder:
         region : (west, east, south, north) in km, optional
             Defaults to the data bounding box.  Nodes start at west/south.
         spacing_km : float
+        mask_km : float, optional
+            Mask distance for this call (overrides the fitted
+            ``mask_distance_km_``).
 
         Returns
         -------
@@ -348,11 +351,13 @@ class _LineGridder:
         if not hasattr(self, "region_"):
             raise ValueError("call fit() before grid()")
         ge, gn = _grid_axes(region, spacing_km, *(np.array(self.region_[:2]), np.array(self.region_[2:])))
+        if mask_km is not None and not mask_km > 0:
+            raise ValueError("mask_km must be positive")
         E, N = np.meshgrid(ge, gn)
-        inside = self._mask(E.ravel(), N.ravel())
+        inside = self._mask(E.ravel(), N.ravel(), mask_km)
         if not np.any(inside):
             raise ValueError("empty grid area: no grid node lies within "
-                             f"{self.mask_distance_km_:.3g} km of the data")
+                             f"{mask_km or self.mask_distance_km_:.3g} km of the data")
         dg = np.full(E.size, np.nan)
         sd = np.full(E.size, np.nan)
         dg[inside], sd[inside] = self._predict(E.ravel()[inside], N.ravel()[inside])

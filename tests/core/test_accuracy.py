@@ -43,6 +43,8 @@ def test_repeat_line_accuracy_recovers_known_noise():
         gs.append(truth(s) + _smooth_noise(rng, s.size, sigma, 100))   # noise correlated over 1 km
     res = repeat_line_accuracy(es, ns, gs, step_km=0.1)
     assert res.n_repeats == 6
+    # same thing from a list of (e, n, dg) tuples; float() gives ε
+    assert float(repeat_line_accuracy(list(zip(es, ns, gs)))) == res.epsilon_mgal
     assert res.along_km[-1] == pytest.approx(99.99 - 0.5, abs=0.12)   # common interval [0.5, 99.99]
     assert res.epsilon_mgal == pytest.approx(sigma, rel=0.1)
     # the mean of the repeats tracks the truth (the principal axis may point either way)

@@ -139,6 +139,9 @@ def test_mask_and_errors():
     assert np.all(np.isfinite(dg[:, (x >= 0) & (x <= 10)]))
     with pytest.raises(ValueError, match="empty grid area"):
         col.grid(region=(100, 110, 100, 110))
+    # a per-call mask distance
+    x2, _, dg2, _ = col.grid(region=(-10, 20, 0, 6), spacing_km=1.0, mask_km=8.0)
+    assert np.all(np.isfinite(dg2[:, x2 >= -7.9])) and np.all(np.isnan(dg2[:, x2 < -8.1]))
     with pytest.raises(ValueError, match="no finite data"):
         Collocation().fit([], [], [])
     with pytest.raises(ValueError, match="no finite data"):
