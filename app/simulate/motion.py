@@ -225,7 +225,8 @@ def vertical_motion(t0: float, t1: float, cfg, rng):
     """
     fs = cfg.fine_rate_hz
     pad = 20.0
-    n = int(np.ceil((t1 - t0 + 2 * pad) * fs)) + 1
+    from scipy.fft import next_fast_len
+    n = next_fast_len(int(np.ceil((t1 - t0 + 2 * pad) * fs)) + 1, real=True)   # fast FFT size
     tf = t0 - pad + np.arange(n) / fs
     f_lo, f_hi = cfg.turbulence_band_hz
     fmax = cfg.motion_max_hz
