@@ -35,7 +35,7 @@ def merge_truth(lines: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFrame:
         t = truth[truth["line"] == line].sort_values("time")
         if t.empty:
             continue
-        m = pd.merge_asof(g.sort_values("time"), t.drop(columns=[c for c in ("flight", "kind", "easting_km",
+        m = pd.merge_asof(g.sort_values("time"), t.drop(columns=[c for c in ("line", "flight", "kind", "easting_km",
                                                                              "northing_km") if c in t]),
                           on="time", direction="nearest", tolerance=1e-3)
         m["along_km"] = _along_km(m)
@@ -54,10 +54,14 @@ def line_accuracy(lines: pd.DataFrame, truth: pd.DataFrame, edge_km: float = 10.
             continue
         err = core[col] - core["dg_true_mgal"]
         d = {"all": float(np.sqrt(np.mean(err ** 2)))}
+        # the same with each line's mean error removed (what leveling/base ties cannot see)
+        err_d = err - err.groupby(core["line"]).transform("mean")
+        d["all_line_demeaned"] = float(np.sqrt(np.mean(err_d ** 2)))
         for terr in ("mountain", "plain"):
             sel = core["terrain"] == terr
             if sel.any():
                 d[terr] = float(np.sqrt(np.mean(err[sel] ** 2)))
+                d[f"{terr}_line_demeaned"] = float(np.sqrt(np.mean(err_d[sel] ** 2)))
         res[col] = d
     for col in ("dg_mgal", "dg_unleveled_mgal"):
         err = core[col] - core["dg_true_mgal"]

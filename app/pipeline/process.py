@@ -96,10 +96,12 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
 
     tr.start("measurement")
     flights = {}
+    base_ties: dict = {}
     names = list(survey.flights)
     for i, name in enumerate(names):
         flights[name] = stages.measure_flight(survey.flights[name], cfg)
         warnings.extend(f"flight {name}: {n}" for n in flights[name].notes)
+        base_ties[name] = stages.base_tie(flights[name], cfg.gravimeter.base_gravity_mgal)
         tr.emit((i + 1) / len(names))
     crs = stages.survey_crs(cfg, flights)
     lines = stages.cut_lines(survey.lines, flights, crs)
@@ -130,14 +132,16 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     em = stages.learn(learn_reg, cfg, callback=on_iter)
     n_states = len(em.Q) * len(em.R)
     stationary = _stationary_distribution(np.asarray(em.transition))
-    initial_all = []
-    j = 0
-    for k in learn_mask:
-        if k:
-            initial_all.append(np.asarray(em.initial[j]))
-            j += 1
-        else:
-            initial_all.append(stationary)
+    # per-line initial probabilities: learned lines from EM (rows mapped back through
+    # em.line_index, since EM drops lines too short for its window), others the chain's
+    # stationary distribution
+    learned_pos = [i for i, k in enumerate(learn_mask) if k]
+    initial_all = [stationary] * len(reg.lines)
+    line_index = getattr(em, "line_index", None)
+    if line_index is None:
+        line_index = list(range(len(em.initial)))
+    for row, w in enumerate(line_index):
+        initial_all[learned_pos[int(w)]] = np.asarray(em.initial[row])
 
     tr.start("recognition")
 
@@ -229,6 +233,7 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
 
     report = _report(survey, table, flights, crs, crossovers, lev_report, reg, em, tr.timings,
                      warnings, grid)
+    report["base_ties"] = base_ties
     export.write_json(report, out / "report.json")
     return report
 

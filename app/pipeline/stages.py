@@ -103,6 +103,82 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
                              float(offset), float(corr), applied, notes)
 
 
+def static_segments(t_s, ve_ms, vn_ms, vu_ms, min_duration_s: float = 60.0, max_speed_ms: float = 0.5,
+                    trim_s: float = 10.0) -> list[tuple[int, int]]:
+    """Index ranges ``[i0, i1)`` where the aircraft stands still (parking place readings).
+
+    A GNSS epoch is static when its horizontal and vertical speeds are below
+    ``max_speed_ms``; runs shorter than ``min_duration_s`` are ignored and
+    ``trim_s`` is cut from both ends of each run (taxi start/stop)."""
+    t = np.asarray(t_s, float)
+    still = (np.hypot(ve_ms, vn_ms) < max_speed_ms) & (np.abs(vu_ms) < max_speed_ms)
+    out = []
+    if not still.any():
+        return out
+    d = np.diff(np.concatenate([[0], still.astype(int), [0]]))
+    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    for a, b in zip(starts, stops):
+        if b - a < 2 or t[b - 1] - t[a] < min_duration_s:
+            continue
+        a2 = int(np.searchsorted(t, t[a] + trim_s))
+        b2 = int(np.searchsorted(t, t[b - 1] - trim_s, side="right"))
+        if b2 - a2 > 10:
+            out.append((a2, b2))
+    return out
+
+
+def base_tie(m: FlightMeasurement, base_gravity_mgal: float | None) -> dict:
+    """Tie the gravimeter to the parking place (base) readings of a flight, in place.
+
+    At rest ``z = g − γ`` (SPEC §1).  With ``base_gravity_mgal`` known, the mean
+    reading error of each static period is ``mean(z) − (g_base − γ)``; with one
+    period it is removed as a constant, with two or more as a straight line in
+    time (instrument drift) through the first and last.  Without the base value
+    only the change between the first and last static period (the drift) is
+    removed.  The measurement ``z_mgal`` is corrected in place.
+
+    Returns
+    -------
+    dict
+        What was done: periods (time, error), drift rate (mGal/h), constant (mGal).
+    """
+    segs = static_segments(m.t_s, m.ve_ms, m.vn_ms, m.vu_ms)
+    info = {"static_periods": [], "applied": False}
+    if not segs:
+        return info
+    errs, times = [], []
+    for a, b in segs:
+        z = m.z_mgal[a:b]
+        ok = np.isfinite(z)
+        if ok.sum() < 10:
+            continue
+        g_minus_gamma = (base_gravity_mgal - m.gamma_mgal[a:b][ok]) if base_gravity_mgal is not None else 0.0
+        e = float(np.median(z[ok] - g_minus_gamma))
+        errs.append(e)
+        times.append(float(np.mean(m.t_s[a:b])))
+        info["static_periods"].append({"t_start": float(m.t_s[a]), "t_end": float(m.t_s[b - 1]),
+                                       "reading_error_mgal" if base_gravity_mgal is not None
+                                       else "reading_mgal": e})
+    if not errs:
+        return info
+    t = m.t_s
+    if len(errs) >= 2 and times[-1] - times[0] > 600.0:
+        rate = (errs[-1] - errs[0]) / (times[-1] - times[0])
+        drift = errs[0] + rate * (t - times[0])
+        info["drift_mgal_per_h"] = rate * 3600.0
+    else:
+        drift = np.full(t.shape, errs[0])
+        info["drift_mgal_per_h"] = 0.0
+    if base_gravity_mgal is None:
+        drift = drift - errs[0]  # relative: the absolute level stays unknown
+        if len(errs) < 2:
+            return info
+    m.z_mgal = m.z_mgal - drift
+    info["applied"] = True
+    info["absolute"] = base_gravity_mgal is not None
+    return info
+
+
 # --------------------------------------------------------------------------- 2. lines
 @dataclass
 class LineData:
@@ -229,15 +305,14 @@ def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
 
 
 def recognize(reg: Regularized, em) -> tuple[list, list]:
-    """Viterbi path and posterior probabilities per line (SPEC §2 step 3)."""
-    from app.core.recognition import posteriors, viterbi
+    """Viterbi path and posterior probabilities per line (SPEC §2 step 3).
 
-    paths, probs = [], []
-    for w, x in enumerate(reg.x):
-        init = em.initial[w]
-        paths.append(np.asarray(viterbi(x, reg.ma.c, reg.ma.d, em.Q, em.R, em.transition, init), int))
-        probs.append(np.asarray(posteriors(x, reg.ma.c, reg.ma.d, em.Q, em.R, em.transition, init), float))
-    return paths, probs
+    ``em.initial`` must hold one row of initial probabilities per regularized line."""
+    from app.core.recognition import recognize_lines
+
+    paths, probs = recognize_lines(reg.x, reg.ma.c, reg.ma.d, em.Q, em.R, em.transition,
+                                   np.asarray(em.initial))
+    return [np.asarray(s, int) for s in paths], [np.asarray(p, float) for p in probs]
 
 
 def recognition_table(reg: Regularized, paths, probs) -> pd.DataFrame:
