@@ -189,6 +189,11 @@ def test_position_domain_filter_recovers_known_anomaly():
     assert np.sqrt(np.mean(err[inner] ** 2)) < 1.0  # mGal, signal amplitude ~28 mGal
     assert res.R == pytest.approx(0.02**2, rel=0.1)  # R from the high-pass part
     assert np.all(res.dg_std_mgal > 0)
+    h_gap = h_m.copy()
+    h_gap[12_000:12_050] = np.nan  # a 5 s GNSS outage: prediction only
+    resg = position_domain_filter(t, h_gap, u, R=res.R)
+    assert np.sqrt(np.mean((resg.dg_mgal - dg)[inner] ** 2)) < 1.0
+    assert np.all(np.isfinite(resg.dg_mgal))
     resv = position_domain_filter(t, h_m, u, measurement="velocity", vu_gnss_ms=vu)
     assert np.sqrt(np.mean((resv.dg_mgal - dg)[inner] ** 2)) < 3.0
     assert resv.R == pytest.approx(0.01**2, rel=0.1)
