@@ -156,6 +156,7 @@ def _z_from_files(p: Path, flight: str, tau: float, k: float, offset: float):
     """
     g = _read(p, "gravimeter", flight)
     n = _read(p, "gnss", flight)
+    model = tomllib.loads((p / "survey.toml").read_text())["survey"]["normal_gravity"]
     j = np.arange(len(g))
     a1, a0 = np.polyfit(j, g.time.to_numpy() - offset, 1)
     edges = a0 - a1 / 2 + a1 * np.arange(len(g) + 1)
@@ -165,7 +166,7 @@ def _z_from_files(p: Path, flight: str, tau: float, k: float, offset: float):
     fbar = (tau * np.diff(F(tk, 1)) + k * np.diff(F(tk))) / dt
     dv = np.diff(n.vu.to_numpy()) / dt
     lat, h = n.lat.to_numpy()[1:], n.h.to_numpy()[1:]
-    z = (fbar - dv) * 1e5 - normal_gravity_mgal(lat, h, "WGS84") \
+    z = (fbar - dv) * 1e5 - normal_gravity_mgal(lat, h, model) \
         + eotvos_mgal(lat, h, n.ve.to_numpy()[1:], n.vn.to_numpy()[1:])
     return pd.Series(z, index=np.round(tk[1:], 1))
 
@@ -197,6 +198,31 @@ def test_z_equals_true_anomaly_with_lag_scale_offset(lagged):
     # ignoring the scale error costs (k−1)·f ≈ 196 mGal: the test can fail
     errs_bad = _line_errors(Path(lagged), tj["tau_s"], 1.0, tj["time_offset_s"], w / w.sum())
     assert all(np.abs(ma).max() > 100 for _, ma in errs_bad.values())
+
+
+def test_z_equals_true_anomaly_kalgoorlie_helmert(tmp_path):
+    """Southern hemisphere, Helmert 1901 normal gravity, slower aircraft."""
+    p = simulate_survey("kalgoorlie", tmp_path / "k", seed=6, tau_true_s=0.0, scale_true=1.0, time_offset_s=0.0,
+                        n_main=2, n_tie=0, n_repeat=0, n_flights=1, main_length_km=15.0, grid_margin_km=4.0,
+                        **NOISE_OFF)
+    assert tomllib.loads((p / "survey.toml").read_text())["survey"]["normal_gravity"] == "Helmert1901"
+    w = np.blackman(1001)
+    errs = _line_errors(Path(p), 0.0, 1.0, 0.0, w / w.sum())
+    assert len(errs) == 2
+    for line, (raw, ma) in errs.items():
+        assert np.max(np.abs(ma)) < 0.02, line
+
+
+def test_same_seed_same_survey(tmp_path):
+    kw = dict(n_main=1, n_tie=0, main_length_km=6.0, grid_margin_km=3.0)
+    calls = []
+    a = simulate_survey("tiny", tmp_path / "a", seed=11, progress=lambda s, f, i: calls.append((s, f)), **kw)
+    b = simulate_survey("tiny", tmp_path / "b", seed=11, **kw)
+    c = simulate_survey("tiny", tmp_path / "c", seed=12, **kw)
+    fa, fb, fc = (q / "flights" / "F01" / "gravimeter.csv" for q in (a, b, c))
+    assert fa.read_bytes() == fb.read_bytes() != fc.read_bytes()
+    assert calls[0][1] == 0.0 and calls[-1] == ("done", 1.0)
+    assert all(0.0 <= f <= 1.0 for _, f in calls) and [f for _, f in calls] == sorted(f for _, f in calls)
 
 
 def test_eotvos_alternates_and_motion_is_realistic(clean):
