@@ -255,8 +255,9 @@ class LevelingResult:
         ``(t0, t1)`` per unit (s).
     rms_before, rms_after : float
         Crossover RMS of ``dg_a − dg_b`` before and after leveling (mGal).
-    diff_before, diff_after : ndarray, shape (n_crossovers,)
-        Crossover differences before and after (mGal), row order of the input.
+    diff_before, diff_after : ndarray, shape (len(crossovers),)
+        Crossover differences before and after (mGal), row order of the input;
+        NaN for crossovers that had a non-finite value (not used).
     reference : str or None
         The reference unit (zero drift), or None for the minimum-norm solution.
     unit_of : dict of str to str
@@ -308,6 +309,7 @@ class LevelingResult:
 
 def _rms(x):
     x = np.asarray(x, dtype=float)
+    x = x[np.isfinite(x)]
     return float(np.sqrt(np.mean(x ** 2))) if x.size else float("nan")
 
 
@@ -337,6 +339,9 @@ def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 
     mGal line error with slope_scale=1 against 1.0 mGal with 0.01).  A line
     id fixes that line's drift to zero (seed 001); what remains unobservable
     is then removed by the weighted minimum-norm rule too.
+
+    Crossovers with a non-finite value are ignored (their ``diff_after`` is
+    NaN; ``n_crossovers`` counts the ones used).
 
     Over-fitting guard: with degree p a line needs more than p+1 crossings, so
     its degree is reduced to ``min(p, n_crossings − 2)`` (never below 0; a line
@@ -397,8 +402,11 @@ def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 
     diff = crossovers["dg_a"].to_numpy(float) - crossovers["dg_b"].to_numpy(float)
     var = (crossovers["std_a"].to_numpy(float) ** 2 + crossovers["std_b"].to_numpy(float) ** 2
            + sigma0_mgal ** 2)
-    if not np.all(np.isfinite(diff)) or not np.all(np.isfinite(var)):
-        raise ValueError("crossovers contain non-finite values")
+    keep = np.isfinite(diff) & np.isfinite(var) & np.isfinite(ta) & np.isfinite(tb)
+    if not np.any(keep):
+        raise ValueError("no crossovers with finite values: lines cannot be leveled")
+    diff_all = diff
+    la, lb, ta, tb, diff, var = (a[keep] for a in (la, lb, ta, tb, diff, var))
     if np.any(var <= 0):
         raise ValueError("zero crossover variance: give sigma0_mgal > 0")
     line_ranges = {str(k): (float(v[0]), float(v[1])) for k, v in line_time_ranges.items()}
@@ -466,11 +474,12 @@ def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 
         else:
             coefs[n] = x[offsets[n]:offsets[n] + degrees[n] + 1].copy()
     model = A.dot(x) if ncol else np.zeros(nx)
-    diff_after = diff - model
+    diff_after = np.full(diff_all.size, np.nan)
+    diff_after[keep] = diff - model
     unleveled = sorted(ln for ln, u in unit_of.items() if u not in involved)
     return LevelingResult(coefs=coefs, degrees=degrees, time_ranges=ranges, unit_of=unit_of,
                           rms_before=_rms(diff), rms_after=_rms(diff_after),
-                          diff_before=diff, diff_after=diff_after, reference=ref,
+                          diff_before=diff_all, diff_after=diff_after, reference=ref,
                           sigma0_mgal=float(sigma0_mgal), n_crossovers=int(nx),
                           unleveled_lines=unleveled)
 

@@ -192,6 +192,13 @@ def test_leveling_errors():
     x = find_crossovers(lines)
     with pytest.raises(ValueError, match="no crossovers"):
         level_lines(x.iloc[:0], ranges)
+    bad = x.copy()
+    bad.loc[3, "dg_a"] = np.nan
+    r = level_lines(bad, ranges, degree=0)
+    assert r.n_crossovers == len(x) - 1 and np.isnan(r.diff_after[3]) and np.isfinite(r.rms_after)
+    bad["dg_b"] = np.nan
+    with pytest.raises(ValueError, match="finite"):
+        level_lines(bad, ranges)
     with pytest.raises(ValueError, match="degree"):
         level_lines(x, ranges, degree=3)
     with pytest.raises(ValueError, match="reference"):
