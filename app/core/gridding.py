@@ -89,6 +89,19 @@ def _gm2_inplace(d_km, variance_mgal2, length_km):
     return d_km
 
 
+def _robust_cholesky(K, jitter):
+    """Lower Cholesky factor of K; adds growing diagonal jitter if K is not numerically PD."""
+    from numpy.linalg import LinAlgError
+
+    for k in range(6):
+        try:
+            return cho_factor(K if k == 0 else K + np.eye(K.shape[0]) * jitter * 10.0 ** (2 * k),
+                              lower=True, check_finite=False)[0]
+        except LinAlgError:
+            continue
+    raise ValueError("collocation matrix is not positive definite (duplicate points with zero error?)")
+
+
 def _check_xyz(easting_km, northing_km, values, std=None):
     e = np.asarray(easting_km, dtype=float).ravel()
     n = np.asarray(northing_km, dtype=float).ravel()
@@ -567,7 +580,7 @@ class Collocation(_LineGridder):
             K = _gm2_inplace(cdist(xy, xy), var, L)
             K.flat[::K.shape[0] + 1] += self._noise[idx]
             Cdg = _gm2_inplace(cdist(xy, np.column_stack([pe[grp], pn[grp]])), var, L)
-            c, low = cho_factor(K, lower=True, check_finite=False)
+            c = _robust_cholesky(K, 1e-8 * var)
             A = solve_triangular(c, Cdg, lower=True, check_finite=False)
             b = solve_triangular(c, self._resid[idx], lower=True, check_finite=False)
             out_v[grp] = A.T.dot(b)

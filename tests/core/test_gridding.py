@@ -198,3 +198,25 @@ def test_collocation_with_along_line_correlated_errors_is_not_overconfident():
     err = g - truth(GE, GN)
     assert np.sqrt(np.nanmean(err ** 2)) < 1.0
     assert np.nanmean(np.abs(err) < 2 * s) >= 0.9
+
+
+def test_collocation_survives_coincident_points_with_zero_error():
+    # the same positions repeated with different values and zero std (merged by the thinning)
+    e = np.array([0.0, 0.0, 1.0, 1.0, 2.0, 3.0])
+    n = np.zeros(6)
+    v = np.array([1.0, 1.2, 2.0, 2.1, 3.0, 4.0])
+    col = Collocation(4.0, 1.0, 0.0, thin_km=1e-6, trend="none", mask_km=10.0).fit(e, n, v, 0.0)
+    got = col.predict(np.array([0.5, 2.0]), np.zeros(2))
+    assert np.all(np.isfinite(got))
+    assert got[1] == pytest.approx(3.0, abs=1e-3)            # interpolates a datum with zero error
+
+
+def test_robust_cholesky_on_singular_matrix():
+    from app.core.gridding import _robust_cholesky
+
+    x = np.array([0.0, 1e-9, 1.0])
+    K = gm2_covariance(np.abs(x[:, None] - x[None]), 1.0, 1.0)
+    K[0, 1] = K[1, 0] = K[0, 0] = K[1, 1] = 1.0                # exactly singular
+    c = _robust_cholesky(K, 1e-8)
+    L = np.tril(c)
+    assert np.max(np.abs(L @ L.T - K)) < 1e-3
