@@ -19,7 +19,9 @@ Covariance model
     has beyond the model and the mean given error variance.
 
 Thinning
-    Data (GNSS rate, ~10 m spacing) are block-averaged on ``thin_km`` squares.
+    Data (GNSS rate, ~10 m spacing) are block-averaged on ``thin_km`` squares,
+    separately per line for collocation (so a per-line error can be modelled),
+    across lines for the spline.
     The error variance of a block mean is ``mean(std²)/n_eff`` with
     ``n_eff = clip(n · step / error_corr_km, 1, n)``: ``error_corr_km = 0`` treats
     errors as white (variance divided by n); a positive value is the
@@ -149,13 +151,33 @@ def block_thin(easting_km, northing_km, dg_mgal, std_mgal, thin_km: float,
         Mean position, mean value, std of the mean (see module docstring for
         ``error_corr_km``) and the number of points per block.
     """
+    return _block_thin(easting_km, northing_km, dg_mgal, std_mgal, thin_km, error_corr_km,
+                       step_km, None)[:5]
+
+
+def block_thin_lines(easting_km, northing_km, dg_mgal, std_mgal, line_label, thin_km: float,
+                     error_corr_km: float = 0.0, step_km: float | None = None):
+    """:func:`block_thin` separately per line (blocks never mix two lines).
+
+    Returns
+    -------
+    (e, n, dg, std, count, label) : tuple of ndarray, shape (m,)
+    """
+    return _block_thin(easting_km, northing_km, dg_mgal, std_mgal, thin_km, error_corr_km,
+                       step_km, line_label)
+
+
+def _block_thin(easting_km, northing_km, dg_mgal, std_mgal, thin_km, error_corr_km, step_km, label):
     if thin_km <= 0:
         raise ValueError("thin_km must be positive")
     e, n, v, s = (np.asarray(a, dtype=float) for a in (easting_km, northing_km, dg_mgal, std_mgal))
     ix = np.floor((e - e.min()) / thin_km).astype(np.int64)
     iy = np.floor((n - n.min()) / thin_km).astype(np.int64)
     key = ix * (iy.max() + 1) + iy
-    _, inv, cnt = np.unique(key, return_inverse=True, return_counts=True)
+    if label is not None:
+        _, lab = np.unique(np.asarray(label), return_inverse=True)
+        key = key * (lab.max() + 1) + lab
+    _, first, inv, cnt = np.unique(key, return_index=True, return_inverse=True, return_counts=True)
 
     def mean(x):
         return np.bincount(inv, weights=x) / cnt
@@ -166,7 +188,8 @@ def block_thin(easting_km, northing_km, dg_mgal, std_mgal, thin_km: float,
         n_eff = np.clip(cnt * st / error_corr_km, 1.0, cnt)
     else:
         n_eff = cnt.astype(float)
-    return mean(e), mean(n), mean(v), np.sqrt(var_mean / n_eff), cnt
+    out_lab = None if label is None else np.asarray(label)[first]
+    return mean(e), mean(n), mean(v), np.sqrt(var_mean / n_eff), cnt, out_lab
 
 
 def _trend_design(e, n, trend, origin):
@@ -178,11 +201,15 @@ def _trend_design(e, n, trend, origin):
 
 
 def empirical_covariance(easting_km, northing_km, residual_mgal, max_lag_km: float,
-                         n_bins: int = 30, max_points: int = 4000, seed: int = 0):
+                         n_bins: int = 30, max_points: int = 4000, seed: int = 0,
+                         line_label=None, line_var_mgal2: float = 0.0):
     """Isotropic empirical covariance binned by distance.
 
     Uses all pairs of a random subsample of at most ``max_points`` points within
-    ``max_lag_km``.
+    ``max_lag_km``.  With ``line_label`` and ``line_var_mgal2``, the known
+    per-line error variance is subtracted from the products of same-line pairs
+    and from the zero-lag variance, so the result estimates the anomaly's
+    covariance.
 
     Returns
     -------
@@ -198,15 +225,19 @@ def empirical_covariance(easting_km, northing_km, residual_mgal, max_lag_km: flo
     e = np.asarray(easting_km, dtype=float)
     n = np.asarray(northing_km, dtype=float)
     r = np.asarray(residual_mgal, dtype=float)
-    c0 = float(np.mean(r ** 2))
+    c0 = float(np.mean(r ** 2)) - line_var_mgal2
+    lab = None if line_label is None else np.asarray(line_label)
     if e.size > max_points:
         idx = np.random.default_rng(seed).choice(e.size, max_points, replace=False)
         e, n, r = e[idx], n[idx], r[idx]
+        lab = None if lab is None else lab[idx]
     pairs = cKDTree(np.column_stack([e, n])).query_pairs(max_lag_km, output_type="ndarray")
     if pairs.size == 0:
         return np.zeros(0), np.zeros(0), np.zeros(0, dtype=int), c0
     d = np.hypot(e[pairs[:, 0]] - e[pairs[:, 1]], n[pairs[:, 0]] - n[pairs[:, 1]])
     prod = r[pairs[:, 0]] * r[pairs[:, 1]]
+    if lab is not None and line_var_mgal2:
+        prod = prod - line_var_mgal2 * (lab[pairs[:, 0]] == lab[pairs[:, 1]])
     b = np.minimum((d / max_lag_km * n_bins).astype(np.int64), n_bins - 1)
     cnt = np.bincount(b, minlength=n_bins)
     sd = np.bincount(b, weights=d, minlength=n_bins)
@@ -307,14 +338,15 @@ def _grid_axes(region, spacing_km, e, n):
 class _LineGridder:
     """Shared fit-time preparation: validation, line labels, thinning, mask distance."""
 
-    def _prepare(self, easting_km, northing_km, dg_mgal, std_mgal, line):
+    def _prepare(self, easting_km, northing_km, dg_mgal, std_mgal, line, per_line=True):
         e, n, v, s, ok = _check_xyz(easting_km, northing_km, dg_mgal, std_mgal)
         lab_in = None if line is None else np.asarray(line).ravel()[ok]
         lab, _ = _split_lines(e, n, lab_in)
         step = median_step_km(e, n, lab)
         self.data_step_km_ = step
-        te, tn, tv, ts, cnt = block_thin(e, n, v, s, self.thin_km,
-                                         getattr(self, "error_corr_km", 0.0), step)
+        te, tn, tv, ts, cnt, tlab = block_thin_lines(e, n, v, s, lab if per_line else np.zeros_like(lab),
+                                                     self.thin_km, getattr(self, "error_corr_km", 0.0), step)
+        self._lab = tlab
         self.n_data_ = int(e.size)
         self.n_thinned_ = int(te.size)
         self.line_spacing_km_ = line_spacing_km(e, n, lab)
@@ -423,6 +455,12 @@ class Collocation(_LineGridder):
     mask_km : float, optional
         Nodes farther than this from any datum are NaN; 1.5× the median line
         spacing when None.
+    line_error_mgal2 : float
+        Variance of an error constant along each line (leveling residual),
+        shared by all data of one line: adds ``line_error_mgal2`` to the
+        covariance of same-line pairs (and is removed from the empirical
+        covariance before the model is fitted).  E.g. ``max(0, rms_after²/2 −
+        mean std²)`` from the crossovers after leveling.
     seed : int
         Seed of the subsampling in the covariance estimation.
 
@@ -449,7 +487,8 @@ class Collocation(_LineGridder):
     def __init__(self, variance_mgal2=None, length_km=None, nugget_mgal2=None, *,
                  thin_km: float = 0.5, error_corr_km: float = 1.0, trend: str = "plane",
                  block_km: float = 5.0, max_points: int = 400, search_radius_km=None,
-                 mask_km=None, seed: int = 0):
+                 mask_km=None, line_error_mgal2: float = 0.0, seed: int = 0):
+        self.line_error_mgal2 = line_error_mgal2
         self.variance_mgal2 = variance_mgal2
         self.length_km = length_km
         self.nugget_mgal2 = nugget_mgal2
@@ -502,7 +541,11 @@ class Collocation(_LineGridder):
         w, e_, s, n_ = self.region_
         extent = max(np.hypot(e_ - w, n_ - s), self.thin_km)
         max_lag = max(0.25 * extent, 4.0 * self.thin_km)
-        lag, cov, cnt, c0 = empirical_covariance(te, tn, resid, max_lag, seed=self.seed)
+        if self.line_error_mgal2 < 0:
+            raise ValueError("line_error_mgal2 must be >= 0")
+        lag, cov, cnt, c0 = empirical_covariance(te, tn, resid, max_lag, seed=self.seed,
+                                                 line_label=self._lab,
+                                                 line_var_mgal2=float(self.line_error_mgal2))
         self.empirical_ = {"lag_km": lag, "cov_mgal2": cov, "count": cnt, "c0_mgal2": c0}
         if self.variance_mgal2 is None or self.length_km is None:
             if lag.size == 0:
@@ -540,6 +583,7 @@ class Collocation(_LineGridder):
                 "variance_mgal2": self.variance_mgal2_, "length_km": self.length_km_,
                 "nugget_mgal2": self.nugget_mgal2_, "offset_mgal2": self.covariance_offset_mgal2_,
                 "trend": self.trend, "trend_coef": [float(c) for c in self.trend_coef_],
+                "line_error_mgal2": float(self.line_error_mgal2),
                 "n_data": self.n_data_, "n_thinned": self.n_thinned_,
                 "line_spacing_km": self.line_spacing_km_, "mask_km": self.mask_distance_km_}
 
@@ -579,6 +623,9 @@ class Collocation(_LineGridder):
             xy = self._xy[idx]
             K = _gm2_inplace(cdist(xy, xy), var, L)
             K.flat[::K.shape[0] + 1] += self._noise[idx]
+            if self.line_error_mgal2 > 0:
+                lab = self._lab[idx]
+                K += self.line_error_mgal2 * (lab[:, None] == lab[None, :])
             Cdg = _gm2_inplace(cdist(xy, np.column_stack([pe[grp], pn[grp]])), var, L)
             c = _robust_cholesky(K, 1e-8 * var)
             A = solve_triangular(c, Cdg, lower=True, check_finite=False)
@@ -612,7 +659,7 @@ class Spline(_LineGridder):
         from scipy.interpolate import CloughTocher2DInterpolator, LinearNDInterpolator
         from scipy.spatial import Delaunay
 
-        te, tn, tv, ts = self._prepare(easting_km, northing_km, dg_mgal, std_mgal, line)
+        te, tn, tv, ts = self._prepare(easting_km, northing_km, dg_mgal, std_mgal, line, per_line=False)
         if te.size < 3:
             raise ValueError("Spline needs at least 3 distinct data blocks")
         pts = np.column_stack([te, tn])
