@@ -39,7 +39,7 @@ class SimConfig:
     run_out_s: float = 10.0               # after each line window
     turn_s: tuple[float, float] = (60.0, 90.0)
     lead_s: float = 120.0                 # flight data before the first run-in
-    tail_s: float = 60.0                  # after the last run-out
+    tail_s: float = 120.0                 # after the last run-out
     flight_spacing_s: float = 86400.0     # flights on successive days
     epoch_offset_s: float = 3.0 * 3600.0  # first flight starts this long after the time origin
     # --- anomaly field ("sources") or Markov-jump model ("markov")
@@ -105,7 +105,7 @@ PRESETS: dict[str, SimConfig] = {
         grid_margin_km=6.0, time_offset_s=0.0),
     "omolon-mini": SimConfig(
         name="omolon-mini", n_main=10, main_length_km=60.0, n_tie=3, n_repeat=3, repeat_length_km=30.0,
-        n_flights=3, lead_s=60.0, tail_s=30.0,
+        n_flights=3,
         time_offset_s=0.05, compress=True),
     "omolon": SimConfig(
         name="omolon", n_main=57, main_length_km=200.0, main_spacing_km=2.0, n_tie=17,
