@@ -92,13 +92,13 @@ def make_field(cfg, extent_km, e0_km: float, n0_km: float, rng) -> AnomalyField:
     # a little beyond the grid so edges are not source-free
     sx0, sx1, sy0, sy1 = xg[0] - 5, xg[-1] + 5, yg[0] - 5, yg[-1] + 5
     area = (sx1 - sx0) * (sy1 - sy0)
-    # mountains: shallow sources inside the ridge bands (0.3-2.5 km below a 500 m surface)
+    # mountains: shallow sources inside the ridge bands (cfg.mountain_depth_m below a 500 m surface)
     n_try = int(cfg.mountain_sources_per_km2 * area)
     px = rng.uniform(sx0, sx1, n_try)
     py = rng.uniform(sy0, sy1, n_try)
     keep = ridges.contains(px, py)
     px, py = px[keep], py[keep]
-    pz = 500.0 - rng.uniform(300.0, 2500.0, px.size)
+    pz = 500.0 - rng.uniform(*cfg.mountain_depth_m, px.size)
     mass = rng.standard_normal(px.size) * 1e10
     g_m = np.zeros(X.size)
     if px.size:

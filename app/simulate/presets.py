@@ -49,6 +49,7 @@ class SimConfig:
     mountain_std_mgal: float = 20.0
     plain_std_mgal: float = 8.0
     mountain_sources_per_km2: float = 0.25
+    mountain_depth_m: tuple[float, float] = (300.0, 2500.0)  # below a 500 m surface
     plain_sources_per_km2: float = 0.01
     # --- Markov-jump anomaly (field_kind == "markov"; seed 000 Table 1/2)
     markov_Q_mgal2: tuple[float, float] = (0.0414, 0.3533)
@@ -115,7 +116,8 @@ PRESETS: dict[str, SimConfig] = {
         normal_gravity="Helmert1901", height_m=800.0, speed_ms=70.0,
         n_main=40, main_length_km=80.0, main_spacing_km=2.0, n_tie=7, n_repeat=3,
         n_flights=10, mountain_std_mgal=15.0, plain_std_mgal=10.0,
-        mountain_sources_per_km2=0.15, turbulence_rms_ms2=(0.3, 1.0), sigma_vu_cms=1.5),
+        mountain_sources_per_km2=0.15, mountain_depth_m=(1000.0, 3000.0),
+        turbulence_rms_ms2=(0.3, 1.0), sigma_vu_cms=1.5),
     "markov": SimConfig(
         name="markov", field_kind="markov", n_main=50, main_length_km=110.0, main_spacing_km=2.0,
         n_tie=0, n_flights=9, sigma_vu_cms=float(1.6787 ** 0.5), episode_rate_per_h=0.0,
