@@ -59,10 +59,17 @@ class ProcessingParams(_Strict):
     ma_order_L: int | None = Field(None, ge=0)
     # --- EM learning (step 2)
     n_q: int = Field(2, ge=1, le=4, description="N1: number of anomaly intensity levels Q_i")
-    n_r: int = Field(1, ge=1, le=3, description="N2: number of GNSS noise levels R_j")
+    n_r: int | None = Field(2, ge=1, le=3, description="N2: number of GNSS noise levels R_j; None chooses "
+                            "1 or 2 by BIC (GNSS noise episodes need 2)")
     em_max_iter: int = Field(60, ge=1)
     em_tol: float = Field(1e-6, gt=0, description="Stop when the relative objective increase is below this")
     include_tie_lines: bool = True
+    refine_levels: bool = Field(True, description="Re-estimate Q_i, R_j by full-rate Kalman likelihood given the "
+                                "recognised states (the decimated EM can collapse a smooth state's Q)")
+    noise_model: Literal["local", "states"] = Field(
+        "local", description="GNSS noise level for filtering: 'local' = R(t) from the high-frequency content of z "
+        "(scaled by maximum likelihood); 'states' = the recognised R_j levels (seed 000)")
+    refine_max_epochs: int = Field(300_000, ge=1000, description="Cap on epochs used by the level refinement")
     # --- recognition smoothing (step 4)
     nlmeans_h_per_km: float = Field(1.4, ge=0)
     nlmeans_rho_km: float = Field(5.0, ge=0)
@@ -73,6 +80,9 @@ class ProcessingParams(_Strict):
     # --- survey level (SPEC §3)
     calibrate: bool = False
     leveling_degree: int = Field(1, ge=0, le=2)
+    leveling_per_flight: bool = Field(False, description="One drift polynomial per flight instead of per line")
+    leveling_include_repeat: bool = Field(True, description="Use repeat lines' crossings in leveling")
+    grid_error_corr_km: float = Field(1.0, ge=0, description="Along-line error correlation length for thinning in collocation")
     grid_spacing_km: float = Field(1.0, gt=0)
     gridding: Literal["collocation", "spline"] = "collocation"
     grid_mask_km: float | None = Field(None, gt=0, description="Mask cells farther than this from any line; 1.5× line spacing when None")

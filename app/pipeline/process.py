@@ -172,9 +172,14 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
         nl = len(idx)
         state_of[ln.line] = (idx, labels[off:off + nl])
         off += nl
-    frames = []
     margin = int(round(60.0 / dt_s))
-    for i, ln in enumerate(lines):
+    r_local = {}
+    if p.noise_model == "local":
+        from app.core.noise_level import local_noise_variance_cm2s2
+
+        r_local = {name: local_noise_variance_cm2s2(fm.z_mgal, dt_s) for name, fm in flights.items()}
+    prepared = []
+    for ln in lines:
         m = flights[ln.flight]
         n = ln.t_s.size
         if ln.line in state_of:
@@ -186,13 +191,37 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
         a1 = min(m.t_s.size, ln.sl.stop + margin)
         s_ext = np.concatenate([np.full(ln.sl.start - a0, s_full[0]), s_full,
                                 np.full(a1 - ln.sl.stop, s_full[-1])])
-        z_ext = m.z_mgal[a0:a1]
+        prepared.append((ln, s_full, s_ext, m.z_mgal[a0:a1], slice(ln.sl.start - a0, ln.sl.start - a0 + n),
+                         r_local[ln.flight][a0:a1] if r_local else None))
+    level_fit = None
+    r_scale = 1.0
+    if p.refine_levels:
+        from app.core.level_ml import refine_levels
+
+        try:
+            level_fit = refine_levels([t[3] for t in prepared], [t[2] for t in prepared], Qs, Rs, dt_s, p.m,
+                                      max_epochs=p.refine_max_epochs,
+                                      r_base_lines=[t[5] for t in prepared] if r_local else None)
+            Qs = level_fit.Q_mgal2
+            if r_local:
+                r_scale = float(level_fit.R_cm2s2[0])
+            else:
+                Rs = level_fit.R_cm2s2
+        except (ValueError, FloatingPointError) as exc:
+            warnings.append(f"level refinement skipped: {exc}")
+    if r_local:
+        r_stationary = r_scale * float(np.median(np.concatenate([t[5] for t in prepared])))
+    else:
+        r_stationary = float(Rs[0])
+    frames = []
+    for i, (ln, s_full, s_ext, z_ext, inner, rl) in enumerate(prepared):
         q = Qs[s_ext // n_r]
-        r = Rs[s_ext % n_r]
+        r = Rs[s_ext % n_r] if rl is None else r_scale * rl
         dg, std = stages.filter_line(z_ext, q, r, dt_s, p.m, p.smoother)
-        dgs, _ = stages.filter_line(z_ext, np.full_like(q, Qs[0]), np.full_like(r, Rs[0]), dt_s, p.m,
+        # stationary baseline (seed 000 Fig. 8): one (Q₁, R₁) pair — the smooth state's Q
+        # and the survey's typical noise level
+        dgs, _ = stages.filter_line(z_ext, np.full_like(q, Qs[0]), np.full_like(q, r_stationary), dt_s, p.m,
                                     p.smoother)
-        inner = slice(ln.sl.start - a0, ln.sl.start - a0 + n)
         frames.append(pd.DataFrame({
             "line": ln.line, "flight": ln.flight, "kind": ln.kind, "time": ln.t_s,
             "lat": ln.lat_deg, "lon": ln.lon_deg, "h": ln.h_m,
@@ -200,7 +229,7 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
             "z_mgal": ln.z_mgal, "dg_mgal": dg[inner], "dg_std_mgal": std[inner],
             "dg_unleveled_mgal": dg[inner], "dg_stationary_mgal": dgs[inner],
             "dg_fir_mgal": fir[ln.flight][ln.sl], "state": s_full,
-            "Q_mgal2": Qs[s_full // n_r], "R_cm2s2": Rs[s_full % n_r],
+            "Q_mgal2": Qs[s_full // n_r], "R_cm2s2": r[inner],
             "track": ln.track,
         }))
         tr.emit((i + 1) / len(lines))
@@ -234,6 +263,12 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     report = _report(survey, table, flights, crs, crossovers, lev_report, reg, em, tr.timings,
                      warnings, grid)
     report["base_ties"] = base_ties
+    if level_fit is not None:
+        report["level_refinement"] = {"Q_mgal2": level_fit.Q_mgal2.tolist(),
+                                      "R_cm2s2" if not r_local else "R_local_scale": level_fit.R_cm2s2.tolist(),
+                                      "noise_model": p.noise_model,
+                                      "loglik_gain": level_fit.loglik - level_fit.loglik_start,
+                                      "n_epochs": level_fit.n_epochs, "n_evaluations": level_fit.n_evaluations}
     export.write_json(report, out / "report.json")
     return report
 
@@ -263,7 +298,7 @@ def _level(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFrame, dict]:
 
     cols = ["line_a", "line_b", "easting_km", "northing_km", "diff_before_mgal", "diff_after_mgal"]
     try:
-        cx = find_crossovers(_tracks(table, "dg_unleveled_mgal"))
+        cx = find_crossovers(_tracks(table, "dg_unleveled_mgal"), include_repeat=p.leveling_include_repeat)
     except ValueError as exc:
         warnings.append(f"crossovers: {exc}")
         return pd.DataFrame(columns=cols), {"status": f"not leveled: {exc}"}
@@ -273,7 +308,10 @@ def _level(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFrame, dict]:
     ranges = {str(l): (float(g["time"].min()), float(g["time"].max()))
               for l, g in table.groupby("line", sort=False)}
     try:
-        res = level_lines(cx, ranges, degree=p.leveling_degree)
+        groups = None
+        if p.leveling_per_flight:
+            groups = {str(l): str(g["flight"].iloc[0]) for l, g in table.groupby("line", sort=False)}
+        res = level_lines(cx, ranges, degree=p.leveling_degree, groups=groups)
     except ValueError as exc:
         warnings.append(f"leveling: {exc}")
         cx = cx.assign(diff_before_mgal=cx["dg_a"] - cx["dg_b"], diff_after_mgal=cx["dg_a"] - cx["dg_b"])
@@ -292,10 +330,10 @@ def _grid(table: pd.DataFrame, p, warnings: list):
     from app.core.gridding import Collocation, Spline
 
     try:
-        est = Collocation() if p.gridding == "collocation" else Spline()
+        est = Collocation(error_corr_km=p.grid_error_corr_km) if p.gridding == "collocation" else Spline()
         kw = {} if p.grid_mask_km is None else {"mask_km": p.grid_mask_km}
         est.fit(table["easting_km"].to_numpy(), table["northing_km"].to_numpy(),
-                table["dg_mgal"].to_numpy(), table["dg_std_mgal"].to_numpy())
+                table["dg_mgal"].to_numpy(), table["dg_std_mgal"].to_numpy(), line=table["line"].to_numpy())
         return est.grid(spacing_km=p.grid_spacing_km, **kw)
     except ValueError as exc:
         warnings.append(f"gridding: {exc}")
@@ -308,6 +346,7 @@ def _identification_json(reg, em, em_rows, learn_mask, initial_all, p, dt_s) -> 
     d = reg.design
     ma = reg.ma
     n_r = len(em.R)
+    sel = getattr(em, "selection", {})
     states = [{"index": i * n_r + j, "Q": float(em.Q[i]), "R": float(em.R[j])}
               for i in range(len(em.Q)) for j in range(n_r)]
     f = np.linspace(0, 0.5 / (d.n * d.dt_s), 64)
@@ -327,8 +366,10 @@ def _identification_json(reg, em, em_rows, learn_mask, initial_all, p, dt_s) -> 
                "d": np.asarray(ma.d).tolist(), "misfit_q": float(ma.misfit_q), "misfit_r": float(ma.misfit_r),
                "band_error_q": float(ma.band_error_q), "band_error_r": float(ma.band_error_r),
                "spectrum": spec},
-        "em": {"iterations": em_rows or list(em.iterations), "converged": bool(getattr(em, "converged", True)),
-               "loglik": float(getattr(em, "loglik", np.nan))},
+        "em": {"iterations": [_em_record(r) for r in em.iterations],
+               "converged": bool(getattr(em, "converged", True)),
+               "loglik": float(getattr(em, "loglik", np.nan)), "model": sel.get("chosen"),
+               "selection": sel},
         "transition": np.asarray(em.transition).tolist(),
         "initial": {ln.line: np.asarray(pi).tolist() for ln, pi in zip(reg.lines, initial_all)},
         "states": states,
@@ -336,6 +377,12 @@ def _identification_json(reg, em, em_rows, learn_mask, initial_all, p, dt_s) -> 
         "lines_skipped": reg.skipped,
         "nlmeans": {"h_per_km": p.nlmeans_h_per_km, "rho_km": p.nlmeans_rho_km, "mode": p.nlmeans_mode},
     }
+
+
+def _em_record(r: dict) -> dict:
+    return {"iteration": int(r["iteration"]), "Q": [float(v) for v in r["Q"]], "R": [float(v) for v in r["R"]],
+            "objective": float(r["objective"]),
+            "transition": [[float(v) for v in row] for row in r.get("transition", [])]}
 
 
 def _report(survey, table, flights, crs, crossovers, lev_report, reg, em, timings, warnings, grid) -> dict:

@@ -99,6 +99,10 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
             notes.append(f"time offset {offset:.4f} s not applied (correlation {corr:.2f})")
     fbar = gm.interval_means(series, t, tau, k, time_offset_s=offset if applied else 0.0)
     z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
+    # an interval spanning a data gap is no measurement of anything
+    dt = np.diff(t)
+    long_step = np.concatenate([[False], dt > 1.5 * np.median(dt)])
+    z[long_step] = np.nan
     return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
                              float(offset), float(corr), applied, notes)
 
@@ -295,13 +299,44 @@ def regularize_lines(lines: list[LineData], cfg: SurveyConfig, dt_s: float) -> R
 
 
 # --------------------------------------------------------------------------- 5-7. identification
+def _n_params(n_q: int, n_r: int, n_lines: int) -> int:
+    n = n_q * n_r
+    return n_q + n_r + n * (n - 1) + n_lines * (n - 1)
+
+
 def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
-    """EM learning of Θ = {Q_i, R_j, a_ij, π_i(w)} over all lines (SPEC §2 step 2)."""
+    """EM learning of Θ = {Q_i, R_j, a_ij, π_i(w)} over all lines (SPEC §2 step 2).
+
+    With ``processing.n_r = None`` the number of GNSS noise levels is chosen by
+    BIC between 1 and 2 (noise episodes of the GNSS are common in real data and a
+    model without them explains them as anomaly intensity).  Returns the EM
+    result of the chosen model with ``selection`` (candidates, log-likelihood,
+    BIC) attached."""
     from app.core.mjls_em import fit_em
 
     p = cfg.processing
-    return fit_em(reg.x, reg.ma.c, reg.ma.d, n_q=p.n_q, n_r=p.n_r, max_iter=p.em_max_iter,
-                  tol=p.em_tol, callback=callback)
+    candidates = [p.n_r] if p.n_r is not None else [1, 2]
+    n_points = int(sum(len(x) for x in reg.x))
+    results, table = {}, []
+    for n_r in candidates:
+        tag = f"{p.n_q}x{n_r}"
+
+        def cb(rec, tag=tag):
+            if callback is not None:
+                callback({**rec, "model": tag})
+
+        res = fit_em(reg.x, reg.ma.c, reg.ma.d, n_q=p.n_q, n_r=n_r, max_iter=p.em_max_iter,
+                     tol=p.em_tol, callback=cb)
+        k = _n_params(p.n_q, n_r, len(reg.x))
+        bic = -2.0 * float(res.loglik) + k * np.log(max(n_points, 2))
+        results[n_r] = res
+        table.append({"model": tag, "n_q": p.n_q, "n_r": n_r, "loglik": float(res.loglik),
+                      "n_params": k, "bic": float(bic), "iterations": len(res.iterations) - 1})
+    best = min(table, key=lambda r: r["bic"])
+    em = results[best["n_r"]]
+    em.selection = {"criterion": "BIC" if len(table) > 1 else "fixed", "candidates": table,
+                    "chosen": best["model"]}
+    return em
 
 
 def recognize(reg: Regularized, em) -> tuple[list, list]:

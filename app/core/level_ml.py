@@ -1,0 +1,156 @@
+"""Full-rate maximum likelihood of the state levels Q_i, R_j given the recognised states.
+
+The EM of seed 000 learns Θ on the regularized, decimated process, where the anomaly
+is a few per cent of the variance; a smooth state's Q_i is then poorly determined and
+can collapse towards 0, which makes the smoother fit straight lines through long
+plains.  Once the state path is known (recognition + NL-means), the exact likelihood
+of the full-rate measurements under the state-space model of SPEC §2 is available
+from the Kalman filter (prediction-error decomposition), and the few level values
+can be re-estimated by maximising it.  This is the same model and the same
+criterion (maximum likelihood) evaluated without the regularization's approximations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize
+
+from app.core.smoother import kalman_loglik
+
+
+@dataclass
+class LevelFit:
+    """Result of :func:`refine_levels`.
+
+    Attributes
+    ----------
+    Q_mgal2 : ndarray, shape (n_q,)
+    R_cm2s2 : ndarray, shape (n_r,)
+    loglik_start, loglik : float
+        Log-likelihood of the subset at the start values and at the optimum.
+    n_epochs : int
+        Epochs used.
+    n_evaluations : int
+    """
+
+    Q_mgal2: np.ndarray
+    R_cm2s2: np.ndarray
+    loglik_start: float
+    loglik: float
+    n_epochs: int
+    n_evaluations: int
+
+
+def select_subset(lengths, states_per_line, n_states: int, max_epochs: int, seed: int = 0) -> list[int]:
+    """Choose lines (indices) totalling at most ``max_epochs`` epochs, covering every
+    state that occurs (lines rich in rare states first, then at random)."""
+    rng = np.random.default_rng(seed)
+    order = list(rng.permutation(len(lengths)))
+    occ = np.array([np.bincount(np.asarray(s, int), minlength=n_states)[:n_states] for s in states_per_line])
+    chosen, total, covered = [], 0, np.zeros(n_states)
+    # first pass: for each state, the line with most epochs in it
+    for k in np.argsort(occ.sum(axis=0)):
+        if occ[:, k].sum() == 0:
+            continue
+        i = int(np.argmax(occ[:, k]))
+        if i not in chosen and total + lengths[i] <= max_epochs:
+            chosen.append(i)
+            total += lengths[i]
+            covered += occ[i]
+    for i in order:
+        if i in chosen:
+            continue
+        if total + lengths[i] > max_epochs:
+            continue
+        chosen.append(int(i))
+        total += lengths[i]
+    return sorted(chosen) if chosen else [int(np.argmin(lengths))]
+
+
+def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
+                  max_epochs: int = 300_000, max_evaluations: int | None = None,
+                  log_bounds: float = 6.0, r_base_lines=None) -> LevelFit:
+    """Maximise the full-rate Kalman likelihood over the level values.
+
+    Parameters
+    ----------
+    z_lines : sequence of ndarray
+        Measurements per line (mGal, GNSS rate; NaN = missing).
+    state_lines : sequence of ndarray of int
+        State per epoch, index ``i_q * n_r + j_r``.
+    Q_mgal2, R_cm2s2 : array_like, shapes (n_q,), (n_r,)
+        Start values (from EM).
+    dt_s : float
+        GNSS step (s).
+    m : int
+        Order of the anomaly model.
+    max_epochs : int
+        Cap on the epochs used (a subset of lines covering every state).
+    max_evaluations : int, optional
+        Cap on likelihood evaluations (default 40 per parameter).
+    log_bounds : float
+        Levels stay within ``exp(±log_bounds)`` of their start values.
+    r_base_lines : sequence of ndarray, optional
+        Per-epoch noise levels (cm/s)² (e.g. :func:`app.core.noise_level.local_noise_variance_cm2s2`).
+        When given, ``R(t) = α·r_base(t)`` and the single factor α replaces the R_j levels
+        (returned as ``R_cm2s2 = [α]``).
+
+    Returns
+    -------
+    LevelFit
+    """
+    Q0 = np.asarray(Q_mgal2, float)
+    R0 = np.asarray(R_cm2s2, float)
+    if np.any(~(Q0 > 0)) or np.any(~(R0 > 0)):
+        raise ValueError("start levels must be positive")
+    n_q, n_r = Q0.size, R0.size
+    n_states = n_q * n_r
+    lengths = [len(z) for z in z_lines]
+    if len(lengths) != len(state_lines):
+        raise ValueError("z_lines and state_lines differ in length")
+    sub = select_subset(lengths, state_lines, n_states, max_epochs)
+    zs = [np.asarray(z_lines[i], float) for i in sub]
+    ss = [np.asarray(state_lines[i], int) for i in sub]
+    rb = None if r_base_lines is None else [np.asarray(r_base_lines[i], float) for i in sub]
+    present = np.zeros(n_states, bool)
+    for s in ss:
+        present[np.unique(s)] = True
+    q_free = [i for i in range(n_q) if present[i * n_r:(i + 1) * n_r].any()]
+    if rb is None:
+        r_free = [j for j in range(n_r) if present[j::n_r].any()]
+    else:
+        R0 = np.array([1.0])
+        r_free = [0]
+    # A level collapsed towards 0 sits on a flat part of the likelihood (log scale):
+    # start it at 1e-3 of the largest level so the search can see its effect.
+    Q0 = np.maximum(Q0, 1e-3 * Q0.max())
+    th0 = np.log(np.concatenate([Q0[q_free], R0[r_free]]))
+    Q_lo = np.log(Q0.copy())
+    R_lo = np.log(R0.copy())
+
+    def unpack(th):
+        lq, lr = Q_lo.copy(), R_lo.copy()
+        lq[q_free] = th[:len(q_free)]
+        lr[r_free] = th[len(q_free):]
+        return np.exp(lq), np.exp(lr)
+
+    def nll(th):
+        if np.any(np.abs(th - th0) > log_bounds):
+            return 1e300
+        Q, R = unpack(th)
+        total = 0.0
+        for k, (z, s) in enumerate(zip(zs, ss)):
+            r = R[s % n_r] if rb is None else R[0] * rb[k]
+            total += kalman_loglik(z, Q[s // n_r], r, dt_s, m=m)
+        return -total
+
+    f0 = nll(th0)
+    cap = max_evaluations or 40 * th0.size
+    simplex = np.vstack([th0] + [th0 + np.eye(th0.size)[k] * 1.0 for k in range(th0.size)])
+    res = minimize(nll, th0, method="Nelder-Mead",
+                   options={"maxfev": cap, "xatol": 0.02, "fatol": 0.5, "initial_simplex": simplex})
+    th = res.x if res.fun <= f0 else th0
+    Q, R = unpack(th)
+    return LevelFit(Q, R, -f0, -min(res.fun, f0), int(sum(len(z) for z in zs)), int(res.nfev) + 1)
