@@ -155,7 +155,7 @@ def list_lines(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get
 
 @router.get("/{survey_id}/lines/{line}", response_model=ProfileOut)
 def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, description="decimate to about this many points"),
-                 z_lowpass_s: float = Query(20.0, ge=0, le=600, description="moving-average window applied to z (s)"),
+                 z_lowpass_s: float = Query(30.0, ge=0, le=600, description="Gaussian low-pass of z, full width at half maximum (s)"),
                  s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
                  cache: ResultCache = Depends(get_cache)):
     """Profile series of one line: z low-passed, final δg ± σ, stationary, FIR, state (decimated)."""
@@ -170,11 +170,12 @@ def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, descr
     dist = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(e), np.diff(nn)))])
     z = g["z_mgal"].to_numpy(float)
     dt = float(np.median(np.diff(t))) if n > 1 else 0.1
-    w = max(1, int(round(z_lowpass_s / dt))) if z_lowpass_s > 0 else 1
-    if w > 1:
-        from scipy.ndimage import uniform_filter1d
+    if z_lowpass_s > 0 and n > 2:
+        # Gaussian low-pass with FWHM = z_lowpass_s: smooth weights matter here, because z holds
+        # the differenced GNSS velocity noise, which a boxcar only telescopes down to σ_r·√2/T.
+        from scipy.ndimage import gaussian_filter1d
         zf = np.where(np.isfinite(z), z, np.nanmean(z))
-        z = uniform_filter1d(zf, size=min(w, n), mode="nearest")
+        z = gaussian_filter1d(zf, sigma=z_lowpass_s / (2.3548 * dt), mode="nearest", truncate=3.0)
     step = max(1, math.ceil(n / max_points))
     sl = slice(None, None, step)
 

@@ -25,13 +25,13 @@ export async function render(sec, ctx) {
   const draw = async () => {
     const isStd = varIn.value === "dg_std";
     const z = isStd ? g.dg_std : g.dg;
-    const flat = z.flat().filter((v) => v !== null);
-    const zmin = Math.min(...flat), zmax = Math.max(...flat);
-    const sym = Math.max(Math.abs(zmin), Math.abs(zmax));
+    // robust colour range (1st–99th percentile) so a few edge cells do not wash out the anomalies
+    const flat = z.flat().filter((v) => v !== null).sort((a, b) => a - b);
+    const q = (p) => flat[Math.min(flat.length - 1, Math.max(0, Math.round(p * (flat.length - 1))))];
+    const zmin = q(0.01), zmax = q(0.99);
     const field = {
       x: g.easting_km, y: g.northing_km, z, type: styleIn.value, name: isStd ? "σ" : "δg",
-      colorscale: isStd ? "Viridis" : "RdBu", reversescale: !isStd,
-      zmin: isStd ? zmin : -sym, zmax: isStd ? zmax : sym, zmid: isStd ? undefined : 0,
+      colorscale: isStd ? "Viridis" : "RdBu", reversescale: false, zmin, zmax,  // high anomalies red
       colorbar: { title: { text: isStd ? "σ (mGal)" : "δg (mGal)" } },
       hovertemplate: `E %{x:.2f} km, N %{y:.2f} km<br>${isStd ? "σ" : "δg"} %{z:.2f} mGal<extra></extra>`,
       ...(styleIn.value === "contour" ? { contours: { coloring: "fill", showlines: true }, line: { width: 0.5, color: "rgba(0,0,0,0.3)" }, ncontours: 24 } : {}),
@@ -42,10 +42,13 @@ export async function render(sec, ctx) {
         line: { color: l.kind === "tie" ? "rgba(60,60,60,0.8)" : "rgba(0,0,0,0.55)", width: 1, dash: l.kind === "tie" ? "dash" : "solid" },
         name: "lines", legendgroup: "lines", showlegend: i === 0, hovertemplate: `line ${l.line}<extra></extra>` }));
     }
-    if (xoIn.checked && g.crossovers.length) {
-      traces.push({ x: g.crossovers.map((c) => c.easting_km), y: g.crossovers.map((c) => c.northing_km), type: "scatter", mode: "markers",
-        name: "crossovers", marker: { symbol: "x", size: 8, color: "#111" },
-        text: g.crossovers.map((c) => `${c.line_a} × ${c.line_b}: before ${fmt(c.diff_before_mgal, 2)}, after ${fmt(c.diff_after_mgal, 2)} mGal`),
+    // overlapping repeat passes are not crossings: show main/tie intersections only
+    const kind = Object.fromEntries(g.lines.map((l) => [l.line, l.kind]));
+    const xo = g.crossovers.filter((c) => !(kind[c.line_a] === "repeat" && kind[c.line_b] === "repeat"));
+    if (xoIn.checked && xo.length) {
+      traces.push({ x: xo.map((c) => c.easting_km), y: xo.map((c) => c.northing_km), type: "scatter", mode: "markers",
+        name: "crossovers", marker: { symbol: "x-thin", size: 7, color: "rgba(0,0,0,0.7)", line: { width: 1.5, color: "rgba(0,0,0,0.7)" } },
+        text: xo.map((c) => `${c.line_a} × ${c.line_b}: before ${fmt(c.diff_before_mgal, 2)}, after ${fmt(c.diff_after_mgal, 2)} mGal`),
         hovertemplate: "%{text}<extra></extra>" });
     }
     await Plotly.react(plot, traces, mapLayout(`${s.name}: ${isStd ? "posterior σ of δg" : "free-air anomaly δg at flight height"}`), plotConfig(`${s.name}-grid`));

@@ -40,7 +40,7 @@ function buildForm(schema, defaults) {
 
 function collectParams(form) {
   const out = {};
-  for (const input of form.querySelectorAll("input, select")) {
+  for (const input of form.querySelectorAll(".params input, .params select")) {
     const def = JSON.parse(input.dataset.default);
     let v;
     if (input.type === "checkbox") v = input.checked;
@@ -69,7 +69,7 @@ function emTable(rows) {
 
 function renderJob(box, job) {
   const pct = Math.round(100 * (job.progress || 0));
-  box.replaceChildren(
+  box.replaceChildren(...[
     el("div", { class: "row" },
       el("div", {}, el("strong", {}, `Job ${job.id}`), ` (${job.kind}, ${job.backend}) — `,
         el("span", { class: `badge ${job.status}`, id: "job-status" }, job.status),
@@ -77,7 +77,9 @@ function renderJob(box, job) {
     el("progress", { id: "job-progress", max: 1, value: job.progress || 0 }),
     job.error ? el("div", { class: "error", id: "job-error" }, job.error) : null,
     el("h3", {}, "EM iterations (identification of Q, R and the transition matrix)"),
-    el("div", { class: "scroll" }, emTable(job.em_iterations || [])));
+    el("div", { class: "scroll" }, emTable(job.em_iterations || []))].filter(Boolean));
+  const sc = box.querySelector(".scroll");
+  if (sc && ["queued", "running"].includes(job.status)) sc.scrollTop = sc.scrollHeight;  // follow the newest iteration
   const cancel = el("button", { id: "job-cancel", disabled: !["queued", "running"].includes(job.status) }, "Cancel job");
   cancel.addEventListener("click", async () => {
     try { renderJob(box, await endpoints.cancelJob(job.id)); } catch (e) { showError(box, e); }

@@ -27,11 +27,11 @@ export async function render(sec, ctx) {
   const withData = lines.filter((l) => l.stats);
   const sel = el("select", { id: "profile-line" }, withData.map((l) => el("option", { value: l.line },
     `${l.line} (${l.kind}, flight ${l.flight}, ${fmt(l.qc.length_km, 1)} km, σ̄ ${fmt(l.stats.sigma_mean_mgal, 2)} mGal)`)));
-  const lp = el("input", { type: "number", id: "profile-lp", min: 0, max: 600, step: 5, value: 20, style: "width:5rem" });
+  const lp = el("input", { type: "number", id: "profile-lp", min: 0, max: 600, step: 5, value: 30, style: "width:5rem" });
   const status = el("div", { class: "note", id: "profile-status" });
   const plot = el("div", { class: "plot", id: "profile-plot", style: "height:520px" });
   sec.replaceChildren(el("div", { class: "card" }, el("h3", {}, "Line profile"),
-    el("div", { class: "controls" }, el("label", {}, "Line", sel), el("label", {}, "z low-pass window (s)", lp)),
+    el("div", { class: "controls" }, el("label", {}, "Line", sel), el("label", {}, "z low-pass FWHM (s)", lp)),
     status, plot));
   let pngAdded = false;
 
@@ -50,11 +50,14 @@ export async function render(sec, ctx) {
       { x, y: p.dg_stationary, name: "stationary smoother", mode: "lines", line: { color: "#e6550d", width: 1.5, dash: "dash" }, customdata: cd, hovertemplate: ht("stationary") },
       { x, y: p.dg_fir, name: "FIR 100 s", mode: "lines", line: { color: "#31a354", width: 1.5, dash: "dot" }, customdata: cd, hovertemplate: ht("FIR") },
     ];
+    // y range from the filtered series (z can carry large transients at the line ends)
+    const vals = [...lo, ...hi, ...p.dg_stationary, ...p.dg_fir].filter((v) => v !== null && Number.isFinite(v));
+    const ymin = Math.min(...vals), ymax = Math.max(...vals), pad = 0.25 * Math.max(ymax - ymin, 1);
     const layout = {
       title: { text: `Line ${p.line} (${p.kind}, flight ${p.flight})`, font: { size: 15 } },
       margin: { l: 70, r: 20, t: 40, b: 55 },
       xaxis: { title: { text: "Distance along line (km)" } },
-      yaxis: { title: { text: "Gravity anomaly δg (mGal)" } },
+      yaxis: { title: { text: "Gravity anomaly δg (mGal)" }, range: vals.length ? [ymin - pad, ymax + pad] : undefined },
       legend: { orientation: "h", y: -0.16 },
       shapes: stateShapes(x, p.state),
       hovermode: "x unified",
@@ -62,7 +65,7 @@ export async function render(sec, ctx) {
     await Plotly.react(plot, traces, layout, plotConfig(`${s.name}-line-${p.line}`));
     if (!pngAdded) { plot.after(pngButton(plot, `${s.name}-line-profile`)); pngAdded = true; }
     const sigma = p.dg_std.filter((v) => v !== null);
-    status.textContent = `${p.n_total} epochs (every ${p.step}${p.step === 1 ? "" : "th"} shown) · shaded bands: states > 0 (rougher anomaly) · mean σ ${fmt(sigma.reduce((a, b) => a + b, 0) / Math.max(1, sigma.length), 3)} mGal`;
+    status.textContent = `${p.n_total} epochs (${p.step === 1 ? "all" : `1 in ${p.step}`} shown) · shaded bands: states > 0 (rougher anomaly) · mean σ ${fmt(sigma.reduce((a, b) => a + b, 0) / Math.max(1, sigma.length), 3)} mGal`;
     plot.dataset.line = p.line;
   };
   sel.addEventListener("change", draw);

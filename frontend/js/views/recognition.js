@@ -44,7 +44,7 @@ export async function render(sec, ctx) {
   const colors = (arr) => arr.map((v) => stateColor(v));
   const text = base.line.map((l) => `line ${l}`);
   const trace = { x: base.easting_km, y: base.northing_km, type: "scattergl", mode: "markers", showlegend: false,
-    marker: { color: colors(current), size: 5 }, text,
+    marker: { color: colors(current), size: 7 }, text,
     hovertemplate: "%{text}<br>E %{x:.2f} km, N %{y:.2f} km<extra></extra>" };
   await Plotly.newPlot(plot, [trace, ...legend], mapLayout(`${s.name}: recognised states`), plotConfig(`${s.name}-recognition`));
   plot.after(pngButton(plot, `${s.name}-recognition`));
