@@ -165,6 +165,8 @@ class JobManager:
         self._client = None
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
+        #: called with the job id after a worker ended (any outcome), from the monitor thread
+        self.on_finished: list[Callable[[int], None]] = []
 
     # -- lifecycle ---------------------------------------------------------
     def recover(self) -> int:
@@ -267,6 +269,7 @@ class JobManager:
         for jid, p in dead:
             p.join(timeout=1)
             self._fail_if_active(jid, _death_reason(p.exitcode))
+            self._notify(jid)
         for jid, f in done:
             if f.status == "error":
                 try:
@@ -279,6 +282,14 @@ class JobManager:
             else:
                 reason = "job ended without reporting its result"
             self._fail_if_active(jid, reason)
+            self._notify(jid)
+
+    def _notify(self, job_id: int) -> None:
+        for cb in self.on_finished:
+            try:
+                cb(job_id)
+            except Exception:  # pragma: no cover - a hook never breaks the monitor
+                log.exception("on_finished hook failed for job %s", job_id)
 
     def _monitor(self) -> None:
         while not self._stop.wait(self.settings.poll_interval_s):

@@ -115,6 +115,20 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.cache = ResultCache()
     app.add_middleware(GuardMiddleware, settings=settings)
 
+    def _warm(job_id: int) -> None:
+        """After a successful job, load its recognition map so the first slider move is fast."""
+        from .db import Job, Result
+        from .routers.results import _load_recognition
+        with Session() as s:
+            job = s.get(Job, job_id)
+            if job is None or job.status != "succeeded":
+                return
+            r = s.query(Result).filter(Result.job_id == job_id).first()
+        if r is not None and (Path(r.dir) / "recognition.parquet").exists():
+            app.state.cache.get(("recognition", r.id), lambda: _load_recognition(r))
+
+    jobs.on_finished.append(_warm)
+
     @app.exception_handler(InputError)
     async def _input_error(_req: Request, exc: InputError):
         return JSONResponse(status_code=422, content={"detail": exc.to_dict()})
