@@ -78,6 +78,14 @@ class SimConfig:
     drift_rw_mgal_rth: float = 0.2                          # random walk density, mGal/sqrt(h)
     grav_noise_mgal_rthz: float = 0.5                       # white sensor noise density, mGal/sqrt(Hz)
     time_offset_s: float = 0.0                              # gravimeter stamp = true time + offset
+    # --- parking place (base) readings: the aircraft stands still on the apron before and after
+    #     every flight (0 disables); taxi and climb between apron and survey are not recorded
+    apron_s: float = 300.0                # length of each static segment (GNSS span)
+    apron_gap_s: float = 600.0            # unrecorded time between an apron segment and the airborne data
+    airport_km: tuple[float, float] | None = None   # (east, north) from the survey centre; None: 20 km
+    #                                                 west of the west end of the main lines
+    airport_h_m: float = 200.0            # ellipsoidal height of the gravimeter on the apron
+    airport_anomaly_mgal: float = 35.0    # g_base = γ(airport) + this (local anomaly), rounded to 0.01 mGal
     # --- GNSS
     gnss_rate_hz: float = 10.0
     sigma_vu_cms: float = 1.3
@@ -107,7 +115,8 @@ PRESETS: dict[str, SimConfig] = {
     "omolon-mini": SimConfig(
         name="omolon-mini", n_main=10, main_length_km=60.0, n_tie=3, n_repeat=3, repeat_length_km=30.0,
         n_flights=3,
-        time_offset_s=0.05, compress=True),
+        time_offset_s=0.05, compress=True,
+        apron_s=120.0),                   # short base readings: the committed sample stays ≤ 7 MB
     "omolon": SimConfig(
         name="omolon", n_main=57, main_length_km=200.0, main_spacing_km=2.0, n_tie=17,
         n_flights=12, mountain_sources_per_km2=0.15, time_offset_s=0.05),
@@ -117,7 +126,7 @@ PRESETS: dict[str, SimConfig] = {
         n_main=40, main_length_km=80.0, main_spacing_km=2.0, n_tie=7, n_repeat=3,
         n_flights=10, mountain_std_mgal=15.0, plain_std_mgal=10.0,
         mountain_sources_per_km2=0.15, mountain_depth_m=(1000.0, 3000.0),
-        turbulence_rms_ms2=(0.3, 1.0), sigma_vu_cms=1.5),
+        turbulence_rms_ms2=(0.3, 1.0), sigma_vu_cms=1.5, airport_h_m=360.0, airport_anomaly_mgal=-22.0),
     "markov": SimConfig(
         name="markov", field_kind="markov", n_main=50, main_length_km=110.0, main_spacing_km=2.0,
         n_tie=0, n_flights=9, sigma_vu_cms=float(1.6787 ** 0.5), episode_rate_per_h=0.0,

@@ -10,7 +10,13 @@ Physics (SPEC §1, "up" positive).  For every flight, on one time scale:
   18.24 Hz as the mean of ``f'`` over each sampling interval, stamped at the
   interval centre + ``time_offset_s`` and rounded to 1 ms;
 * GNSS at 10 Hz on exact multiples of 0.1 s: true position/velocity + white noise
-  (vertical velocity noise with noisy episodes).
+  (vertical velocity noise with noisy episodes);
+* parking-place (base) readings (``apron_s > 0``): the aircraft stands still at the
+  airport (fixed lat/lon, ``airport_h_m``) for ``apron_s`` before and after each flight,
+  separated from the airborne data by an unrecorded gap of ``apron_gap_s`` (taxi, climb)
+  in both files.  At rest the gravimeter input is ``f = g_base + drift + noise``
+  (``g_base`` = ``[gravimeter] base_gravity_mgal``), through the same lag and scale, on
+  the instrument's continuous sampling grid; the drift runs on through the gaps.
 
 The injected δg is built so that its mean over every GNSS interval (t_{k−1}, t_k]
 is exactly ``dg_true_mgal[k]`` of ``truth/lines.parquet``; the true vertical
@@ -63,7 +69,95 @@ def _geo_state(path, tq, h, cfg, e0_km, n0_km):
     return x, y, lat, lon, ve, vn
 
 
-def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight_idx: int = 0):
+def _extend_drift(drift_pp: PPoly, td, rw, off, rate, t0, t_lo, t_hi, cfg, rng) -> PPoly:
+    """The drift beyond the airborne span, continuous with it (it keeps running on the ground).
+
+    The random walk continues from its first node backwards and from its last node forwards on the
+    same 10 s grid (steps from ``rng``); outside ``[td[0], td[-1]]`` the drift is a cubic spline
+    through the new nodes and the three nearest airborne nodes, inside it is ``drift_pp`` itself
+    (so the airborne data do not change).  The result is continuous at the splice nodes.
+    """
+    step = cfg.drift_rw_mgal_rth * np.sqrt(10.0 / 3600.0)
+    nb = max(int(np.ceil((td[0] - t_lo) / 10.0)), 3)
+    na = max(int(np.ceil((t_hi - td[-1]) / 10.0)), 3)
+    tb = td[0] - 10.0 * np.arange(nb, 0, -1)
+    ta = td[-1] + 10.0 * np.arange(1, na + 1)
+    rwb = rw[0] - np.cumsum(rng.standard_normal(nb) * step)[::-1]
+    rwa = rw[-1] + np.cumsum(rng.standard_normal(na) * step)
+    lin = lambda t: off + rate * (t - t0) / 3600.0  # noqa: E731
+    air = drift_pp(td[:3]), drift_pp(td[-3:])
+    sb = _cubic_pp(np.concatenate([tb, td[:3]]), np.concatenate([(lin(tb) + rwb) * MGAL, air[0]]))
+    sa = _cubic_pp(np.concatenate([td[-3:], ta]), np.concatenate([air[1], (lin(ta) + rwa) * MGAL]))
+    c = np.concatenate([sb.c[:, :nb], drift_pp.c, sa.c[:, 2:]], axis=1)
+    x = np.concatenate([tb, drift_pp.x, ta])
+    return PPoly(c, x)
+
+
+def _apron_segments(path, cfg: SimConfig):
+    """GNSS spans ``(name, t_start, t_end)`` of the static segments before and after a flight."""
+    if cfg.apron_s <= 0:
+        return []
+    a1 = round(path.t0 - cfg.apron_gap_s, 1)
+    b0 = round(path.t1 + cfg.apron_gap_s, 1)
+    return [("before", round(a1 - cfg.apron_s, 1), a1), ("after", b0, round(b0 + cfg.apron_s, 1))]
+
+
+def simulate_apron(seg, cfg: SimConfig, rng, airport: dict, drift_full: PPoly, g_start: float):
+    """Static readings on the apron over the GNSS span ``seg = (name, a, b)``.
+
+    The gravimeter reads the true specific force at rest ``f = g_base`` (+ drift + noise) through
+    the same lag and scale as in flight, on the instrument's continuous 18.24 Hz sampling grid
+    (the one started at ``g_start``); only intervals wholly inside ``[a, b]`` are written.
+    """
+    name, a, b = seg
+    n = int(round((b - a) * cfg.gnss_rate_hz)) + 1
+    tg = a + np.arange(n) / cfg.gnss_rate_hz
+    lat0, lon0, h0 = airport["lat_deg"], airport["lon_deg"], airport["h_m"]
+    # --- gravimeter
+    rate_g = cfg.gravimeter_rate_hz
+    j0 = int(np.ceil((a - g_start) * rate_g))
+    j1 = int(np.floor((b - g_start) * rate_g))
+    edges = g_start + np.arange(j0, j1 + 1) / rate_g
+    edges = edges[(edges >= a) & (edges <= b)]
+    m = edges.size - 1
+    cref = airport["g_base_mgal"] * MGAL
+    fz = np.full(m, cref / cfg.scale_true)
+    comps = [drift_full]
+    if cfg.grav_noise_mgal_rthz > 0:
+        fs = cfg.fine_rate_hz
+        tn = np.arange(a - 20.0, b + 10.0, 1.0 / fs)
+        sd = cfg.grav_noise_mgal_rthz * np.sqrt(fs) * MGAL
+        comps.append(_cubic_pp(tn, rng.standard_normal(tn.size) * sd))
+    for pp in comps:
+        fz += LaggedResponse(pp, cfg.tau_true_s, cfg.scale_true).interval_means(edges)
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    grav = pd.DataFrame({"time": np.round(centres + cfg.time_offset_s, 3), "f_z": fz,
+                         "f_x": rng.standard_normal(m) * cfg.horizontal_noise_ms2,
+                         "f_y": rng.standard_normal(m) * cfg.horizontal_noise_ms2})
+    # --- GNSS at rest: position noise (cm), velocity noise at the usual (quiet) level
+    r_m, r_n = radii_of_curvature_m(lat0)
+    sig_vu = np.full(n, cfg.sigma_vu_cms / 100.0)
+    gnss = pd.DataFrame({
+        "time": tg,
+        "lat": lat0 + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / (r_m + h0)),
+        "lon": lon0 + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / ((r_n + h0) * np.cos(np.deg2rad(lat0)))),
+        "h": h0 + rng.standard_normal(n) * cfg.sigma_h_m,
+        "vu": rng.standard_normal(n) * sig_vu,
+        "ve": rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
+        "vn": rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
+        "sigma_v": sig_vu * np.exp(rng.normal(0.0, 0.2, n)),
+    })
+    D = drift_full.antiderivative()
+    info = {"segment": name, "t_start": a, "t_end": b,
+            "gravimeter_t_start": float(edges[0]), "gravimeter_t_end": float(edges[-1]),
+            "drift_mean_mgal": float((D(edges[-1]) - D(edges[0])) / (edges[-1] - edges[0]) / MGAL),
+            "drift_start_mgal": float(drift_full(edges[0]) / MGAL),
+            "drift_end_mgal": float(drift_full(edges[-1]) / MGAL)}
+    return grav, gnss, info
+
+
+def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight_idx: int = 0,
+                    apron_rng=None, airport: dict | None = None):
     """Simulate one flight.
 
     Parameters
@@ -73,6 +167,13 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
         ``dg_means_fn(t_epochs, x_km_mid, y_km_mid) -> (dg_mgal, extra)``: the mean of δg over
         each GNSS interval (t_{k−1}, t_k] (mGal); positions are absolute projected km
         at the interval midpoints.
+
+    apron_rng : numpy.random.Generator, optional
+        Random numbers of the parking-place segments (a separate stream, so the airborne data
+        do not depend on ``cfg.apron_s``).
+    airport : dict, optional
+        ``lat_deg, lon_deg, h_m, g_base_mgal`` of the parking place; with ``cfg.apron_s > 0``
+        static segments are added before and after the airborne data (see :func:`simulate_apron`).
 
     Returns
     -------
@@ -151,6 +252,18 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
         "sigma_v": sig_vu * np.exp(rng.normal(0.0, 0.2, n)),
     })
     # truth per epoch, rounded far below every noise level (keeps the committed sample small)
+    # --- parking-place readings before and after (separate random stream; drift keeps running)
+    segs = _apron_segments(path, cfg) if airport is not None else []
+    aprons = []
+    if segs:
+        if apron_rng is None:
+            raise ValueError("apron segments need apron_rng")
+        drift_full = _extend_drift(drift_pp, td, rw, off, rate, t0, segs[0][1] - 60.0, segs[-1][2] + 60.0,
+                                   cfg, apron_rng)
+        parts = [simulate_apron(sg, cfg, apron_rng, airport, drift_full, g_start) for sg in segs]
+        aprons = [p[2] for p in parts]
+        grav = pd.concat([parts[0][0], grav, parts[1][0]], ignore_index=True)
+        gnss = pd.concat([parts[0][1], gnss, parts[1][1]], ignore_index=True)
     epochs = pd.DataFrame({
         "time": np.round(tg, 1), "easting_km": np.round(x, 6), "northing_km": np.round(y, 6),
         "dg_true_mgal": np.round(dg, 5), "R_true_cm2s2": (sig_vu * 100.0) ** 2,
@@ -164,6 +277,7 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
     info = {"t0": t0, "t1": t1, "drift_offset_mgal": off, "drift_rate_mgal_h": rate,
             "drift_rw_mgal_rth": cfg.drift_rw_mgal_rth, "gravimeter_first_interval_start": g_start,
             "gnss_noisy_episodes": [{"t_start": s, "t_end": e, "sigma_factor": f} for s, e, f in episodes],
+            "apron": aprons,
             **motion_info}
     return {"gravimeter": grav, "gnss": gnss, "epochs": epochs, "info": info}
 
@@ -270,13 +384,26 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
     else:
         raise ValueError(f"unknown field_kind {cfg.field_kind!r}")
 
+    airport = None
+    if cfg.apron_s > 0:
+        ax, ay = cfg.airport_km if cfg.airport_km is not None else (-cfg.main_length_km / 2.0 - 20.0, 0.0)
+        alon, alat = (float(v) for v in unproject_km(e0 + ax, n0 + ay, cfg.crs))
+        gamma_ap = float(normal_gravity_mgal(alat, cfg.airport_h_m, cfg.normal_gravity))
+        airport = {"lat_deg": round(alat, 7), "lon_deg": round(alon, 7), "h_m": cfg.airport_h_m,
+                   "easting_km": e0 + ax, "northing_km": n0 + ay,
+                   "normal_gravity_mgal": gamma_ap, "local_anomaly_mgal": cfg.airport_anomaly_mgal,
+                   "g_base_mgal": round(gamma_ap + cfg.airport_anomaly_mgal, 2)}
+    # the parking-place segments draw from their own stream: airborne data do not depend on them
+    apron_rngs = [np.random.default_rng(ss) for ss in np.random.SeedSequence([seed, 0xA9]).spawn(len(paths))]
+
     flights = {}
     truth_rows = []
     lines_rows = []
     flight_info = {}
     for i, path in enumerate(paths):
         report(f"flight {path.name}", 0.1 + 0.75 * i / len(paths), {"flight": path.name})
-        res = simulate_flight(path, cfg, rng, e0, n0, dg_fn_for(path), i)
+        res = simulate_flight(path, cfg, rng, e0, n0, dg_fn_for(path), i,
+                              apron_rng=apron_rngs[i], airport=airport)
         flights[path.name] = (res["gravimeter"], res["gnss"])
         flight_info[path.name] = res["info"]
         ep = res["epochs"]
@@ -335,6 +462,14 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
         "gnss_sigma_v_note": "sigma_v column = true vu noise std in force x lognormal(0, 0.2) per epoch",
         "horizontal_note": "f_x = east, f_y = north specific force (kinematic + Coriolis) at the sample centre",
         "survey_centre_km": [e0, n0],
+        "base_gravity_mgal": airport["g_base_mgal"] if airport else None,
+        "airport": airport,
+        "apron_note": ("parking-place readings: per flight a static GNSS span of apron_s before the "
+                       "airborne data (ending apron_gap_s before flight t0) and one after (starting "
+                       "apron_gap_s after t1); the gravimeter reads f = g_base at rest through the same "
+                       "lag, scale, drift and noise; drift = offset + rate*(t - t0)/3600 + random walk, "
+                       "continuous across the unrecorded gaps; flights[*].apron gives each segment's "
+                       "GNSS span, gravimeter interval span and true drift (mean over the gravimeter span)"),
         "flights": flight_info,
         **truth_extra,
     }
@@ -353,7 +488,8 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
         }
     toml = {"survey": {"name": cfg.name, "crs": cfg.crs, "normal_gravity": cfg.normal_gravity},
             "gravimeter": {"model": cfg.gravimeter_model, "tau_s": cfg.tau_declared_s,
-                           "scale": cfg.scale_declared, "rate_hz": cfg.gravimeter_rate_hz},
+                           "scale": cfg.scale_declared, "rate_hz": cfg.gravimeter_rate_hz,
+                           "base_gravity_mgal": airport["g_base_mgal"] if airport else None},
             "processing": dict(cfg.processing)}
     report("write", 0.9)
     out = write_survey(out_dir, toml, lines, flights, truth_lines, grid, truth_json, compress=cfg.compress)

@@ -88,6 +88,16 @@ def _read(p: Path, name: str, flight: str) -> pd.DataFrame:
     return pd.read_csv(f if f.exists() else f.with_suffix(".csv.gz"))
 
 
+def _blocks(df: pd.DataFrame, max_gap_s: float = 1.0) -> list[pd.DataFrame]:
+    """The file's contiguous recordings (apron before, airborne, apron after), split at gaps."""
+    cut = np.flatnonzero(np.diff(df.time.to_numpy()) > max_gap_s) + 1
+    return [df.iloc[a:b].reset_index(drop=True) for a, b in zip(np.r_[0, cut], np.r_[cut, len(df)])]
+
+
+def _airborne(df: pd.DataFrame) -> pd.DataFrame:
+    return max(_blocks(df), key=len)
+
+
 def test_directory_has_spec_columns(noisy):
     p = Path(noisy)
     cfg = tomllib.loads((p / "survey.toml").read_text())
@@ -106,9 +116,12 @@ def test_directory_has_spec_columns(noisy):
         assert np.allclose(n.time * 10, np.round(n.time * 10), atol=1e-6)
         assert np.allclose(g.time * 1000, np.round(g.time * 1000), atol=1e-5)
         assert len(np.unique(np.round(np.diff(g.time), 3))) >= 2
-        assert abs(len(g) / (g.time.iloc[-1] - g.time.iloc[0]) - 18.24) < 0.01
         assert 9.7 < g.f_z.median() < 9.9                 # up positive, ≈ +g at rest
-        # line windows inside both files, with margin for filters
+        assert len(_blocks(g)) == len(_blocks(n)) == 3    # apron, airborne, apron
+        for b in _blocks(g):
+            assert abs((len(b) - 1) / (b.time.iloc[-1] - b.time.iloc[0]) - 18.24) < 0.01
+        # line windows inside the airborne part of both files, with margin for filters
+        g, n = _airborne(g), _airborne(n)
         assert grp.t_start.min() > g.time.iloc[0] + 20 and grp.t_end.max() < g.time.iloc[-1] - 5
         assert grp.t_start.min() >= n.time.iloc[0] and grp.t_end.max() <= n.time.iloc[-1]
     truth = pd.read_parquet(p / "truth" / "lines.parquet")
@@ -154,8 +167,8 @@ def _z_from_files(p: Path, flight: str, tau: float, k: float, offset: float):
     sample edges (recovered from a linear fit of the stamps), then a cubic spline of it; the lag
     is undone exactly on the interval: f̄ = τ·Δf'/Δt + k·mean(f').
     """
-    g = _read(p, "gravimeter", flight)
-    n = _read(p, "gnss", flight)
+    g = _airborne(_read(p, "gravimeter", flight))
+    n = _airborne(_read(p, "gnss", flight))
     model = tomllib.loads((p / "survey.toml").read_text())["survey"]["normal_gravity"]
     j = np.arange(len(g))
     a1, a0 = np.polyfit(j, g.time.to_numpy() - offset, 1)
@@ -328,10 +341,146 @@ def test_noisy_survey_error_budget(noisy):
     tj = json.loads((p / "truth" / "truth.json").read_text())
     truth = pd.read_parquet(p / "truth" / "lines.parquet")
     z = _z_from_files(p, "F01", tj["tau_s"], tj["scale"], tj["time_offset_s"])
-    g = _read(p, "gravimeter", "F01")
+    g = _airborne(_read(p, "gravimeter", "F01"))
     z = z[(z.index > g.time.iloc[0] + 1) & (z.index < g.time.iloc[-1] - 1)]
     b = firwin(2001, 1 / 100, fs=10, window="blackman")
     zf = pd.Series(filtfilt(b, [1.0], z.to_numpy()), index=z.index)
     for line, d in truth[truth.kind == "main"].groupby("line"):
         err = zf.reindex(np.round(d.time, 1)).to_numpy() - d.dg_true_mgal.to_numpy() - d.drift_mgal.to_numpy()
         assert abs(err.mean()) < 3.0 and 0.5 < err.std() < 12.0, (line, err.mean(), err.std())
+
+
+# ---------------------------------------------------------------- parking-place (base) readings
+
+@pytest.fixture(scope="module")
+def drifty(tmp_path_factory):
+    """No sensor noise, a strong drift (30 mGal/h + random walk), lag, scale error, time offset."""
+    out = tmp_path_factory.mktemp("sim") / "drifty"
+    kw = {**NOISE_OFF, "drift_rate_mgal_h": (30.0, 30.0), "drift_offset_std_mgal": 5.0,
+          "drift_rw_mgal_rth": 0.3}
+    return simulate_survey("tiny", out, seed=8, tau_true_s=2.0, scale_true=1.0 + 2e-4, time_offset_s=0.05,
+                           **kw, **SMALL)
+
+
+def _static_readings(p: Path, flight: str, model: str):
+    """Per static block, from the files only: (block mid time, mean f_z·1e5 − γ, mean γ) (mGal)."""
+    g, n = _read(p, "gravimeter", flight), _read(p, "gnss", flight)
+    out = []
+    for gb, nb in zip(_blocks(g), _blocks(n)):
+        still = (np.hypot(nb.ve, nb.vn) < 0.5).all() and (np.abs(nb.vu) < 0.5).all()
+        if not still:
+            continue
+        gam = float(np.mean(normal_gravity_mgal(nb.lat.to_numpy(), nb.h.to_numpy(), model)))
+        out.append((float(gb.time.mean()), float(gb.f_z.mean() * 1e5 - gam), gam))
+    return out
+
+
+def test_static_segments_at_both_ends_of_each_flight(noisy):
+    p = Path(noisy)
+    cfg = PRESETS["tiny"]
+    toml = tomllib.loads((p / "survey.toml").read_text())
+    tj = json.loads((p / "truth" / "truth.json").read_text())
+    g_base = toml["gravimeter"]["base_gravity_mgal"]
+    assert g_base == tj["base_gravity_mgal"] == tj["airport"]["g_base_mgal"]
+    ap = tj["airport"]
+    gam_ap = normal_gravity_mgal(ap["lat_deg"], ap["h_m"], toml["survey"]["normal_gravity"])
+    assert abs(g_base - gam_ap - cfg.airport_anomaly_mgal) < 0.01
+    lines = pd.read_csv(p / "lines.csv")
+    for fl, grp in lines.groupby("flight"):
+        gbs = _blocks(_read(p, "gravimeter", fl))
+        nbs = _blocks(_read(p, "gnss", fl))
+        assert len(gbs) == len(nbs) == 3
+        for i in (0, 2):
+            nb, gb = nbs[i], gbs[i]
+            assert abs(nb.time.iloc[-1] - nb.time.iloc[0] - cfg.apron_s) < 0.05
+            assert np.abs(nb[["ve", "vn", "vu"]].to_numpy()).max() < 0.1           # standing still
+            assert abs(nb.ve.std() * 100 - cfg.sigma_vh_cms) < 0.1 and abs(nb.vu.std() * 100 - cfg.sigma_vu_cms) < 0.15
+            assert abs(nb.lat - ap["lat_deg"]).max() < 2e-6 and abs(nb.lon - ap["lon_deg"]).max() < 5e-6
+            assert 0.005 < np.std((nb.lat - ap["lat_deg"]) * 111e3) < 0.05         # cm-level noise
+            assert abs(nb.h.mean() - ap["h_m"]) < 0.01
+            # gravimeter intervals inside the static GNSS span (none straddles a gap)
+            off = tj["time_offset_s"]
+            half = 0.5 / cfg.gravimeter_rate_hz
+            assert gb.time.iloc[0] - off - half >= nb.time.iloc[0] - 2e-3
+            assert gb.time.iloc[-1] - off + half <= nb.time.iloc[-1] + 2e-3
+            assert (len(gb) + 1) / cfg.gravimeter_rate_hz > cfg.apron_s - 1.0
+            assert gb.f_x.abs().max() < 0.1 and gb.f_y.abs().max() < 0.1
+        # before / after every line window, separated by an unrecorded gap
+        assert nbs[0].time.iloc[-1] + 100 < nbs[1].time.iloc[0] and gbs[0].time.iloc[-1] + 100 < gbs[1].time.iloc[0]
+        assert nbs[1].time.iloc[-1] + 100 < nbs[2].time.iloc[0] and gbs[1].time.iloc[-1] + 100 < gbs[2].time.iloc[0]
+        assert nbs[1].time.iloc[0] <= grp.t_start.min() and grp.t_end.max() <= nbs[1].time.iloc[-1]
+        # one continuous instrument clock: the static samples sit on the airborne sampling lattice
+        a1, a0 = np.polyfit(np.arange(len(gbs[1])), gbs[1].time.to_numpy(), 1)
+        for i in (0, 2):
+            j = (gbs[i].time.to_numpy() - a0) / a1
+            assert np.abs(j - np.round(j)).max() < 0.03
+        assert [a["segment"] for a in tj["flights"][fl]["apron"]] == ["before", "after"]
+    truth = pd.read_parquet(p / "truth" / "lines.parquet")     # line epochs only
+    assert truth.groupby("line").time.agg(["min", "max"]).reset_index().merge(lines, on="line").eval(
+        "min >= t_start - 1e-6 and max <= t_end + 1e-6").all()
+
+
+@pytest.mark.parametrize("which", ["noisy", "drifty"])
+def test_static_reading_is_base_gravity_plus_reading_error(which, request):
+    """At rest, from the files: mean(f_z − γ) = g_base − γ + reading error, the error being the scale
+    and the drift known from truth.json (τ·ḟ' + k·f' = g + drift), ≈ −196 mGal + drift."""
+    p = Path(request.getfixturevalue(which))
+    tj = json.loads((p / "truth" / "truth.json").read_text())
+    model = tomllib.loads((p / "survey.toml").read_text())["survey"]["normal_gravity"]
+    g_base, k = tj["base_gravity_mgal"], tj["scale"]
+    tol = 0.01 if which == "drifty" else 0.15       # white noise 0.5 mGal/√Hz over 300 s: σ ≈ 0.03 mGal
+    for fl, fi in tj["flights"].items():
+        st = _static_readings(p, fl, model)
+        assert len(st) == 2
+        for (tm, meas, gam), ap in zip(st, fi["apron"]):
+            assert ap["t_start"] < tm < ap["t_end"]
+            # the lag delays the drift by τ/k: the interval mean of τ·ḟ' + k·f' = g + drift is exact
+            T = ap["gravimeter_t_end"] - ap["gravimeter_t_start"]
+            lag = tj["tau_s"] * (ap["drift_end_mgal"] - ap["drift_start_mgal"]) / (k * T)
+            err = (g_base + ap["drift_mean_mgal"] - lag) / k - g_base
+            assert abs(meas - (g_base - gam + err)) < tol, (fl, ap["segment"], meas - (g_base - gam + err))
+            assert -200 < err - ap["drift_mean_mgal"] < -192   # the scale error: the test has teeth
+
+
+def test_drift_continuous_across_gap(drifty):
+    """The drift keeps running through the unrecorded taxi/climb: the static readings (files) and the
+    airborne truth lie on the same offset + rate·(t − t0) line, up to the random walk."""
+    p = Path(drifty)
+    tj = json.loads((p / "truth" / "truth.json").read_text())
+    model = tomllib.loads((p / "survey.toml").read_text())["survey"]["normal_gravity"]
+    g_base, k = tj["base_gravity_mgal"], tj["scale"]
+    truth = pd.read_parquet(p / "truth" / "lines.parquet")
+    rw = tj["config"]["drift_rw_mgal_rth"]
+    for fl, fi in tj["flights"].items():
+        lin = lambda t: fi["drift_offset_mgal"] + fi["drift_rate_mgal_h"] * (t - fi["t0"]) / 3600.0  # noqa: E731
+        st = _static_readings(p, fl, model)
+        d_static = [k * (meas + gam) - g_base for _, meas, gam in st]     # drift seen at rest (files)
+        for (tm, _, _), d in zip(st, d_static):
+            assert abs(d - lin(tm)) < 5 * rw * np.sqrt(abs(tm - fi["t0"]) / 3600.0 + 0.05), (fl, tm, d, lin(tm))
+        # the two readings span the gaps: their difference is the rate times the elapsed time
+        dt_h = (st[1][0] - st[0][0]) / 3600.0
+        assert dt_h > 2 * tj["config"]["apron_gap_s"] / 3600.0
+        assert abs((d_static[1] - d_static[0]) - fi["drift_rate_mgal_h"] * dt_h) < 5 * rw * np.sqrt(dt_h)
+        # frozen during the gaps would be off by rate·gap = 5 mGal; reset would be off by more
+        assert abs(fi["drift_rate_mgal_h"]) * tj["config"]["apron_gap_s"] / 3600.0 > 10 * rw * np.sqrt(dt_h)
+        # airborne truth on the same line; the truth drift is continuous at the apron ends
+        d = truth[truth.flight == fl]
+        assert np.abs(d.drift_mgal - lin(d.time)).max() < 5 * rw * np.sqrt((d.time.max() - fi["t0"]) / 3600.0 + 0.05)
+        b, a = fi["apron"]
+        assert abs(b["drift_end_mgal"] - lin(b["gravimeter_t_end"])) < 5 * rw * np.sqrt(0.5)
+        assert abs(a["drift_start_mgal"] - lin(a["gravimeter_t_start"])) < 5 * rw * np.sqrt(0.5)
+
+
+def test_apron_off_and_airborne_data_unchanged(tmp_path):
+    """apron_s = 0 disables the static segments; the airborne data do not depend on them."""
+    kw = dict(n_main=1, n_tie=0, main_length_km=6.0, grid_margin_km=3.0)
+    a = simulate_survey("tiny", tmp_path / "a", seed=13, **kw)
+    b = simulate_survey("tiny", tmp_path / "b", seed=13, apron_s=0.0, **kw)
+    assert "base_gravity_mgal" not in tomllib.loads((b / "survey.toml").read_text())["gravimeter"]
+    assert json.loads((b / "truth" / "truth.json").read_text())["flights"]["F01"]["apron"] == []
+    for name in ("gravimeter", "gnss"):
+        fa, fb = _read(a, name, "F01"), _read(b, name, "F01")
+        assert len(_blocks(fb)) == 1 and len(_blocks(fa)) == 3
+        pd.testing.assert_frame_equal(_airborne(fa), fb)
+    pd.testing.assert_frame_equal(pd.read_parquet(a / "truth" / "lines.parquet"),
+                                  pd.read_parquet(b / "truth" / "lines.parquet"))
