@@ -71,13 +71,18 @@ def relativize(err: InputError, root: Path) -> InputError:
     return err
 
 
-def extract_survey_zip(fileobj, dest: Path) -> Path:
-    """Extract a zip safely into ``dest``; return the survey root (possibly nested one level)."""
+def extract_survey_zip(fileobj, dest: Path, max_bytes: int | None = None) -> Path:
+    """Extract a zip safely into ``dest`` (no absolute or '..' paths, bounded uncompressed size);
+    return the survey root (possibly nested one level)."""
     try:
         zf = zipfile.ZipFile(fileobj)
     except zipfile.BadZipFile:
         raise InputError("upload", None, None, "not a zip archive")
     with zf:
+        total = sum(i.file_size for i in zf.infolist())
+        if max_bytes is not None and total > max_bytes:
+            raise InputError("upload", None, None, f"the archive expands to {total / 2**20:.0f} MB, more than the "
+                             f"{max_bytes / 2**20:.0f} MB allowed")
         for info in zf.infolist():
             name = info.filename
             if name.startswith("__MACOSX/") or name.endswith(".DS_Store"):

@@ -35,8 +35,28 @@ def test_analyst_workflow(live_server, browser_page, tmp_path):
     zpath = tmp_path / "omolon-mini.zip"
     zpath.write_bytes(zip_dir(src))
 
+    bad = tmp_path / "bad" / "omolon-mini"
+    shutil.copytree(src, bad)
+    rows = (bad / "lines.csv").read_text().splitlines()
+    cols = rows[0].split(",")
+    cells = rows[2].split(",")
+    cells[cols.index("t_start")] = "12:30"
+    rows[2] = ",".join(cells)
+    (bad / "lines.csv").write_text("\n".join(rows) + "\n")
+    bad_zip = tmp_path / "bad.zip"
+    bad_zip.write_bytes(zip_dir(bad))
+
     page.goto(live_server.url)
     page.wait_for_selector("text=Select or import a survey")
+    # --- a malformed file is rejected, the error names file, row and column in place
+    page.set_input_files("#import-file", str(bad_zip))
+    page.click("#import-btn")
+    page.wait_for_selector("#import-error:visible", timeout=60000)
+    msg = page.inner_text("#import-error")
+    assert "lines.csv" in msg and "row 3" in msg and "t_start" in msg, msg
+    assert page.locator("#survey-list li").count() == 0
+    _shot(page, "00-import-error.png")
+    page.errors.clear()  # the 422 above is expected
     # --- import with the upload progress bar
     page.set_input_files("#import-file", str(zpath))
     page.click("#import-btn")

@@ -95,6 +95,19 @@ def test_upload_over_limit_is_413(make_client, tiny_zip):
     assert client.get("/api/surveys").json() == [] and _stored_surveys(client) == []
 
 
+def test_zip_bomb_refused(make_client):
+    client = make_client(max_upload_mb=0.05)
+    buf = io.BytesIO()
+    import zipfile
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        zf.writestr("s/survey.toml", "[survey]\n")
+        zf.writestr("s/flights/f1/gnss.csv", b"0" * (2 * 1024 * 1024))  # 2 MB of zeros, ~2 kB compressed
+    assert len(buf.getvalue()) < 0.05 * 1024 * 1024
+    r = import_zip(client, buf.getvalue())
+    assert r.status_code == 422 and "expands to" in r.json()["detail"]["message"]
+    assert client.get("/api/surveys").json() == [] and not _tmp_left(client)
+
+
 def test_upload_over_limit_streamed_without_length(make_client):
     client = make_client(max_upload_mb=0.01)
 

@@ -15,7 +15,8 @@ from sqlalchemy.orm import Session
 from app.io.errors import InputError
 
 from ..db import Job, Survey
-from ..deps import get_db, get_store, get_survey_or_404, get_survey_reader
+from ..deps import get_db, get_settings, get_store, get_survey_or_404, get_survey_reader
+from ..settings import Settings
 from ..schemas import FlightOut, JobOut, LineOut, QCOut, SurveyCreate, SurveyOut
 from ..services import import_survey_tree, install_snapshot, validate
 from ..store import SAFE_NAME, Store, extract_survey_zip
@@ -58,11 +59,12 @@ def get_survey(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get
 @router.post("/import", response_model=SurveyOut, status_code=201)
 def import_survey(file: UploadFile = File(..., description="zip of a survey directory (may be nested one level)"),
                   db: Session = Depends(get_db), store: Store = Depends(get_store),
-                  reader: Callable = Depends(get_survey_reader)) -> SurveyOut:
-    """Validate a zipped survey directory, then store it atomically."""
+                  reader: Callable = Depends(get_survey_reader),
+                  settings: Settings = Depends(get_settings)) -> SurveyOut:
+    """Validate a zipped survey directory, then store it atomically (uncompressed size ≤ 20 × the upload limit)."""
     staging = store.staging_dir()
     try:
-        root = extract_survey_zip(file.file, staging)
+        root = extract_survey_zip(file.file, staging, max_bytes=20 * settings.max_upload_bytes)
         s = import_survey_tree(db, store, reader, root, Path(file.filename or "survey.zip").stem)
         return survey_out(db, s)
     finally:
