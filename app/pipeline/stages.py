@@ -152,12 +152,15 @@ def base_tie(m: FlightMeasurement, base_gravity_mgal: float | None) -> dict:
         return info
     errs, times = [], []
     for a, b in segs:
-        z = m.z_mgal[a:b]
-        ok = np.isfinite(z)
+        # at rest V̇ = 0 exactly: use the gravimeter alone (the GNSS velocity noise would
+        # add ~2·10⁴ mGal per epoch to z); the mean of interval means over the segment is
+        # the mean reading
+        reading = m.fbar_ms2[a:b] * 1e5 - m.gamma_mgal[a:b]
+        ok = np.isfinite(reading)
         if ok.sum() < 10:
             continue
         g_minus_gamma = (base_gravity_mgal - m.gamma_mgal[a:b][ok]) if base_gravity_mgal is not None else 0.0
-        e = float(np.median(z[ok] - g_minus_gamma))
+        e = float(np.mean(reading[ok] - g_minus_gamma))
         errs.append(e)
         times.append(float(np.mean(m.t_s[a:b])))
         info["static_periods"].append({"t_start": float(m.t_s[a]), "t_end": float(m.t_s[b - 1]),
