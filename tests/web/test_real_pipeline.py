@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import io
+import os
+import signal
+import time
 from pathlib import Path
 
 import numpy as np
@@ -56,6 +59,29 @@ def test_real_pipeline_local_and_dask_agree(make_client, sample_zip, tmp_path):
     assert {"dg_mgal", "dg_std_mgal", "state"} <= set(r_df.columns)
     g = local.get(f"/api/surveys/{sid}/grid").json()
     assert g["crs"] == "EPSG:32657" and len(g["crossovers"]) > 0 and len(g["lines"]) == 16
+
+    # a worker killed in the middle of a real job: job failed with the reason, results intact
+    grid_before = local.get(f"/api/surveys/{sid}/grid").json()["dg"]
+    rid_before = local.get(f"/api/surveys/{sid}").json()["current_result_id"]
+    k = local.post(f"/api/surveys/{sid}/jobs", json={"kind": "process", "params": {"em_max_iter": 500}}).json()
+    t_end = time.monotonic() + 120
+    while time.monotonic() < t_end:
+        jj = local.get(f"/api/jobs/{k['id']}").json()
+        if jj["em_iterations"] or jj["status"] != "queued" and jj["stage"] not in (None, "queued", "starting"):
+            break
+        time.sleep(0.05)
+    assert jj["status"] == "running", jj
+    os.kill(local.app.state.jobs.worker_pid(k["id"]), signal.SIGKILL)
+    jj = wait_job(local, k["id"], timeout=30)
+    assert jj["status"] == "failed" and "killed by SIGKILL" in jj["error"]
+    assert local.get(f"/api/surveys/{sid}").json()["current_result_id"] == rid_before
+    assert local.get(f"/api/surveys/{sid}/grid").json()["dg"] == grid_before
+
+    # a restarted server on the same data directory serves the same survey, jobs and results
+    again = make_client(data_dir=tmp_path / "local", pipeline_entry=REAL)
+    assert again.get(f"/api/jobs/{job['id']}").json()["em_iterations"] == em
+    assert again.get(f"/api/jobs/{k['id']}").json()["status"] == "failed"
+    assert again.get(f"/api/surveys/{sid}/grid").json()["dg"] == grid_before
 
     with distributed.LocalCluster(n_workers=1, processes=False, threads_per_worker=1, host="127.0.0.1",
                                   protocol="tcp://", dashboard_address=None) as cluster:

@@ -39,7 +39,7 @@ export async function render(sec, ctx) {
     const traces = [field];
     if (linesIn.checked) {
       g.lines.forEach((l, i) => traces.push({ x: l.easting_km, y: l.northing_km, type: "scatter", mode: "lines",
-        line: { color: l.kind === "tie" ? "rgba(60,60,60,0.8)" : "rgba(0,0,0,0.55)", width: 1, dash: l.kind === "tie" ? "dash" : "solid" },
+        line: { color: isStd ? "rgba(255,255,255,0.75)" : (l.kind === "tie" ? "rgba(60,60,60,0.8)" : "rgba(0,0,0,0.55)"), width: 1, dash: l.kind === "tie" ? "dash" : "solid" },
         name: "lines", legendgroup: "lines", showlegend: i === 0, hovertemplate: `line ${l.line}<extra></extra>` }));
     }
     // overlapping repeat passes are not crossings: show main/tie intersections only
