@@ -95,11 +95,20 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     p = cfg.processing
 
     tr.start("measurement")
+    tau_s = scale = None
+    calibration = None
+    if p.calibrate:
+        first = sorted(survey.flights)[0]
+        try:
+            calibration = stages.calibrate_gravimeter(survey.flights[first], cfg)
+            tau_s, scale = calibration["tau_s"], calibration["k"]
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            warnings.append(f"in-flight calibration failed, nominal tau/scale used: {exc}")
     flights = {}
     base_ties: dict = {}
     names = list(survey.flights)
     for i, name in enumerate(names):
-        flights[name] = stages.measure_flight(survey.flights[name], cfg)
+        flights[name] = stages.measure_flight(survey.flights[name], cfg, tau_s=tau_s, scale=scale)
         warnings.extend(f"flight {name}: {n}" for n in flights[name].notes)
         base_ties[name] = stages.base_tie(flights[name], cfg.gravimeter.base_gravity_mgal)
         tr.emit((i + 1) / len(names))
@@ -263,6 +272,8 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     report = _report(survey, table, flights, crs, crossovers, lev_report, reg, em, tr.timings,
                      warnings, grid)
     report["base_ties"] = base_ties
+    if calibration is not None:
+        report["calibration"] = calibration
     if level_fit is not None:
         report["level_refinement"] = {"Q_mgal2": level_fit.Q_mgal2.tolist(),
                                       "R_cm2s2" if not r_local else "R_local_scale": level_fit.R_cm2s2.tolist(),

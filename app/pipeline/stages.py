@@ -186,6 +186,57 @@ def base_tie(m: FlightMeasurement, base_gravity_mgal: float | None) -> dict:
     return info
 
 
+def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600.0) -> dict:
+    """In-flight calibration of τ and k (seed 001 §3–4) on one flight's longest airborne
+    stretch without gaps, by frequency-domain weighted least squares.
+
+    The noise spectra come from the data: the GNSS noise level from the high-frequency
+    content of z, a random-walk anomaly of 0.01 mGal² per step and 1 mGal² gravimeter
+    noise per epoch (their exact values only weight the frequencies).
+
+    Returns
+    -------
+    dict
+        ``tau_s``, ``k``, their standard errors (from D_XX) and the segment used.
+    """
+    from app.core.calibration import CalibrationSpectra, calibrate
+    from app.core.noise_level import local_noise_variance_cm2s2
+
+    m = measure_flight(flight, cfg)
+    t = m.t_s
+    dt = float(np.median(np.diff(t)))
+    moving = np.hypot(m.ve_ms, m.vn_ms) > 20.0
+    ok = moving & np.isfinite(m.fbar_ms2)
+    steps_ok = np.concatenate([[False], np.abs(np.diff(t) - dt) < 0.01 * dt])
+    good = ok & steps_ok
+    d = np.diff(np.concatenate([[0], good.astype(int), [0]]))
+    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    if starts.size == 0:
+        raise ValueError(f"flight {flight.name}: no airborne segment to calibrate on")
+    k = int(np.argmax(stops - starts))
+    a, b = int(starts[k]), int(stops[k])
+    b = min(b, a + int(max_duration_s / dt))
+    gr = flight.gravimeter
+    series = gm.integrate_samples(gr["time"].to_numpy(float), gr["f_z"].to_numpy(float))
+    off = m.time_offset_s if m.time_offset_applied else 0.0
+    tt = t[a - 1:b] if a > 0 else t[a:b]
+    fraw = gm.interval_means(series, tt, 0.0, 1.0, time_offset_s=off)
+    fdot = gm.interval_means(series, tt, 1.0, 1.0, time_offset_s=off) - fraw
+    z = anomaly_measurement_mgal(fraw, tt, m.vu_ms[a - 1:b] if a > 0 else m.vu_ms[a:b],
+                                 m.gamma_mgal[a - 1:b] if a > 0 else m.gamma_mgal[a:b],
+                                 m.eotvos_mgal[a - 1:b] if a > 0 else m.eotvos_mgal[a:b]) * 1e-5
+    sl = slice(1, None)
+    r = float(np.median(local_noise_variance_cm2s2(z[sl] * 1e5, dt)))
+    spectra = CalibrationSpectra.from_epoch_variances(dt, f_var_mgal2=1.0, dg_step_var_mgal2=0.01, r_cm2s2=r)
+    res = calibrate(tt[sl], z[sl], fraw[sl], spectra=spectra, params=("tau", "k"),
+                    tau0_s=cfg.gravimeter.tau_s, k0=cfg.gravimeter.scale, fdot_raw_ms3=fdot[sl])
+    names = list(res.names)
+    return {"flight": flight.name, "t_start": float(tt[1]), "t_end": float(tt[-1]),
+            "tau_s": float(res.tau_s), "k": float(res.k),
+            "std": {n: float(v) for n, v in zip(names, np.asarray(res.std))},
+            "chi2_per_dof": float(getattr(res, "chi2_per_dof", np.nan))}
+
+
 # --------------------------------------------------------------------------- 2. lines
 @dataclass
 class LineData:
