@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.web.conftest import zip_dir
+from tests.web.conftest import make_tiny_survey, zip_dir
 
 from .conftest import SCREENSHOTS
 
@@ -151,3 +151,21 @@ def test_analyst_workflow(live_server, browser_page, tmp_path):
         band = ds.read(1)
         assert band.shape[0] > 5 and band.shape[1] > 5 and np.isfinite(band).sum() > 10
     assert not [e for e in page.errors if "favicon" not in e], page.errors
+
+    # --- a new survey built from an uploaded flight (three files + flight name)
+    tiny = make_tiny_survey(tmp_path / "tiny")
+    page.fill("#new-survey input[name=name]", "Block B")
+    page.click("#new-survey button")
+    page.wait_for_selector("#survey-list li.active:has-text('Block B')")
+    page.wait_for_selector("#flight-upload:not([hidden])")
+    page.fill("#flight-form input[name=flight]", "F21")
+    page.set_input_files("#flight-form input[name=gravimeter]", str(tiny / "flights" / "f1" / "gravimeter.csv"))
+    page.set_input_files("#flight-form input[name=gnss]", str(tiny / "flights" / "f1" / "gnss.csv"))
+    lines = tmp_path / "lines-f21.csv"
+    lines.write_text("line,t_start,t_end,kind\nB1,1010,1140,main\nB2,1150,1280,main\n")
+    page.set_input_files("#flight-form input[name=lines]", str(lines))
+    page.click("#flight-form button[type=submit]")
+    page.click("#tabs button[data-tab=qc]")
+    page.wait_for_selector("#qc-flights td:has-text('F21')", timeout=30000)
+    assert page.locator("#qc-lines tbody tr").count() == 2
+    _shot(page, "12-uploaded-flight-qc.png")
