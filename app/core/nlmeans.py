@@ -65,6 +65,40 @@ class RecognitionMap:
         """Number of unordered pairs of distinct points within ``max_rho_km``."""
         return int(self._d.size)
 
+    def neighbour_sum(self, values, h_per_km: float, rho_km: float, groups=None) -> np.ndarray:
+        """``Σ_j exp(−h·d_ij)·values_j`` over the points ``j ≠ i`` within ``ρ``.
+
+        Parameters
+        ----------
+        values : (T,) or (T, N) array
+        h_per_km, rho_km : float
+            Kernel decay (1/km) and radius (km, ≤ ``max_rho_km``).
+        groups : (T,) array, optional
+            Group label per point (e.g. the line); pairs in the same group are
+            left out, so a line's own evidence (already in its HMM) is not counted twice.
+
+        Returns
+        -------
+        ndarray, shape of ``values``
+        """
+        if not (np.isfinite(h_per_km) and h_per_km >= 0):
+            raise ValueError(f"h_per_km must be finite and >= 0, got {h_per_km}")
+        if not (np.isfinite(rho_km) and 0 <= rho_km <= self.max_rho_km):
+            raise ValueError(f"rho_km must be in [0, {self.max_rho_km}], got {rho_km}")
+        v = np.asarray(values, dtype=float)
+        if v.shape[0] != self.n_points:
+            raise ValueError(f"expected {self.n_points} rows, got {v.shape[0]}")
+        T = self.n_points
+        w = np.where(self._d <= rho_km, np.exp(-h_per_km * self._d), 0.0)
+        if groups is not None:
+            g = np.asarray(groups).reshape(-1)
+            if g.shape != (T,):
+                raise ValueError(f"groups must have shape ({T},)")
+            first = np.repeat(np.arange(T), np.diff(self._indptr))
+            w = np.where(g[first] != g[self._indices], w, 0.0)
+        M = sp.csr_matrix((w, self._indices, self._indptr), shape=(T, T))
+        return M @ v + M.T @ v
+
     def smooth(self, labels_or_probs, h_per_km: float, rho_km: float, mode: str = "soft",
                n_states: int | None = None):
         """Smooth a recognition map.

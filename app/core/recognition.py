@@ -14,7 +14,7 @@ from app.core.mjls_em import (WindowModel, _layout, emission_loglik, forward_bac
                               single_thread_blas)
 
 
-def _prepare(x, c, d, Q, R, transition, initial):
+def _prepare(x, c, d, Q, R, transition, initial, extra_loglik=None):
     x = np.asarray(x, dtype=float)
     if x.ndim != 1 or x.size == 0:
         raise ValueError("x must be a non-empty 1-D array")
@@ -35,10 +35,34 @@ def _prepare(x, c, d, Q, R, transition, initial):
                         Q.size, R.size)
     data = _layout([x], model.p)
     logb = emission_loglik(model, data, Q, R)[0]  # (T, U)
+    if extra_loglik is not None:
+        e = np.asarray(extra_loglik, dtype=float)
+        if e.shape != (x.size, N) or not np.all(np.isfinite(e)):
+            raise ValueError(f"extra_loglik must be a finite ({x.size}, {N}) array")
+        logb = logb + e[:, model.chain.cur]
     return model, data, logb, a, pi
 
 
-def viterbi(x, c, d, Q, R, transition, initial) -> np.ndarray:
+def state_evidence(x, c, d, Q, R) -> np.ndarray:
+    """Per-point log-evidence of each state, shape (T, N), relative to state 0.
+
+    Column ``i`` is ``log p(x_k | window past, window constant in state i)``
+    minus the same for state 0: the local evidence a point carries about its
+    state, without the chain prior.  Summed with distance weights over the
+    points of *neighbouring* lines (:meth:`app.core.nlmeans.RecognitionMap.neighbour_sum`)
+    it is the ``extra_loglik`` of :func:`recognize_lines` (cross-line evidence
+    pooling).
+    """
+    Q = np.atleast_1d(np.asarray(Q, float))
+    R = np.atleast_1d(np.asarray(R, float))
+    N = Q.size * R.size
+    a = np.eye(N)
+    model, _, logb, _, _ = _prepare(x, c, d, Q, R, a, np.full(N, 1.0 / N))
+    ev = logb[:, model.chain.const_index]
+    return ev - ev[:, :1]
+
+
+def viterbi(x, c, d, Q, R, transition, initial, extra_loglik=None) -> np.ndarray:
     """MAP state path of one line by dynamic programming.
 
     Parameters
@@ -47,13 +71,16 @@ def viterbi(x, c, d, Q, R, transition, initial) -> np.ndarray:
     c, d : MA coefficients (K+1,), (L+1,).
     Q : (N1,) mGal²;  R : (N2,) (cm/s)².
     transition : (N, N);  initial : (N,) probabilities of ``s_0`` for this line.
+    extra_loglik : (T, N), optional
+        Additional log-evidence of each state at each point (e.g. pooled from
+        neighbouring lines, see :func:`state_evidence`), added to the emissions.
 
     Returns
     -------
     ndarray of int, shape (T,)
         States ``i*N2 + j`` maximising ``P(S | X, Θ)``.
     """
-    model, _, logb, a, pi = _prepare(x, c, d, Q, R, transition, initial)
+    model, _, logb, a, pi = _prepare(x, c, d, Q, R, transition, initial, extra_loglik)
     ch = model.chain
     with np.errstate(divide="ignore"):
         logA = np.log(ch.transition(a))
@@ -73,12 +100,12 @@ def viterbi(x, c, d, Q, R, transition, initial) -> np.ndarray:
     return ch.cur[path]
 
 
-def posteriors(x, c, d, Q, R, transition, initial) -> np.ndarray:
+def posteriors(x, c, d, Q, R, transition, initial, extra_loglik=None) -> np.ndarray:
     """Posterior state probabilities ``P(s_k = i | X, Θ)`` of one line, shape (T, N).
 
     Same arguments as :func:`viterbi`; rows sum to 1.
     """
-    model, data, logb, a, pi = _prepare(x, c, d, Q, R, transition, initial)
+    model, data, logb, a, pi = _prepare(x, c, d, Q, R, transition, initial, extra_loglik)
     ch = model.chain
     init_super = np.zeros((1, ch.n_super))
     init_super[0, ch.const_index] = pi
@@ -86,11 +113,12 @@ def posteriors(x, c, d, Q, R, transition, initial) -> np.ndarray:
     return gamma[0] @ ch.onehot()
 
 
-def recognize_lines(x_list, c, d, Q, R, transition, initial):
+def recognize_lines(x_list, c, d, Q, R, transition, initial, extra_loglik=None):
     """Viterbi paths and posteriors for several lines.
 
-    ``initial`` is (W, N) (one row per line) or (N,) shared.  Returns
-    ``(states_list, posteriors_list)``.
+    ``initial`` is (W, N) (one row per line) or (N,) shared; ``extra_loglik``
+    an optional list of (T_w, N) additional log-evidence per line (see
+    :func:`viterbi`).  Returns ``(states_list, posteriors_list)``.
     """
     pis = np.asarray(initial, float)
     if pis.ndim == 1:
@@ -101,8 +129,9 @@ def recognize_lines(x_list, c, d, Q, R, transition, initial):
     with single_thread_blas():
         for w, x in enumerate(x_list):
             try:
-                states.append(viterbi(x, c, d, Q, R, transition, pis[w]))
-                probs.append(posteriors(x, c, d, Q, R, transition, pis[w]))
+                ex = None if extra_loglik is None else extra_loglik[w]
+                states.append(viterbi(x, c, d, Q, R, transition, pis[w], ex))
+                probs.append(posteriors(x, c, d, Q, R, transition, pis[w], ex))
             except ValueError as exc:
                 raise ValueError(f"line {w}: {exc}") from None
     return states, probs

@@ -118,3 +118,15 @@ def test_validation():
         RecognitionMap([0.0, np.nan], [0.0, 1.0])
     with pytest.raises(ValueError):
         rm.smooth(np.array([[0.5, 0.5], [np.nan, 1.0], [0.0, 1.0]]), 1.0, 1.0, mode="soft")
+
+
+def test_neighbour_sum_excludes_own_group_and_matches_brute_force():
+    rng = np.random.default_rng(3)
+    e, n = rng.uniform(0, 10, 60), rng.uniform(0, 10, 60)
+    g = rng.integers(0, 4, 60)
+    v = rng.standard_normal((60, 2))
+    rm = RecognitionMap(e, n, max_rho_km=6.0)
+    got = rm.neighbour_sum(v, 0.7, 4.0, groups=g)
+    d = np.hypot(e[:, None] - e[None, :], n[:, None] - n[None, :])
+    w = np.where((d <= 4.0) & (g[:, None] != g[None, :]), np.exp(-0.7 * d), 0.0)
+    np.testing.assert_allclose(got, w @ v, rtol=1e-12, atol=1e-12)

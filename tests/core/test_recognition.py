@@ -175,3 +175,21 @@ def test_validation():
         viterbi(np.ones(5), [1.0], [0.5], [1.0, 2.0], [1.0], a * 2, [0.5, 0.5])
     with pytest.raises(ValueError, match="probability"):
         posteriors(np.ones(5), [1.0], [0.5], [1.0, 2.0], [1.0], a, [0.5, 0.6])
+
+
+def test_extra_loglik_zero_is_neutral_and_strong_evidence_wins():
+    from app.core.recognition import state_evidence
+    rng = np.random.default_rng(7)
+    c, d = [1.0, 0.5], [0.8, -0.8]
+    x = rng.standard_normal(80)
+    Q, R, a, pi = [0.2, 2.0], [1.0], np.array([[0.95, 0.05], [0.1, 0.9]]), np.array([0.5, 0.5])
+    base = posteriors(x, c, d, Q, R, a, pi)
+    np.testing.assert_allclose(posteriors(x, c, d, Q, R, a, pi, np.zeros((80, 2))), base, atol=1e-12)
+    ev = state_evidence(x, c, d, Q, R)
+    assert ev.shape == (80, 2) and np.all(ev[:, 0] == 0)
+    push = np.zeros((80, 2))
+    push[:, 1] = 50.0
+    assert np.all(viterbi(x, c, d, Q, R, a, pi, push) == 1)
+    # a (K+1, 1) block coefficient is the same model as the 1-D one
+    np.testing.assert_allclose(posteriors(x, np.array(c)[:, None], np.array(d)[:, None], Q, R, a, pi), base,
+                               atol=1e-10)
