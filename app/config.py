@@ -70,6 +70,10 @@ class ProcessingParams(_Strict):
         "local", description="GNSS noise level for filtering: 'local' = R(t) from the high-frequency content of z "
         "(scaled by maximum likelihood); 'states' = the recognised R_j levels (seed 000)")
     refine_max_epochs: int = Field(300_000, ge=1000, description="Cap on epochs used by the level refinement")
+    recognition_pool_h_per_km: float = Field(0.7, ge=0, description="Decay of the weights with which neighbouring "
+                                             "lines' evidence about the anomaly intensity enters each line's recognition")
+    recognition_pool_rho_km: float = Field(5.0, ge=0, le=15, description="Radius of that evidence pooling (km); 0 = off "
+                                           "(the paper's per-line recognition)")
     # --- recognition smoothing (step 4)
     nlmeans_h_per_km: float = Field(1.4, ge=0)
     nlmeans_rho_km: float = Field(5.0, ge=0)

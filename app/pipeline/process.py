@@ -158,7 +158,7 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
         Q, R, transition = em.Q, em.R, em.transition
         initial = initial_all
 
-    paths, probs = stages.recognize(reg, _EMView)
+    paths, probs = stages.recognize(reg, _EMView, cfg)
     rec = stages.recognition_table(reg, paths, probs)
 
     tr.start("nlmeans")

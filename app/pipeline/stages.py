@@ -393,14 +393,49 @@ def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
     return em
 
 
-def recognize(reg: Regularized, em) -> tuple[list, list]:
+def pooled_evidence(reg: Regularized, em, h_per_km: float, rho_km: float) -> list | None:
+    """Cross-line evidence for each line's recognition (the anomaly-intensity part only).
+
+    Each decimated point's log-evidence for the Q levels (relative to the smoothest),
+    summed with weights ``exp(−h·d)`` over the points of *other* lines within ``ρ``:
+    the anomaly's statistics are a property of the place, so neighbouring lines carry
+    evidence about it; the GNSS noise levels are not (episodes are in time), so the
+    R part is marginalised out before pooling.  Returns one (T_w, N) array per line,
+    or None when pooling is off (ρ = 0)."""
+    from app.core.nlmeans import RecognitionMap
+    from app.core.recognition import state_evidence
+
+    if rho_km <= 0 or len(reg.x) < 2:
+        return None
+    n_q, n_r = len(em.Q), len(em.R)
+    ev = np.concatenate([state_evidence(x, reg.ma.c, reg.ma.d, em.Q, em.R) for x in reg.x])
+    ev = ev.reshape(len(ev), n_q, n_r)
+    top = ev.max(axis=2, keepdims=True)
+    ev_q = (top + np.log(np.mean(np.exp(ev - top), axis=2, keepdims=True)))[:, :, 0]
+    ev_q = ev_q - ev_q[:, :1]
+    e = np.concatenate([ln.easting_km[i] for ln, i in zip(reg.lines, reg.idx)])
+    n = np.concatenate([ln.northing_km[i] for ln, i in zip(reg.lines, reg.idx)])
+    line_id = np.concatenate([np.full(len(x), w) for w, x in enumerate(reg.x)])
+    rmap = RecognitionMap(e, n, max_rho_km=max(rho_km, 1e-6))
+    pooled_q = rmap.neighbour_sum(ev_q, h_per_km, rho_km, groups=line_id)
+    pooled = np.repeat(pooled_q, n_r, axis=1)
+    return np.split(pooled, np.cumsum([len(x) for x in reg.x])[:-1])
+
+
+def recognize(reg: Regularized, em, cfg: SurveyConfig | None = None) -> tuple[list, list]:
     """Viterbi path and posterior probabilities per line (SPEC §2 step 3).
 
-    ``em.initial`` must hold one row of initial probabilities per regularized line."""
+    ``em.initial`` must hold one row of initial probabilities per regularized line.
+    With ``processing.recognition_pool_rho_km > 0`` the evidence of neighbouring lines
+    about the anomaly intensity is added to each line's emissions (:func:`pooled_evidence`)."""
     from app.core.recognition import recognize_lines
 
+    extra = None
+    if cfg is not None:
+        p = cfg.processing
+        extra = pooled_evidence(reg, em, p.recognition_pool_h_per_km, p.recognition_pool_rho_km)
     paths, probs = recognize_lines(reg.x, reg.ma.c, reg.ma.d, em.Q, em.R, em.transition,
-                                   np.asarray(em.initial))
+                                   np.asarray(em.initial), extra_loglik=extra)
     return [np.asarray(s, int) for s in paths], [np.asarray(p, float) for p in probs]
 
 
