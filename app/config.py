@@ -46,7 +46,8 @@ class ProcessingParams(_Strict):
     apply_time_offset: bool = Field(True, description="Shift the gravimeter time scale by the cross-correlation estimate")
     max_time_offset_s: float = Field(2.0, gt=0)
     # --- anomaly model
-    m: int = Field(2, ge=1, le=3, description="Order of the difference operator ∇^m δg = q")
+    m: int | None = Field(None, ge=1, le=3, description="Order of the difference operator ∇^m δg = q; None "
+                          "chooses 1 or 2 by the full-rate likelihood of the data")
     # --- regularization (SPEC §2 step 1)
     decimation_n: int | None = Field(None, ge=2, description="Decimation factor n; chosen for ~1 km steps when None")
     decimation_step_km: float = Field(1.0, gt=0)

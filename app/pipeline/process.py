@@ -116,6 +116,23 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     lines = stages.cut_lines(survey.lines, flights, crs)
     dt_s = float(np.median(np.concatenate([np.diff(m.t_s) for m in flights.values()])))
 
+    order = None
+    if p.m is None:
+        from app.core.level_ml import select_order
+        from app.core.noise_level import local_noise_variance_cm2s2
+
+        zl, rl = [], []
+        for ln in lines:
+            if ln.kind == "tie" or ln.z_mgal.size < 100:
+                continue
+            z = ln.z_mgal
+            zl.append(z)
+            rl.append(local_noise_variance_cm2s2(z, dt_s))
+        if not zl:
+            zl = [ln.z_mgal for ln in lines]
+            rl = [local_noise_variance_cm2s2(z, dt_s) for z in zl]
+        order = select_order(zl, rl, dt_s)
+        p.m = order.m
     tr.start("fir")
     fir = {name: stages.fir_baseline(m, p.fir_cutoff_period_s) for name, m in flights.items()}
 
@@ -272,6 +289,9 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     report = _report(survey, table, flights, crs, crossovers, lev_report, reg, em, tr.timings,
                      warnings, grid)
     report["base_ties"] = base_ties
+    if order is not None:
+        report["model_order"] = {"m": order.m, "loglik": {str(k): v for k, v in order.loglik.items()},
+                                 "Q_stationary_mgal2": {str(k): v for k, v in order.Q_mgal2.items()}}
     if calibration is not None:
         report["calibration"] = calibration
     if level_fit is not None:
