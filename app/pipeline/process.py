@@ -140,6 +140,10 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     reg = stages.regularize_lines(lines, cfg, dt_s)
     for ln, why in reg.skipped.items():
         warnings.append(f"line {ln} not identified: {why}")
+    n_dec = sum(len(x) for x in reg.x)
+    if n_dec < 200:
+        warnings.append(f"identification from only {n_dec} decimated points ({len(reg.x)} lines): "
+                        "the learned Q/R levels and transitions are unreliable")
     learn_mask = [ln.kind != "tie" or p.include_tie_lines for ln in reg.lines]
     if sum(learn_mask) == 0:
         learn_mask = [True] * len(reg.lines)
@@ -365,7 +369,11 @@ def _grid(table: pd.DataFrame, p, warnings: list):
         kw = {} if p.grid_mask_km is None else {"mask_km": p.grid_mask_km}
         est.fit(table["easting_km"].to_numpy(), table["northing_km"].to_numpy(),
                 table["dg_mgal"].to_numpy(), table["dg_std_mgal"].to_numpy(), line=table["line"].to_numpy())
-        return est.grid(spacing_km=p.grid_spacing_km, **kw)
+        g = est.grid(spacing_km=p.grid_spacing_km, **kw)
+        if len(g[0]) < 2 or len(g[1]) < 2 or not np.isfinite(g[2]).any():
+            raise ValueError("the lines span less than two grid cells in one direction: no map to grid "
+                             "(grid files not written)")
+        return g
     except ValueError as exc:
         warnings.append(f"gridding: {exc}")
         return None
