@@ -185,6 +185,15 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     tr.start("nlmeans")
     labels, sprobs, _ = stages.smooth_recognition(rec, n_states, p.nlmeans_h_per_km, p.nlmeans_rho_km,
                                                   p.nlmeans_mode)
+    n_q_, n_r_ = len(em.Q), len(em.R)
+    if n_r_ > 1:
+        # The anomaly intensity is a property of the place, the GNSS noise level of the
+        # moment: decide the Q level on the smoothed map's marginal, the R level on the
+        # line's own posterior given that Q level.
+        raw = rec[[f"p_{i}" for i in range(n_states)]].to_numpy().reshape(-1, n_q_, n_r_)
+        i_q = sprobs.reshape(-1, n_q_, n_r_).sum(axis=2).argmax(axis=1)
+        j_r = raw[np.arange(len(i_q)), i_q, :].argmax(axis=1)
+        labels = i_q * n_r_ + j_r
     rec["state_smoothed"] = labels
     for i in range(n_states):
         rec[f"p_{i}"] = sprobs[:, i]  # SPEC §5: p_i are the smoothed map's probabilities
