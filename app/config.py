@@ -86,7 +86,7 @@ class ProcessingParams(_Strict):
     calibrate: bool = False
     leveling_degree: int = Field(1, ge=0, le=2)
     leveling_per_flight: bool = Field(True, description="One drift polynomial per flight (the instrument drifts, not the line); False: one per line")
-    leveling_include_repeat: bool = Field(True, description="Use repeat lines' crossings in leveling")
+    leveling_include_repeat: bool = Field(False, description="Use repeat lines' crossings in leveling (repeats of one track overlap along their whole length; with per-flight leveling they are corrected through their flight)")
     grid_error_corr_km: float = Field(1.0, ge=0, description="Along-line error correlation length for thinning in collocation")
     grid_spacing_km: float = Field(1.0, gt=0)
     gridding: Literal["collocation", "spline"] = "collocation"
