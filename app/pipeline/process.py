@@ -278,7 +278,7 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     crossovers, lev_report = _level(table, p, warnings)
 
     tr.start("gridding")
-    grid = _grid(table, p, warnings)
+    grid = _grid(table, p, warnings, lev_report.get("rms_after_mgal"))
 
     tr.start("writing")
     from app.io import export
@@ -370,11 +370,17 @@ def _level(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFrame, dict]:
     return cx[cols], rep
 
 
-def _grid(table: pd.DataFrame, p, warnings: list):
+def _grid(table: pd.DataFrame, p, warnings: list, crossover_rms_mgal: float | None = None):
     from app.core.gridding import Collocation, Spline
 
     try:
-        est = Collocation(error_corr_km=p.grid_error_corr_km) if p.gridding == "collocation" else Spline()
+        # what the crossovers still disagree by, beyond the lines' own posterior std, is an
+        # error shared along each line (leveling residual): model it as such in the grid's std
+        line_err = 0.0
+        if crossover_rms_mgal is not None and np.isfinite(crossover_rms_mgal):
+            line_err = max(0.0, crossover_rms_mgal ** 2 / 2.0 - float(np.mean(table["dg_std_mgal"] ** 2)))
+        est = (Collocation(error_corr_km=p.grid_error_corr_km, line_error_mgal2=line_err)
+               if p.gridding == "collocation" else Spline())
         kw = {} if p.grid_mask_km is None else {"mask_km": p.grid_mask_km}
         est.fit(table["easting_km"].to_numpy(), table["northing_km"].to_numpy(),
                 table["dg_mgal"].to_numpy(), table["dg_std_mgal"].to_numpy(), line=table["line"].to_numpy())
