@@ -87,6 +87,10 @@ class ProcessingParams(_Strict):
     leveling_degree: int = Field(1, ge=0, le=2)
     leveling_per_flight: bool = Field(True, description="One drift polynomial per flight (the instrument drifts, not the line); False: one per line")
     leveling_include_repeat: bool = Field(False, description="Use repeat lines' crossings in leveling (repeats of one track overlap along their whole length; with per-flight leveling they are corrected through their flight)")
+    grid_line_error_fraction: float = Field(0.0, ge=0, le=1, description="Share of the lines' posterior variance "
+                                            "treated as an error shared along each line in the collocation")
+    grid_std_cross_validate: bool = Field(False, description="Scale the grid std up by the RMS of leave-line-out "
+                                          "normalised residuals when the collocation model under-states it")
     grid_error_corr_km: float = Field(1.0, ge=0, description="Along-line error correlation length for thinning in collocation")
     grid_spacing_km: float = Field(1.0, gt=0)
     gridding: Literal["collocation", "spline"] = "collocation"
