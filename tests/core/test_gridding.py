@@ -242,3 +242,22 @@ def test_collocation_with_per_line_offsets():
     assert np.all(with_line[:, 1] >= 0.88)                  # calibrated
     assert np.all(without[:, 1] < 0.8)                      # ignoring the line errors is overconfident
     assert with_line[:, 0].mean() < without[:, 0].mean()
+
+
+def test_cross_validated_std_factor_near_one_for_a_correct_model():
+    """Leave-line-out normalised residuals have unit RMS when the model matches the field,
+    and a grossly over-confident data std shows up as a factor well above 1."""
+    from app.core.gridding import cross_validated_std_factor
+
+    e, n, obs, lab, *_ = _simulate(11, noise=1.0, nlines=8)
+    std = np.full(e.size, 1.0)
+    make = lambda: Collocation(error_corr_km=0.0)  # noqa: E731  white errors, as simulated
+    good = cross_validated_std_factor(make, e, n, obs, std, lab, n_folds=6)
+    assert 0.7 < good["factor"] < 1.4
+    # per-line offsets of 6 mGal that the stated 1 mGal std does not admit
+    names, inv = np.unique(lab, return_inverse=True)
+    obs_bad = obs + np.random.default_rng(2).normal(0, 6.0, names.size)[inv]
+    bad = cross_validated_std_factor(make, e, n, obs_bad, std, lab, n_folds=6)
+    assert bad["factor"] > 1.5 * good["factor"]
+    with pytest.raises(ValueError):
+        cross_validated_std_factor(make, e[:10], n[:10], obs[:10], std[:10], lab[:10])
