@@ -71,7 +71,7 @@ def select_subset(lengths, states_per_line, n_states: int, max_epochs: int, seed
 
 def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
                   max_epochs: int = 300_000, max_evaluations: int | None = None,
-                  log_bounds: float = 6.0, r_base_lines=None) -> LevelFit:
+                  log_bounds: float = 6.0, r_base_lines=None, fit_r: bool = True) -> LevelFit:
     """Maximise the full-rate Kalman likelihood over the level values.
 
     Parameters
@@ -96,6 +96,10 @@ def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
         Per-epoch noise levels (cm/s)² (e.g. :func:`app.core.noise_level.local_noise_variance_cm2s2`).
         When given, ``R(t) = α·r_base(t)`` and the single factor α replaces the R_j levels
         (returned as ``R_cm2s2 = [α]``).
+    fit_r : bool
+        Estimate the noise levels (or α) too; False keeps them at their start values and
+        fits the Q levels only (the noise level then comes from elsewhere, e.g. the EM on
+        the regularized band, which is robust to coloured GNSS noise).
 
     Returns
     -------
@@ -123,6 +127,8 @@ def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
     else:
         R0 = np.array([1.0])
         r_free = [0]
+    if not fit_r:
+        r_free = []
     # A level collapsed towards 0 sits on a flat part of the likelihood (log scale):
     # start it at 1e-3 of the largest level so the search can see its effect.
     Q0 = np.maximum(Q0, 1e-3 * Q0.max())

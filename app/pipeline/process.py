@@ -234,18 +234,22 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
                          r_local[ln.flight][a0:a1] if r_local else None))
     level_fit = None
     r_scale = 1.0
+    if r_local:
+        # The level of R(t) comes from the EM on the regularized band — what the smoother's
+        # pass band sees.  The high-frequency estimate only gives its shape in time: with
+        # coloured GNSS velocity noise the band level is many times the white level.
+        hf = np.concatenate([t[5][np.asarray(t[2]) % n_r == 0] for t in prepared])
+        if hf.size:
+            r_scale = float(np.clip(Rs[0] / np.median(hf), 0.5, 1e4))
     if p.refine_levels:
         from app.core.level_ml import refine_levels
 
         try:
             level_fit = refine_levels([t[3] for t in prepared], [t[2] for t in prepared], Qs, Rs, dt_s, p.m,
                                       max_epochs=p.refine_max_epochs,
-                                      r_base_lines=[t[5] for t in prepared] if r_local else None)
+                                      r_base_lines=[r_scale * t[5] for t in prepared] if r_local else None,
+                                      fit_r=False)
             Qs = level_fit.Q_mgal2
-            if r_local:
-                r_scale = float(level_fit.R_cm2s2[0])
-            else:
-                Rs = level_fit.R_cm2s2
         except (ValueError, FloatingPointError) as exc:
             warnings.append(f"level refinement skipped: {exc}")
     if r_local:
@@ -312,7 +316,7 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
         report["calibration"] = calibration
     if level_fit is not None:
         report["level_refinement"] = {"Q_mgal2": level_fit.Q_mgal2.tolist(),
-                                      "R_cm2s2" if not r_local else "R_local_scale": level_fit.R_cm2s2.tolist(),
+                                      "R_local_scale": r_scale,
                                       "noise_model": p.noise_model,
                                       "loglik_gain": level_fit.loglik - level_fit.loglik_start,
                                       "n_epochs": level_fit.n_epochs, "n_evaluations": level_fit.n_evaluations}

@@ -89,6 +89,8 @@ class SimConfig:
     # --- GNSS
     gnss_rate_hz: float = 10.0
     sigma_vu_cms: float = 1.3
+    vu_colored_cms: float = 0.0          # extra exponentially correlated (Gauss-Markov) vu error, std
+    vu_colored_tau_s: float = 5.0        # its correlation time
     sigma_vh_cms: float = 1.0
     sigma_pos_m: float = 0.02
     sigma_h_m: float = 0.03

@@ -245,7 +245,7 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
         "lat": lat + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / (r_m + h)),
         "lon": lon + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / ((r_n + h) * np.cos(np.deg2rad(lat)))),
         "h": h + rng.standard_normal(n) * cfg.sigma_h_m,
-        "vu": vu + rng.standard_normal(n) * sig_vu,
+        "vu": vu + rng.standard_normal(n) * sig_vu + _colored_noise(tg, cfg),
         "ve": ve + rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
         "vn": vn + rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
         # receiver's formal sigma: follows the true level, imperfectly
@@ -494,4 +494,20 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
     report("write", 0.9)
     out = write_survey(out_dir, toml, lines, flights, truth_lines, grid, truth_json, compress=cfg.compress)
     report("done", 1.0, {"seconds": _time.perf_counter() - clock})
+    return out
+
+
+def _colored_noise(t, cfg) -> np.ndarray:
+    """Exponentially correlated GNSS velocity error (m/s), not the white noise the model
+    assumes; its own random stream so the rest of the survey is unchanged."""
+    if cfg.vu_colored_cms <= 0:
+        return np.zeros(t.size)
+    g = np.random.default_rng(abs(hash((float(t[0]), cfg.vu_colored_tau_s))) % (2 ** 32))
+    dt = np.diff(t, prepend=t[0])
+    a = np.exp(-dt / cfg.vu_colored_tau_s)
+    w = g.standard_normal(t.size) * cfg.vu_colored_cms / 100.0
+    out = np.empty(t.size)
+    out[0] = w[0]
+    for i in range(1, t.size):
+        out[i] = a[i] * out[i - 1] + np.sqrt(1.0 - a[i] ** 2) * w[i]
     return out

@@ -484,3 +484,22 @@ def test_apron_off_and_airborne_data_unchanged(tmp_path):
         pd.testing.assert_frame_equal(_airborne(fa), fb)
     pd.testing.assert_frame_equal(pd.read_parquet(a / "truth" / "lines.parquet"),
                                   pd.read_parquet(b / "truth" / "lines.parquet"))
+
+
+def test_coloured_gnss_velocity_noise_option(tmp_path):
+    """`vu_colored_cms` adds a Gauss–Markov velocity error of the stated std and correlation
+    time on top of the white noise (for testing the pipeline on non-white GNSS noise)."""
+    import numpy as np
+
+    from app.simulate.presets import PRESETS
+    from app.simulate.run import _colored_noise
+
+    cfg = PRESETS["tiny"].__class__(**{**PRESETS["tiny"].__dict__, "vu_colored_cms": 2.0, "vu_colored_tau_s": 5.0})
+    t = np.arange(0.0, 20000.0, 0.1)
+    x = _colored_noise(t, cfg) * 100.0   # cm/s
+    assert np.std(x) == pytest.approx(2.0, rel=0.05)
+    lag = 50                             # 5 s = τ
+    r = np.corrcoef(x[:-lag], x[lag:])[0, 1]
+    assert r == pytest.approx(np.exp(-1.0), abs=0.05)
+    cfg0 = PRESETS["tiny"]
+    assert np.all(_colored_noise(t, cfg0) == 0.0)
