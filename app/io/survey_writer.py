@@ -19,7 +19,7 @@ import pandas as pd
 
 #: decimals written per column (resolution well below the simulated noise)
 GRAV_DECIMALS = {"time": 3, "f_z": 8, "f_x": 4, "f_y": 4}
-GNSS_DECIMALS = {"time": 1, "lat": 8, "lon": 8, "h": 3, "vu": 5, "ve": 3, "vn": 3, "sigma_v": 4}
+GNSS_DECIMALS = {"time": 3, "lat": 8, "lon": 8, "h": 3, "vu": 5, "ve": 3, "vn": 3, "sigma_v": 4}
 GRAV_COLUMNS = ["time", "f_z", "f_x", "f_y"]
 GNSS_COLUMNS = ["time", "lat", "lon", "h", "vu", "ve", "vn", "sigma_v"]
 LINES_COLUMNS = ["line", "flight", "t_start", "t_end", "kind", "track"]

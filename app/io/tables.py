@@ -247,9 +247,9 @@ def check_time_increasing(t: np.ndarray, rows: np.ndarray, display: str, column:
     if bad.size:
         i = int(bad[0]) + 1
         if dt[i - 1] == 0:
-            msg = f"time {t[i]!r} is repeated (same as the previous row)"
+            msg = f"time {float(t[i]):.6f} is repeated (same as the previous row)"
         else:
-            msg = f"time goes backwards: {t[i]!r} after {t[i - 1]!r}"
+            msg = f"time goes backwards: {float(t[i]):.6f} after {float(t[i - 1]):.6f}"
         raise InputError(display, int(rows[i]), column, msg)
 
 

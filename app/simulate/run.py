@@ -265,7 +265,7 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
         grav = pd.concat([parts[0][0], grav, parts[1][0]], ignore_index=True)
         gnss = pd.concat([parts[0][1], gnss, parts[1][1]], ignore_index=True)
     epochs = pd.DataFrame({
-        "time": np.round(tg, 1), "easting_km": np.round(x, 6), "northing_km": np.round(y, 6),
+        "time": np.round(tg, 3), "easting_km": np.round(x, 6), "northing_km": np.round(y, 6),
         "dg_true_mgal": np.round(dg, 5), "R_true_cm2s2": (sig_vu * 100.0) ** 2,
         "drift_mgal": np.round(drift_at, 4), "vu_true_ms": np.round(vu, 5),
     })
