@@ -85,6 +85,9 @@ class ProcessingParams(_Strict):
     # --- survey level (SPEC §3)
     calibrate: bool = False
     leveling_degree: int = Field(1, ge=0, le=2)
+    leveling_significance: float = Field(0.01, gt=0, le=1, description="Apply the leveling only when the drift "
+                                         "model's F-test against no correction at the crossovers has p below this "
+                                         "(1 = always apply)")
     leveling_per_flight: bool = Field(True, description="One drift polynomial per flight (the instrument drifts, not the line); False: one per line")
     leveling_include_repeat: bool = Field(False, description="Use repeat lines' crossings in leveling (repeats of one track overlap along their whole length; with per-flight leveling they are corrected through their flight)")
     grid_line_error_fraction: float = Field(0.0, ge=0, le=1, description="Share of the lines' posterior variance "

@@ -238,9 +238,11 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
         # The level of R(t) comes from the EM on the regularized band — what the smoother's
         # pass band sees.  The high-frequency estimate only gives its shape in time: with
         # coloured GNSS velocity noise the band level is many times the white level.
+        # Coloured noise only adds low-frequency power, so the band level is never below
+        # the white level: the factor is ≥ 1; and it is trusted only from enough points.
         hf = np.concatenate([t[5][np.asarray(t[2]) % n_r == 0] for t in prepared])
-        if hf.size:
-            r_scale = float(np.clip(Rs[0] / np.median(hf), 0.5, 1e4))
+        if hf.size and n_dec >= 200:
+            r_scale = float(np.clip(Rs[0] / np.median(hf), 1.0, 1e4))
     if p.refine_levels:
         from app.core.level_ml import refine_levels
 
@@ -367,13 +369,38 @@ def _level(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFrame, dict]:
         warnings.append(f"leveling: {exc}")
         cx = cx.assign(diff_before_mgal=cx["dg_a"] - cx["dg_b"], diff_after_mgal=cx["dg_a"] - cx["dg_b"])
         return cx[cols], {"status": f"not leveled: {exc}"}
+    before = (cx["dg_a"] - cx["dg_b"]).to_numpy(float)
+    after = np.asarray(res.diff_after, float)
+    # Is the drift model supported by the crossovers at all?  F-test of the drift
+    # parameters against "no correction": after base ties the crossover differences are
+    # mostly the lines' own errors, and fitting them only adds noise to the lines.
+    ok = np.isfinite(before) & np.isfinite(after)
+    lines_x = set(cx["line_a"].astype(str)) | set(cx["line_b"].astype(str))
+    units = {groups[l] for l in lines_x} if groups else lines_x
+    k = max(1, (len(units) - 1) * (p.leveling_degree + 1))
+    n = int(ok.sum())
+    ssr0 = float(np.sum(before[ok] ** 2))
+    ssr1 = float(np.sum(after[ok] ** 2))
+    p_value = 0.0
+    if n > k + 1 and ssr1 > 0:
+        from scipy.stats import f as f_dist
+
+        F = ((ssr0 - ssr1) / k) / (ssr1 / (n - k))
+        p_value = float(f_dist.sf(F, k, n - k))
+    rep = {"degree": p.leveling_degree, "per_flight": bool(p.leveling_per_flight), "n_crossovers": int(len(cx)),
+           "rms_before_mgal": float(res.rms_before), "n_drift_parameters": k, "p_value": p_value}
+    if p_value > p.leveling_significance:
+        rep.update(status="not leveled: the drift model is not significant at the crossovers "
+                          f"(F-test p = {p_value:.3g} > {p.leveling_significance})",
+                   rms_after_mgal=float(res.rms_before), rms_after_if_leveled_mgal=float(res.rms_after))
+        cx = cx.assign(diff_before_mgal=before, diff_after_mgal=before)
+        return cx[cols], rep
     corr = np.zeros(len(table))
     for line, g in table.groupby("line", sort=False):
         corr[g.index.to_numpy()] = res.correction(str(line), g["time"].to_numpy())
     table["dg_mgal"] = table["dg_unleveled_mgal"].to_numpy() - corr
-    cx = cx.assign(diff_before_mgal=cx["dg_a"] - cx["dg_b"], diff_after_mgal=np.asarray(res.diff_after))
-    rep = {"status": "leveled", "degree": p.leveling_degree, "n_crossovers": int(len(cx)),
-           "rms_before_mgal": float(res.rms_before), "rms_after_mgal": float(res.rms_after)}
+    cx = cx.assign(diff_before_mgal=before, diff_after_mgal=after)
+    rep.update(status="leveled", rms_after_mgal=float(res.rms_after))
     return cx[cols], rep
 
 

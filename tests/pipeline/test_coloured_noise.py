@@ -11,7 +11,8 @@ def test_adaptive_beats_fir_under_coloured_gnss_noise(tmp_path):
     from app.pipeline.process import process_survey
     from app.simulate import simulate_survey
 
-    survey = simulate_survey("tiny", tmp_path / "s", seed=5, vu_colored_cms=0.8, vu_colored_tau_s=5.0)
+    survey = simulate_survey("omolon-mini", tmp_path / "s", seed=5, n_main=6, n_repeat=0,
+                             vu_colored_cms=0.8, vu_colored_tau_s=5.0)
     out = tmp_path / "out"
     process_survey(survey, out)
     m = merge_truth(pd.read_parquet(out / "lines.parquet"), pd.read_parquet(survey / "truth" / "lines.parquet"))
