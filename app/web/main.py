@@ -10,6 +10,7 @@ from __future__ import annotations
 import hmac
 import json
 import logging
+import os
 from contextlib import asynccontextmanager
 from pathlib import Path
 
@@ -27,7 +28,8 @@ from .store import ResultCache, Store
 
 log = logging.getLogger("aerograv.web")
 
-FRONTEND_DIR = Path(__file__).resolve().parents[2] / "frontend"
+# the checkout's frontend/ (editable install); AEROGRAV_FRONTEND_DIR for installed copies (Dockerfile)
+FRONTEND_DIR = Path(os.environ.get("AEROGRAV_FRONTEND_DIR") or Path(__file__).resolve().parents[2] / "frontend")
 MUTATING = {"POST", "PUT", "PATCH", "DELETE"}
 
 
