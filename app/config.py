@@ -85,6 +85,8 @@ class ProcessingParams(_Strict):
     # --- survey level (SPEC §3)
     calibrate: bool = False
     leveling_degree: int = Field(1, ge=0, le=2)
+    std_crossover_check: bool = Field(True, description="Widen dg_std when the crossover differences exceed what "
+                                      "the two lines' posterior std admit")
     leveling_significance: float = Field(0.01, gt=0, le=1, description="Apply the leveling only when the drift "
                                          "model's F-test against no correction at the crossovers has p below this "
                                          "(1 = always apply)")
