@@ -677,7 +677,7 @@ class Spline(_LineGridder):
 
 
 def cross_validated_std_factor(make_estimator, easting_km, northing_km, dg_mgal, std_mgal, line,
-                               n_folds: int = 8, step_km: float = 1.0, seed: int = 0) -> dict:
+                               n_folds: int = 8, step_km: float = 1.0) -> dict:
     """Leave-line-out check of a gridder's posterior std: the factor to scale it by.
 
     For ``n_folds`` lines spread over the survey, the estimator is fitted without the
@@ -710,7 +710,6 @@ def cross_validated_std_factor(make_estimator, easting_km, northing_km, dg_mgal,
     names = list(dict.fromkeys(lab))
     if len(names) < 3:
         raise ValueError("cross-validation needs at least 3 lines")
-    rng = np.random.default_rng(seed)
     folds = [names[i] for i in np.linspace(0, len(names) - 1, min(n_folds, len(names))).round().astype(int)]
     zs = []
     for name in dict.fromkeys(folds):
@@ -726,7 +725,6 @@ def cross_validated_std_factor(make_estimator, easting_km, northing_km, dg_mgal,
         ok = np.isfinite(pv) & np.isfinite(ps)
         zs.append((pv[ok] - v[pick][ok]) / np.sqrt(ps[ok] ** 2 + s[pick][ok] ** 2))
     z = np.concatenate(zs) if zs else np.zeros(0)
-    del rng
     if z.size == 0:
         raise ValueError("no held-out point could be predicted")
     return {"factor": float(np.sqrt(np.mean(z ** 2))), "n_points": int(z.size), "lines": list(dict.fromkeys(folds))}
