@@ -12,6 +12,7 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Callable
 
 import numpy as np
@@ -118,20 +119,7 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
 
     order = None
     if p.m is None:
-        from app.core.level_ml import select_order
-        from app.core.noise_level import local_noise_variance_cm2s2
-
-        zl, rl = [], []
-        for ln in lines:
-            if ln.kind == "tie" or ln.z_mgal.size < 100:
-                continue
-            z = ln.z_mgal
-            zl.append(z)
-            rl.append(local_noise_variance_cm2s2(z, dt_s))
-        if not zl:
-            zl = [ln.z_mgal for ln in lines]
-            rl = [local_noise_variance_cm2s2(z, dt_s) for z in zl]
-        order = select_order(zl, rl, dt_s)
+        order = stages.choose_model_order(lines, dt_s)
         p.m = order.m
     tr.start("fir")
     fir = {name: stages.fir_baseline(m, p.fir_cutoff_period_s) for name, m in flights.items()}
@@ -175,11 +163,9 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
 
     tr.start("recognition")
 
-    class _EMView:  # per-line initial probabilities for all regularized lines
-        Q, R, transition = em.Q, em.R, em.transition
-        initial = initial_all
-
-    paths, probs = stages.recognize(reg, _EMView, cfg)
+    # Θ with one row of initial probabilities per regularized line
+    theta = SimpleNamespace(Q=em.Q, R=em.R, transition=em.transition, initial=initial_all)
+    paths, probs = stages.recognize(reg, theta, cfg)
     rec = stages.recognition_table(reg, paths, probs)
 
     tr.start("nlmeans")

@@ -4,16 +4,20 @@
 
 1. :func:`measure_flight` — corrections and the measurement ``z_k`` over a whole flight
    (normal gravity, Eötvös, gravimeter time offset, lag/scale inversion, interval means);
-2. :func:`cut_lines` — the survey lines as GNSS-epoch tables with projected positions;
+2. :func:`base_tie` — parking-place readings remove each flight's reading error and drift;
+   :func:`cut_lines` — the survey lines as GNSS-epoch tables with projected positions;
+   :func:`choose_model_order` — m by the full-rate likelihood;
 3. :func:`fir_baseline` — the FIR 100 s low-pass (seed 004) on the whole flight;
 4. :func:`regularize_lines` — ∇^m, Kaiser low-pass, decimation, MA approximation;
 5. :func:`learn` — EM learning of Θ over all lines (the EM iteration table);
 6. :func:`recognize` — Viterbi paths and posterior state probabilities per line;
 7. :func:`smooth_recognition` — NL-means over the recognition map;
-8. :func:`filter_lines` — states held on the full-rate grid, non-stationary Kalman
-   smoother with posterior std, stationary (Q₁, R₁) smoother beside it;
-9. :func:`level` — crossovers and per-line drift polynomials;
-10. :func:`grid` — collocation grid with its std.
+8. :func:`hold_states`, :func:`filter_line` — states held on the full-rate grid, the GNSS
+   noise level R(t) (:mod:`app.core.noise_level`), Q levels refined by the full-rate
+   likelihood (:mod:`app.core.level_ml`), non-stationary Kalman smoother with posterior
+   std, stationary (Q₁, R) smoother beside it;
+9. leveling (crossovers, per-flight drift polynomials, significance test) and
+10. gridding (collocation with its std) — in ``process.py``, on the whole line table.
 """
 
 from __future__ import annotations
@@ -299,6 +303,19 @@ def fill_nan_mgal(z):
         i = np.arange(z.size)
         z[bad] = np.interp(i[bad], i[~bad], z[~bad])
     return z
+
+
+# --------------------------------------------------------------------------- 2b. model order
+def choose_model_order(lines: list[LineData], dt_s: float):
+    """Order m of the anomaly model by the full-rate likelihood of the main lines (SPEC §2
+    leaves m to the analyst; seed 000 notes: choose it by likelihood)."""
+    from app.core.level_ml import select_order
+    from app.core.noise_level import local_noise_variance_cm2s2
+
+    use = [ln for ln in lines if ln.kind != "tie" and ln.z_mgal.size >= 100] or lines
+    zl = [ln.z_mgal for ln in use]
+    rl = [local_noise_variance_cm2s2(z, dt_s) for z in zl]
+    return select_order(zl, rl, dt_s)
 
 
 # --------------------------------------------------------------------------- 3. FIR baseline
