@@ -94,6 +94,9 @@ class ProcessingParams(_Strict):
     leveling_include_repeat: bool = Field(False, description="Use repeat lines' crossings in leveling (repeats of one track overlap along their whole length; with per-flight leveling they are corrected through their flight)")
     grid_line_error_fraction: float = Field(0.0, ge=0, le=1, description="Share of the lines' posterior variance "
                                             "treated as an error shared along each line in the collocation")
+    grid_std_line_floor: bool = Field(True, description="Grid std never below the posterior std of the nearby line "
+                                      "estimates (their errors are correlated along the lines, so averaging them "
+                                      "does not reduce the error as independent data would)")
     grid_std_cross_validate: bool = Field(False, description="Scale the grid std up by the RMS of leave-line-out "
                                           "normalised residuals when the collocation model under-states it")
     grid_error_corr_km: float = Field(1.0, ge=0, description="Along-line error correlation length for thinning in collocation")

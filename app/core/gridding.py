@@ -728,3 +728,41 @@ def cross_validated_std_factor(make_estimator, easting_km, northing_km, dg_mgal,
     if z.size == 0:
         raise ValueError("no held-out point could be predicted")
     return {"factor": float(np.sqrt(np.mean(z ** 2))), "n_points": int(z.size), "lines": list(dict.fromkeys(folds))}
+
+
+def line_std_floor(grid_easting_km, grid_northing_km, easting_km, northing_km, std_mgal, k: int = 8,
+                   step: int = 10) -> np.ndarray:
+    """Lower bound for a grid's std from the line estimates it is built from (mGal).
+
+    Smoothed line estimates have errors correlated along the line over the smoother's
+    resolution, so averaging neighbouring points does not beat them down by √N as the
+    collocation's independent-error model assumes: a grid value cannot be more certain
+    than the line estimates around it.  The bound at each node is the median posterior
+    std of the ``k`` nearest line points (every ``step``-th point used).
+
+    Parameters
+    ----------
+    grid_easting_km : ndarray, shape (nx,)
+    grid_northing_km : ndarray, shape (ny,)
+    easting_km, northing_km, std_mgal : ndarray, shape (n,)
+        Line points and their posterior std.
+    k, step : int
+
+    Returns
+    -------
+    ndarray, shape (ny, nx)
+    """
+    from scipy.spatial import cKDTree
+
+    e = np.asarray(easting_km, float)[::step]
+    n = np.asarray(northing_km, float)[::step]
+    s = np.asarray(std_mgal, float)[::step]
+    ok = np.isfinite(e) & np.isfinite(n) & np.isfinite(s)
+    if ok.sum() == 0:
+        raise ValueError("no line points with a finite std")
+    tree = cKDTree(np.column_stack([e[ok], n[ok]]))
+    N, E = np.meshgrid(np.asarray(grid_northing_km, float), np.asarray(grid_easting_km, float), indexing="ij")
+    kk = int(min(k, ok.sum()))
+    _, idx = tree.query(np.column_stack([E.ravel(), N.ravel()]), k=kk)
+    idx = np.asarray(idx).reshape(E.size, kk)
+    return np.median(s[ok][idx], axis=1).reshape(N.shape)

@@ -435,6 +435,12 @@ def _grid(table: pd.DataFrame, p, warnings: list, crossover_rms_mgal: float | No
         if len(g[0]) < 2 or len(g[1]) < 2 or not np.isfinite(g[2]).any():
             raise ValueError("the lines span less than two grid cells in one direction: no map to grid "
                              "(grid files not written)")
+        if p.gridding == "collocation" and p.grid_std_line_floor:
+            from app.core.gridding import line_std_floor
+
+            floor = line_std_floor(g[0], g[1], table["easting_km"].to_numpy(), table["northing_km"].to_numpy(),
+                                   table["dg_std_mgal"].to_numpy())
+            g = (g[0], g[1], g[2], np.where(np.isfinite(g[3]), np.maximum(g[3], floor), g[3]))
         if p.gridding == "collocation" and p.grid_std_cross_validate:
             from app.core.gridding import cross_validated_std_factor
 

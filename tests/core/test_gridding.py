@@ -261,3 +261,15 @@ def test_cross_validated_std_factor_near_one_for_a_correct_model():
     assert bad["factor"] > 1.5 * good["factor"]
     with pytest.raises(ValueError):
         cross_validated_std_factor(make, e[:10], n[:10], obs[:10], std[:10], lab[:10])
+
+
+def test_line_std_floor_is_the_local_line_std():
+    from app.core.gridding import line_std_floor
+
+    e = np.concatenate([np.linspace(0, 20, 201), np.linspace(0, 20, 201)])
+    n = np.concatenate([np.zeros(201), np.full(201, 10.0)])
+    s = np.concatenate([np.full(201, 1.0), np.full(201, 3.0)])
+    f = line_std_floor(np.array([5.0, 15.0]), np.array([0.0, 10.0]), e, n, s, k=8, step=1)
+    np.testing.assert_allclose(f, [[1.0, 1.0], [3.0, 3.0]])
+    with pytest.raises(ValueError):
+        line_std_floor(np.array([0.0]), np.array([0.0]), e, n, np.full(e.size, np.nan))
