@@ -22,26 +22,12 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from app.core.mjls_em import fit_em, single_thread_blas  # noqa: E402
+from app.core.mjls_em import fit_em, sample_ma_mixture, single_thread_blas  # noqa: E402
 from app.core.nlmeans import RecognitionMap  # noqa: E402
 
 
 def simulate(rng, c, d, Qs, Rs, a, T, W):
-    c, d = np.asarray(c, float), np.asarray(d, float)
-    p = max(len(c), len(d)) - 1
-    N, n_r = len(Qs) * len(Rs), len(Rs)
-    stat = np.linalg.matrix_power(a, 2000)[0]
-    xs = []
-    for _ in range(W):
-        s = np.empty(T, int)
-        s[0] = rng.choice(N, p=stat)
-        for k in range(1, T):
-            s[k] = rng.choice(N, p=a[s[k - 1]])
-        sf = np.r_[np.full(p, s[0]), s]
-        q = rng.standard_normal(T + p) * np.sqrt(np.asarray(Qs)[sf // n_r])
-        r = rng.standard_normal(T + p) * np.sqrt(np.asarray(Rs)[sf % n_r])
-        xs.append(np.convolve(q, c)[p: p + T] + np.convolve(r, d)[p: p + T])
-    return xs
+    return sample_ma_mixture(rng, c, d, Qs, Rs, a, T, W)[0]
 
 
 def bench_em(rng):

@@ -744,3 +744,36 @@ def _fit_em(x_list, c, d, n_q, n_r, Q_init, R_init, transition_init, max_iter, t
 
     Qs, Rs, as_, pis = _sort_states(Q, R, a, pi, n_r)
     return EMResult(Qs, Rs, as_, pis, ll, records, converged, line_index, warns, p)
+
+
+def sample_ma_mixture(rng, c, d, Q, R, transition, T: int, W: int):
+    """Draw W lines of length T from the mixture of moving averages with Markov jumps.
+
+    ``x_k = Σ c_l q_{k−l} + Σ d_l r_{k−l}`` with Var q = Q[s // n_r], Var r = R[s % n_r],
+    the chain started from its stationary distribution; noises before the first sample
+    take the first state.  The generative counterpart of :func:`fit_em` (tests, benchmarks).
+
+    Returns
+    -------
+    (xs, states) : list of ndarray (T,), list of ndarray of int (T,)
+    """
+    c, d = np.asarray(c, float), np.asarray(d, float)
+    Q, R = np.atleast_1d(np.asarray(Q, float)), np.atleast_1d(np.asarray(R, float))
+    a = np.asarray(transition, float)
+    p = max(len(c), len(d)) - 1
+    N, n_r = Q.size * R.size, R.size
+    w, v = np.linalg.eig(a.T)
+    stat = np.abs(np.real(v[:, np.argmin(np.abs(w - 1.0))]))
+    stat /= stat.sum()
+    xs, ss = [], []
+    for _ in range(W):
+        s = np.empty(T, int)
+        s[0] = rng.choice(N, p=stat)
+        for k in range(1, T):
+            s[k] = rng.choice(N, p=a[s[k - 1]])
+        sf = np.r_[np.full(p, s[0]), s]
+        q = rng.standard_normal(T + p) * np.sqrt(Q[sf // n_r])
+        r = rng.standard_normal(T + p) * np.sqrt(R[sf % n_r])
+        xs.append(np.convolve(q, c)[p: p + T] + np.convolve(r, d)[p: p + T])
+        ss.append(s)
+    return xs, ss

@@ -7,28 +7,12 @@ import warnings
 import numpy as np
 import pytest
 
-from app.core.mjls_em import fit_em
+from app.core.mjls_em import fit_em, sample_ma_mixture
 
 
 def _simulate(rng, c, d, Qs, Rs, a, T, W):
     """Draw lines from the model (pre-sample noise states = s_0)."""
-    c, d = np.asarray(c, float), np.asarray(d, float)
-    p = max(len(c), len(d)) - 1
-    N = len(Qs) * len(Rs)
-    n_r = len(Rs)
-    stat = np.linalg.matrix_power(a, 2000)[0]
-    xs, ss = [], []
-    for _ in range(W):
-        s = np.empty(T, int)
-        s[0] = rng.choice(N, p=stat)
-        for k in range(1, T):
-            s[k] = rng.choice(N, p=a[s[k - 1]])
-        sf = np.r_[np.full(p, s[0]), s]
-        q = rng.standard_normal(T + p) * np.sqrt(np.asarray(Qs)[sf // n_r])
-        r = rng.standard_normal(T + p) * np.sqrt(np.asarray(Rs)[sf % n_r])
-        xs.append(np.convolve(q, c)[p: p + T] + np.convolve(r, d)[p: p + T])
-        ss.append(s)
-    return xs, ss
+    return sample_ma_mixture(rng, c, d, Qs, Rs, a, T, W)
 
 
 # ----------------------------------------------------------------- peer check: hmmlearn

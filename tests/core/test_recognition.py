@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from scipy.stats import multivariate_normal
 
-from app.core.mjls_em import fit_em
+from app.core.mjls_em import fit_em, sample_ma_mixture
 from app.core.recognition import loglikelihood, posteriors, recognize_lines, viterbi
 
 
@@ -117,25 +117,7 @@ def test_stationary_loglik_equals_gaussian_conditionals():
 
 
 def _simulate(rng, c, d, Qs, Rs, a, T, W):
-    p = max(len(c), len(d)) - 1
-    N = len(Qs) * len(Rs)
-    n_r = len(Rs)
-    evals, evecs = np.linalg.eig(a.T)
-    stat = np.real(evecs[:, np.argmin(abs(evals - 1))])
-    stat /= stat.sum()
-    xs, ss = [], []
-    for _ in range(W):
-        s = np.empty(T, int)
-        s[0] = rng.choice(N, p=stat)
-        for k in range(1, T):
-            s[k] = rng.choice(N, p=a[s[k - 1]])
-        sf = np.r_[np.full(p, s[0]), s]
-        q = rng.standard_normal(T + p) * np.sqrt(np.asarray(Qs)[sf // n_r])
-        r = rng.standard_normal(T + p) * np.sqrt(np.asarray(Rs)[sf % n_r])
-        x = np.convolve(q, c)[p: p + T] + np.convolve(r, d)[p: p + T]
-        xs.append(x)
-        ss.append(s)
-    return xs, ss
+    return sample_ma_mixture(rng, c, d, Qs, Rs, a, T, W)
 
 
 def test_viterbi_accuracy_on_simulated_data():
