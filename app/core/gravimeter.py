@@ -314,11 +314,11 @@ def estimate_time_offset_s(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: f
     acc[1:] = np.diff(v) / np.diff(t)
     margin = int(np.ceil(max_offset_s / dt)) + 2
     sl = slice(margin, t.size - margin)
-    acc_bp = sosfiltfilt(sos, _fill_nan(acc))[sl]
+    acc_bp = sosfiltfilt(sos, fill_nan(acc))[sl]
 
     def grav_bp(offset):
         f = interval_means(series, t, tau_s, scale, time_offset_s=offset)
-        return sosfiltfilt(sos, _fill_nan(f))[sl]
+        return sosfiltfilt(sos, fill_nan(f))[sl]
 
     g0 = grav_bp(0.0)
     nlag = int(np.ceil(max_offset_s / dt))
@@ -339,9 +339,14 @@ def estimate_time_offset_s(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: f
     return off, corr
 
 
-def _fill_nan(x):
+def fill_nan(x):
+    """Linear interpolation over non-finite samples by index (edges: nearest value).
+
+    Raises ValueError when no sample is finite."""
     x = np.asarray(x, dtype=float).copy()
     bad = ~np.isfinite(x)
+    if bad.all():
+        raise ValueError("no finite value to interpolate from")
     if bad.any():
         idx = np.arange(x.size)
         x[bad] = np.interp(idx[bad], idx[~bad], x[~bad])

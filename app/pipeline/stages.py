@@ -293,17 +293,6 @@ def cut_lines(lines: pd.DataFrame, flights: dict[str, FlightMeasurement], crs: s
     return out
 
 
-def fill_nan_mgal(z):
-    """Linear interpolation over isolated NaN (edges: nearest value)."""
-    z = np.asarray(z, dtype=float).copy()
-    bad = ~np.isfinite(z)
-    if bad.all():
-        raise ValueError("no valid measurement on the line")
-    if bad.any():
-        i = np.arange(z.size)
-        z[bad] = np.interp(i[bad], i[~bad], z[~bad])
-    return z
-
 
 # --------------------------------------------------------------------------- 2b. model order
 def choose_model_order(lines: list[LineData], dt_s: float):
@@ -356,7 +345,7 @@ def regularize_lines(lines: list[LineData], cfg: SurveyConfig, dt_s: float) -> R
     kept, xs, idxs, skipped = [], [], [], {}
     for ln in use:
         try:
-            x, idx = regularize_line(fill_nan_mgal(ln.z_mgal), p.m, design)
+            x, idx = regularize_line(gm.fill_nan(ln.z_mgal), p.m, design)
         except ValueError as exc:
             skipped[ln.line] = str(exc)
             continue
