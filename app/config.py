@@ -67,9 +67,12 @@ class ProcessingParams(_Strict):
     include_tie_lines: bool = True
     refine_levels: bool = Field(True, description="Re-estimate Q_i, R_j by full-rate Kalman likelihood given the "
                                 "recognised states (the decimated EM can collapse a smooth state's Q)")
-    noise_model: Literal["local", "states"] = Field(
-        "local", description="GNSS noise level for filtering: 'local' = R(t) from the high-frequency content of z "
-        "(scaled by maximum likelihood); 'states' = the recognised R_j levels (seed 000)")
+    noise_model: Literal["band", "local", "states"] = Field(
+        "band", description="GNSS noise level for filtering: 'band' = R(t) from z's content just above the "
+        "anomaly band (noise_band_hz), scaled to the EM's in-band level; 'local' = R(t) from the high-frequency "
+        "content of z, scaled likewise; 'states' = the recognised R_j levels (seed 000)")
+    noise_band_hz: tuple[float, float] = Field((0.1, 0.5), description="Band (Hz) in which the 'band' noise "
+                                               "model measures the local GNSS noise level")
     refine_max_epochs: int = Field(300_000, ge=1000, description="Cap on epochs used by the level refinement")
     recognition_pool_h_per_km: float = Field(0.7, ge=0, description="Decay of the weights with which neighbouring "
                                              "lines' evidence about the anomaly intensity enters each line's recognition")

@@ -9,8 +9,13 @@ on the decimated grid.  For white r of variance R (cm/s)²,
 
 Other white errors (gravimeter sensor noise) are lumped into the same effective R,
 which is what the smoother needs.  A global factor between this effective level and
-the likelihood-optimal one (coloured GNSS noise) is estimated later by maximum
-likelihood (:mod:`app.core.level_ml`).
+the in-band level (coloured GNSS noise) is estimated later from the EM on the
+regularized band.
+
+:func:`band_noise_variance_cm2s2` measures the same equivalent-white level in a band
+just above the anomaly's (default 0.1–0.5 Hz) instead of near the Nyquist frequency:
+GNSS velocities differenced from positions have far less noise there than near the
+Nyquist frequency, and the smoother works at low frequency.
 """
 
 from __future__ import annotations
@@ -50,8 +55,8 @@ def local_noise_variance_cm2s2(z_mgal, dt_s: float, window_s: float = 20.0,
     ok = np.isfinite(dz)
     sq = np.where(ok, dz * dz, 0.0)
     w = max(3, int(round(window_s / dt_s)))
-    num = uniform_filter1d(sq, w, mode="nearest")
-    den = uniform_filter1d(ok.astype(float), w, mode="nearest")
+    num = uniform_filter1d(sq, w, mode="reflect")
+    den = uniform_filter1d(ok.astype(float), w, mode="reflect")
     var = np.where(den > 0.2, num / np.maximum(den, 1e-12), np.nan)
     if not np.isfinite(var).any():
         raise ValueError("no finite measurement differences to estimate the noise level from")
@@ -59,3 +64,88 @@ def local_noise_variance_cm2s2(z_mgal, dt_s: float, window_s: float = 20.0,
     r = var * dt_s * dt_s / 6.0e6
     r = np.concatenate([[r[0]], r])
     return np.maximum(r, floor_cm2s2)
+
+
+def white_band_gain(dt_s: float, band_hz: tuple[float, float], order: int = 4) -> float:
+    """Variance (mGal²) of z's band-passed GNSS noise per unit white R ((cm/s)²).
+
+    Parameters
+    ----------
+    dt_s : float
+        GNSS step (s).
+    band_hz : (float, float)
+        Pass band (Hz).
+    order : int
+        Butterworth order (of each pass of the zero-phase filter).
+
+    Notes
+    -----
+
+    For white r of variance R, ``n_k = −1000·(r_k − r_{k−1})/Δt`` has the two-sided PSD
+    ``(1000/Δt)²·R·Δt·4 sin²(πfΔt)``; the zero-phase Butterworth band-pass of
+    :func:`band_noise_variance_cm2s2` multiplies it by ``|H(f)|⁴``.
+    """
+    from scipy.signal import butter, sosfreqz
+
+    sos = butter(order, band_hz, btype="bandpass", fs=1.0 / dt_s, output="sos")
+    f, h = sosfreqz(sos, worN=1 << 16, fs=1.0 / dt_s)
+    s = (1.0e3 / dt_s) ** 2 * dt_s * 4.0 * np.sin(np.pi * f * dt_s) ** 2 * np.abs(h) ** 4
+    return float(2.0 * np.trapezoid(s, f))
+
+
+def band_noise_variance_cm2s2(z_mgal, dt_s: float, band_hz: tuple[float, float] = (0.1, 0.5),
+                              window_s: float = 60.0, floor_cm2s2: float = 1e-4) -> np.ndarray:
+    """Local R(t) in (cm/s)² from z's content just above the anomaly's band.
+
+    The high-frequency estimate of :func:`local_noise_variance_cm2s2` sees the GNSS noise
+    near the Nyquist frequency; when that noise is not white (velocities differenced
+    from positions: less power at low frequency; Gauss–Markov errors: more), its level
+    there says little about the level where the smoother separates anomaly from noise.
+    Here z is band-passed (zero-phase Butterworth, ``band_hz``), squared, averaged over
+    ``window_s`` and divided by the band's gain for white R (:func:`white_band_gain`):
+    the *equivalent white* R just above the anomaly band.
+
+    Parameters
+    ----------
+    z_mgal : ndarray, shape (n,)
+        The measurement (mGal); NaN is interpolated over for the filter and ignored
+        in the average.
+    dt_s : float
+        GNSS step (s).
+    band_hz : (float, float)
+        Pass band (Hz); must lie below the Nyquist frequency.
+    window_s : float
+        Length of the centred averaging window (s).
+    floor_cm2s2 : float
+        Lower bound of the returned values.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    from scipy.signal import butter, sosfiltfilt
+
+    z = np.asarray(z_mgal, dtype=float)
+    if z.ndim != 1:
+        raise ValueError("z_mgal must be one-dimensional")
+    if not dt_s > 0:
+        raise ValueError("dt_s must be positive")
+    f1, f2 = float(band_hz[0]), float(band_hz[1])
+    if not 0 < f1 < f2 < 0.5 / dt_s:
+        raise ValueError(f"band_hz must satisfy 0 < f1 < f2 < Nyquist ({0.5 / dt_s} Hz), got {band_hz}")
+    n = z.size
+    if n < 64:
+        raise ValueError("need at least 64 epochs to estimate the noise level")
+    ok = np.isfinite(z)
+    if not ok.any():
+        raise ValueError("no finite measurements to estimate the noise level from")
+    zi = np.interp(np.arange(n), np.flatnonzero(ok), z[ok]) if not ok.all() else z
+    sos = butter(4, (f1, f2), btype="bandpass", fs=1.0 / dt_s, output="sos")
+    y = sosfiltfilt(sos, zi - np.mean(zi), padtype="even", padlen=min(n - 1, int(round(4.0 / (f1 * dt_s)))))
+    sq = np.where(ok, y * y, 0.0)
+    w = max(3, int(round(window_s / dt_s)))
+    num = uniform_filter1d(sq, w, mode="reflect")
+    den = uniform_filter1d(ok.astype(float), w, mode="reflect")
+    var = np.where(den > 0.2, num / np.maximum(den, 1e-12), np.nan)
+    var = np.where(np.isfinite(var), var, np.nanmedian(var))
+    return np.maximum(var / white_band_gain(dt_s, (f1, f2)), floor_cm2s2)

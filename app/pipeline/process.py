@@ -203,6 +203,11 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
         from app.core.noise_level import local_noise_variance_cm2s2
 
         r_local = {name: local_noise_variance_cm2s2(fm.z_mgal, dt_s) for name, fm in flights.items()}
+    elif p.noise_model == "band":
+        from app.core.noise_level import band_noise_variance_cm2s2
+
+        r_local = {name: band_noise_variance_cm2s2(fm.z_mgal, dt_s, tuple(p.noise_band_hz))
+                   for name, fm in flights.items()}
     prepared = []
     for ln in lines:
         m = flights[ln.flight]
@@ -224,8 +229,10 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
         # The level of R(t) comes from the EM on the regularized band — what the smoother's
         # pass band sees.  The high-frequency estimate only gives its shape in time: with
         # coloured GNSS velocity noise the band level is many times the white level.
-        # Coloured noise only adds low-frequency power, so the band level is never below
-        # the white level: the factor is ≥ 1; and it is trusted only from enough points.
+        # Noise whose power falls toward low frequency (velocities differenced from
+        # positions) is already measured near the band by the 'band' model, so the
+        # factor is ≥ 1 (it only adds low-frequency power the measurement band does not
+        # see); and it is trusted only from enough points.
         hf = np.concatenate([t[5][np.asarray(t[2]) % n_r == 0] for t in prepared])
         if hf.size and n_dec >= 200:
             r_scale = float(np.clip(Rs[0] / np.median(hf), 1.0, 1e4))

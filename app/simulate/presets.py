@@ -91,6 +91,7 @@ class SimConfig:
     sigma_vu_cms: float = 1.3
     vu_colored_cms: float = 0.0          # extra exponentially correlated (Gauss-Markov) vu error, std
     vu_colored_tau_s: float = 5.0        # its correlation time
+    vu_from_position_m: float = 0.0      # extra vu error from differenced white position noise, std (m)
     sigma_vh_cms: float = 1.0
     sigma_pos_m: float = 0.02
     sigma_h_m: float = 0.03

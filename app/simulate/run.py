@@ -245,7 +245,7 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
         "lat": lat + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / (r_m + h)),
         "lon": lon + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / ((r_n + h) * np.cos(np.deg2rad(lat)))),
         "h": h + rng.standard_normal(n) * cfg.sigma_h_m,
-        "vu": vu + rng.standard_normal(n) * sig_vu + _colored_noise(tg, cfg),
+        "vu": vu + rng.standard_normal(n) * sig_vu + _colored_noise(tg, cfg) + _position_derived_noise(tg, cfg),
         "ve": ve + rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
         "vn": vn + rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
         # receiver's formal sigma: follows the true level, imperfectly
@@ -495,6 +495,18 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
     out = write_survey(out_dir, toml, lines, flights, truth_lines, grid, truth_json, compress=cfg.compress)
     report("done", 1.0, {"seconds": _time.perf_counter() - clock})
     return out
+
+
+def _position_derived_noise(t, cfg) -> np.ndarray:
+    """GNSS vertical velocity error of a receiver that differences its positions: white
+    position noise (std ``vu_from_position_m``) differenced over each epoch, so the error
+    has *less* power at low frequency than white velocity noise (blue, not red)."""
+    if cfg.vu_from_position_m <= 0:
+        return np.zeros(t.size)
+    g = np.random.default_rng(abs(hash((float(t[0]), "position"))) % (2 ** 32))
+    e = g.standard_normal(t.size + 1) * cfg.vu_from_position_m
+    dt = np.diff(t, prepend=t[0] - np.median(np.diff(t)))
+    return np.diff(e) / dt
 
 
 def _colored_noise(t, cfg) -> np.ndarray:
