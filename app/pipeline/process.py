@@ -113,6 +113,12 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
         warnings.extend(f"flight {name}: {n}" for n in flights[name].notes)
         base_ties[name] = stages.base_tie(flights[name], cfg.gravimeter.base_gravity_mgal)
         tr.emit((i + 1) / len(names))
+    if not any(b.get("applied") and b.get("absolute") for b in base_ties.values()):
+        why = ("no base_gravity_mgal in survey.toml" if cfg.gravimeter.base_gravity_mgal is None
+               else "no static parking-place segment found in the flights")
+        warnings.append(f"no absolute base tie ({why}): the level of dg carries the gravimeter's reading "
+                        "error (scale × g, easily 100+ mGal); differences along and between lines are "
+                        "reliable, absolute values are not")
     crs = stages.survey_crs(cfg, flights)
     lines = stages.cut_lines(survey.lines, flights, crs)
     dt_s = float(np.median(np.concatenate([np.diff(m.t_s) for m in flights.values()])))

@@ -82,3 +82,16 @@ def test_estimates_against_truth(tiny_survey, tiny_processed):
     assert rms["dg_fir_mgal"] < 6.0
     # the adaptive smoother is at least as good as the FIR low-pass
     assert rms["dg_unleveled_mgal"] < 1.05 * rms["dg_fir_mgal"]
+
+
+def test_missing_base_tie_is_reported(tmp_path, tiny_processed):
+    """Without parking-place readings the absolute level is unknown: say so (and not when
+    the base tie was made)."""
+    from app.pipeline.process import process_survey
+    from app.simulate import simulate_survey
+
+    _, report, _ = tiny_processed
+    assert not any("base tie" in w for w in report["warnings"])
+    survey = simulate_survey("tiny", tmp_path / "s", seed=4, n_main=2, n_tie=1, apron_s=0.0)
+    rep = process_survey(survey, tmp_path / "out")
+    assert any("no absolute base tie" in w for w in rep["warnings"])
