@@ -180,6 +180,53 @@ def std_calibration(error_mgal, std_mgal, k: float = 2.0) -> float:
     return float(np.mean(np.abs(e[ok]) < k * s[ok]))
 
 
+def crossover_std_factor(diff_mgal, pred_var_mgal2, shared_fraction: float = 0.4, min_n_narrow: int = 100,
+                         min_factor: float = 0.7, max_factor: float = 20.0) -> dict:
+    """Scale factor for the lines' posterior std from the crossover differences.
+
+    At a crossing the difference of two lines' estimates has variance
+    ``σ_a² + σ_b² − 2ρσ_aσ_b``; with the two errors sharing a fraction ρ of their
+    variance (``shared_fraction``: the anomaly both leave unresolved at that place)
+    that is ``(1 − ρ)(σ_a² + σ_b²)`` for σ_a ≈ σ_b.  The factor that makes the stated
+    std agree with the crossovers is therefore
+    ``sqrt(mean(diff²) / mean(σ_a² + σ_b²)) / sqrt(1 − ρ)``.
+
+    Errors are correlated along lines, so a few tens of crossovers scatter by a
+    factor of two: below ``min_n_narrow`` crossovers the factor only widens (≥ 1);
+    it never narrows below ``min_factor``.
+
+    Parameters
+    ----------
+    diff_mgal : array_like, shape (n,)
+        Crossover differences (mGal).
+    pred_var_mgal2 : array_like, shape (n,)
+        ``σ_a² + σ_b²`` at each crossover (mGal²).
+    shared_fraction : float
+        ρ in [0, 1).
+
+    Returns
+    -------
+    dict
+        ``n`` (usable crossovers), and when n ≥ 10 ``rms_ratio`` (the raw ratio) and
+        ``factor`` (to multiply the std by).
+    """
+    d = np.asarray(diff_mgal, dtype=float)
+    v = np.asarray(pred_var_mgal2, dtype=float)
+    if d.shape != v.shape:
+        raise ValueError(f"diff_mgal and pred_var_mgal2 differ in shape: {d.shape} vs {v.shape}")
+    if not 0 <= shared_fraction < 1:
+        raise ValueError("shared_fraction must lie in [0, 1)")
+    ok = np.isfinite(d) & np.isfinite(v) & (v > 0)
+    n = int(ok.sum())
+    if n < 10:
+        return {"n": n}
+    ratio = float(np.sqrt(np.mean(d[ok] ** 2) / np.mean(v[ok])))
+    factor = ratio / np.sqrt(1.0 - shared_fraction)
+    if n < min_n_narrow:
+        factor = max(factor, 1.0)
+    return {"n": n, "rms_ratio": ratio, "factor": float(np.clip(factor, min_factor, max_factor))}
+
+
 def points_in_hull(point_e_km, point_n_km, hull_e_km, hull_n_km):
     """Boolean mask of the points inside the convex hull of the hull points."""
     from scipy.spatial import Delaunay

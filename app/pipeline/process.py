@@ -283,12 +283,12 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     crossovers, lev_report = _level(table, p, warnings)
 
     sc = lev_report.get("std_check", {})
-    if p.std_crossover_check and sc.get("rms_ratio", 0.0) > 1.0:
-        # the crossovers disagree by more than the lines' std admits (e.g. coloured GNSS
-        # noise the white model does not see): widen the std by that factor; never narrow
-        # it, since two lines' errors at one place share the unresolved anomaly
-        table["dg_std_mgal"] = table["dg_std_mgal"] * sc["rms_ratio"]
-        sc["applied_factor"] = sc["rms_ratio"]
+    if p.std_crossover_check and "factor" in sc and sc["factor"] != 1.0:
+        # The crossovers are an independent check of dg_std (core.accuracy.crossover_std_factor).
+        # Model misfit shows up in both directions: coloured GNSS noise the white model does
+        # not see (std too small), an anomaly smoother than the random-walk model (too large).
+        table["dg_std_mgal"] = table["dg_std_mgal"] * sc["factor"]
+        sc["applied_factor"] = sc["factor"]
     tr.start("gridding")
     grid_cv: dict = {}
     grid = _grid(table, p, warnings, lev_report.get("rms_after_mgal"), grid_cv)
@@ -400,7 +400,7 @@ def _level(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFrame, dict]:
         rep.update(status="not leveled: the drift model is not significant at the crossovers "
                           f"(F-test p = {p_value:.3g} > {p.leveling_significance})",
                    rms_after_mgal=float(res.rms_before), rms_after_if_leveled_mgal=float(res.rms_after))
-        rep["std_check"] = _std_check(before, pred_var)
+        rep["std_check"] = _std_check(before, pred_var, p)
         cx = cx.assign(diff_before_mgal=before, diff_after_mgal=before)
         return cx[cols], rep
     corr = np.zeros(len(table))
@@ -409,18 +409,17 @@ def _level(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFrame, dict]:
     table["dg_mgal"] = table["dg_unleveled_mgal"].to_numpy() - corr
     cx = cx.assign(diff_before_mgal=before, diff_after_mgal=after)
     rep.update(status="leveled", rms_after_mgal=float(res.rms_after))
-    rep["std_check"] = _std_check(after, pred_var)
+    rep["std_check"] = _std_check(after, pred_var, p)
     return cx[cols], rep
 
 
-def _std_check(diff_mgal, pred_var_mgal2) -> dict:
+def _std_check(diff_mgal, pred_var_mgal2, p) -> dict:
     """Crossover differences against the lines' posterior std: an independent check of
-    ``dg_std_mgal`` (the two lines' errors are independent at a crossing)."""
-    ok = np.isfinite(diff_mgal) & np.isfinite(pred_var_mgal2) & (pred_var_mgal2 > 0)
-    if ok.sum() < 10:
-        return {"n": int(ok.sum())}
-    ratio = float(np.sqrt(np.mean(diff_mgal[ok] ** 2) / np.mean(pred_var_mgal2[ok])))
-    return {"n": int(ok.sum()), "rms_ratio": ratio}
+    ``dg_std_mgal``."""
+    from app.core.accuracy import crossover_std_factor
+
+    return crossover_std_factor(diff_mgal, pred_var_mgal2, p.std_crossover_shared_fraction,
+                                p.std_crossover_min_n, p.std_crossover_min_factor)
 
 
 def _grid(table: pd.DataFrame, p, warnings: list, crossover_rms_mgal: float | None = None,

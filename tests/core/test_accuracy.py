@@ -91,3 +91,29 @@ def test_grid_rms_inside_hull_of_lines():
     assert points_in_hull(5.0, 5.0, le, ln) and not points_in_hull(11.0, 5.0, le, ln)
     with pytest.raises(ValueError, match="shape"):
         grid_rms_in_hull(x, y, est[1:], est[1:], le, ln)
+
+
+def test_crossover_std_factor_recovers_a_misstated_std():
+    """Two crossing lines' errors with true std σ and correlation ρ; the stated std is
+    off by a known factor: the crossover factor must undo it (simulation, known truth)."""
+    from app.core.accuracy import crossover_std_factor
+
+    rng = np.random.default_rng(7)
+    n, rho = 4000, 0.25
+    sigma = rng.uniform(1.0, 3.0, n)
+    shared = rng.standard_normal(n) * np.sqrt(rho)
+    ea = sigma * (shared + rng.standard_normal(n) * np.sqrt(1 - rho))
+    eb = sigma * (shared + rng.standard_normal(n) * np.sqrt(1 - rho))
+    for stated_over_true in (0.5, 1.6):
+        stated = sigma * stated_over_true
+        res = crossover_std_factor(ea - eb, 2 * stated ** 2, shared_fraction=rho, min_n_narrow=100,
+                                   min_factor=0.1)
+        assert res["factor"] == pytest.approx(1 / stated_over_true, rel=0.04)
+    # with few crossovers it only widens; it never narrows below min_factor
+    few = crossover_std_factor((ea - eb)[:40], 2 * (3 * sigma[:40]) ** 2, rho, min_n_narrow=100)
+    assert few["factor"] == 1.0
+    many = crossover_std_factor(ea - eb, 2 * (3 * sigma) ** 2, rho, min_n_narrow=100, min_factor=0.6)
+    assert many["factor"] == 0.6
+    assert crossover_std_factor(ea[:5] - eb[:5], np.ones(5)) == {"n": 5}
+    with pytest.raises(ValueError):
+        crossover_std_factor(ea, np.ones(3))
