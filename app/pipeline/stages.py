@@ -107,6 +107,14 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     dt = np.diff(t)
     long_step = np.concatenate([[False], dt > 1.5 * np.median(dt)])
     z[long_step] = np.nan
+    if p.despike_threshold is not None:
+        from app.core.measurement import repair_spikes, spike_mask
+
+        spikes = spike_mask(z, float(np.median(dt)), p.despike_threshold)
+        if spikes.any():
+            z = repair_spikes(z, spikes)
+            notes.append(f"{int(spikes.sum())} epochs of z repaired as spikes "
+                         f"(> {p.despike_threshold:g} local robust std from a running median)")
     return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
                              float(offset), float(corr), applied, notes)
 
