@@ -24,6 +24,28 @@ import numpy as np
 from scipy.ndimage import uniform_filter1d
 
 
+def _check_series(z_mgal, dt_s: float, min_epochs: int) -> np.ndarray:
+    z = np.asarray(z_mgal, dtype=float)
+    if z.ndim != 1:
+        raise ValueError("z_mgal must be one-dimensional")
+    if not dt_s > 0:
+        raise ValueError("dt_s must be positive")
+    if z.size < min_epochs:
+        raise ValueError(f"need at least {min_epochs} epochs to estimate the noise level")
+    return z
+
+
+def _windowed_mean_square(y, ok, w: int) -> np.ndarray:
+    """Centred running mean of y² over the epochs where ``ok`` (window of w epochs,
+    reflected at the ends); NaN-free: gaps take the median level."""
+    num = uniform_filter1d(np.where(ok, y * y, 0.0), w, mode="reflect")
+    den = uniform_filter1d(ok.astype(float), w, mode="reflect")
+    var = np.where(den > 0.2, num / np.maximum(den, 1e-12), np.nan)
+    if not np.isfinite(var).any():
+        raise ValueError("no finite values to estimate the noise level from")
+    return np.where(np.isfinite(var), var, np.nanmedian(var))
+
+
 def local_noise_variance_cm2s2(z_mgal, dt_s: float, window_s: float = 20.0,
                                floor_cm2s2: float = 1e-4) -> np.ndarray:
     """Local R(t) in (cm/s)² at every epoch.
@@ -43,24 +65,9 @@ def local_noise_variance_cm2s2(z_mgal, dt_s: float, window_s: float = 20.0,
     -------
     ndarray, shape (n,)
     """
-    z = np.asarray(z_mgal, dtype=float)
-    if z.ndim != 1:
-        raise ValueError("z_mgal must be one-dimensional")
-    if not dt_s > 0:
-        raise ValueError("dt_s must be positive")
-    n = z.size
-    if n < 8:
-        raise ValueError("need at least 8 epochs to estimate the noise level")
+    z = _check_series(z_mgal, dt_s, 8)
     dz = np.diff(z)
-    ok = np.isfinite(dz)
-    sq = np.where(ok, dz * dz, 0.0)
-    w = max(3, int(round(window_s / dt_s)))
-    num = uniform_filter1d(sq, w, mode="reflect")
-    den = uniform_filter1d(ok.astype(float), w, mode="reflect")
-    var = np.where(den > 0.2, num / np.maximum(den, 1e-12), np.nan)
-    if not np.isfinite(var).any():
-        raise ValueError("no finite measurement differences to estimate the noise level from")
-    var = np.where(np.isfinite(var), var, np.nanmedian(var))
+    var = _windowed_mean_square(dz, np.isfinite(dz), max(3, int(round(window_s / dt_s))))
     r = var * dt_s * dt_s / 6.0e6
     r = np.concatenate([[r[0]], r])
     return np.maximum(r, floor_cm2s2)
@@ -125,27 +132,16 @@ def band_noise_variance_cm2s2(z_mgal, dt_s: float, band_hz: tuple[float, float] 
     """
     from scipy.signal import butter, sosfiltfilt
 
-    z = np.asarray(z_mgal, dtype=float)
-    if z.ndim != 1:
-        raise ValueError("z_mgal must be one-dimensional")
-    if not dt_s > 0:
-        raise ValueError("dt_s must be positive")
+    z = _check_series(z_mgal, dt_s, 64)
     f1, f2 = float(band_hz[0]), float(band_hz[1])
     if not 0 < f1 < f2 < 0.5 / dt_s:
         raise ValueError(f"band_hz must satisfy 0 < f1 < f2 < Nyquist ({0.5 / dt_s} Hz), got {band_hz}")
     n = z.size
-    if n < 64:
-        raise ValueError("need at least 64 epochs to estimate the noise level")
     ok = np.isfinite(z)
     if not ok.any():
         raise ValueError("no finite measurements to estimate the noise level from")
     zi = np.interp(np.arange(n), np.flatnonzero(ok), z[ok]) if not ok.all() else z
     sos = butter(4, (f1, f2), btype="bandpass", fs=1.0 / dt_s, output="sos")
     y = sosfiltfilt(sos, zi - np.mean(zi), padtype="even", padlen=min(n - 1, int(round(4.0 / (f1 * dt_s)))))
-    sq = np.where(ok, y * y, 0.0)
-    w = max(3, int(round(window_s / dt_s)))
-    num = uniform_filter1d(sq, w, mode="reflect")
-    den = uniform_filter1d(ok.astype(float), w, mode="reflect")
-    var = np.where(den > 0.2, num / np.maximum(den, 1e-12), np.nan)
-    var = np.where(np.isfinite(var), var, np.nanmedian(var))
+    var = _windowed_mean_square(y, ok, max(3, int(round(window_s / dt_s))))
     return np.maximum(var / white_band_gain(dt_s, (f1, f2)), floor_cm2s2)
