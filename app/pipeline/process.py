@@ -212,8 +212,10 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     elif p.noise_model == "band":
         from app.core.noise_level import band_noise_variance_cm2s2
 
-        r_local = {name: band_noise_variance_cm2s2(fm.z_mgal, dt_s, tuple(p.noise_band_hz))
-                   for name, fm in flights.items()}
+        # keep the band inside the GNSS Nyquist frequency (1–2 Hz receivers)
+        f2 = min(float(p.noise_band_hz[1]), 0.8 * 0.5 / dt_s)
+        band = (min(float(p.noise_band_hz[0]), 0.5 * f2), f2)
+        r_local = {name: band_noise_variance_cm2s2(fm.z_mgal, dt_s, band) for name, fm in flights.items()}
     prepared = []
     for ln in lines:
         m = flights[ln.flight]
