@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 
 class _Strict(BaseModel):
@@ -77,6 +77,13 @@ class ProcessingParams(_Strict):
     noise_band_hz: tuple[float, float] = Field((0.1, 0.5), description="Band (Hz) in which the 'band' noise "
                                                "model measures the local GNSS noise level")
     refine_max_epochs: int = Field(300_000, ge=1000, description="Cap on epochs used by the level refinement")
+
+    @field_validator("noise_band_hz")
+    @classmethod
+    def _band_increasing(cls, v):
+        if not 0 < v[0] < v[1]:
+            raise ValueError("noise_band_hz must be (f1, f2) with 0 < f1 < f2 (Hz)")
+        return v
     recognition_pool_h_per_km: float = Field(0.7, ge=0, description="Decay of the weights with which neighbouring "
                                              "lines' evidence about the anomaly intensity enters each line's recognition")
     recognition_pool_rho_km: float = Field(5.0, ge=0, le=15, description="Radius of that evidence pooling (km); 0 = off "

@@ -173,6 +173,9 @@ def test_params_schema_and_invalid_params(client, tiny_zip):
     assert r.status_code == 422
     r = client.post(f"/api/surveys/{sid}/jobs", json={"kind": "dance"})
     assert r.status_code == 422
+    r = client.post(f"/api/surveys/{sid}/jobs", json={"kind": "process", "params": {"noise_band_hz": [0.5, 0.1]}})
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["noise_band_hz"]
+    assert sch["defaults"]["noise_band_hz"] == [0.1, 0.5]
     assert client.get(f"/api/surveys/{sid}/jobs").json() == []
 
 

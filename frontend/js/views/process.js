@@ -25,6 +25,10 @@ function buildForm(schema, defaults) {
       input = el("select", { name }, f.enum.map((v) => el("option", { value: v, selected: v === def }, v)));
     } else if (f.type === "boolean") {
       input = el("input", { type: "checkbox", name, checked: !!def });
+    } else if (f.type === "array") {
+      // e.g. a frequency band: numbers separated by commas
+      input = el("input", { type: "text", name, value: Array.isArray(def) ? def.join(", ") : "",
+        placeholder: "comma-separated numbers" });
     } else {
       input = el("input", { type: "number", name, step: f.type === "integer" ? 1 : "any", min: f.min, max: f.max,
         value: def ?? "", placeholder: def === null ? "auto" : "" });
@@ -45,6 +49,7 @@ function collectParams(form) {
     let v;
     if (input.type === "checkbox") v = input.checked;
     else if (input.dataset.kind === "enum") v = input.value;
+    else if (input.dataset.kind === "array") v = input.value.split(",").map((t) => t.trim()).filter((t) => t).map(Number);
     else if (input.value === "") v = null;
     else v = input.dataset.kind === "integer" ? parseInt(input.value, 10) : parseFloat(input.value);
     if (JSON.stringify(v) !== JSON.stringify(def)) out[input.name] = v;
