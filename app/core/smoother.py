@@ -103,11 +103,12 @@ def _cdot(v, m):
 
 
 @njit(cache=True)
-def _predict(m, x, P, xp, Pp, T, Qk, Rk):
+def _predict(m, x, P, xp, Pp, T, Qk, Q0k, Rk):
     """xp = A x ; Pp = A P Aᵀ + W_k in the difference basis.
 
     δg block: A[i, l] = 1 for i ≤ l < m (suffix sums); A[m+1, m] = 1; row m zero.
-    W_k = Q_k·b bᵀ (b = 1 on the δg block) + R_k e_m e_mᵀ.  T is scratch (n×n)."""
+    W_k = Q_k·b bᵀ (b = 1 on the δg block) + Q0_k e_0 e_0ᵀ + R_k e_m e_mᵀ (Q0: the
+    random-walk part of the two-component model).  T is scratch (n×n)."""
     n = m + 2
     s = 0.0
     for i in range(m - 1, -1, -1):
@@ -134,6 +135,7 @@ def _predict(m, x, P, xp, Pp, T, Qk, Rk):
     for i in range(m):
         for j in range(m):
             Pp[i, j] += Qk
+    Pp[0, 0] += Q0k
     Pp[m, m] += Rk
 
 
@@ -170,7 +172,7 @@ def _update(m, xp, Pp, zk, x, P, K, g, h):
 
 
 @njit(cache=True)
-def _forward_bf(z, Qs, Rs, m, x0, P0, xf0, prow, Kst, nust, sinv):
+def _forward_bf(z, Qs, Q0s, Rs, m, x0, P0, xf0, prow, Kst, nust, sinv):
     """Kalman filter storing what the modified Bryson–Frazier pass needs."""
     n = m + 2
     N = z.shape[0]
@@ -185,7 +187,7 @@ def _forward_bf(z, Qs, Rs, m, x0, P0, xf0, prow, Kst, nust, sinv):
     ll = 0.0
     for k in range(N):
         if k > 0:
-            _predict(m, x, P, xp, Pp, T, Qs[k], Rs[k])
+            _predict(m, x, P, xp, Pp, T, Qs[k], Q0s[k], Rs[k])
         zk = z[k]
         if zk == zk:  # finite
             nu, s = _update(m, xp, Pp, zk, x, P, K, g, h)
@@ -306,20 +308,20 @@ def _backward_bf(m, xf0, prow, Kst, nust, sinv, out_mean, out_var):
 
 
 @njit(cache=True)
-def _smooth_bf(z, Qs, Rs, m, x0, P0, out_mean, out_var, out_filt):
+def _smooth_bf(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt):
     N = z.shape[0]
     n = m + 2
     prow = np.empty((N, n))
     Kst = np.empty((N, n))
     nust = np.empty(N)
     sinv = np.empty(N)
-    ll = _forward_bf(z, Qs, Rs, m, x0, P0, out_filt, prow, Kst, nust, sinv)
+    ll = _forward_bf(z, Qs, Q0s, Rs, m, x0, P0, out_filt, prow, Kst, nust, sinv)
     _backward_bf(m, out_filt, prow, Kst, nust, sinv, out_mean, out_var)
     return ll
 
 
 @njit(cache=True)
-def _loglik_only(z, Qs, Rs, m, x0, P0):
+def _loglik_only(z, Qs, Q0s, Rs, m, x0, P0):
     n = m + 2
     N = z.shape[0]
     x = x0.copy()
@@ -333,7 +335,7 @@ def _loglik_only(z, Qs, Rs, m, x0, P0):
     ll = 0.0
     for k in range(N):
         if k > 0:
-            _predict(m, x, P, xp, Pp, T, Qs[k], Rs[k])
+            _predict(m, x, P, xp, Pp, T, Qs[k], Q0s[k], Rs[k])
         zk = z[k]
         if zk == zk:
             nu, s = _update(m, xp, Pp, zk, x, P, K, g, h)
@@ -377,7 +379,7 @@ def _chol_solve_inplace(S, Bm):
 
 
 @njit(cache=True)
-def _smooth_rts(z, Qs, Rs, m, x0, P0, out_mean, out_var, out_filt):
+def _smooth_rts(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt):
     n = m + 2
     N = z.shape[0]
     xs = np.empty((N, n))
@@ -395,7 +397,7 @@ def _smooth_rts(z, Qs, Rs, m, x0, P0, out_mean, out_var, out_filt):
     ll = 0.0
     for k in range(N):
         if k > 0:
-            _predict(m, x, P, xp, Pp, T, Qs[k], Rs[k])
+            _predict(m, x, P, xp, Pp, T, Qs[k], Q0s[k], Rs[k])
         zk = z[k]
         if zk == zk:
             nu, s = _update(m, xp, Pp, zk, x, P, K, g, h)
@@ -473,7 +475,7 @@ def _smooth_rts(z, Qs, Rs, m, x0, P0, out_mean, out_var, out_filt):
 # ---------------------------------------------------------------------------
 
 
-def _per_epoch(name: str, v, N: int) -> np.ndarray:
+def _per_epoch(name: str, v, N: int, allow_zero: bool = False) -> np.ndarray:
     arr = np.asarray(v, dtype=float)
     if arr.ndim == 0:
         arr = np.full(N, float(arr))
@@ -483,8 +485,8 @@ def _per_epoch(name: str, v, N: int) -> np.ndarray:
         raise ValueError(f"{name} has length {arr.shape[0]} but z has length {N}")
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} contains NaN or infinite values")
-    if np.any(arr <= 0.0):
-        raise ValueError(f"{name} must be > 0 at every epoch (min {arr.min():g})")
+    if np.any(arr < 0.0) or (not allow_zero and np.any(arr == 0.0)):
+        raise ValueError(f"{name} must be {'≥' if allow_zero else '>'} 0 at every epoch (min {arr.min():g})")
     return np.ascontiguousarray(arr)
 
 
@@ -501,7 +503,7 @@ def _to_internal(m: int, scale: float) -> np.ndarray:
     return T
 
 
-def _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0):
+def _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0, Q_rw_mgal2=None):
     m = _check_m(m)
     dt = _check_dt(dt_s)
     z = np.ascontiguousarray(np.asarray(z_mgal, dtype=float))
@@ -518,6 +520,12 @@ def _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0):
             f"got {nfin} finite of {N}")
     Q = _per_epoch("Q_mgal2", Q_mgal2, N)
     R = _per_epoch("R_cm2s2", R_cm2s2, N)
+    if Q_rw_mgal2 is None:
+        Q0 = np.zeros(N)
+    else:
+        if m < 2:
+            raise ValueError("Q_rw_mgal2 (a random-walk part beside ∇^m δg = q) needs m ≥ 2")
+        Q0 = _per_epoch("Q_rw_mgal2", Q_rw_mgal2, N, allow_zero=True)
     scale = MGAL_PER_CMS2 / dt
     Rs = R * (scale * scale)  # variance of ρ = 1000 r/Δt (mGal²)
     n = m + 2
@@ -553,11 +561,11 @@ def _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0):
         P0v = 0.5 * (P0v + P0v.T)
     if not np.all(np.isfinite(x0v)) or not np.all(np.isfinite(P0v)):
         raise ValueError("x0 / P0 must be finite")
-    return m, z, Q, Rs, np.ascontiguousarray(x0v), np.ascontiguousarray(P0v)
+    return m, z, Q, Q0, Rs, np.ascontiguousarray(x0v), np.ascontiguousarray(P0v)
 
 
 def kalman_smooth(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, method: str = "bf",
-                  x0=None, P0=None) -> SmootherResult:
+                  x0=None, P0=None, Q_rw_mgal2=None) -> SmootherResult:
     """Fixed-interval smoothing of one line under the seed-000 model.
 
     Parameters
@@ -579,6 +587,12 @@ def kalman_smooth(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, method: str = "bf"
         Prior mean (m+2,) and covariance (m+2, m+2) of ``y_0`` in model units
         (δg in mGal, r in cm/s).  Default: the diffuse-ish prior described in the
         module docstring.
+    Q_rw_mgal2 : float or array_like, shape (T,), optional
+        Two-component anomaly (m ≥ 2 only): ``δg = s + u`` with ``∇^m s = q`` (variance
+        ``Q_mgal2``) and a random walk ``∇u = w`` of variance ``Q_rw_mgal2`` (mGal² per
+        step, ≥ 0).  With 0 it is the plain order-m model; with a large random-walk part
+        and a tiny Q it behaves like m = 1 while the smooth part keeps its slope.
+        Internally the second state component is then the smooth part's slope.
 
     Returns
     -------
@@ -592,13 +606,13 @@ def kalman_smooth(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, method: str = "bf"
     """
     if method not in ("bf", "rts"):
         raise ValueError(f"method must be 'bf' or 'rts', got {method!r}")
-    m, z, Q, Rs, x0v, P0v = _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0)
+    m, z, Q, Q0, Rs, x0v, P0v = _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0, Q_rw_mgal2)
     N = z.shape[0]
     mean = np.empty(N)
     var = np.empty(N)
     filt = np.empty(N)
     fn = _smooth_bf if method == "bf" else _smooth_rts
-    ll = fn(z, Q, Rs, m, x0v, P0v, mean, var, filt)
+    ll = fn(z, Q, Q0, Rs, m, x0v, P0v, mean, var, filt)
     if np.any(var < 0.0):
         # Only round-off can produce this; report rather than hide it.
         neg = var.min()
@@ -609,11 +623,12 @@ def kalman_smooth(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, method: str = "bf"
                           filtered_mgal=filt)
 
 
-def kalman_loglik(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, x0=None, P0=None) -> float:
+def kalman_loglik(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, x0=None, P0=None,
+                  Q_rw_mgal2=None) -> float:
     """Innovations log-likelihood of one line (Kalman filter only; same prior as
     :func:`kalman_smooth`).  Units and validation as in :func:`kalman_smooth`."""
-    m, z, Q, Rs, x0v, P0v = _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0)
-    return float(_loglik_only(z, Q, Rs, m, x0v, P0v))
+    m, z, Q, Q0, Rs, x0v, P0v = _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0, Q_rw_mgal2)
+    return float(_loglik_only(z, Q, Q0, Rs, m, x0v, P0v))
 
 
 def smooth_many(z_lines: Sequence, Q_lines, R_lines, dt_s, m: int = 2,

@@ -299,3 +299,50 @@ def test_seed002_sphere_tfs_equals_rts():
     np.testing.assert_allclose(Pt, Pr, rtol=1e-6)
     # the smoother is near the one-offset floor sqrt(20/1001) = 0.14 mGal, far below the noise
     assert np.sqrt(np.mean((xr[:, 0] - g) ** 2)) < 0.5
+
+
+def test_two_component_anomaly_matches_pykalman():
+    """δg = s + u with ∇²s = q (Q) and a random walk ∇u = w (Q_rw, switching along the
+    line): the numba BF/RTS equal pykalman's smoother on the same 4-state model
+    (δg, slope of s, ρ_k, ρ_{k−1}), means, variances and log-likelihood."""
+    pykalman = pytest.importorskip("pykalman")
+    rng = np.random.default_rng(5)
+    dt, T, Q, R = 1.0, 400, 0.01, 0.01
+    c = 1000.0 / dt
+    q_rw = np.where((np.arange(T) // 100) % 2 == 1, 0.5, 0.0)       # rough stretches: a random walk
+    s = np.cumsum(np.cumsum(rng.normal(size=T) * np.sqrt(Q)))
+    u = np.cumsum(rng.normal(size=T) * np.sqrt(q_rw))
+    r = rng.normal(size=T + 1) * np.sqrt(R)
+    z = 30.0 + s + u - c * (r[1:] - r[:-1])
+    z[123] = np.nan
+    A = np.array([[1.0, 1.0, 0, 0], [0, 1.0, 0, 0], [0, 0, 0, 0], [0, 0, 1.0, 0]])
+    Cm = np.array([[1.0, 0, -1.0, 1.0]])
+    W = np.zeros((T - 1, 4, 4))
+    W[:, :2, :2] = Q
+    W[:, 0, 0] += q_rw[1:]
+    W[:, 2, 2] = R * c * c
+    x_int = np.array([float(np.nanmean(z[:20])), 0.0, 0.0, 0.0])
+    P_int = np.diag([1e4, 1.0, R * c * c, R * c * c])
+    kf = pykalman.KalmanFilter(transition_matrices=A, observation_matrices=Cm, transition_covariance=W,
+                               observation_covariance=np.zeros((1, 1)), initial_state_mean=x_int,
+                               initial_state_covariance=P_int)
+    zm = np.ma.masked_invalid(z)
+    means, covs = kf.smooth(zm)
+    # the same prior in the model's basis (δg_k, δg_{k−1}, r_k, r_{k−1}): internal = Tm · model
+    Tm = np.array([[1.0, 0, 0, 0], [1.0, -1.0, 0, 0], [0, 0, c, 0], [0, 0, 0, c]])
+    Ti = np.linalg.inv(Tm)
+    x0, P0 = Ti @ x_int, Ti @ P_int @ Ti.T
+    for method in ("bf", "rts"):
+        res = kalman_smooth(z, Q, R, dt, m=2, method=method, x0=x0, P0=P0, Q_rw_mgal2=q_rw)
+        np.testing.assert_allclose(res.dg_mgal, means[:, 0], rtol=1e-7, atol=1e-7 * np.abs(means[:, 0]).max())
+        np.testing.assert_allclose(res.dg_std_mgal ** 2, covs[:, 0, 0], rtol=1e-6)
+    ll = kalman_loglik(z, Q, R, dt, m=2, x0=x0, P0=P0, Q_rw_mgal2=q_rw)
+    assert ll == pytest.approx(kf.loglikelihood(zm), rel=1e-8)
+    # no random-walk part: exactly the plain m = 2 model
+    a = kalman_smooth(z, Q, R, dt, m=2, x0=x0, P0=P0, Q_rw_mgal2=0.0)
+    b = kalman_smooth(z, Q, R, dt, m=2, x0=x0, P0=P0)
+    np.testing.assert_array_equal(a.dg_mgal, b.dg_mgal)
+    with pytest.raises(ValueError, match="m ≥ 2"):
+        kalman_smooth(z, Q, R, dt, m=1, Q_rw_mgal2=q_rw)
+    with pytest.raises(ValueError, match="Q_rw_mgal2"):
+        kalman_smooth(z, Q, R, dt, m=2, Q_rw_mgal2=-q_rw - 1)
