@@ -40,6 +40,9 @@ class ProcessingParams(_Strict):
     gnss_rate_hz: float | None = Field(None, gt=0, description="Declared GNSS rate (Hz); inferred when None")
     rate_tolerance: float = Field(0.25, gt=0, description="Allowed relative deviation of the median rate from the declared one")
     max_gap_s: float = Field(1.0, gt=0, description="Longest allowed gap between consecutive samples inside a line window (s)")
+    gravimeter_gap_margin_s: float = Field(2.0, ge=0, description="Epochs of z within this margin of a gap in "
+                                           "the gravimeter record are treated as missing (the lag inversion "
+                                           "spreads the unknown integral over ~τ)")
     despike_threshold: float | None = Field(6.0, gt=0, description="Drop epochs of z whose residual from a "
                                             "1 s running median exceeds this many local robust std (GNSS velocity "
                                             "spikes, cycle slips) are repaired; None keeps z as it is")

@@ -107,6 +107,19 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     dt = np.diff(t)
     long_step = np.concatenate([[False], dt > 1.5 * np.median(dt)])
     z[long_step] = np.nan
+    # nor is one whose gravimeter integral crosses a gap of the gravimeter record: the
+    # spline bridges it, but ∫f over the gap is unknown and every z after it would carry
+    # the error (the lag inversion's derivative spreads it over ~τ: keep a margin)
+    gt = gr["time"].to_numpy(float) + (offset if applied else 0.0)
+    gstep = np.diff(gt)
+    gh = float(np.median(gstep))
+    for i in np.flatnonzero(gstep > 1.5 * gh):
+        a = gt[i] - p.gravimeter_gap_margin_s
+        b = gt[i + 1] + p.gravimeter_gap_margin_s
+        hit = (t > a) & (np.concatenate([[t[0] - 1.0], t[:-1]]) < b)
+        z[hit] = np.nan
+        notes.append(f"gravimeter record gap {gt[i]:.2f}–{gt[i + 1]:.2f} s: {int(hit.sum())} epochs of z "
+                     "left without measurement")
     if p.despike_threshold is not None:
         from app.core.measurement import repair_spikes, spike_mask
 
@@ -336,6 +349,36 @@ class Regularized:
     skipped: dict                  # line → reason
 
 
+def finite_segments(z) -> list[tuple[int, int]]:
+    """(start, stop) index pairs of the runs of finite values of z."""
+    ok = np.isfinite(np.asarray(z, float))
+    d = np.diff(np.concatenate([[0], ok.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+
+
+def _regularize_segments(z_mgal, m: int, design):
+    """Regularize each finite stretch of a line separately and join the results.
+
+    A missing epoch of z cannot be filled: z is a difference of velocities, so its noise
+    telescopes (Σ z over a window leaves only the velocity errors at the window's ends);
+    any filled value leaves the neighbours' ±1000·r/Δt uncancelled — thousands of mGal in
+    one sample, tens after the low-pass, which the EM reads as anomaly bursts."""
+    from app.core.regularize import min_line_samples, regularize_line
+
+    need = min_line_samples(design, m)
+    xs, idxs = [], []
+    for a, b in finite_segments(z_mgal):
+        if b - a >= need:
+            x, idx = regularize_line(np.asarray(z_mgal[a:b], float), m, design)
+            xs.append(x)
+            idxs.append(idx + a)
+    if not xs:
+        n = int(np.isfinite(np.asarray(z_mgal, float)).sum())
+        raise ValueError(f"line too short for regularization: no stretch without missing epochs has {need} "
+                         f"samples ({n} finite of {len(z_mgal)})")
+    return np.concatenate(xs), np.concatenate(idxs)
+
+
 def regularize_lines(lines: list[LineData], cfg: SurveyConfig, dt_s: float) -> Regularized:
     """∇^m, Kaiser low-pass, decimation and the MA approximation (SPEC §2 step 1)."""
     from app.core.ma_approx import fit_ma_model
@@ -353,7 +396,7 @@ def regularize_lines(lines: list[LineData], cfg: SurveyConfig, dt_s: float) -> R
     kept, xs, idxs, skipped = [], [], [], {}
     for ln in use:
         try:
-            x, idx = regularize_line(gm.fill_nan(ln.z_mgal), p.m, design)
+            x, idx = _regularize_segments(ln.z_mgal, p.m, design)
         except ValueError as exc:
             skipped[ln.line] = str(exc)
             continue
