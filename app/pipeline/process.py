@@ -105,6 +105,25 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
             tau_s, scale = calibration["tau_s"], calibration["k"]
         except (ValueError, np.linalg.LinAlgError) as exc:
             warnings.append(f"in-flight calibration failed, nominal tau/scale used: {exc}")
+    lag_check = None
+    if calibration is None and p.lag_check_s is not None:
+        # the declared lag τ is checked in flight (seed 001 calibration, τ only): a wrong τ
+        # leaves (τ_true − τ)·ḟ of the aircraft's jerk in z, thousands of mGal
+        taus = []
+        for name in sorted(survey.flights)[:3]:
+            try:
+                taus.append(stages.calibrate_gravimeter(survey.flights[name], cfg, params=("tau",))["tau_s"])
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+        if taus:
+            tau_est = float(np.median(taus))
+            applied = abs(tau_est - cfg.gravimeter.tau_s) > p.lag_check_s
+            lag_check = {"declared_tau_s": cfg.gravimeter.tau_s, "estimated_tau_s": taus, "applied": applied}
+            if applied:
+                tau_s = tau_est
+                warnings.append(f"gravimeter lag: survey.toml says τ = {cfg.gravimeter.tau_s:g} s, the flights say "
+                                f"{tau_est:.3f} s (estimates {', '.join(f'{v:.3f}' for v in taus)}); "
+                                f"using {tau_est:.3f} s")
     flights = {}
     base_ties: dict = {}
     names = list(survey.flights)
@@ -324,6 +343,8 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
                                  "Q_stationary_mgal2": {str(k): v for k, v in order.Q_mgal2.items()}}
     if calibration is not None:
         report["calibration"] = calibration
+    if lag_check is not None:
+        report["lag_check"] = lag_check
     if level_fit is not None:
         report["level_refinement"] = {"Q_mgal2": level_fit.Q_mgal2.tolist(),
                                       "R_local_scale": r_scale,

@@ -211,7 +211,8 @@ def base_tie(m: FlightMeasurement, base_gravity_mgal: float | None) -> dict:
     return info
 
 
-def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600.0) -> dict:
+def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600.0,
+                         params: tuple = ("tau", "k")) -> dict:
     """In-flight calibration of τ and k (seed 001 §3–4) on one flight's longest airborne
     stretch without gaps, by frequency-domain weighted least squares.
 
@@ -256,7 +257,7 @@ def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600
     # band must be weighted down generously: with 0.01 / 1 / 10 mGal² per step the scale k
     # came out 11σ / 2σ / 0.7σ from the truth on the simulator (τ within 1σ in all three).
     spectra = CalibrationSpectra.from_epoch_variances(dt, f_var_mgal2=1.0, dg_step_var_mgal2=10.0, r_cm2s2=r)
-    res = calibrate(tt[sl], z[sl], fraw[sl], spectra=spectra, params=("tau", "k"),
+    res = calibrate(tt[sl], z[sl], fraw[sl], spectra=spectra, params=tuple(params),
                     tau0_s=cfg.gravimeter.tau_s, k0=cfg.gravimeter.scale, fdot_raw_ms3=fdot[sl])
     names = list(res.names)
     return {"flight": flight.name, "t_start": float(tt[1]), "t_end": float(tt[-1]),

@@ -92,6 +92,7 @@ def test_missing_base_tie_is_reported(tmp_path, tiny_processed):
 
     _, report, _ = tiny_processed
     assert not any("base tie" in w for w in report["warnings"])
+    assert report["lag_check"]["applied"] is False          # the declared τ is the true one
     survey = simulate_survey("tiny", tmp_path / "s", seed=4, n_main=2, n_tie=1, apron_s=0.0)
     rep = process_survey(survey, tmp_path / "out")
     assert any("no absolute base tie" in w for w in rep["warnings"])
@@ -110,3 +111,25 @@ def test_one_hz_gnss_survey_is_processed(tmp_path):
     err = {c: m[c] - m["dg_true_mgal"] for c in ("dg_unleveled_mgal", "dg_fir_mgal")}
     rms = {c: float(np.sqrt(np.nanmean((e - e.groupby(m["line"]).transform("mean")) ** 2))) for c, e in err.items()}
     assert rms["dg_unleveled_mgal"] < rms["dg_fir_mgal"], rms
+
+
+def test_wrong_declared_lag_is_detected_in_flight(tmp_path):
+    """survey.toml declares τ = 2.0 s, the instrument's is 2.4 s: the τ-only in-flight
+    calibration must find it and the estimate must recover (simulation, known truth)."""
+    from app.pipeline.process import process_survey
+    from app.simulate import simulate_survey
+
+    survey = simulate_survey("tiny", tmp_path / "s", seed=6, tau_true_s=2.4)
+    truth = pd.read_parquet(survey / "truth" / "lines.parquet")
+
+    def rms(out):
+        m = merge_truth(pd.read_parquet(out / "lines.parquet"), truth)
+        e = m["dg_unleveled_mgal"] - m["dg_true_mgal"]
+        return float(np.sqrt(np.nanmean((e - e.groupby(m["line"]).transform("mean")) ** 2)))
+
+    rep = process_survey(survey, tmp_path / "checked")
+    lc = rep["lag_check"]
+    assert lc["applied"] and abs(np.median(lc["estimated_tau_s"]) - 2.4) < 0.03
+    assert any("gravimeter lag" in w for w in rep["warnings"])
+    process_survey(survey, tmp_path / "trusted", {"lag_check_s": None})
+    assert rms(tmp_path / "checked") < 0.5 * rms(tmp_path / "trusted")
