@@ -106,11 +106,11 @@ class ProcessingParams(_Strict):
     leveling_degree: int = Field(1, ge=0, le=2)
     std_crossover_check: bool = Field(True, description="Rescale dg_std by what the crossover differences say "
                                       "about the two lines' errors (widen only, below std_crossover_min_n)")
-    std_crossover_min_n: int = Field(100, ge=3, description="Crossovers needed to also narrow dg_std (fewer: the "
-                                     "check only widens it; errors are correlated along lines, so a few tens of "
-                                     "crossovers scatter by a factor of two)")
-    std_crossover_min_factor: float = Field(0.7, gt=0, le=1, description="Never narrow dg_std by more than this "
-                                            "factor")
+    std_crossover_min_n: int = Field(20, ge=3, description="Crossovers needed to also narrow dg_std (fewer: the "
+                                     "check only widens it)")
+    std_crossover_min_factor: float = Field(0.75, gt=0, le=1, description="Never narrow dg_std by more than this "
+                                            "factor (errors are correlated along lines: a few tens of crossovers "
+                                            "scatter by a factor of two)")
     std_crossover_shared_fraction: float = Field(0.4, ge=0, lt=1, description="Correlation assumed between two "
                                                  "crossing lines' errors (they share part of the unresolved anomaly "
                                                  "at the crossing), so Var(diff) = 2σ²(1 − this)")

@@ -180,8 +180,8 @@ def std_calibration(error_mgal, std_mgal, k: float = 2.0) -> float:
     return float(np.mean(np.abs(e[ok]) < k * s[ok]))
 
 
-def crossover_std_factor(diff_mgal, pred_var_mgal2, shared_fraction: float = 0.4, min_n_narrow: int = 100,
-                         min_factor: float = 0.7, max_factor: float = 20.0) -> dict:
+def crossover_std_factor(diff_mgal, pred_var_mgal2, shared_fraction: float = 0.4, min_n_narrow: int = 20,
+                         min_factor: float = 0.75, max_factor: float = 20.0) -> dict:
     """Scale factor for the lines' posterior std from the crossover differences.
 
     At a crossing the difference of two lines' estimates has variance
@@ -191,9 +191,9 @@ def crossover_std_factor(diff_mgal, pred_var_mgal2, shared_fraction: float = 0.4
     std agree with the crossovers is therefore
     ``sqrt(mean(diff²) / mean(σ_a² + σ_b²)) / sqrt(1 − ρ)``.
 
-    Errors are correlated along lines, so a few tens of crossovers scatter by a
-    factor of two: below ``min_n_narrow`` crossovers the factor only widens (≥ 1);
-    it never narrows below ``min_factor``.
+    Below ``min_n_narrow`` crossovers the factor only widens (≥ 1).  Errors are
+    correlated along lines, so a few tens of crossovers scatter by a factor of two:
+    the factor never narrows below ``min_factor``.
 
     Parameters
     ----------
