@@ -73,6 +73,9 @@ class ProcessingParams(_Strict):
     include_tie_lines: bool = True
     refine_levels: bool = Field(True, description="Re-estimate Q_i, R_j by full-rate Kalman likelihood given the "
                                 "recognised states (the decimated EM can collapse a smooth state's Q)")
+    q_from_posteriors: bool = Field(True, description="Q(t) for filtering: the Q levels' geometric mean weighted "
+                                    "by the smoothed map's probabilities, interpolated between decimated points "
+                                    "(False: the held state's level, jumping at the hold boundaries)")
     noise_model: Literal["band", "local", "states"] = Field(
         "band", description="GNSS noise level for filtering: 'band' = R(t) from z's content just above the "
         "anomaly band (noise_band_hz), scaled to the EM's in-band level; 'local' = R(t) from the high-frequency "

@@ -217,10 +217,13 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     Rs = np.asarray(em.R, float)
     n_r = len(Rs)
     state_of = {}
+    pq_of = {}
+    pq_all = sprobs.reshape(len(sprobs), len(em.Q), n_r).sum(axis=2)
     off = 0
     for ln, idx in zip(reg.lines, reg.idx):
         nl = len(idx)
         state_of[ln.line] = (idx, labels[off:off + nl])
+        pq_of[ln.line] = pq_all[off:off + nl]
         off += nl
     margin = int(round(60.0 / dt_s))
     r_local = {}
@@ -281,6 +284,13 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     frames = []
     for i, (ln, s_full, s_ext, z_ext, inner, rl) in enumerate(prepared):
         q = Qs[s_ext // n_r]
+        if p.q_from_posteriors and ln.line in pq_of:
+            # where the map is unsure between levels, a level between them (geometric mean
+            # weighted by the smoothed probabilities), changing smoothly between decimated
+            # points instead of jumping at the hold boundaries
+            idx, _ = state_of[ln.line]
+            logq = pq_of[ln.line] @ np.log(Qs)
+            q = np.exp(np.interp(np.arange(len(s_ext)) - inner.start, idx, logq))
         r = Rs[s_ext % n_r] if rl is None else r_scale * rl
         dg, std = stages.filter_line(z_ext, q, r, dt_s, p.m, p.smoother)
         # stationary baseline (seed 000 Fig. 8): one (Q₁, R₁) pair — the smooth state's Q
@@ -294,7 +304,7 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
             "z_mgal": ln.z_mgal, "dg_mgal": dg[inner], "dg_std_mgal": std[inner],
             "dg_unleveled_mgal": dg[inner], "dg_stationary_mgal": dgs[inner],
             "dg_fir_mgal": fir[ln.flight][ln.sl], "state": s_full,
-            "Q_mgal2": Qs[s_full // n_r], "R_cm2s2": r[inner],
+            "Q_mgal2": q[inner], "R_cm2s2": r[inner],
             "track": ln.track,
         }))
         tr.emit((i + 1) / len(lines))
