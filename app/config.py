@@ -105,7 +105,8 @@ class ProcessingParams(_Strict):
     calibrate: bool = False
     lag_check_s: float | None = Field(0.05, gt=0, description="Estimate the gravimeter lag τ in flight (τ only, "
                                       "first three flights) and use the median when it differs from survey.toml's "
-                                      "by more than this (s); None trusts survey.toml")
+                                      "by more than this (s) and the flights agree within it; None trusts "
+                                      "survey.toml")
     leveling_degree: int = Field(1, ge=0, le=2)
     std_crossover_check: bool = Field(True, description="Rescale dg_std by what the crossover differences say "
                                       "about the two lines' errors (widen only, below std_crossover_min_n)")

@@ -117,7 +117,9 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
                 continue
         if taus:
             tau_est = float(np.median(taus))
-            applied = abs(tau_est - cfg.gravimeter.tau_s) > p.lag_check_s
+            # only a consistent disagreement: every flight must agree within the tolerance
+            applied = (abs(tau_est - cfg.gravimeter.tau_s) > p.lag_check_s
+                       and float(np.ptp(taus)) < p.lag_check_s)
             lag_check = {"declared_tau_s": cfg.gravimeter.tau_s, "estimated_tau_s": taus, "applied": applied}
             if applied:
                 tau_s = tau_est
