@@ -118,8 +118,9 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
         b = gt[i + 1] + p.gravimeter_gap_margin_s
         hit = (t > a) & (np.concatenate([[t[0] - 1.0], t[:-1]]) < b)
         z[hit] = np.nan
-        notes.append(f"gravimeter record gap {gt[i]:.2f}–{gt[i + 1]:.2f} s: {int(hit.sum())} epochs of z "
-                     "left without measurement")
+        if gt[i + 1] - gt[i] <= 60.0 and hit.any():  # a dropout, not a pause of the recording
+            notes.append(f"gravimeter record gap {gt[i]:.2f}–{gt[i + 1]:.2f} s: {int(hit.sum())} epochs of z "
+                         "left without measurement")
     if p.despike_threshold is not None:
         from app.core.measurement import repair_spikes, spike_mask
 
