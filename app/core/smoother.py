@@ -172,6 +172,25 @@ def _update(m, xp, Pp, zk, x, P, K, g, h):
 
 
 @njit(cache=True)
+def _filter_step(m, k, zk, Qk, Q0k, Rk, x, P, xp, Pp, T, K, g, h):
+    """One Kalman filter step in place: predict (k > 0; at k = 0 ``xp``/``Pp`` hold the
+    prior), then update with ``zk`` or, when it is missing (NaN), carry the prediction.
+
+    Returns (log-likelihood increment, innovation ν, its variance s); s = 0 when missing."""
+    n = m + 2
+    if k > 0:
+        _predict(m, x, P, xp, Pp, T, Qk, Q0k, Rk)
+    if zk == zk:  # finite
+        nu, s = _update(m, xp, Pp, zk, x, P, K, g, h)
+        return -0.5 * (_LOG_2PI + np.log(s) + nu * nu / s), nu, s
+    for i in range(n):
+        x[i] = xp[i]
+        for j in range(n):
+            P[i, j] = Pp[i, j]
+    return 0.0, 0.0, 0.0
+
+
+@njit(cache=True)
 def _forward_bf(z, Qs, Q0s, Rs, m, x0, P0, xf0, prow, Kst, nust, sinv):
     """Kalman filter storing what the modified Bryson–Frazier pass needs."""
     n = m + 2
@@ -186,24 +205,12 @@ def _forward_bf(z, Qs, Q0s, Rs, m, x0, P0, xf0, prow, Kst, nust, sinv):
     h = np.empty(n)
     ll = 0.0
     for k in range(N):
-        if k > 0:
-            _predict(m, x, P, xp, Pp, T, Qs[k], Q0s[k], Rs[k])
-        zk = z[k]
-        if zk == zk:  # finite
-            nu, s = _update(m, xp, Pp, zk, x, P, K, g, h)
-            ll -= 0.5 * (_LOG_2PI + np.log(s) + nu * nu / s)
-            for i in range(n):
-                Kst[k, i] = K[i]
-            nust[k] = nu
-            sinv[k] = 1.0 / s
-        else:
-            for i in range(n):
-                x[i] = xp[i]
-                Kst[k, i] = 0.0
-                for j in range(n):
-                    P[i, j] = Pp[i, j]
-            nust[k] = 0.0
-            sinv[k] = 0.0
+        dll, nu, s = _filter_step(m, k, z[k], Qs[k], Q0s[k], Rs[k], x, P, xp, Pp, T, K, g, h)
+        ll += dll
+        for i in range(n):
+            Kst[k, i] = K[i] if s > 0.0 else 0.0
+        nust[k] = nu
+        sinv[k] = 1.0 / s if s > 0.0 else 0.0
         xf0[k] = x[0]
         for j in range(n):
             prow[k, j] = P[0, j]
@@ -334,17 +341,7 @@ def _loglik_only(z, Qs, Q0s, Rs, m, x0, P0):
     h = np.empty(n)
     ll = 0.0
     for k in range(N):
-        if k > 0:
-            _predict(m, x, P, xp, Pp, T, Qs[k], Q0s[k], Rs[k])
-        zk = z[k]
-        if zk == zk:
-            nu, s = _update(m, xp, Pp, zk, x, P, K, g, h)
-            ll -= 0.5 * (_LOG_2PI + np.log(s) + nu * nu / s)
-        else:
-            for i in range(n):
-                x[i] = xp[i]
-                for j in range(n):
-                    P[i, j] = Pp[i, j]
+        ll += _filter_step(m, k, z[k], Qs[k], Q0s[k], Rs[k], x, P, xp, Pp, T, K, g, h)[0]
     return ll
 
 
@@ -396,17 +393,7 @@ def _smooth_rts(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt):
     h = np.empty(n)
     ll = 0.0
     for k in range(N):
-        if k > 0:
-            _predict(m, x, P, xp, Pp, T, Qs[k], Q0s[k], Rs[k])
-        zk = z[k]
-        if zk == zk:
-            nu, s = _update(m, xp, Pp, zk, x, P, K, g, h)
-            ll -= 0.5 * (_LOG_2PI + np.log(s) + nu * nu / s)
-        else:
-            for i in range(n):
-                x[i] = xp[i]
-                for j in range(n):
-                    P[i, j] = Pp[i, j]
+        ll += _filter_step(m, k, z[k], Qs[k], Q0s[k], Rs[k], x, P, xp, Pp, T, K, g, h)[0]
         xs[k] = x
         Ps[k] = P
         xps[k] = xp
