@@ -23,6 +23,8 @@ from scipy.linalg import expm
 from app.core.smoother import (
     SmootherResult,
     _chol_solve_inplace,
+    _mm,
+    _mmT,
     kalman_loglik,
     kalman_smooth,
 )
@@ -439,31 +441,6 @@ def _discretize(dt, qa, qg):
     Qd = 0.5 * (Qd + Qd.T)
     Bc = np.array([0.5 * dt * dt, dt, 0.0, 0.0])
     return Phi, Bc, Qd
-
-
-@njit(cache=True)
-def _mm(A, B, out):
-    n, k = A.shape
-    p = B.shape[1]
-    for i in range(n):
-        for j in range(p):
-            s = 0.0
-            for l in range(k):
-                s += A[i, l] * B[l, j]
-            out[i, j] = s
-
-
-@njit(cache=True)
-def _mmT(A, B, out):
-    """out = A Bᵀ."""
-    n, k = A.shape
-    p = B.shape[0]
-    for i in range(n):
-        for j in range(p):
-            s = 0.0
-            for l in range(k):
-                s += A[i, l] * B[j, l]
-            out[i, j] = s
 
 
 @njit(cache=True)

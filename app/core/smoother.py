@@ -172,6 +172,14 @@ def _update(m, xp, Pp, zk, x, P, K, g, h):
 
 
 @njit(cache=True)
+def _filter_state(x0, P0):
+    """Working arrays of :func:`_filter_step`: x, P, xp, Pp (from the prior) and scratch."""
+    n = x0.shape[0]
+    return (x0.copy(), P0.copy(), x0.copy(), P0.copy(), np.empty((n, n)), np.zeros(n), np.empty(n),
+            np.empty(n))
+
+
+@njit(cache=True)
 def _filter_step(m, k, zk, Qk, Q0k, Rk, x, P, xp, Pp, T, K, g, h):
     """One Kalman filter step in place: predict (k > 0; at k = 0 ``xp``/``Pp`` hold the
     prior), then update with ``zk`` or, when it is missing (NaN), carry the prediction.
@@ -195,14 +203,7 @@ def _forward_bf(z, Qs, Q0s, Rs, m, x0, P0, xf0, prow, Kst, nust, sinv):
     """Kalman filter storing what the modified Bryson–Frazier pass needs."""
     n = m + 2
     N = z.shape[0]
-    x = x0.copy()
-    P = P0.copy()
-    xp = x0.copy()
-    Pp = P0.copy()
-    T = np.empty((n, n))
-    K = np.zeros(n)
-    g = np.empty(n)
-    h = np.empty(n)
+    x, P, xp, Pp, T, K, g, h = _filter_state(x0, P0)
     ll = 0.0
     for k in range(N):
         dll, nu, s = _filter_step(m, k, z[k], Qs[k], Q0s[k], Rs[k], x, P, xp, Pp, T, K, g, h)
@@ -331,18 +332,37 @@ def _smooth_bf(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt):
 def _loglik_only(z, Qs, Q0s, Rs, m, x0, P0):
     n = m + 2
     N = z.shape[0]
-    x = x0.copy()
-    P = P0.copy()
-    xp = x0.copy()
-    Pp = P0.copy()
-    T = np.empty((n, n))
-    K = np.zeros(n)
-    g = np.empty(n)
-    h = np.empty(n)
+    x, P, xp, Pp, T, K, g, h = _filter_state(x0, P0)
     ll = 0.0
     for k in range(N):
         ll += _filter_step(m, k, z[k], Qs[k], Q0s[k], Rs[k], x, P, xp, Pp, T, K, g, h)[0]
     return ll
+
+
+@njit(cache=True)
+def _mm(A, B, out):
+    """out = A B."""
+    n, k = A.shape
+    p = B.shape[1]
+    for i in range(n):
+        for j in range(p):
+            s = 0.0
+            for l in range(k):
+                s += A[i, l] * B[l, j]
+            out[i, j] = s
+
+
+@njit(cache=True)
+def _mmT(A, B, out):
+    """out = A Bᵀ."""
+    n, k = A.shape
+    p = B.shape[0]
+    for i in range(n):
+        for j in range(p):
+            s = 0.0
+            for l in range(k):
+                s += A[i, l] * B[j, l]
+            out[i, j] = s
 
 
 @njit(cache=True)
@@ -383,14 +403,7 @@ def _smooth_rts(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt):
     Ps = np.empty((N, n, n))
     xps = np.empty((N, n))
     Pps = np.empty((N, n, n))
-    x = x0.copy()
-    P = P0.copy()
-    xp = x0.copy()
-    Pp = P0.copy()
-    T = np.empty((n, n))
-    K = np.zeros(n)
-    g = np.empty(n)
-    h = np.empty(n)
+    x, P, xp, Pp, T, K, g, h = _filter_state(x0, P0)
     ll = 0.0
     for k in range(N):
         ll += _filter_step(m, k, z[k], Qs[k], Q0s[k], Rs[k], x, P, xp, Pp, T, K, g, h)[0]
@@ -433,18 +446,11 @@ def _smooth_rts(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt):
             for j in range(n):
                 s += G[i, j] * dx[j]
             xtmp[i] = xs[k, i] + s
+        _mm(G, D, GD)
+        _mmT(GD, G, Psm)
         for i in range(n):
             for j in range(n):
-                s = 0.0
-                for l in range(n):
-                    s += G[i, l] * D[l, j]
-                GD[i, j] = s
-        for i in range(n):
-            for j in range(n):
-                s = 0.0
-                for l in range(n):
-                    s += GD[i, l] * G[j, l]
-                Psm[i, j] = Pk[i, j] + s
+                Psm[i, j] += Pk[i, j]
         for i in range(n):
             for j in range(i + 1, n):
                 v = 0.5 * (Psm[i, j] + Psm[j, i])
