@@ -50,6 +50,31 @@ def synthetic_recognition(n_lines: int = 74, length_km: float = 100.0, spacing_k
     return df
 
 
+def store_recognition_result(app, rec: pd.DataFrame, name: str) -> int:
+    """Store ``rec`` as the current result of a new survey of ``app`` (a succeeded job with
+    only ``recognition.parquet`` and ``identification.json``); returns the survey id."""
+    from app.web.db import Job, Result, Survey
+
+    with app.state.Session() as db:
+        s = Survey(name=name)
+        db.add(s)
+        db.flush()
+        j = Job(survey_id=s.id, kind="process", status="succeeded", progress=1.0, params={}, em_iterations=[])
+        db.add(j)
+        db.flush()
+        res_dir = Path(app.state.settings.data_dir) / "surveys" / str(s.id) / "results" / f"job-{j.id}"
+        res_dir.mkdir(parents=True)
+        rec.to_parquet(res_dir / "recognition.parquet", index=False)
+        (res_dir / "identification.json").write_text(json.dumps(
+            {"states": [{"index": 0, "Q": 0.04, "R": 1.7}, {"index": 1, "Q": 0.35, "R": 1.7}]}))
+        r = Result(survey_id=s.id, job_id=j.id, dir=str(res_dir), report={})
+        db.add(r)
+        db.flush()
+        s.current_result_id = r.id
+        db.commit()
+        return s.id
+
+
 def _free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -65,31 +90,13 @@ def main(argv=None) -> dict:
     import httpx
     import uvicorn
 
-    from app.web.db import Job, Result, Survey
     from app.web.main import create_app
     from app.web.settings import Settings
 
     tmp = Path(tempfile.mkdtemp(prefix="aerograv-bench-"))
     app = create_app(Settings(data_dir=tmp / "data"))
-    res_dir = tmp / "data" / "surveys" / "1" / "results" / "job-1"
-    res_dir.mkdir(parents=True)
     rec = synthetic_recognition(a.lines)
-    rec.to_parquet(res_dir / "recognition.parquet", index=False)
-    (res_dir / "identification.json").write_text(json.dumps(
-        {"states": [{"index": 0, "Q": 0.04, "R": 1.7}, {"index": 1, "Q": 0.35, "R": 1.7}]}))
-    with app.state.Session() as db:
-        s = Survey(name="bench-74-lines")
-        db.add(s)
-        db.flush()
-        j = Job(survey_id=s.id, kind="process", status="succeeded", progress=1.0, params={}, em_iterations=[])
-        db.add(j)
-        db.flush()
-        r = Result(survey_id=s.id, job_id=j.id, dir=str(res_dir), report={})
-        db.add(r)
-        db.flush()
-        s.current_result_id = r.id
-        db.commit()
-        sid = s.id
+    sid = store_recognition_result(app, rec, f"bench-{a.lines}-lines")
 
     port = _free_port()
     server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import gzip
-import time
 from pathlib import Path
 
 import numpy as np
@@ -438,10 +437,12 @@ def test_path_length_meridian_against_pyproj():
     assert path_length_km(lat, lon) == pytest.approx(ref, rel=1e-8)
 
 
-# ------------------------------------------------------------------ speed
+# ------------------------------------------------------------------ large files
 
 
-def test_timing_one_million_rows(tmp_path):
+def test_one_million_rows_round_trip(tmp_path):
+    """A flight of 10⁶ gravimeter rows (15 h at 18.24 Hz) is read whole and unchanged
+    (the reading time is printed by benchmarks/bench_pipeline.py as the ingest stage)."""
     n = 1_000_000
     t = np.round(T0 + np.arange(n) / GRAV_HZ, 4)
     rng = np.random.default_rng(1)
@@ -457,12 +458,11 @@ def test_timing_one_million_rows(tmp_path):
     root = write_survey(tmp_path / "s", lines, {"F1": (g.iloc[:10], nav.iloc[:10])})
     for df, name in ((g, "gravimeter.csv"), (nav, "gnss.csv")):  # fast writer (pandas to_csv takes ~10 s)
         pacsv.write_csv(pa.Table.from_pandas(df, preserve_index=False), root / "flights/F1" / name)
-    t1 = time.perf_counter()
     s = read_survey(root)
-    dt = time.perf_counter() - t1
-    print(f"read_survey: {n} gravimeter rows + {m} GNSS rows in {dt:.2f} s")
-    assert len(s.flights["F1"].gravimeter) == n
-    assert dt < 30.0  # generous: shared 2-core machine
+    got = s.flights["F1"].gravimeter
+    assert len(got) == n and len(s.flights["F1"].gnss) == m
+    np.testing.assert_allclose(got["f_z"].to_numpy(), g["f_z"].to_numpy(), rtol=1e-15)
+    np.testing.assert_allclose(got["time"].to_numpy(), t, rtol=0, atol=1e-9)
 
 
 def test_unknown_toml_table(survey_dir):
