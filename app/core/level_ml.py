@@ -71,7 +71,7 @@ def select_subset(lengths, states_per_line, n_states: int, max_epochs: int, seed
 
 def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
                   max_epochs: int = 300_000, max_evaluations: int | None = None,
-                  log_bounds: float = 6.0, r_base_lines=None, fit_r: bool = True) -> LevelFit:
+                  log_bounds: float = 6.0, r_base_lines=None, fit_r: bool = True, noise=None) -> LevelFit:
     """Maximise the full-rate Kalman likelihood over the level values.
 
     Parameters
@@ -100,6 +100,8 @@ def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
         Estimate the noise levels (or α) too; False keeps them at their start values and
         fits the Q levels only (the noise level then comes from elsewhere, e.g. the EM on
         the regularized band, which is robust to coloured GNSS noise).
+    noise : app.core.noise_model.NoiseModel, optional
+        Shape of the error of z (the levels R multiply it); None: white velocity noise.
 
     Returns
     -------
@@ -149,7 +151,7 @@ def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
         total = 0.0
         for k, (z, s) in enumerate(zip(zs, ss)):
             r = R[s % n_r] if rb is None else R[0] * rb[k]
-            total += kalman_loglik(z, Q[s // n_r], r, dt_s, m=m)
+            total += kalman_loglik(z, Q[s // n_r], r, dt_s, m=m, noise=noise)
         return -total
 
     f0 = nll(th0)
@@ -173,7 +175,7 @@ class OrderChoice:
 
 
 def select_order(z_lines, r_lines, dt_s: float, candidates=(1, 2), max_epochs: int = 200_000,
-                 seed: int = 0) -> OrderChoice:
+                 seed: int = 0, noise=None) -> OrderChoice:
     """Choose the order m of the anomaly model ``∇^m δg = q`` by maximum likelihood.
 
     For each candidate m, a stationary anomaly model (one Q) with the given per-epoch
@@ -190,6 +192,8 @@ def select_order(z_lines, r_lines, dt_s: float, candidates=(1, 2), max_epochs: i
         Orders to compare (subset of 1..3).
     max_epochs : int
         Cap on the epochs used.
+    noise : app.core.noise_model.NoiseModel, optional
+        Shape of the error of z; None: white velocity noise.
     """
     from scipy.optimize import minimize_scalar
 
@@ -208,7 +212,7 @@ def select_order(z_lines, r_lines, dt_s: float, candidates=(1, 2), max_epochs: i
     ll, qs = {}, {}
     for m in candidates:
         def nll(lq, m=m):
-            return -sum(kalman_loglik(z, np.exp(lq), r, dt_s, m=m) for z, r in zip(zs, rs))
+            return -sum(kalman_loglik(z, np.exp(lq), r, dt_s, m=m, noise=noise) for z, r in zip(zs, rs))
 
         res = minimize_scalar(nll, bounds=(-30.0, 3.0), method="bounded", options={"xatol": 0.05})
         ll[m] = float(-res.fun)

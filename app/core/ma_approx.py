@@ -252,10 +252,30 @@ def fit_ma_component(
     return c, k, f, be
 
 
+def noise_filters(design: RegularizationDesign, m: int, noise=None) -> list[np.ndarray]:
+    """Full-rate impulse responses from each noise innovation to the pre-decimation ``x``.
+
+    ``noise`` None (or a white-velocity model at 1 (cm/s)²): the single ``g_r`` of
+    :func:`app.core.regularize.component_filters`.  A coloured
+    :class:`app.core.noise_model.NoiseModel`: one filter per component,
+    ``g_q ∗ ∇^m ∗ (√w_c · AR_c ∗ ∇^{j_c})`` — the component's innovation (variance R·w_c)
+    through its own shaping and the regularization; the decimated autocovariances of
+    the components add.
+    """
+    g_q, g_r = component_filters(design, m)
+    if noise is None:
+        return [g_r]
+    d_m = np.array([1.0])
+    for _ in range(int(m)):
+        d_m = np.convolve(d_m, [1.0, -1.0])
+    base = np.convolve(g_q, d_m)
+    return [np.convolve(base, h) for h in noise.impulse_responses()]
+
+
 def fit_ma_model(
     design: RegularizationDesign, m: int, K: int | None = None, L: int | None = None,
     tol: float = DEFAULT_TOL, max_order: int = DEFAULT_MAX_ORDER,
-    band_tol: float = DEFAULT_BAND_TOL, floor_db: float = DEFAULT_FLOOR_DB,
+    band_tol: float = DEFAULT_BAND_TOL, floor_db: float = DEFAULT_FLOOR_DB, noise=None,
 ) -> MAModel:
     """Fit the decimated MA model for difference order ``m``.
 
@@ -271,6 +291,10 @@ def fit_ma_model(
     max_order : int
     band_tol, floor_db : float
         Band-error threshold and the dB range below the peak it applies to.
+    noise : app.core.noise_model.NoiseModel, optional
+        The error of z (normalised: a level R in (cm/s)² of equivalent white velocity
+        noise); ``d`` then describes that coloured error on the decimated grid
+        (:func:`noise_filters`).  None: white velocity noise (seed 000).
 
     Returns
     -------
@@ -282,9 +306,12 @@ def fit_ma_model(
     if isinstance(m, bool) or int(m) != m or m < 1:
         raise ValueError(f"m must be an integer ≥ 1, got {m!r}")
     m = int(m)
-    g_q, g_r = component_filters(design, m)
+    g_q, _ = component_filters(design, m)
     gam_q = decimated_autocovariance(g_q, design.n)
-    gam_r = decimated_autocovariance(g_r, design.n)
+    gams = [decimated_autocovariance(g, design.n) for g in noise_filters(design, m, noise)]
+    gam_r = np.zeros(max(g.size for g in gams))
+    for g in gams:
+        gam_r[:g.size] += g
     c, K, fq, bq = fit_ma_component(gam_q, K, tol, max_order, band_tol, floor_db)
     d, L, fr, br = fit_ma_component(gam_r, L, tol, max_order, band_tol, floor_db)
     return MAModel(c=c, d=d, K=K, L=L, p=max(K, L), dt_dec_s=design.dt_dec_s, m=m,
@@ -313,7 +340,7 @@ def _psd_from_coef(b: np.ndarray, f_hz: np.ndarray, T: float) -> np.ndarray:
     return T * np.abs(C) ** 2
 
 
-def model_vs_true_spectrum(model: MAModel, design: RegularizationDesign, f_hz) -> dict:
+def model_vs_true_spectrum(model: MAModel, design: RegularizationDesign, f_hz, noise=None) -> dict:
     """Two-sided PSDs on the decimated grid per unit Q and per unit R.
 
     The true spectrum is the aliased sum ``Σ_{k=0}^{n−1} Δt·|G(f − k/T)|²`` of the
@@ -329,12 +356,14 @@ def model_vs_true_spectrum(model: MAModel, design: RegularizationDesign, f_hz) -
     f = np.atleast_1d(np.asarray(f_hz, dtype=float))
     T = design.dt_dec_s
     dt = design.dt_s
-    g_q, g_r = component_filters(design, model.m)
+    g_q, _ = component_filters(design, model.m)
     out = {"f_hz": f}
-    for name, g, b in (("q", g_q, model.c), ("r", g_r, model.d)):
-        fk = (f[None, :] - np.arange(design.n)[:, None] / T).ravel()
-        _, G = signal.freqz(g, worN=fk, fs=1.0 / dt)
-        true = dt * (np.abs(G) ** 2).reshape(design.n, f.size).sum(axis=0)
+    fk = (f[None, :] - np.arange(design.n)[:, None] / T).ravel()
+    for name, gs, b in (("q", [g_q], model.c), ("r", noise_filters(design, model.m, noise), model.d)):
+        true = np.zeros(f.size)
+        for g in gs:
+            _, G = signal.freqz(g, worN=fk, fs=1.0 / dt)
+            true += dt * (np.abs(G) ** 2).reshape(design.n, f.size).sum(axis=0)
         out[f"true_{name}"] = true
         out[f"model_{name}"] = _psd_from_coef(b, f, T)
     return out

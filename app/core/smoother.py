@@ -558,7 +558,7 @@ def _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0, Q_rw_mgal2=None):
 
 
 def kalman_smooth(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, method: str = "bf",
-                  x0=None, P0=None, Q_rw_mgal2=None) -> SmootherResult:
+                  x0=None, P0=None, Q_rw_mgal2=None, noise=None) -> SmootherResult:
     """Fixed-interval smoothing of one line under the seed-000 model.
 
     Parameters
@@ -586,6 +586,13 @@ def kalman_smooth(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, method: str = "bf"
         step, ≥ 0).  With 0 it is the plain order-m model; with a large random-walk part
         and a tiny Q it behaves like m = 1 while the smooth part keeps its slope.
         Internally the second state component is then the smooth part's slope.
+    noise : app.core.noise_model.NoiseModel, optional
+        The error of z as a coloured process; ``R_cm2s2`` is then the level multiplying
+        every component's innovation variance (for a model normalised with
+        :meth:`~app.core.noise_model.NoiseModel.normalized`: the equivalent white velocity
+        noise, (cm/s)²).  None or a white-velocity model: the seed-000 model above (fast
+        path).  Otherwise the state is ``(δg_k … δg_{k−m+1}, b_k)`` with the model's noise
+        block ``b`` (``x0``/``P0`` in that basis) and the loops are dense.
 
     Returns
     -------
@@ -599,6 +606,12 @@ def kalman_smooth(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, method: str = "bf"
     """
     if method not in ("bf", "rts"):
         raise ValueError(f"method must be 'bf' or 'rts', got {method!r}")
+    white = _white_level(noise, dt_s)
+    if white is None:
+        if Q_rw_mgal2 is not None:
+            raise ValueError("Q_rw_mgal2 is only available with white velocity noise")
+        return _smooth_coloured(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, noise, method, x0, P0)
+    R_cm2s2 = np.asarray(R_cm2s2, dtype=float) * white if white != 1.0 else R_cm2s2
     m, z, Q, Q0, Rs, x0v, P0v = _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0, Q_rw_mgal2)
     N = z.shape[0]
     mean = np.empty(N)
@@ -606,20 +619,21 @@ def kalman_smooth(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, method: str = "bf"
     filt = np.empty(N)
     fn = _smooth_bf if method == "bf" else _smooth_rts
     ll = fn(z, Q, Q0, Rs, m, x0v, P0v, mean, var, filt)
-    if np.any(var < 0.0):
-        # Only round-off can produce this; report rather than hide it.
-        neg = var.min()
-        if neg < -1e-9 * max(1.0, float(np.max(np.abs(var)))):
-            raise FloatingPointError(f"negative posterior variance {neg:g} (numerical breakdown)")
-        var = np.maximum(var, 0.0)
-    return SmootherResult(dg_mgal=mean, dg_std_mgal=np.sqrt(var), loglik=float(ll),
-                          filtered_mgal=filt)
+    return _finish(mean, var, ll, filt)
 
 
 def kalman_loglik(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, x0=None, P0=None,
-                  Q_rw_mgal2=None) -> float:
+                  Q_rw_mgal2=None, noise=None) -> float:
     """Innovations log-likelihood of one line (Kalman filter only; same prior as
-    :func:`kalman_smooth`).  Units and validation as in :func:`kalman_smooth`."""
+    :func:`kalman_smooth`).  Units, ``noise`` and validation as in :func:`kalman_smooth`."""
+    white = _white_level(noise, dt_s)
+    if white is None:
+        if Q_rw_mgal2 is not None:
+            raise ValueError("Q_rw_mgal2 is only available with white velocity noise")
+        z, Q, R, A, Wa, Wb, c, x0v, P0v = _prepare_coloured(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, noise, x0, P0)
+        e1, e2, e3 = np.empty(1), np.empty((1, 1)), np.empty((1, 1, 1))
+        return float(_gen_filter(z, Q, R, A, Wa, Wb, c, x0v, P0v, 0, e2, e3, e2, e3, e2, e1, e1, e2, e1))
+    R_cm2s2 = np.asarray(R_cm2s2, dtype=float) * white if white != 1.0 else R_cm2s2
     m, z, Q, Q0, Rs, x0v, P0v = _prepare(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, x0, P0, Q_rw_mgal2)
     return float(_loglik_only(z, Q, Q0, Rs, m, x0v, P0v))
 
@@ -654,6 +668,344 @@ def smooth_many(z_lines: Sequence, Q_lines, R_lines, dt_s, m: int = 2,
     Rs = _expand(R_lines, "R_lines")
     return [kalman_smooth(z, q, r, dt_s, m=m, method=method)
             for z, q, r in zip(z_lines, Qs, Rs)]
+
+
+# ---------------------------------------------------------------------------
+# Coloured GNSS/motion error (app.core.noise_model): generic block state
+# ---------------------------------------------------------------------------
+#
+# State (δg_k, ∇δg_k, …, ∇^{m−1}δg_k, b_k) with the anomaly block in the difference basis
+# of the fast path (A_a upper-triangular ones, q entering every difference) and the
+# noise block b_k = F b_{k−1} + e_k, Cov e_k = R_k·W (NoiseModel.block()); z_k = δg_k + hᵀb_k.
+# The loops are dense (n ≤ m + 6), O(n³) per step.
+
+
+@njit(cache=True)
+def _gen_predict(A, x, P, Qk, Rk, Wa, Wb, xp, Pp, T):
+    n = A.shape[0]
+    for i in range(n):
+        s = 0.0
+        for l in range(n):
+            s += A[i, l] * x[l]
+        xp[i] = s
+    _mm(A, P, T)
+    _mmT(T, A, Pp)
+    for i in range(n):
+        for j in range(n):
+            Pp[i, j] += Qk * Wa[i, j] + Rk * Wb[i, j]
+
+
+@njit(cache=True)
+def _gen_filter(z, Qs, Rs, A, Wa, Wb, c, x0, P0, store, xf, Pf, xpa, Ppa, Kst, nust, sinv, prow, xf0):
+    """Kalman filter; with store = 1 keeps (K, ν, 1/s, P row 0, x0) for Bryson–Frazier,
+    with store = 2 keeps full filtered/predicted moments for RTS; returns the log-likelihood."""
+    N = z.shape[0]
+    n = A.shape[0]
+    x = x0.copy()
+    P = P0.copy()
+    xp = x0.copy()
+    Pp = P0.copy()
+    T = np.empty((n, n))
+    g = np.empty(n)
+    K = np.empty(n)
+    ll = 0.0
+    for k in range(N):
+        if k > 0:
+            _gen_predict(A, x, P, Qs[k], Rs[k], Wa, Wb, xp, Pp, T)
+        zk = z[k]
+        s = 0.0
+        nu = 0.0
+        if zk == zk:
+            for i in range(n):
+                t = 0.0
+                for l in range(n):
+                    t += Pp[i, l] * c[l]
+                g[i] = t
+            pred = 0.0
+            for i in range(n):
+                s += c[i] * g[i]
+                pred += c[i] * xp[i]
+            nu = zk - pred
+            for i in range(n):
+                K[i] = g[i] / s
+                x[i] = xp[i] + K[i] * nu
+            # Joseph form without measurement noise: (I − K cᵀ) Pp (I − K cᵀ)ᵀ
+            for i in range(n):
+                for j in range(n):
+                    P[i, j] = Pp[i, j] - K[i] * g[j]
+            for i in range(n):
+                t = 0.0
+                for l in range(n):
+                    t += P[i, l] * c[l]
+                T[0, i] = t
+            for i in range(n):
+                for j in range(n):
+                    P[i, j] -= T[0, i] * K[j]
+            for i in range(n):
+                for j in range(i + 1, n):
+                    v = 0.5 * (P[i, j] + P[j, i])
+                    P[i, j] = v
+                    P[j, i] = v
+            ll += -0.5 * (_LOG_2PI + np.log(s) + nu * nu / s)
+        else:
+            for i in range(n):
+                x[i] = xp[i]
+                for j in range(n):
+                    P[i, j] = Pp[i, j]
+        if store == 1:
+            for i in range(n):
+                Kst[k, i] = K[i] if s > 0.0 else 0.0
+                prow[k, i] = P[0, i]
+            nust[k] = nu
+            sinv[k] = 1.0 / s if s > 0.0 else 0.0
+            xf0[k] = x[0]
+        elif store == 2:
+            for i in range(n):
+                xf[k, i] = x[i]
+                xpa[k, i] = xp[i]
+                for j in range(n):
+                    Pf[k, i, j] = P[i, j]
+                    Ppa[k, i, j] = Pp[i, j]
+            xf0[k] = x[0]
+    return ll
+
+
+@njit(cache=True)
+def _gen_backward_bf(A, c, xf0, prow, Kst, nust, sinv, out_mean, out_var):
+    """Modified Bryson–Frazier pass for a dense A (same recursions as :func:`_backward_bf`)."""
+    n = A.shape[0]
+    N = xf0.shape[0]
+    lam = np.zeros(n)
+    Lam = np.zeros((n, n))
+    lt = np.empty(n)
+    Lt = np.empty((n, n))
+    u = np.empty(n)
+    M = np.empty((n, n))
+    for k in range(N - 1, -1, -1):
+        s1 = 0.0
+        s2 = 0.0
+        for i in range(n):
+            pi = prow[k, i]
+            s1 += pi * lam[i]
+            t = 0.0
+            for j in range(n):
+                t += Lam[i, j] * prow[k, j]
+            s2 += pi * t
+        out_mean[k] = xf0[k] - s1
+        out_var[k] = prow[k, 0] - s2
+        if k == 0:
+            break
+        si = sinv[k]
+        if si > 0.0:
+            gam = 0.0
+            for i in range(n):
+                gam += Kst[k, i] * lam[i]
+            for i in range(n):
+                lt[i] = lam[i] - c[i] * (gam + nust[k] * si)
+            for i in range(n):
+                t = 0.0
+                for j in range(n):
+                    t += Lam[i, j] * Kst[k, j]
+                u[i] = t
+            for i in range(n):
+                for j in range(n):
+                    Lt[i, j] = Lam[i, j] - u[i] * c[j]
+            for j in range(n):
+                t = 0.0
+                for i in range(n):
+                    t += Kst[k, i] * Lt[i, j]
+                u[j] = t
+            for i in range(n):
+                for j in range(n):
+                    Lt[i, j] -= c[i] * u[j]
+            for i in range(n):
+                for j in range(i, n):
+                    v = 0.5 * (Lt[i, j] + Lt[j, i]) + si * c[i] * c[j]
+                    Lt[i, j] = v
+                    Lt[j, i] = v
+        else:
+            for i in range(n):
+                lt[i] = lam[i]
+                for j in range(n):
+                    Lt[i, j] = Lam[i, j]
+        for j in range(n):
+            s = 0.0
+            for i in range(n):
+                s += A[i, j] * lt[i]
+            lam[j] = s
+        _mm(Lt, A, M)
+        for i in range(n):
+            for j in range(n):
+                s = 0.0
+                for l in range(n):
+                    s += A[l, i] * M[l, j]
+                Lam[i, j] = s
+
+
+@njit(cache=True)
+def _gen_backward_rts(A, xf, Pf, xpa, Ppa, out_mean, out_var):
+    N, n = xf.shape
+    xsm = xf[N - 1].copy()
+    Psm = Pf[N - 1].copy()
+    out_mean[N - 1] = xsm[0]
+    out_var[N - 1] = Psm[0, 0]
+    AP = np.empty((n, n))
+    G = np.empty((n, n))
+    D = np.empty((n, n))
+    GD = np.empty((n, n))
+    dx = np.empty(n)
+    xtmp = np.empty(n)
+    for k in range(N - 2, -1, -1):
+        _mm(A, Pf[k], AP)
+        S = Ppa[k + 1].copy()
+        _chol_solve_inplace(S, AP)  # AP ← (P⁻_{k+1})⁻¹ A P_k = Gᵀ
+        for i in range(n):
+            for j in range(n):
+                G[i, j] = AP[j, i]
+        for i in range(n):
+            dx[i] = xsm[i] - xpa[k + 1, i]
+            for j in range(n):
+                D[i, j] = Psm[i, j] - Ppa[k + 1, i, j]
+        for i in range(n):
+            s = 0.0
+            for j in range(n):
+                s += G[i, j] * dx[j]
+            xtmp[i] = xf[k, i] + s
+        _mm(G, D, GD)
+        _mmT(GD, G, Psm)
+        for i in range(n):
+            for j in range(n):
+                Psm[i, j] += Pf[k, i, j]
+        for i in range(n):
+            for j in range(i + 1, n):
+                v = 0.5 * (Psm[i, j] + Psm[j, i])
+                Psm[i, j] = v
+                Psm[j, i] = v
+        for i in range(n):
+            xsm[i] = xtmp[i]
+        out_mean[k] = xsm[0]
+        out_var[k] = Psm[0, 0]
+
+
+def coloured_model(m: int, noise) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Internal matrices ``A, W_a, W_b, c`` of the anomaly ⊕ noise-block model.
+
+    ``A`` (n×n, n = m + s): anomaly block upper-triangular ones (difference basis), noise
+    block ``F``; ``W_a``: ones on the anomaly block (``Q_k·W_a``); ``W_b``: the noise
+    block's ``W`` (``R_k·W_b``); ``c``: measurement row ``(1, 0…0, h)``."""
+    F, W, h = noise.block()
+    s = F.shape[0]
+    n = m + s
+    A = np.zeros((n, n))
+    Wa = np.zeros((n, n))
+    Wb = np.zeros((n, n))
+    c = np.zeros(n)
+    for i in range(m):
+        A[i, i:m] = 1.0
+    Wa[:m, :m] = 1.0
+    A[m:, m:] = F
+    Wb[m:, m:] = W
+    c[0] = 1.0
+    c[m:] = h
+    return A, Wa, Wb, c
+
+
+def _prepare_coloured(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, noise, x0, P0):
+    m = _check_m(m)
+    dt = _check_dt(dt_s)
+    if abs(float(noise.dt_s) - dt) > 1e-9 * dt:
+        raise ValueError(f"the noise model is for steps of {noise.dt_s:g} s, the data have {dt:g} s")
+    z = np.ascontiguousarray(np.asarray(z_mgal, dtype=float))
+    if z.ndim != 1:
+        raise ValueError(f"z_mgal must be 1-D, got shape {z.shape}")
+    if np.any(np.isinf(z)):
+        raise ValueError("z_mgal contains infinite values (use NaN for missing epochs)")
+    N = z.shape[0]
+    finite = np.isfinite(z)
+    nfin = int(finite.sum())
+    if N < m + 2 or nfin < m + 2:
+        raise ValueError(f"line too short for m={m}: need at least {m + 2} finite epochs, got {nfin} finite of {N}")
+    Q = _per_epoch("Q_mgal2", Q_mgal2, N)
+    R = _per_epoch("R_cm2s2", R_cm2s2, N)
+    A, Wa, Wb, c = coloured_model(m, noise)
+    n = A.shape[0]
+    Tm = np.eye(n)
+    Tm[:m, :m] = _to_internal(m, 1.0)[:m, :m]
+    if x0 is None:
+        nwin = max(int(round(PRIOR_MEAN_WINDOW_S / dt)), m + 2)
+        idx = np.flatnonzero(finite)
+        sel = idx[idx < nwin]
+        if sel.size < m + 2:
+            sel = idx[: m + 2]
+        x0v = np.zeros(n)
+        x0v[0] = float(np.mean(z[sel]))
+    else:
+        x0u = np.asarray(x0, dtype=float).reshape(-1)
+        if x0u.shape != (n,):
+            raise ValueError(f"x0 must have shape ({n},), got {np.shape(x0)}")
+        x0v = Tm @ x0u
+    if P0 is None:
+        P0v = np.zeros((n, n))
+        P0v[0, 0] = PRIOR_DG_STD_MGAL ** 2
+        for i in range(1, m):
+            P0v[i, i] = PRIOR_DIFF_STD_MGAL ** 2
+        P0v[m:, m:] = noise.stationary_covariance(R[0])
+    else:
+        P0u = np.asarray(P0, dtype=float)
+        if P0u.shape != (n, n):
+            raise ValueError(f"P0 must have shape ({n}, {n}), got {P0u.shape}")
+        if not np.allclose(P0u, P0u.T) or np.any(np.linalg.eigvalsh(P0u) < -1e-12 * np.abs(P0u).max()):
+            raise ValueError("P0 must be symmetric positive semi-definite")
+        P0v = Tm @ P0u @ Tm.T
+        P0v = 0.5 * (P0v + P0v.T)
+    return z, Q, R, A, Wa, Wb, c, np.ascontiguousarray(x0v), np.ascontiguousarray(P0v)
+
+
+def _smooth_coloured(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, noise, method, x0, P0) -> SmootherResult:
+    z, Q, R, A, Wa, Wb, c, x0v, P0v = _prepare_coloured(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, noise, x0, P0)
+    N, n = z.shape[0], A.shape[0]
+    mean = np.empty(N)
+    var = np.empty(N)
+    filt = np.empty(N)
+    if method == "bf":
+        Kst = np.empty((N, n))
+        prow = np.empty((N, n))
+        nust = np.empty(N)
+        sinv = np.empty(N)
+        e2 = np.empty((1, 1))
+        e3 = np.empty((1, 1, 1))
+        ll = _gen_filter(z, Q, R, A, Wa, Wb, c, x0v, P0v, 1, e2, e3, e2, e3, Kst, nust, sinv, prow, filt)
+        _gen_backward_bf(A, c, filt, prow, Kst, nust, sinv, mean, var)
+    else:
+        xf = np.empty((N, n))
+        Pf = np.empty((N, n, n))
+        xpa = np.empty((N, n))
+        Ppa = np.empty((N, n, n))
+        e1 = np.empty(1)
+        e2 = np.empty((1, 1))
+        ll = _gen_filter(z, Q, R, A, Wa, Wb, c, x0v, P0v, 2, xf, Pf, xpa, Ppa, e2, e1, e1, e2, filt)
+        _gen_backward_rts(A, xf, Pf, xpa, Ppa, mean, var)
+    return _finish(mean, var, ll, filt)
+
+
+def _finish(mean, var, ll, filt) -> SmootherResult:
+    if np.any(var < 0.0):
+        # Only round-off can produce this; report rather than hide it.
+        neg = var.min()
+        if neg < -1e-9 * max(1.0, float(np.max(np.abs(var)))):
+            raise FloatingPointError(f"negative posterior variance {neg:g} (numerical breakdown)")
+        var = np.maximum(var, 0.0)
+    return SmootherResult(dg_mgal=mean, dg_std_mgal=np.sqrt(var), loglik=float(ll), filtered_mgal=filt)
+
+
+def _white_level(noise, dt_s) -> float | None:
+    """R multiplier that turns a white-velocity NoiseModel into the fast path's R (or None)."""
+    if noise is None:
+        return 1.0
+    if not noise.is_white_velocity:
+        return None
+    w = next(c.weight for c in noise.components if c.weight > 0)
+    return w / (MGAL_PER_CMS2 / float(dt_s)) ** 2
 
 
 # ---------------------------------------------------------------------------
