@@ -43,14 +43,21 @@ class ProcessingParams(_Strict):
     gravimeter_gap_margin_s: float = Field(2.0, ge=0, description="Epochs of z within this margin of a gap in "
                                            "the gravimeter record are treated as missing (the lag inversion "
                                            "spreads the unknown integral over ~τ)")
-    despike_threshold: float | None = Field(6.0, gt=0, description="Drop epochs of z whose residual from a "
-                                            "1 s running median exceeds this many local robust std (GNSS velocity "
+    despike_threshold: float | None = Field(6.0, gt=0, description="Epochs of z whose residual from the mean "
+                                            "of their neighbours exceeds this many local robust std (GNSS velocity "
                                             "spikes, cycle slips) are repaired; None keeps z as it is")
+    despike_max_fraction: float = Field(0.01, gt=0, le=1, description="Spike repair stands down (z left as "
+                                        "measured, with a warning) when it would flag more than this share "
+                                        "of a flight's epochs")
     max_nan_run: int = Field(0, ge=0, description="Longest run of missing values tolerated (interpolated); longer runs are errors")
     # --- measurement
     estimate_time_offset: bool = True
     apply_time_offset: bool = Field(True, description="Shift the gravimeter time scale by the cross-correlation estimate")
     max_time_offset_s: float = Field(2.0, gt=0)
+    time_offset_min_z: float = Field(3.0, ge=0, description="Apply the estimated time offset only when it exceeds "
+                                     "this many standard errors")
+    time_offset_min_improvement: float = Field(0.01, ge=0, lt=1, description="… and removes at least this share "
+                                               "of the band-passed acceleration residual")
     # --- anomaly model
     m: int | None = Field(None, ge=1, le=3, description="Order of the difference operator ∇^m δg = q; None "
                           "chooses 1 or 2 by the full-rate likelihood of the data")
@@ -82,6 +89,12 @@ class ProcessingParams(_Strict):
         "content of z, scaled likewise; 'states' = the recognised R_j levels (seed 000)")
     noise_band_hz: tuple[float, float] = Field((0.1, 0.5), description="Band (Hz) in which the 'band' noise "
                                                "model measures the local GNSS noise level")
+    noise_family: Literal["auto", "white velocity", "Gauss-Markov velocity", "white height", "coloured height",
+                          "velocity + height", "coloured velocity + height"] = Field(
+        "auto", description="Shape of the error of z in the smoother (app.core.noise_model): 'auto' fits every "
+        "family to the lines' spectra and keeps the best by BIC; 'white velocity' is seed 000's model")
+    noise_fit_fmax_hz: float = Field(0.2, gt=0, description="Highest frequency (Hz) of the spectra the noise "
+                                     "model is fitted to (clipped to 0.8 × the GNSS Nyquist frequency)")
     refine_max_epochs: int = Field(300_000, ge=1000, description="Cap on epochs used by the level refinement")
 
     @field_validator("noise_band_hz")

@@ -144,15 +144,21 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     lines = stages.cut_lines(survey.lines, flights, crs)
     dt_s = float(np.median(np.concatenate([np.diff(m.t_s) for m in flights.values()])))
 
+    noise_fit, noise = stages.fit_noise(lines, dt_s, p)
+    band = stages.level_band(p, dt_s)
+    r_local = stages.noise_levels(flights, dt_s, p)
+    r_fit_scale = stages.level_scale(noise_fit, band, lines, r_local)
+    r_local = {k: v * r_fit_scale for k, v in r_local.items()}
+
     order = None
     if p.m is None:
-        order = stages.choose_model_order(lines, dt_s)
+        order = stages.choose_model_order(lines, dt_s, noise, r_local)
         p.m = order.m
     tr.start("fir")
     fir = {name: stages.fir_baseline(m, p.fir_cutoff_period_s) for name, m in flights.items()}
 
     tr.start("regularization")
-    reg = stages.regularize_lines(lines, cfg, dt_s)
+    reg = stages.regularize_lines(lines, cfg, dt_s, noise)
     for ln, why in reg.skipped.items():
         warnings.append(f"line {ln} not identified: {why}")
     n_dec = sum(len(x) for x in reg.x)
@@ -228,18 +234,6 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
         pq_of[ln.line] = pq_all[off:off + nl]
         off += nl
     margin = int(round(60.0 / dt_s))
-    r_local = {}
-    if p.noise_model == "local":
-        from app.core.noise_level import local_noise_variance_cm2s2
-
-        r_local = {name: local_noise_variance_cm2s2(fm.z_mgal, dt_s) for name, fm in flights.items()}
-    elif p.noise_model == "band":
-        from app.core.noise_level import band_noise_variance_cm2s2
-
-        # keep the band inside the GNSS Nyquist frequency (1–2 Hz receivers)
-        f2 = min(float(p.noise_band_hz[1]), 0.8 * 0.5 / dt_s)
-        band = (min(float(p.noise_band_hz[0]), 0.5 * f2), f2)
-        r_local = {name: band_noise_variance_cm2s2(fm.z_mgal, dt_s, band) for name, fm in flights.items()}
     prepared = []
     for ln in lines:
         m = flights[ln.flight]
@@ -275,7 +269,7 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
             level_fit = refine_levels([t[3] for t in prepared], [t[2] for t in prepared], Qs, Rs, dt_s, p.m,
                                       max_epochs=p.refine_max_epochs,
                                       r_base_lines=[r_scale * t[5] for t in prepared] if r_local else None,
-                                      fit_r=False)
+                                      fit_r=False, noise=noise)
             Qs = level_fit.Q_mgal2
         except (ValueError, FloatingPointError) as exc:
             warnings.append(f"level refinement skipped: {exc}")
@@ -294,11 +288,11 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
             logq = pq_of[ln.line] @ np.log(Qs)
             q = np.exp(np.interp(np.arange(len(s_ext)) - inner.start, idx, logq))
         r = Rs[s_ext % n_r] if rl is None else r_scale * rl
-        dg, std = stages.filter_line(z_ext, q, r, dt_s, p.m, p.smoother)
+        dg, std = stages.filter_line(z_ext, q, r, dt_s, p.m, p.smoother, noise)
         # stationary baseline (seed 000 Fig. 8): one (Q₁, R₁) pair — the smooth state's Q
         # and the survey's typical noise level
         dgs, _ = stages.filter_line(z_ext, np.full_like(q, Qs[0]), np.full_like(q, r_stationary), dt_s, p.m,
-                                    p.smoother)
+                                    p.smoother, noise)
         frames.append(pd.DataFrame({
             "line": ln.line, "flight": ln.flight, "kind": ln.kind, "time": ln.t_s,
             "lat": ln.lat_deg, "lon": ln.lon_deg, "h": ln.h_m,
@@ -353,6 +347,9 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
     if order is not None:
         report["model_order"] = {"m": order.m, "loglik": {str(k): v for k, v in order.loglik.items()},
                                  "Q_stationary_mgal2": {str(k): v for k, v in order.Q_mgal2.items()}}
+    report["noise_model"] = {**noise.describe(), "level_band_hz": list(band), "level_scale": r_fit_scale,
+                             "candidates": noise_fit.candidates, "n_bins": noise_fit.n_bins,
+                             "fit_fmax_hz": noise_fit.fmax_hz}
     if calibration is not None:
         report["calibration"] = calibration
     if lag_check is not None:
@@ -564,7 +561,8 @@ def _report(survey, table, flights, crs, crossovers, lev_report, reg, em, timing
                    "epochs": int(len(table)), "decimated_points": int(sum(len(x) for x in reg.x)),
                    "crossovers": int(len(crossovers))},
         "time_offsets": {n: {"offset_s": m.time_offset_s, "correlation": m.time_offset_corr,
-                             "applied": m.time_offset_applied} for n, m in flights.items()},
+                             "applied": m.time_offset_applied, **m.time_offset} for n, m in flights.items()},
+        "spike_repair": {n: m.despike for n, m in flights.items()},
         "crossovers": lev_report,
         "identification": {"Q_mgal2": np.asarray(em.Q).tolist(), "R_cm2s2": np.asarray(em.R).tolist(),
                            "transition": np.asarray(em.transition).tolist()},

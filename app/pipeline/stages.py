@@ -57,6 +57,8 @@ class FlightMeasurement:
     time_offset_corr: float = float("nan")
     time_offset_applied: bool = False
     notes: list = field(default_factory=list)
+    despike: dict = field(default_factory=dict)
+    time_offset: dict = field(default_factory=dict)
 
 
 def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
@@ -91,16 +93,34 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     series = gm.integrate_samples(gr["time"].to_numpy(float), gr["f_z"].to_numpy(float))
     offset, corr, applied = 0.0, float("nan"), False
     notes = []
+    offset_info: dict = {"estimated": False}
     if p.estimate_time_offset:
         try:
-            offset, corr = gm.estimate_time_offset_s(series, t, vu, tau, k, p.max_time_offset_s)
+            fit = gm.fit_time_offset(series, t, vu, tau, k, p.max_time_offset_s)
+            offset, corr = fit.offset_s, fit.correlation
+            offset_info = {"estimated": True, "offset_s": offset, "se_s": fit.se_s, "correlation": corr,
+                           "residual_reduction": fit.relative_improvement}
         except ValueError as exc:  # too short a flight, etc.
             notes.append(f"time offset not estimated: {exc}")
             offset = 0.0
-        if p.apply_time_offset and np.isfinite(corr) and corr > 0.5 and abs(offset) < p.max_time_offset_s:
-            applied = True
-        elif p.apply_time_offset and p.estimate_time_offset:
-            notes.append(f"time offset {offset:.4f} s not applied (correlation {corr:.2f})")
+            fit = None
+        if fit is not None and p.apply_time_offset:
+            # applied only when the estimate is significant and it removes a real share of the
+            # residual: an offset a few ms from zero only trades one response mismatch for another
+            why = []
+            if not (np.isfinite(corr) and corr > 0.5):
+                why.append(f"correlation {corr:.2f} ≤ 0.5")
+            if not abs(offset) < p.max_time_offset_s:
+                why.append(f"at the search limit ±{p.max_time_offset_s:g} s")
+            if not abs(offset) > p.time_offset_min_z * fit.se_s:
+                why.append(f"not significant (|offset| ≤ {p.time_offset_min_z:g} × standard error {fit.se_s:.2g} s)")
+            if not fit.relative_improvement >= p.time_offset_min_improvement:
+                why.append(f"removes only {100 * fit.relative_improvement:.2f} % of the residual "
+                           f"(< {100 * p.time_offset_min_improvement:g} %)")
+            applied = not why
+            offset_info.update(applied=applied, reason="; ".join(why) if why else "significant and improves the fit")
+            if not applied:
+                notes.append(f"time offset {offset:.4f} s not applied: {'; '.join(why)}")
     fbar = gm.interval_means(series, t, tau, k, time_offset_s=offset if applied else 0.0)
     z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
     # an interval spanning a data gap is no measurement of anything
@@ -121,16 +141,28 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
         if gt[i + 1] - gt[i] <= 60.0 and hit.any():  # a dropout, not a pause of the recording
             notes.append(f"gravimeter record gap {gt[i]:.2f}–{gt[i + 1]:.2f} s: {int(hit.sum())} epochs of z "
                          "left without measurement")
+    despike = {"threshold": p.despike_threshold, "flagged": 0, "epochs": int(np.isfinite(z).sum()),
+               "applied": False}
     if p.despike_threshold is not None:
         from app.core.measurement import repair_spikes, spike_mask
 
         spikes = spike_mask(z, float(np.median(dt)), p.despike_threshold)
-        if spikes.any():
+        n_flag = int(spikes.sum())
+        frac = n_flag / max(1, despike["epochs"])
+        despike.update(flagged=n_flag, fraction=frac)
+        if n_flag and frac > p.despike_max_fraction:
+            # spikes are rare by nature: this many flags means the noise is not what the
+            # detector assumes (a heavy-tailed or rough record); repairing would destroy data
+            despike["reason"] = "stood down: too many flags"
+            notes.append(f"spike repair stood down: {n_flag} of {despike['epochs']} epochs ({100 * frac:.2f} %) "
+                         f"would be flagged, more than {100 * p.despike_max_fraction:g} % — z left as measured")
+        elif n_flag:
             z = repair_spikes(z, spikes)
-            notes.append(f"{int(spikes.sum())} epochs of z repaired as spikes "
-                         f"(> {p.despike_threshold:g} local robust std from a running median)")
+            despike["applied"] = True
+            notes.append(f"{n_flag} epochs of z ({100 * frac:.3f} %) repaired as spikes "
+                         f"(> {p.despike_threshold:g} local robust std from the neighbours' mean)")
     return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
-                             float(offset), float(corr), applied, notes)
+                             float(offset), float(corr), applied, notes, despike, offset_info)
 
 
 def static_segments(t_s, ve_ms, vn_ms, vu_ms, min_duration_s: float = 60.0, max_speed_ms: float = 0.5,
@@ -317,8 +349,61 @@ def cut_lines(lines: pd.DataFrame, flights: dict[str, FlightMeasurement], crs: s
 
 
 
+# --------------------------------------------------------------------------- 2a. noise model
+def level_band(p, dt_s: float) -> tuple[float, float]:
+    """The band (Hz) in which the local noise level R(t) is measured, inside the GNSS
+    Nyquist frequency (1–2 Hz receivers)."""
+    f2 = min(float(p.noise_band_hz[1]), 0.8 * 0.5 / dt_s)
+    return (min(float(p.noise_band_hz[0]), 0.5 * f2), f2)
+
+
+def fit_noise(lines: list[LineData], dt_s: float, p):
+    """The error of z as a coloured process (:mod:`app.core.noise_model`), fitted on the
+    finite stretches of every line; returns (NoiseFit, model normalised so that a level R is
+    the equivalent white velocity noise in :func:`level_band`)."""
+    from app.core.noise_model import FAMILIES, fit_noise_model
+
+    fams = FAMILIES if p.noise_family == "auto" else tuple(f for f in FAMILIES if f[0] == p.noise_family)
+    segs = [ln.z_mgal[a:b] for ln in lines for a, b in finite_segments(ln.z_mgal)]
+    fmax = min(float(p.noise_fit_fmax_hz), 0.8 * 0.5 / dt_s)
+    fit = fit_noise_model(segs, dt_s, m=2, fmax_hz=fmax, families=fams)
+    return fit, fit.model.normalized(level_band(p, dt_s))
+
+
+def noise_levels(flights: dict[str, FlightMeasurement], dt_s: float, p) -> dict[str, np.ndarray]:
+    """Local noise level R(t) ((cm/s)², equivalent white velocity noise) of every flight:
+    z's content in :func:`level_band` (``noise_model = 'band'``) or near the Nyquist frequency
+    (``'local'``); empty for ``'states'`` (the recognised R_j levels are used instead)."""
+    from app.core.noise_level import band_noise_variance_cm2s2, local_noise_variance_cm2s2
+
+    if p.noise_model == "local":
+        return {name: local_noise_variance_cm2s2(fm.z_mgal, dt_s) for name, fm in flights.items()}
+    if p.noise_model == "band":
+        band = level_band(p, dt_s)
+        return {name: band_noise_variance_cm2s2(fm.z_mgal, dt_s, band) for name, fm in flights.items()}
+    return {}
+
+
+def level_scale(noise_fit, band_hz, lines: list[LineData], r_local: dict) -> float:
+    """Factor from the measured local levels R(t) to the fitted noise model's level.
+
+    The model's weights were fitted on the pooled spectra of the lines, i.e. at the mean
+    level over the lines' epochs; the local measurement (in ``band_hz``) gives the level's
+    changes in time.  When the model describes the measurement band well the factor is
+    ≈ 1; where it does not (a turbulence band the family cannot follow) it carries the
+    measured changes in time to the fitted level where the smoother separates anomaly
+    from noise."""
+    if not r_local or noise_fit.model.is_white_velocity:
+        # the paper's shape: the band measurement is already its level
+        return 1.0
+    vals = np.concatenate([r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)] for ln in lines])
+    if not vals.size:
+        return 1.0
+    return float(noise_fit.model.equivalent_white_R(band_hz) / np.mean(vals))
+
+
 # --------------------------------------------------------------------------- 2b. model order
-def choose_model_order(lines: list[LineData], dt_s: float):
+def choose_model_order(lines: list[LineData], dt_s: float, noise=None, r_local: dict | None = None):
     """Order m of the anomaly model by the full-rate likelihood of the main lines (SPEC §2
     leaves m to the analyst; seed 000 notes: choose it by likelihood)."""
     from app.core.level_ml import select_order
@@ -326,8 +411,11 @@ def choose_model_order(lines: list[LineData], dt_s: float):
 
     use = [ln for ln in lines if ln.kind != "tie" and ln.z_mgal.size >= 100] or lines
     zl = [ln.z_mgal for ln in use]
-    rl = [local_noise_variance_cm2s2(z, dt_s) for z in zl]
-    return select_order(zl, rl, dt_s)
+    if r_local:
+        rl = [r_local[ln.flight][ln.sl] for ln in use]
+    else:
+        rl = [local_noise_variance_cm2s2(z, dt_s) for z in zl]
+    return select_order(zl, rl, dt_s, noise=noise)
 
 
 # --------------------------------------------------------------------------- 3. FIR baseline
@@ -381,7 +469,7 @@ def _regularize_segments(z_mgal, m: int, design):
     return np.concatenate(xs), np.concatenate(idxs)
 
 
-def regularize_lines(lines: list[LineData], cfg: SurveyConfig, dt_s: float) -> Regularized:
+def regularize_lines(lines: list[LineData], cfg: SurveyConfig, dt_s: float, noise=None) -> Regularized:
     """∇^m, Kaiser low-pass, decimation and the MA approximation (SPEC §2 step 1)."""
     from app.core.ma_approx import fit_ma_model
     from app.core.regularize import design_regularization, regularize_line
@@ -394,7 +482,8 @@ def regularize_lines(lines: list[LineData], cfg: SurveyConfig, dt_s: float) -> R
     design = design_regularization(dt_s, speed, step_km=p.decimation_step_km, n=p.decimation_n,
                                    cutoff_hz=p.cutoff_hz, attenuation_db=p.stopband_attenuation_db,
                                    difference_grid=p.regularization_difference_grid)
-    ma = fit_ma_model(design, p.m, K=p.ma_order_K, L=p.ma_order_L)
+    ma = fit_ma_model(design, p.m, K=p.ma_order_K, L=p.ma_order_L,
+                      noise=None if noise is None or noise.is_white_velocity else noise)
     kept, xs, idxs, skipped = [], [], [], {}
     for ln in use:
         try:
@@ -544,10 +633,10 @@ def hold_states(n_epochs: int, idx: np.ndarray, states: np.ndarray) -> np.ndarra
 
 
 # --------------------------------------------------------------------------- 8. filtering
-def filter_line(z_mgal, Q_mgal2, R_cm2s2, dt_s: float, m: int, method: str):
+def filter_line(z_mgal, Q_mgal2, R_cm2s2, dt_s: float, m: int, method: str, noise=None):
     """Non-stationary Kalman smoother on one line: (dg_mgal, dg_std_mgal)."""
     from app.core.smoother import kalman_smooth
 
     res = kalman_smooth(np.asarray(z_mgal, float), np.asarray(Q_mgal2, float),
-                        np.asarray(R_cm2s2, float), dt_s, m=m, method=method)
+                        np.asarray(R_cm2s2, float), dt_s, m=m, method=method, noise=noise)
     return np.asarray(res.dg_mgal), np.asarray(res.dg_std_mgal)
