@@ -108,8 +108,8 @@ class ProcessingParams(_Strict):
     recognition_pool_rho_km: float = Field(5.0, ge=0, le=15, description="Radius of that evidence pooling (km); 0 = off "
                                            "(the paper's per-line recognition)")
     # --- recognition smoothing (step 4)
-    nlmeans_h_per_km: float = Field(1.4, ge=0)
-    nlmeans_rho_km: float = Field(5.0, ge=0)
+    nlmeans_h_per_km: float = Field(0.5, ge=0, description="NL-means weight decay h (1/km); SPEC default 0.5 (the paper used 1.4)")
+    nlmeans_rho_km: float = Field(10.0, ge=0, description="NL-means radius ρ (km); SPEC default 10 (the paper used 5)")
     nlmeans_mode: Literal["hard", "soft"] = "soft"
     # --- filtering (steps 5-6)
     smoother: Literal["bf", "rts"] = "bf"

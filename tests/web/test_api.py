@@ -164,7 +164,7 @@ def test_flight_upload(client, tmp_path):
 
 def test_params_schema_and_invalid_params(client, tiny_zip):
     sch = client.get("/api/params/schema").json()
-    assert sch["defaults"]["nlmeans_h_per_km"] == 1.4
+    assert sch["defaults"]["nlmeans_h_per_km"] == 0.5
     assert "description" in sch["schema"]["properties"]["m"]
     sid = import_zip(client, tiny_zip).json()["id"]
     r = client.post(f"/api/surveys/{sid}/jobs", json={"kind": "process", "params": {"m": 7}})

@@ -193,8 +193,8 @@ def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, descr
 
 
 @router.get("/{survey_id}/recognition", response_model=RecognitionOut)
-def recognition(h: float = Query(1.4, ge=0, le=100, description="NL-means weight decay h (1/km)"),
-                rho: float = Query(5.0, ge=0, le=15, description="NL-means radius ρ (km), at most 15"),
+def recognition(h: float = Query(0.5, ge=0, le=100, description="NL-means weight decay h (1/km)"),
+                rho: float = Query(10.0, ge=0, le=15, description="NL-means radius ρ (km), at most 15"),
                 mode: Literal["hard", "soft"] = Query("soft", description="smooth hard labels or probabilities"),
                 coords: bool = Query(True, description="include positions, lines and raw states"),
                 s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),

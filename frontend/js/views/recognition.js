@@ -19,10 +19,10 @@ export async function render(sec, ctx) {
     sec.replaceChildren(el("div", { class: "empty" }, "No results yet: run a processing job first."));
     return;
   }
-  const hIn = el("input", { type: "range", id: "rec-h", min: 0, max: 5, step: 0.1, value: 1.4 });
-  const rhoIn = el("input", { type: "range", id: "rec-rho", min: 0, max: 15, step: 0.5, value: 5 });
-  const hOut = el("output", { id: "rec-h-val" }, "1.4");
-  const rhoOut = el("output", { id: "rec-rho-val" }, "5.0");
+  const hIn = el("input", { type: "range", id: "rec-h", min: 0, max: 5, step: 0.1, value: 0.5 });
+  const rhoIn = el("input", { type: "range", id: "rec-rho", min: 0, max: 15, step: 0.5, value: 10 });
+  const hOut = el("output", { id: "rec-h-val" }, "0.5");
+  const rhoOut = el("output", { id: "rec-rho-val" }, "10.0");
   const modeIn = el("select", { id: "rec-mode" }, el("option", { value: "soft" }, "soft (probabilities)"), el("option", { value: "hard" }, "hard (labels)"));
   const showIn = el("select", { id: "rec-show" }, el("option", { value: "smoothed" }, "smoothed states"), el("option", { value: "raw" }, "raw (Viterbi) states"));
   const status = el("div", { class: "note", id: "rec-status" }, "loading…");
@@ -36,7 +36,7 @@ export async function render(sec, ctx) {
       el("label", {}, "mode", modeIn), el("label", {}, "show", showIn)),
     status, plot));
 
-  const base = await endpoints.recognition(s.id, { h: 1.4, rho: 5, mode: "soft" });
+  const base = await endpoints.recognition(s.id, { h: 0.5, rho: 10, mode: "soft" });
   let current = base.state;
   const legend = Array.from({ length: base.n_states }, (_, i) => ({
     x: [null], y: [null], type: "scattergl", mode: "markers", name: stateLabel(base.states, i),
