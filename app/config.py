@@ -60,7 +60,11 @@ class ProcessingParams(_Strict):
                                                "of the band-passed acceleration residual")
     # --- anomaly model
     m: int | None = Field(None, ge=1, le=3, description="Order of the difference operator ∇^m δg = q; None "
-                          "chooses 1 or 2 by the full-rate likelihood of the data")
+                          "chooses it from the data (model_order)")
+    model_order: Literal["spectrum", "likelihood"] = Field(
+        "likelihood", description="How m is chosen when not given: 'spectrum' = the Whittle likelihood of the lines' "
+        "spectra up to noise_fit_fmax_hz (m = 1..3, where the anomaly meets the noise); 'likelihood' = the "
+        "full-rate Kalman likelihood (m = 1, 2; dominated by the high-frequency noise)")
     # --- regularization (SPEC §2 step 1)
     decimation_n: int | None = Field(None, ge=2, description="Decimation factor n; chosen for ~1 km steps when None")
     decimation_step_km: float = Field(1.0, gt=0)
@@ -90,7 +94,8 @@ class ProcessingParams(_Strict):
     noise_band_hz: tuple[float, float] = Field((0.1, 0.5), description="Band (Hz) in which the 'band' noise "
                                                "model measures the local GNSS noise level")
     noise_family: Literal["auto", "white velocity", "Gauss-Markov velocity", "white height", "coloured height",
-                          "velocity + height", "coloured velocity + height"] = Field(
+                          "white + Gauss-Markov velocity", "velocity + height", "white velocity + coloured height",
+                          "white + coloured height", "coloured velocity + height"] = Field(
         "auto", description="Shape of the error of z in the smoother (app.core.noise_model): 'auto' fits every "
         "family to the lines' spectra and keeps the best by BIC; 'white velocity' is seed 000's model")
     noise_fit_fmax_hz: float = Field(0.2, gt=0, description="Highest frequency (Hz) of the spectra the noise "

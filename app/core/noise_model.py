@@ -342,7 +342,10 @@ FAMILIES: tuple = (
     ("Gauss-Markov velocity", ((1, True),)),
     ("white height", ((2, False),)),
     ("coloured height", ((2, True),)),
+    ("white + Gauss-Markov velocity", ((1, False), (1, True))),
     ("velocity + height", ((1, False), (2, False))),
+    ("white velocity + coloured height", ((1, False), (2, True))),
+    ("white + coloured height", ((2, False), (2, True))),
     ("coloured velocity + height", ((1, True), (2, True))),
 )
 
@@ -356,9 +359,9 @@ class NoiseFit:
     model : NoiseModel
         The chosen family's model at R = 1 (absolute weights: the survey's mean level).
     Q_mgal2 : float
-        Stationary anomaly level of the fit (nuisance), mGal² per step.
+        Stationary anomaly level of the fit, mGal² per step (at order ``m``).
     m : int
-        Anomaly order used in the fit.
+        Anomaly order with the largest likelihood in the fitted band (1, 2 or 3).
     candidates : list of dict
         Every family tried: name, negative log-likelihood, parameters, BIC.
     n_bins : int
@@ -390,7 +393,7 @@ def _unpack(theta, spec):
 
 def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                     families=FAMILIES, nw: float = 3.0, min_duration_s: float = 120.0,
-                    n_starts: int = 6, seed: int = 0, bic_margin: float = 10.0) -> NoiseFit:
+                    n_starts: int = 4, seed: int = 0, bic_margin: float = 10.0) -> NoiseFit:
     """Fit the error of z by the Whittle likelihood of prewhitened multitaper spectra.
 
     Model of z's spectrum: ``S(f) = S_anomaly(f; Q, m) + Σ_c S_c(f)``; each family of
@@ -408,7 +411,8 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     dt_s : float
         Step (s).
     m : int
-        Order of the nuisance anomaly model.
+        Order of the anomaly model while the families are compared; the chosen family is
+        then refitted with m = 1, 2, 3 and the best order is returned.
     fmax_hz : float
         Highest frequency fitted (Hz).
     families : sequence of (name, spec)
@@ -441,55 +445,98 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     wt = np.concatenate([np.full(s.f_hz.size, 0.5 * s.dof / (2.0 * nw)) for s in specs])
     nu_all = f_all * dt_s
     n_eff = float(wt.sum())
-    # log of each component's shape per sample at unit weight, per (order, phi) on demand
-    ones = NoiseComponent(1, 0.0, 1.0)  # noqa: F841 (documentation of the unit)
-    d_anom = np.abs(1.0 - np.exp(-2j * np.pi * nu_all)) ** (2 * m)
+    d_anom = {mm: np.abs(1.0 - np.exp(-2j * np.pi * nu_all)) ** (2 * mm) for mm in (1, 2, 3)}
 
-    def model_psd(Q, comps):
-        S = dt_s * Q / d_anom
-        for c in comps:
-            S = S + dt_s * _component_psd_per_sample(nu_all, c)
-        return S
-
-    def nll(theta, spec):
+    def nll(theta, spec, mm):
         if np.any(np.abs(theta) > 200):
             return 1e300
         Q, comps = _unpack(theta, spec)
-        S = model_psd(Q, comps)
+        S = dt_s * Q / d_anom[mm]
+        for c in comps:
+            S = S + dt_s * _component_psd_per_sample(nu_all, c)
         if not np.all(np.isfinite(S)) or np.any(S <= 0):
             return 1e300
         return float(np.sum(wt * (np.log(S) + I_all / S)))
 
+    def fit(spec, mm, starts):
+        best = None
+        for th0 in starts:
+            res = optimize.minimize(nll, np.array(th0, float), args=(spec, mm), method="Nelder-Mead",
+                                    options={"maxiter": 400 * len(th0), "xatol": 1e-5, "fatol": 1e-6})
+            if best is None or res.fun < best.fun:
+                best = res
+        return best
+
     rng = np.random.default_rng(seed)
     level = float(np.median(I_all / dt_s))
-    cands = []
-    for name, spec in families:
-        best = None
-        for trial in range(n_starts):
+
+    def random_starts(spec):
+        out = []
+        for _ in range(n_starts):
             th0 = [np.log(1e-3) + rng.normal(0, 2)]
             for order, free_phi in spec:
                 # start each component near the median level of the spectrum
                 th0.append(np.log(level) - 3.0 * order + rng.normal(0, 2))
                 if free_phi:
                     th0.append(rng.normal(1.0, 2.0))
-            res = optimize.minimize(nll, np.array(th0), args=(spec,), method="Nelder-Mead",
-                                    options={"maxiter": 400 * len(th0), "xatol": 1e-5, "fatol": 1e-6})
-            if best is None or res.fun < best.fun:
-                best = res
+            out.append(th0)
+        return out
+
+    def warm_starts(spec):
+        """Starts from the families fitted so far: their components mapped onto this family's
+        (same order; a missing component starts negligible, a missing φ at 0), so a richer
+        family never ends worse than a simpler one it contains."""
+        out = []
+        for c in cands:
+            Q, comps = _unpack(c["_theta"], c["_spec"])
+            pool = list(comps)
+            th = [np.log(Q)]
+            for order, free_phi in spec:
+                match = next((x for x in pool if x.order == order), None)
+                if match is not None:
+                    pool.remove(match)
+                    th.append(np.log(max(match.weight, 1e-300)))
+                    phi = match.phi
+                else:
+                    th.append(np.log(level) - 3.0 * order - 12.0)
+                    phi = 0.0
+                if free_phi:
+                    th.append(float(np.log(max(phi, 1e-6) / max(PHI_MAX - phi, 1e-9))))
+            if not pool:  # every fitted component was placed: a nested start
+                out.append(th)
+        return out
+
+    cands = []
+    for name, spec in families:
+        best = fit(spec, m, random_starts(spec) + warm_starts(spec))
         Q, comps = _unpack(best.x, spec)
         k = len(best.x)
         cands.append({"family": name, "nll": float(best.fun), "n_params": k,
                       "bic": float(2.0 * best.fun + k * np.log(max(n_eff, 2.0))),
                       "Q_mgal2": Q, "components": [{"order": c.order, "phi": c.phi, "weight_mgal2": c.weight}
-                                                    for c in comps], "_comps": comps})
+                                                    for c in comps], "_theta": best.x, "_spec": spec})
     # the simplest family within bic_margin of the best: a richer shape must be strongly
     # supported (ΔBIC > 10), because its behaviour below the noise-dominated band — where the
     # data cannot check it — decides how the smoother separates anomaly from noise
     best_bic = min(c["bic"] for c in cands)
     chosen = next(c for c in sorted(cands, key=lambda c: c["n_params"]) if c["bic"] <= best_bic + bic_margin)
-    model = NoiseModel(tuple(chosen["_comps"]), float(dt_s), chosen["family"],
+    # the anomaly's order m by the same likelihood in the same band (the chosen family refitted
+    # with m = 1, 2, 3 from the m = 2 solution; equal parameter counts)
+    orders = {m: (chosen["nll"], chosen["_theta"])}
+    for mm in (1, 2, 3):
+        if mm in orders:
+            continue
+        starts = [chosen["_theta"]] + [np.concatenate([[chosen["_theta"][0] + d], chosen["_theta"][1:]])
+                                       for d in (-4.0, 4.0)]
+        res = fit(chosen["_spec"], mm, starts)
+        orders[mm] = (float(res.fun), res.x)
+    m_best = min(orders, key=lambda mm: orders[mm][0])
+    Q_best, comps_best = _unpack(orders[m_best][1], chosen["_spec"])
+    model = NoiseModel(tuple(comps_best), float(dt_s), chosen["family"],
                        info={"fit": "Whittle, prewhitened multitaper", "fmax_hz": float(fmax_hz),
-                             "n_bins": int(f_all.size)})
+                             "n_bins": int(f_all.size), "m": int(m_best),
+                             "nll_by_m": {str(k): float(v[0]) for k, v in orders.items()}})
     for c in cands:
-        c.pop("_comps")
-    return NoiseFit(model, float(chosen["Q_mgal2"]), int(m), cands, int(f_all.size), float(fmax_hz))
+        c.pop("_theta")
+        c.pop("_spec")
+    return NoiseFit(model, float(Q_best), int(m_best), cands, int(f_all.size), float(fmax_hz))

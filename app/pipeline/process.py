@@ -152,8 +152,12 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
 
     order = None
     if p.m is None:
-        order = stages.choose_model_order(lines, dt_s, noise, r_local)
-        p.m = order.m
+        if p.model_order == "likelihood":
+            order = stages.choose_model_order(lines, dt_s, noise, r_local)
+            p.m = order.m
+        else:
+            # the order whose spectrum fits the lines best where anomaly and noise meet
+            p.m = noise_fit.m
     tr.start("fir")
     fir = {name: stages.fir_baseline(m, p.fir_cutoff_period_s) for name, m in flights.items()}
 
