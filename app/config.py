@@ -98,6 +98,9 @@ class ProcessingParams(_Strict):
                           "white + coloured height", "coloured velocity + height"] = Field(
         "auto", description="Shape of the error of z in the smoother (app.core.noise_model): 'auto' fits every "
         "family to the lines' spectra and keeps the best by BIC; 'white velocity' is seed 000's model")
+    noise_fit_repeats: bool = Field(True, description="Fit the noise model also to the differences of the passes "
+                                    "of repeat tracks (the anomaly cancels: the noise alone, down to the band "
+                                    "where it hides under the anomaly)")
     noise_fit_fmax_hz: float = Field(0.2, gt=0, description="Highest frequency (Hz) of the spectra the noise "
                                      "model is fitted to (clipped to 0.8 × the GNSS Nyquist frequency)")
     refine_max_epochs: int = Field(300_000, ge=1000, description="Cap on epochs used by the level refinement")

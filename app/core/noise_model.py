@@ -350,6 +350,63 @@ FAMILIES: tuple = (
 )
 
 
+@dataclass(frozen=True)
+class PassDifference:
+    """Difference of two passes of a repeat track, ``z_a − z_b``, on a common along-track
+    grid in steps of ``v̄·Δt`` (v̄ the pair's mean ground speed).
+
+    Attributes
+    ----------
+    d_mgal : ndarray, shape (n,)
+        NaN-free difference (mGal).
+    speed_ratios : (float, float)
+        ``v_a/v̄``, ``v_b/v̄``: a pass flown faster sees the same noise stretched in distance.
+    """
+
+    d_mgal: np.ndarray
+    speed_ratios: tuple
+
+
+def pass_difference(s_a_m, z_a, s_b_m, z_b, dt_s: float, lowpass_hz: float) -> PassDifference | None:
+    """``z_a − z_b`` on a common along-track grid (module :class:`PassDifference`).
+
+    Each pass is low-passed (zero-phase Butterworth, order 8, at ``lowpass_hz``) in its own
+    time, then interpolated (cubic) onto the overlap of the two passes' along-track
+    positions ``s`` (m) at spacing ``v̄·Δt``.  Returns None when the passes do not overlap
+    for at least 64 steps or a pass has missing values in the overlap.
+    """
+    from scipy.interpolate import CubicSpline
+    from scipy.signal import butter, sosfiltfilt
+
+    out = []
+    speeds = []
+    for s, z in ((s_a_m, z_a), (s_b_m, z_b)):
+        s = np.asarray(s, dtype=float)
+        z = np.asarray(z, dtype=float)
+        if s.size < 64 or not np.all(np.isfinite(z)) or not np.all(np.isfinite(s)):
+            return None
+        if s[-1] < s[0]:
+            s, z = s[::-1], z[::-1]
+        if np.any(np.diff(s) <= 0):
+            return None
+        fs = 1.0 / dt_s
+        if lowpass_hz < 0.45 * fs:
+            sos = butter(8, lowpass_hz, fs=fs, output="sos")
+            z = sosfiltfilt(sos, z - np.mean(z)) + np.mean(z)
+        out.append((s, z))
+        speeds.append((s[-1] - s[0]) / ((s.size - 1) * dt_s))
+    v_bar = 0.5 * (speeds[0] + speeds[1])
+    lo = max(out[0][0][0], out[1][0][0])
+    hi = min(out[0][0][-1], out[1][0][-1])
+    n = int(np.floor((hi - lo) / (v_bar * dt_s)))
+    if n < 64:
+        return None
+    grid = lo + np.arange(n) * v_bar * dt_s
+    za = CubicSpline(*out[0])(grid)
+    zb = CubicSpline(*out[1])(grid)
+    return PassDifference(za - zb, (speeds[0] / v_bar, speeds[1] / v_bar))
+
+
 @dataclass
 class NoiseFit:
     """Result of :func:`fit_noise_model`.
@@ -393,7 +450,8 @@ def _unpack(theta, spec):
 
 def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                     families=FAMILIES, nw: float = 3.0, min_duration_s: float = 120.0,
-                    n_starts: int = 4, seed: int = 0, bic_margin: float = 10.0) -> NoiseFit:
+                    n_starts: int = 4, seed: int = 0, bic_margin: float = 10.0,
+                    differences=()) -> NoiseFit:
     """Fit the error of z by the Whittle likelihood of prewhitened multitaper spectra.
 
     Model of z's spectrum: ``S(f) = S_anomaly(f; Q, m) + Σ_c S_c(f)``; each family of
@@ -418,6 +476,11 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     families : sequence of (name, spec)
     min_duration_s : float
         Stretches shorter than this are skipped.
+    differences : sequence of PassDifference
+        Differences of two passes of one repeat track on a common along-track grid: the
+        anomaly cancels, so their spectra show the noise alone — also where it hides under
+        the anomaly in a single line (the band where the smoother must cut).  They enter the
+        likelihood with the noise-only model (each pass at its own speed).
 
     Returns
     -------
@@ -428,7 +491,7 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     ValueError
         No stretch long enough.
     """
-    specs = []
+    specs, is_diff, ratios = [], [], []
     for z in z_segments:
         z = np.asarray(z, dtype=float)
         if z.size * dt_s < min_duration_s:
@@ -437,23 +500,48 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
             specs.append(multitaper_psd(z, dt_s, fmax_hz, nw=nw))
         except ValueError:
             continue
-    specs = [s for s in specs if s.f_hz.size > 0]
-    if not specs:
+        is_diff.append(False)
+        ratios.append((1.0, 1.0))
+    n_lines = len(specs)
+    for d in differences:
+        if d.d_mgal.size * dt_s < min_duration_s:
+            continue
+        try:
+            specs.append(multitaper_psd(d.d_mgal, dt_s, fmax_hz, nw=nw))
+        except ValueError:
+            continue
+        is_diff.append(True)
+        ratios.append(tuple(float(r) for r in d.speed_ratios))
+    keep = [i for i, s_ in enumerate(specs) if s_.f_hz.size > 0]
+    specs = [specs[i] for i in keep]
+    is_diff = [is_diff[i] for i in keep]
+    ratios = [ratios[i] for i in keep]
+    if not any(not d for d in is_diff):
         raise ValueError(f"no stretch of z of at least {min_duration_s:g} s to fit the noise model on")
-    f_all = np.concatenate([s.f_hz for s in specs])
-    I_all = np.concatenate([s.psd for s in specs])
-    wt = np.concatenate([np.full(s.f_hz.size, 0.5 * s.dof / (2.0 * nw)) for s in specs])
+    f_all = np.concatenate([s_.f_hz for s_ in specs])
+    I_all = np.concatenate([s_.psd for s_ in specs])
+    wt = np.concatenate([np.full(s_.f_hz.size, 0.5 * s_.dof / (2.0 * nw)) for s_ in specs])
     nu_all = f_all * dt_s
     n_eff = float(wt.sum())
+    # a line's z: anomaly + noise; a difference of two passes of one track: the noise of both,
+    # each seen at its own speed (pseudo-time on the pair's mean speed: S_n(f·r)/r)
+    a_mask = np.concatenate([np.full(s_.f_hz.size, 0.0 if d else 1.0) for s_, d in zip(specs, is_diff)])
+    r1 = np.concatenate([np.full(s_.f_hz.size, r[0]) for s_, r in zip(specs, ratios)])
+    r2 = np.concatenate([np.full(s_.f_hz.size, r[1]) for s_, r in zip(specs, ratios)])
+    w2 = np.concatenate([np.full(s_.f_hz.size, 1.0 if d else 0.0) for s_, d in zip(specs, is_diff)])
+    n_diff_bins = int(np.sum(w2 > 0))
     d_anom = {mm: np.abs(1.0 - np.exp(-2j * np.pi * nu_all)) ** (2 * mm) for mm in (1, 2, 3)}
 
     def nll(theta, spec, mm):
         if np.any(np.abs(theta) > 200):
             return 1e300
         Q, comps = _unpack(theta, spec)
-        S = dt_s * Q / d_anom[mm]
+        with np.errstate(divide="ignore"):
+            S = np.where(a_mask > 0, dt_s * Q / d_anom[mm], 0.0)
         for c in comps:
-            S = S + dt_s * _component_psd_per_sample(nu_all, c)
+            S = S + dt_s * _component_psd_per_sample(nu_all * r1, c) / r1
+            if n_diff_bins:
+                S = S + w2 * dt_s * _component_psd_per_sample(nu_all * r2, c) / r2
         if not np.all(np.isfinite(S)) or np.any(S <= 0):
             return 1e300
         return float(np.sum(wt * (np.log(S) + I_all / S)))
@@ -534,7 +622,8 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     Q_best, comps_best = _unpack(orders[m_best][1], chosen["_spec"])
     model = NoiseModel(tuple(comps_best), float(dt_s), chosen["family"],
                        info={"fit": "Whittle, prewhitened multitaper", "fmax_hz": float(fmax_hz),
-                             "n_bins": int(f_all.size), "m": int(m_best),
+                             "n_bins": int(f_all.size), "n_difference_bins": n_diff_bins,
+                             "n_pass_differences": int(sum(is_diff)), "m": int(m_best),
                              "nll_by_m": {str(k): float(v[0]) for k, v in orders.items()}})
     for c in cands:
         c.pop("_theta")

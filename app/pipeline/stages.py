@@ -366,8 +366,37 @@ def fit_noise(lines: list[LineData], dt_s: float, p):
     fams = FAMILIES if p.noise_family == "auto" else tuple(f for f in FAMILIES if f[0] == p.noise_family)
     segs = [ln.z_mgal[a:b] for ln in lines for a, b in finite_segments(ln.z_mgal)]
     fmax = min(float(p.noise_fit_fmax_hz), 0.8 * 0.5 / dt_s)
-    fit = fit_noise_model(segs, dt_s, m=2, fmax_hz=fmax, families=fams)
+    diffs = repeat_differences(lines, dt_s, min(2.0 * fmax, 0.45 / dt_s)) if p.noise_fit_repeats else []
+    fit = fit_noise_model(segs, dt_s, m=2, fmax_hz=fmax, families=fams, differences=diffs)
     return fit, fit.model.normalized(level_band(p, dt_s))
+
+
+def repeat_differences(lines: list[LineData], dt_s: float, lowpass_hz: float) -> list:
+    """Differences of the passes of every repeat track (disjoint consecutive pairs, so the
+    differences are independent), on a common along-track grid (:func:`app.core.noise_model.pass_difference`).
+    The along-track coordinate is the projection on the track's principal axis."""
+    from app.core.noise_model import pass_difference
+
+    tracks: dict = {}
+    for ln in lines:
+        if ln.kind == "repeat" and ln.track is not None:
+            tracks.setdefault(ln.track, []).append(ln)
+    out = []
+    for passes in tracks.values():
+        passes = sorted(passes, key=lambda ln: float(ln.t_s[0]))
+        if len(passes) < 2:
+            continue
+        e = np.concatenate([ln.easting_km for ln in passes])
+        n = np.concatenate([ln.northing_km for ln in passes])
+        xy = np.column_stack([e - e.mean(), n - n.mean()])
+        axis = np.linalg.svd(xy, full_matrices=False)[2][0]
+        for a, b in zip(passes[0::2], passes[1::2]):
+            sa = 1000.0 * ((a.easting_km - e.mean()) * axis[0] + (a.northing_km - n.mean()) * axis[1])
+            sb = 1000.0 * ((b.easting_km - e.mean()) * axis[0] + (b.northing_km - n.mean()) * axis[1])
+            d = pass_difference(sa, a.z_mgal, sb, b.z_mgal, dt_s, lowpass_hz)
+            if d is not None:
+                out.append(d)
+    return out
 
 
 def noise_levels(flights: dict[str, FlightMeasurement], dt_s: float, p) -> dict[str, np.ndarray]:
