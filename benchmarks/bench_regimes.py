@@ -47,21 +47,22 @@ REGIMES: list[tuple[str, str, dict, str]] = [
      "velocities differenced from 1 cm positions (blue), little white"),
     ("quiet", "omolon-mini", {"sigma_vu_cms": 0.5}, "quiet GNSS 0.5 cm/s"),
     ("gnss-1hz", "omolon-mini", {"gnss_rate_hz": 1.0}, "1 Hz GNSS"),
-    ("turbulent", "omolon-mini", {"turbulence_rms_ms2": (1.0, 2.0)}, "turbulence 1-2 m/s²"),
 ]
 
 
 def _extra_regimes() -> list:
-    """Regimes of presets that exist in this checkout (added by the simulator's realistic presets)."""
+    """Regimes of the realistic presets (docs/SIMULATOR.md), when this checkout has them."""
     from app.simulate.presets import PRESETS
 
     extra = [
         ("testline-2hz", "testline-2hz", {}, "one 40 km line flown 4x, 2 Hz platform, heights-only GNSS"),
-        ("platform-1hz", "platform-1hz", {}, "platform gravimeter 1 Hz"),
-        ("platform-10hz-point", "platform-10hz-point", {}, "platform gravimeter 10 Hz point samples"),
+        ("platform-1hz", "platform-1hz", {}, "platform gravimeter, 1 Hz interval means"),
+        ("platform-2hz-point", "platform-2hz-point", {}, "platform gravimeter, 2 Hz point samples"),
+        ("platform-10hz-point", "platform-10hz-point", {}, "platform gravimeter, 10 Hz point samples"),
+        ("heights-only-1hz", "heights-only-1hz", {}, "heights-only GNSS 1 Hz, coloured height error"),
         ("heights-only-5hz", "heights-only-5hz", {}, "heights-only GNSS 5 Hz, coloured height error"),
         ("draped", "draped", {}, "draped flight ±50 m"),
-        ("heavy-turbulence", "turbulent", {}, "0.3-0.5 m/s² turbulence, motion mismatch"),
+        ("turbulent", "turbulent", {}, "0.3-0.5 m/s² turbulence with a real aircraft's spectrum"),
     ]
     return [r for r in extra if r[1] in PRESETS]
 
