@@ -76,7 +76,10 @@ class ProcessingParams(_Strict):
     ma_order_K: int | None = Field(None, ge=0)
     ma_order_L: int | None = Field(None, ge=0)
     # --- EM learning (step 2)
-    n_q: int = Field(2, ge=1, le=4, description="N1: number of anomaly intensity levels Q_i")
+    n_q: int | None = Field(None, ge=1, le=4, description="N1: number of anomaly intensity levels Q_i; None: 2, "
+                            "or 1 (the stationary model) when the lines give fewer than min_points_adaptive "
+                            "decimated points")
+    min_points_adaptive: int = Field(200, ge=1, description="Decimated points needed for two anomaly levels (n_q = None)")
     n_r: int | None = Field(2, ge=1, le=3, description="N2: number of GNSS noise levels R_j; None chooses "
                             "1 or 2 by BIC (GNSS noise episodes need 2)")
     em_max_iter: int = Field(60, ge=1)

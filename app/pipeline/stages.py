@@ -543,31 +543,38 @@ def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
 
     With ``processing.n_r = None`` the number of GNSS noise levels is chosen by
     BIC between 1 and 2 (noise episodes of the GNSS are common in real data and a
-    model without them explains them as anomaly intensity).  Returns the EM
+    model without them explains them as anomaly intensity).  With ``processing.n_q = None``
+    there are two anomaly levels when the lines give at least ``min_points_adaptive``
+    decimated points, one otherwise (the stationary model: all a short survey supports).  Returns the EM
     result of the chosen model with ``selection`` (candidates, log-likelihood,
     BIC) attached."""
     from app.core.mjls_em import fit_em
 
     p = cfg.processing
-    candidates = [p.n_r] if p.n_r is not None else [1, 2]
+    r_cands = [p.n_r] if p.n_r is not None else [1, 2]
+    n_points = int(sum(len(x) for x in reg.x))
+    # N1 = 2 anomaly levels need enough decimated points to be told apart; a short survey
+    # (a test line flown a few times: ~100 points) gets the stationary model (one level)
+    q_cands = [p.n_q] if p.n_q is not None else [2 if n_points >= p.min_points_adaptive else 1]
     n_points = int(sum(len(x) for x in reg.x))
     results, table = {}, []
-    for n_r in candidates:
-        tag = f"{p.n_q}x{n_r}"
+    for n_q in q_cands:
+        for n_r in r_cands:
+            tag = f"{n_q}x{n_r}"
 
-        def cb(rec, tag=tag):
-            if callback is not None:
-                callback({**rec, "model": tag})
+            def cb(rec, tag=tag):
+                if callback is not None:
+                    callback({**rec, "model": tag})
 
-        res = fit_em(reg.x, reg.ma.c, reg.ma.d, n_q=p.n_q, n_r=n_r, max_iter=p.em_max_iter,
-                     tol=p.em_tol, callback=cb)
-        k = _n_params(p.n_q, n_r, len(reg.x))
-        bic = -2.0 * float(res.loglik) + k * np.log(max(n_points, 2))
-        results[n_r] = res
-        table.append({"model": tag, "n_q": p.n_q, "n_r": n_r, "loglik": float(res.loglik),
-                      "n_params": k, "bic": float(bic), "iterations": len(res.iterations) - 1})
+            res = fit_em(reg.x, reg.ma.c, reg.ma.d, n_q=n_q, n_r=n_r, max_iter=p.em_max_iter,
+                         tol=p.em_tol, callback=cb)
+            k = _n_params(n_q, n_r, len(reg.x))
+            bic = -2.0 * float(res.loglik) + k * np.log(max(n_points, 2))
+            results[(n_q, n_r)] = res
+            table.append({"model": tag, "n_q": n_q, "n_r": n_r, "loglik": float(res.loglik),
+                          "n_params": k, "bic": float(bic), "iterations": len(res.iterations) - 1})
     best = min(table, key=lambda r: r["bic"])
-    em = results[best["n_r"]]
+    em = results[(best["n_q"], best["n_r"])]
     em.selection = {"criterion": "BIC" if len(table) > 1 else "fixed", "candidates": table,
                     "chosen": best["model"]}
     return em
