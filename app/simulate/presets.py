@@ -34,6 +34,8 @@ class SimConfig:
     tie_margin_km: float = 2.0            # tie lines extend this far beyond the outer main lines
     n_repeat: int = 0                     # times the repeat track is flown (0: no repeat track)
     repeat_length_km: float | None = None  # None: main_length_km
+    repeat_alternate: bool = False        # repeat passes alternate direction (reversal turns between)
+    wind_ms: float = 0.0                  # ground speed on a line = speed_ms + wind_ms·(east component of heading)
     n_flights: int = 1
     run_in_s: float = 30.0                # straight level flight before each line window
     run_out_s: float = 10.0               # after each line window
@@ -51,6 +53,8 @@ class SimConfig:
     mountain_sources_per_km2: float = 0.25
     mountain_depth_m: tuple[float, float] = (300.0, 2500.0)  # below a 500 m surface
     plain_sources_per_km2: float = 0.01
+    plain_depth_m: tuple[float, float] = (6000.0, 20000.0)  # depth range of the plain sources
+    field_std_over: str = "grid"          # "grid": *_std_mgal over the truth grid; "lines": along the line windows
     # --- Markov-jump anomaly (field_kind == "markov"; seed 000 Table 1/2)
     markov_Q_mgal2: tuple[float, float] = (0.0414, 0.3533)
     markov_a11: float = 0.9876
@@ -66,6 +70,13 @@ class SimConfig:
     phugoid_amp_m: float = 3.0
     phugoid_period_s: tuple[float, float] = (40.0, 120.0)
     horizontal_noise_ms2: float = 0.01
+    turbulence_spectrum: str = "band"     # "band": flat between turbulence_band_hz; "peaked": PSD ∝ x^α/(1+x^(α+β))
+    turbulence_peak_hz: float = 0.35      # x = f / turbulence_peak_hz ("peaked" only)
+    turbulence_slopes: tuple[float, float] = (1.5, 6.0)     # (α, β): PSD rises as f^α, falls as f^−β
+    # --- draped flight: height above height_m varies smoothly with position (terrain following)
+    drape_amp_m: float = 0.0              # largest |drape| on the line windows (0: constant height)
+    drape_wavelength_km: tuple[float, float] = (5.0, 15.0)
+    drape_components: int = 12
     # --- gravimeter
     gravimeter_model: str = "GT-1A"
     gravimeter_rate_hz: float = 18.24
@@ -78,6 +89,12 @@ class SimConfig:
     drift_rw_mgal_rth: float = 0.2                          # random walk density, mGal/sqrt(h)
     grav_noise_mgal_rthz: float = 0.5                       # white sensor noise density, mGal/sqrt(Hz)
     time_offset_s: float = 0.0                              # gravimeter stamp = true time + offset
+    gravimeter_sampling: str = "mean"     # "mean": interval means; "point": instantaneous output at the stamp
+    gravimeter_clock: str = "free"        # "free": free-running clock (random phase, stamps at interval
+    #                                       centres, rounded to 1 ms); "aligned": samples at exact multiples
+    #                                       of the period (mean intervals centred on them)
+    gravimeter_fir_boxcars: int = 0       # internal zero-phase FIR (unknown to processing): this many
+    gravimeter_fir_width_s: float = 0.0   # cascaded boxcars of this width, H(f) = sinc(f·W)^n
     # --- parking place (base) readings: the aircraft stands still on the apron before and after
     #     every flight (0 disables); taxi and climb between apron and survey are not recorded
     apron_s: float = 300.0                # length of each static segment (GNSS span)
@@ -88,6 +105,9 @@ class SimConfig:
     airport_anomaly_mgal: float = 35.0    # g_base = γ(airport) + this (local anomaly), rounded to 0.01 mGal
     # --- GNSS
     gnss_rate_hz: float = 10.0
+    gnss_velocity: bool = True            # False: heights-only GNSS (gnss.csv = time, lat, lon, h)
+    h_colored_m: float = 0.0              # Gauss–Markov GNSS height error, std (m), on top of sigma_h_m
+    h_colored_tau_s: float = 30.0         # its correlation time
     sigma_vu_cms: float = 1.3
     vu_colored_cms: float = 0.0          # extra exponentially correlated (Gauss-Markov) vu error, std
     vu_colored_tau_s: float = 5.0        # its correlation time
