@@ -650,7 +650,9 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
                            "base_gravity_mgal": airport["g_base_mgal"] if airport else None},
             "processing": dict(cfg.processing)}
     report("write", 0.9)
-    out = write_survey(out_dir, toml, lines, flights, truth_lines, grid, truth_json, compress=cfg.compress)
+    from app.io.survey_writer import GNSS_HEIGHTS_ONLY_COLUMNS
+    out = write_survey(out_dir, toml, lines, flights, truth_lines, grid, truth_json, compress=cfg.compress,
+                       gnss_columns=None if cfg.gnss_velocity else GNSS_HEIGHTS_ONLY_COLUMNS)
     report("done", 1.0, {"seconds": _time.perf_counter() - clock})
     return out
 
