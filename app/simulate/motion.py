@@ -303,7 +303,7 @@ def vertical_motion(t0: float, t1: float, cfg, rng):
     lvl_lo, lvl_hi = cfg.turbulence_rms_ms2
     env = _band_noise(n, fs, lambda f: np.exp(-(f * 600.0) ** 2), rng)
     env = env / max(np.std(env), 1e-300)
-    env = np.exp(0.5 * env)
+    env = np.exp(getattr(cfg, "turbulence_envelope_log_std", 0.5) * env)
     env = env / np.mean(env) * rng.uniform(lvl_lo, lvl_hi)
     a = turb * env
     # phugoid: narrow band around 1/T_p with height amplitude ~ phugoid_amp_m

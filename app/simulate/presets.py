@@ -70,6 +70,7 @@ class SimConfig:
     phugoid_amp_m: float = 3.0
     phugoid_period_s: tuple[float, float] = (40.0, 120.0)
     horizontal_noise_ms2: float = 0.01
+    turbulence_envelope_log_std: float = 0.5   # intensity = level·exp(this·N(0,1)) (10-min correlation)
     turbulence_spectrum: str = "band"     # "band": flat between turbulence_band_hz; "peaked": PSD ∝ x^α/(1+x^(α+β))
     turbulence_peak_hz: float = 0.35      # x = f / turbulence_peak_hz ("peaked" only)
     turbulence_slopes: tuple[float, float] = (1.5, 6.0)     # (α, β): PSD rises as f^α, falls as f^−β
@@ -154,4 +155,75 @@ PRESETS: dict[str, SimConfig] = {
         name="markov", field_kind="markov", n_main=50, main_length_km=110.0, main_spacing_km=2.0,
         n_tie=0, n_flights=9, sigma_vu_cms=float(1.6787 ** 0.5), episode_rate_per_h=0.0,
         time_offset_s=0.0, processing={"m": 1}),
+    # ---------------------------------------------------------------- realistic regimes
+    # (docs/SIMULATOR.md has the table; truth/ as for the presets above, plus h_true_m when the height
+    # matters).  The real 2 Hz test line (/work/shared/notes/real-line-noise-spectrum.md): platform
+    # gravimeter (AIRGrav class) at 2 Hz, heights-only GNSS at 2 Hz, one 40 km line flown 4x in
+    # alternating directions at 55-66 m/s, ~330 m above the ellipsoid, draped +-45 m, heavy turbulence
+    # (f_z std 0.60-0.64 m/s², ḧ std 0.67-0.74 m/s², z std 0.34-0.41 m/s²), anomaly along-line std
+    # 8.5 mGal with wavelengths >= 6 km.
+    #  * track: repeat R1 (4 passes, alternating), no main/tie lines, no crossings; ground speed
+    #    60.5 +- 5.5 m/s (wind 5.5 m/s towards the east: 66 m/s eastbound, 55 m/s westbound);
+    #    reversal turns (straight on, U-turn, S-curve back onto the track)
+    #  * height 330 m + drape (peak +-45 m on the line; plane waves of 15-40 km wavelength: with the
+    #    unknown lag below, drape waves of 5-15 km would put 20-50 mGal into 0.005-0.02 Hz, where the
+    #    real line has 2-8 mGal); phugoid 0.3 m
+    #  * turbulence: peaked spectrum, PSD ∝ x^3/(1+x^11), x = f/0.4 Hz, level 0.75-0.85 m/s² with a
+    #    weakly varying intensity (log-std 0.15): realised f_z std ≈ 0.62 m/s², ḧ std ≈ 0.71 m/s²
+    #  * motion mismatch (unknown to the processing, survey.toml declares tau_s = 0):
+    #    - a residual first-order lag tau = 0.25 s in the instrument (0.85∠-32° at 0.4 Hz), and
+    #    - its 2 Hz decimation (anti-alias) filter: zero-phase sinc², two boxcars of 0.5 s
+    #      (0.98 at 0.1 Hz, 0.88 at 0.4 Hz, 0.41 at 1 Hz, double zeros at multiples of 2 Hz);
+    #    total 0.74∠-32° at 0.4 Hz: z ≈ 0.5 of the aircraft acceleration above 0.1 Hz
+    #  * gravimeter: point samples of that output at exact multiples of 0.5 s
+    #  * GNSS: 2 Hz, time/lat/lon/h only; height error 7 mm white + 2.5 cm Gauss-Markov (tau 60 s)
+    #  * field: plain sources only, 3-10 km deep, std 8.5 mGal along the line
+    "testline-2hz": SimConfig(
+        name="testline-2hz", height_m=330.0, speed_ms=60.5, wind_ms=5.5,
+        n_main=0, n_tie=0, main_length_km=40.0, n_repeat=4, repeat_length_km=40.0, repeat_alternate=True,
+        n_flights=1, turn_s=(70.0, 80.0),
+        mountain_sources_per_km2=0.0, plain_std_mgal=8.5, plain_sources_per_km2=0.05,
+        plain_depth_m=(3000.0, 10000.0), field_std_over="lines",
+        turbulence_spectrum="peaked", turbulence_peak_hz=0.4, turbulence_slopes=(3.0, 8.0),
+        turbulence_rms_ms2=(0.75, 0.85), turbulence_envelope_log_std=0.15, phugoid_amp_m=0.3,
+        drape_amp_m=45.0, drape_wavelength_km=(15.0, 40.0),
+        gravimeter_model="AIRGrav", gravimeter_rate_hz=2.0, gravimeter_sampling="point",
+        gravimeter_clock="aligned", gravimeter_fir_boxcars=2, gravimeter_fir_width_s=0.5,
+        tau_true_s=0.25, tau_declared_s=0.0, time_offset_s=0.0,
+        gnss_rate_hz=2.0, gnss_velocity=False, sigma_h_m=0.007, h_colored_m=0.025, h_colored_tau_s=60.0),
 }
+
+
+# ---------------------------------------------------------------- single-regime variants for sweeps
+# omolon-mini's geometry, field and noise (10 main lines of 60 km, 3 ties, 3 repeats, 3 flights) with
+# one regime switched on; docs/SIMULATOR.md lists the numbers.
+_MINI = PRESETS["omolon-mini"]
+#: platform gravimeter: no lag (tau 0 true and declared), samples at exact multiples of the period
+_PLATFORM = dict(gravimeter_model="AIRGrav", tau_true_s=0.0, tau_declared_s=0.0, time_offset_s=0.0,
+                 gravimeter_clock="aligned")
+#: heights-only GNSS: 7 mm white + 2.5 cm Gauss-Markov (60 s) height error, no velocity columns
+_HEIGHTS_ONLY = dict(gnss_velocity=False, sigma_h_m=0.007, h_colored_m=0.025, h_colored_tau_s=60.0)
+#: heavy turbulence with a real aircraft's spectrum (most power 0.1-0.5 Hz)
+_TURBULENT = dict(turbulence_spectrum="peaked", turbulence_peak_hz=0.4, turbulence_slopes=(3.0, 8.0),
+                  turbulence_rms_ms2=(0.3, 0.5))
+PRESETS.update({
+    # interval means at 1 Hz / 2 Hz (the mean is the instrument's decimation filter)
+    "platform-1hz": _MINI.replace(name="platform-1hz", gravimeter_rate_hz=1.0, gravimeter_sampling="mean",
+                                  **_PLATFORM),
+    "platform-2hz": _MINI.replace(name="platform-2hz", gravimeter_rate_hz=2.0, gravimeter_sampling="mean",
+                                  **_PLATFORM),
+    # point samples after a zero-phase sinc² decimation filter (two boxcars of one output period),
+    # unknown to the processing
+    "platform-2hz-point": _MINI.replace(name="platform-2hz-point", gravimeter_rate_hz=2.0,
+                                        gravimeter_sampling="point", gravimeter_fir_boxcars=2,
+                                        gravimeter_fir_width_s=0.5, **_PLATFORM),
+    "platform-10hz-point": _MINI.replace(name="platform-10hz-point", gravimeter_rate_hz=10.0,
+                                         gravimeter_sampling="point", gravimeter_fir_boxcars=2,
+                                         gravimeter_fir_width_s=0.1, **_PLATFORM),
+    "heights-only-1hz": _MINI.replace(name="heights-only-1hz", gnss_rate_hz=1.0, **_HEIGHTS_ONLY),
+    "heights-only-5hz": _MINI.replace(name="heights-only-5hz", gnss_rate_hz=5.0, **_HEIGHTS_ONLY),
+    "heights-only-10hz": _MINI.replace(name="heights-only-10hz", gnss_rate_hz=10.0, **_HEIGHTS_ONLY),
+    "turbulent": _MINI.replace(name="turbulent", **_TURBULENT),
+    # draped +-50 m along the lines (plane waves of 5-15 km), truth at the actual height
+    "draped": _MINI.replace(name="draped", drape_amp_m=50.0, drape_wavelength_km=(5.0, 15.0)),
+})
