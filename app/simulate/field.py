@@ -112,6 +112,10 @@ def make_field(cfg, extent_km, e0_km: float, n0_km: float, rng, line_pts_km=None
     yg = np.arange(np.floor((ymin - m) / sp) * sp, ymax + m + sp, sp)
     X, Y = np.meshgrid(xg, yg)
     ridges = make_ridges(xmax - xmin, rng)
+    if cfg.mountain_sources_per_km2 <= 0:
+        # no mountain sources: no mountain terrain either (the ridges are still drawn, so the random
+        # stream and everything after it are as with mountains)
+        ridges = Ridges(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
     obs = (X.ravel() * 1000.0, Y.ravel() * 1000.0, np.full(X.size, cfg.height_m))
     # a little beyond the grid so edges are not source-free
     sx0, sx1, sy0, sy1 = xg[0] - 5, xg[-1] + 5, yg[0] - 5, yg[-1] + 5

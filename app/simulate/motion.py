@@ -336,23 +336,28 @@ def vertical_motion(t0: float, t1: float, cfg, rng):
 class Drape:
     """Draped flight surface: height above the nominal flight height (m) as a smooth function of
     position, a sum of plane waves (random directions, wavelengths uniform in a range, random
-    phases), scaled so that its largest |value| on the planned line windows is the amplitude.
-    Repeat passes over a track therefore fly the same profile (terrain following)."""
+    phases) plus a constant, scaled and shifted so that on the planned line windows it spans
+    exactly ``[−amp, +amp]`` (the flight height is ``height_m ± amp`` there).  Repeat passes over
+    a track therefore fly the same profile (terrain following)."""
 
     kx: np.ndarray         # rad/m, per component
     ky: np.ndarray
     phase: np.ndarray
     amp: np.ndarray        # m, per component
+    offset: float = 0.0    # m
 
     def __call__(self, x_m, y_m) -> np.ndarray:
         x = np.asarray(x_m, dtype=float)[..., None]
         y = np.asarray(y_m, dtype=float)[..., None]
-        return np.sum(self.amp * np.cos(self.kx * x + self.ky * y + self.phase), axis=-1)
+        return np.sum(self.amp * np.cos(self.kx * x + self.ky * y + self.phase), axis=-1) + self.offset
 
     def info(self) -> dict:
         return {"wavelength_km": (2 * np.pi / np.hypot(self.kx, self.ky) / 1000.0).tolist(),
                 "direction_deg": np.rad2deg(np.arctan2(self.kx, self.ky)).tolist(),
-                "phase_rad": self.phase.tolist(), "amplitude_m": self.amp.tolist()}
+                "phase_rad": self.phase.tolist(), "amplitude_m": self.amp.tolist(),
+                "offset_m": self.offset,
+                "formula": "sum(amplitude_m*cos(kx*x + ky*y + phase_rad)) + offset_m, k = 2*pi/wavelength, "
+                           "(kx, ky) = k*(sin, cos)(direction_deg), x, y metres east/north of the survey centre"}
 
 
 def make_drape(cfg, lines: list[PlannedLine], rng) -> Drape:
@@ -370,6 +375,9 @@ def make_drape(cfg, lines: list[PlannedLine], rng) -> Drape:
         s = np.linspace(0.0, 1.0, m)[:, None]
         pts.append(a + s * (b - a))
     P = np.concatenate(pts)
-    peak = float(np.max(np.abs(dr(P[:, 0], P[:, 1]))))
-    dr.amp = np.full(n, cfg.drape_amp_m / peak)
+    v = dr(P[:, 0], P[:, 1])
+    half = 0.5 * float(v.max() - v.min())
+    scale = cfg.drape_amp_m / half
+    dr.amp = np.full(n, scale)
+    dr.offset = -0.5 * float(v.max() + v.min()) * scale
     return dr

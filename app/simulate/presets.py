@@ -75,7 +75,7 @@ class SimConfig:
     turbulence_peak_hz: float = 0.35      # x = f / turbulence_peak_hz ("peaked" only)
     turbulence_slopes: tuple[float, float] = (1.5, 6.0)     # (α, β): PSD rises as f^α, falls as f^−β
     # --- draped flight: height above height_m varies smoothly with position (terrain following)
-    drape_amp_m: float = 0.0              # largest |drape| on the line windows (0: constant height)
+    drape_amp_m: float = 0.0              # the height spans height_m ± this on the line windows (0: constant)
     drape_wavelength_km: tuple[float, float] = (5.0, 15.0)
     drape_components: int = 12
     # --- gravimeter
@@ -165,7 +165,7 @@ PRESETS: dict[str, SimConfig] = {
     #  * track: repeat R1 (4 passes, alternating), no main/tie lines, no crossings; ground speed
     #    60.5 +- 5.5 m/s (wind 5.5 m/s towards the east: 66 m/s eastbound, 55 m/s westbound);
     #    reversal turns (straight on, U-turn, S-curve back onto the track)
-    #  * height 330 m + drape (peak +-45 m on the line; plane waves of 15-40 km wavelength: with the
+    #  * height 330 m + drape (330 +- 45 m on the line; plane waves of 15-40 km wavelength: with the
     #    unknown lag below, drape waves of 5-15 km would put 20-50 mGal into 0.005-0.02 Hz, where the
     #    real line has 2-8 mGal); phugoid 0.3 m
     #  * turbulence: peaked spectrum, PSD ∝ x^3/(1+x^11), x = f/0.4 Hz, level 0.75-0.85 m/s² with a
@@ -227,3 +227,23 @@ PRESETS.update({
     # draped +-50 m along the lines (plane waves of 5-15 km), truth at the actual height
     "draped": _MINI.replace(name="draped", drape_amp_m=50.0, drape_wavelength_km=(5.0, 15.0)),
 })
+
+#: one line per preset (``aerograv simulate --help``; the numbers are in docs/SIMULATOR.md)
+PRESET_NOTES: dict[str, str] = {
+    "tiny": "4 x 30 km lines, 2 ties, 1 flight (GT-1A 18.24 Hz, 10 Hz GNSS with vu)",
+    "omolon-mini": "10 x 60 km, 3 ties, 3 repeats, 3 flights (the bundled sample, seed 1)",
+    "omolon": "57 x 200 km, 17 ties, 12 flights",
+    "kalgoorlie": "40 x 80 km, 7 ties, 3 repeats, 10 flights, 800 m, Helmert 1901",
+    "markov": "50 x 110 km, Markov-jump anomaly with seed 000's Q and transitions",
+    "testline-2hz": "the real 2 Hz test line: 40 km x 4 passes, 2 Hz platform + heights-only GNSS, draped",
+    "platform-1hz": "omolon-mini, platform gravimeter, 1 Hz interval means, tau 0",
+    "platform-2hz": "omolon-mini, platform gravimeter, 2 Hz interval means, tau 0",
+    "platform-2hz-point": "omolon-mini, platform gravimeter, 2 Hz point samples behind a sinc^2 filter",
+    "platform-10hz-point": "omolon-mini, platform gravimeter, 10 Hz point samples behind a sinc^2 filter",
+    "heights-only-1hz": "omolon-mini, GNSS 1 Hz time/lat/lon/h only (2.5 cm Gauss-Markov + 7 mm white)",
+    "heights-only-5hz": "omolon-mini, GNSS 5 Hz time/lat/lon/h only (2.5 cm Gauss-Markov + 7 mm white)",
+    "heights-only-10hz": "omolon-mini, GNSS 10 Hz time/lat/lon/h only (2.5 cm Gauss-Markov + 7 mm white)",
+    "turbulent": "omolon-mini, heavy turbulence 0.3-0.5 m/s2 with a peaked (0.1-0.5 Hz) spectrum",
+    "draped": "omolon-mini, height 3000 +- 50 m along the lines (5-15 km waves), truth at the actual height",
+}
+assert set(PRESET_NOTES) == set(PRESETS)

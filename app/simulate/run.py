@@ -686,8 +686,9 @@ def _regime_notes(cfg: SimConfig, drape) -> dict:
         out["drape"] = {"amp_m": cfg.drape_amp_m, "wavelength_km": list(cfg.drape_wavelength_km),
                         "components": drape.info(),
                         "note": ("height = height_m + drape(x, y) + turbulence/phugoid motion; drape = sum of plane "
-                                 "waves in the survey plane (x, y m from the centre), largest |drape| on the "
-                                 "line windows = amp_m; the true height per epoch is h_true_m in lines.parquet")}
+                                 "waves in the survey plane (x, y m from the centre) plus a constant, spanning exactly "
+                                 "[-amp_m, +amp_m] on the line windows; the true height per epoch is h_true_m "
+                                 "in lines.parquet; truth/grid.nc stays at height_m")}
     if not cfg.gnss_velocity or cfg.h_colored_m > 0:
         out["gnss"] = {"velocity_columns": bool(cfg.gnss_velocity), "rate_hz": cfg.gnss_rate_hz,
                        "h_white_m": cfg.sigma_h_m, "h_colored_m": cfg.h_colored_m,
