@@ -18,6 +18,19 @@ Physics (SPEC §1, "up" positive).  For every flight, on one time scale:
   (``g_base`` = ``[gravimeter] base_gravity_mgal``), through the same lag and scale, on
   the instrument's continuous sampling grid; the drift runs on through the gaps.
 
+Realistic regimes (docs/SIMULATOR.md; all off by default, the original presets are unchanged):
+
+* platform gravimeter: point samples or interval means (``gravimeter_sampling``) on a free or
+  aligned clock (exact multiples of the period), behind an internal zero-phase FIR of cascaded
+  boxcars (``gravimeter_fir_*``, exact for piecewise polynomials) and the lag ``tau_true_s``,
+  neither of which the processing is told (``survey.toml`` has ``tau_declared_s``);
+* heavy turbulence with a peaked spectrum (``turbulence_spectrum = "peaked"``);
+* draped flight (``drape_amp_m``): the height follows a smooth surface of the position, the
+  gravimeter and GNSS see its exact acceleration/velocity, and ``dg_true`` is the anomaly of the
+  point sources at the actual height (``truth/grid.nc`` stays at ``height_m``);
+* heights-only GNSS (``gnss_velocity = False``: time, lat, lon, h) with a Gauss–Markov height
+  error (``h_colored_m``) on top of the white one.
+
 The injected δg is built so that its mean over every GNSS interval (t_{k−1}, t_k]
 is exactly ``dg_true_mgal[k]`` of ``truth/lines.parquet``; the true vertical
 velocity is the exact integral of the true vertical acceleration.  So with all
@@ -434,7 +447,9 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
     Parameters
     ----------
     preset : str
-        A key of :data:`PRESETS` (``tiny``, ``omolon-mini``, ``omolon``, ``kalgoorlie``, ``markov``).
+        A key of :data:`PRESETS` (``tiny``, ``omolon-mini``, ``omolon``, ``kalgoorlie``, ``markov``, and the
+        realistic regimes ``testline-2hz``, ``platform-*``, ``heights-only-*``, ``turbulent``, ``draped``;
+        docs/SIMULATOR.md).
     out_dir : path
         Destination directory (replaced atomically if it exists).
     seed : int
