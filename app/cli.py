@@ -95,8 +95,14 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(prog="aerograv", description="Airborne gravimetry processing (SPEC.md)")
     sub = ap.add_subparsers(dest="cmd", required=True)
 
-    s = sub.add_parser("simulate", help="write a simulated survey directory (+ truth/)")
-    s.add_argument("--preset", required=True, help="tiny | omolon-mini | omolon | kalgoorlie | markov")
+    from app.simulate.presets import PRESET_NOTES, PRESETS
+    width = max(map(len, PRESETS))
+    s = sub.add_parser("simulate", help="write a simulated survey directory (+ truth/)",
+                       formatter_class=argparse.RawDescriptionHelpFormatter,
+                       description="presets (numbers in docs/SIMULATOR.md):\n" + "\n".join(
+                           f"  {k:<{width}}  {PRESET_NOTES[k]}" for k in PRESETS))
+    s.add_argument("--preset", required=True, choices=list(PRESETS), metavar="PRESET",
+                   help="a preset name (listed above)")
     s.add_argument("--out", required=True)
     s.add_argument("--seed", type=int, default=0)
     s.set_defaults(func=cmd_simulate)

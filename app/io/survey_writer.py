@@ -22,6 +22,8 @@ GRAV_DECIMALS = {"time": 3, "f_z": 8, "f_x": 4, "f_y": 4}
 GNSS_DECIMALS = {"time": 3, "lat": 8, "lon": 8, "h": 3, "vu": 5, "ve": 3, "vn": 3, "sigma_v": 4}
 GRAV_COLUMNS = ["time", "f_z", "f_x", "f_y"]
 GNSS_COLUMNS = ["time", "lat", "lon", "h", "vu", "ve", "vn", "sigma_v"]
+#: heights-only GNSS (no velocity): what a receiver without Doppler velocities delivers
+GNSS_HEIGHTS_ONLY_COLUMNS = ["time", "lat", "lon", "h"]
 LINES_COLUMNS = ["line", "flight", "t_start", "t_end", "kind", "track"]
 
 
@@ -63,6 +65,15 @@ def _round(df: pd.DataFrame, decimals: dict) -> pd.DataFrame:
     return df
 
 
+def _columns(df: pd.DataFrame, wanted, spec: list[str], flight: str, what: str) -> list[str]:
+    if wanted is None:
+        return [c for c in spec if c in df]
+    missing = [c for c in wanted if c not in df]
+    if missing:
+        raise ValueError(f"flight {flight}: {what} frame lacks column(s) {', '.join(missing)}")
+    return list(wanted)
+
+
 def _json_default(o):
     if isinstance(o, np.integer):
         return int(o)
@@ -77,7 +88,8 @@ def _json_default(o):
 
 def write_survey(out_dir, survey_toml: dict, lines: pd.DataFrame, flights: dict,
                  truth_lines: pd.DataFrame | None = None, truth_grid=None,
-                 truth_json: dict | None = None, compress: bool = False) -> Path:
+                 truth_json: dict | None = None, compress: bool = False,
+                 gravimeter_columns=None, gnss_columns=None) -> Path:
     """Write a complete survey directory atomically.
 
     Parameters
@@ -96,6 +108,10 @@ def write_survey(out_dir, survey_toml: dict, lines: pd.DataFrame, flights: dict,
         ``truth/truth.json`` when given.
     compress : bool
         Write ``gravimeter.csv.gz`` / ``gnss.csv.gz``.
+    gravimeter_columns, gnss_columns : list of str, optional
+        The columns to write, in this order (e.g. :data:`GNSS_HEIGHTS_ONLY_COLUMNS` for a GNSS
+        file without velocities); every listed column must be in each frame (``ValueError``
+        otherwise).  Default: the SPEC §4 columns present in each frame.
 
     Returns
     -------
@@ -118,9 +134,9 @@ def write_survey(out_dir, survey_toml: dict, lines: pd.DataFrame, flights: dict,
         for name, (grav, gnss) in flights.items():
             d = tmp / "flights" / name
             d.mkdir(parents=True)
-            g = _round(grav[[c for c in GRAV_COLUMNS if c in grav]], GRAV_DECIMALS)
+            g = _round(grav[_columns(grav, gravimeter_columns, GRAV_COLUMNS, name, "gravimeter")], GRAV_DECIMALS)
             g.to_csv(d / f"gravimeter{ext}", index=False, compression=comp)
-            n = _round(gnss[[c for c in GNSS_COLUMNS if c in gnss]], GNSS_DECIMALS)
+            n = _round(gnss[_columns(gnss, gnss_columns, GNSS_COLUMNS, name, "gnss")], GNSS_DECIMALS)
             n.to_csv(d / f"gnss{ext}", index=False, compression=comp)
         if truth_lines is not None or truth_grid is not None or truth_json is not None:
             td = tmp / "truth"

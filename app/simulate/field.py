@@ -5,6 +5,12 @@ wavelengths) and a "plain" part (sparse deep sources everywhere, smooth).  The
 gravity disturbance δg (mGal, positive for a mass excess) is harmonica's
 ``g_z`` (downward component) of the sources, evaluated on a regular grid at the
 flight height and interpolated with a bicubic spline.
+
+For draped flight (the height varies along the lines) the same field is evaluated
+exactly at any point and height from the scaled sources (:meth:`AnomalyField.at`):
+``δg = Σ_mountain g_z + Σ_plain g_z − offset`` with the masses already scaled to the
+target standard deviations and ``offset`` the plain part's mean on the nominal grid
+(so ``at(x, y, height_m)`` equals the grid values).
 """
 
 from __future__ import annotations
@@ -57,6 +63,7 @@ class AnomalyField:
     n0_km: float
     ridges: Ridges
     info: dict
+    sources: dict | None = None  # {"x_m", "y_m", "z_m", "mass_kg"} (relative to the centre, scaled), "offset_mgal"
 
     def __post_init__(self):
         self._spl = RectBivariateSpline(self.northing_km, self.easting_km, self.dg_mgal, kx=3, ky=3)
@@ -65,11 +72,24 @@ class AnomalyField:
         """δg (mGal) at absolute projected coordinates (km)."""
         return self._spl.ev(np.asarray(northing_km, float), np.asarray(easting_km, float))
 
+    def at(self, easting_km, northing_km, height_m) -> np.ndarray:
+        """δg (mGal) at absolute projected coordinates (km) and heights (m), straight from the sources."""
+        import harmonica as hm
+
+        e = np.asarray(easting_km, dtype=float)
+        n = np.asarray(northing_km, dtype=float)
+        h = np.broadcast_to(np.asarray(height_m, dtype=float), e.shape)
+        src = self.sources
+        coords = ((e.ravel() - self.e0_km) * 1000.0, (n.ravel() - self.n0_km) * 1000.0, h.ravel())
+        g = hm.point_gravity(coords, (src["x_m"], src["y_m"], src["z_m"]), src["mass_kg"], field="g_z",
+                             parallel=True)
+        return (g - src["offset_mgal"]).reshape(e.shape)
+
     def terrain_mountain(self, easting_km, northing_km) -> np.ndarray:
         return self.ridges.contains(np.asarray(easting_km) - self.e0_km, np.asarray(northing_km) - self.n0_km)
 
 
-def make_field(cfg, extent_km, e0_km: float, n0_km: float, rng) -> AnomalyField:
+def make_field(cfg, extent_km, e0_km: float, n0_km: float, rng, line_pts_km=None) -> AnomalyField:
     """Forward-model the anomaly on a grid covering ``extent_km`` plus a margin.
 
     Parameters
@@ -78,6 +98,10 @@ def make_field(cfg, extent_km, e0_km: float, n0_km: float, rng) -> AnomalyField:
         Extent of the flight paths relative to the survey centre (km).
     e0_km, n0_km : float
         Survey centre in the projected CRS (km).
+    line_pts_km : (x, y) arrays, optional
+        Points on the line windows (relative km); with ``cfg.field_std_over == "lines"`` the target
+        standard deviations (and the plain part's zero mean) hold along these points at the nominal
+        height instead of over the grid.
     """
     import harmonica as hm
 
@@ -88,6 +112,10 @@ def make_field(cfg, extent_km, e0_km: float, n0_km: float, rng) -> AnomalyField:
     yg = np.arange(np.floor((ymin - m) / sp) * sp, ymax + m + sp, sp)
     X, Y = np.meshgrid(xg, yg)
     ridges = make_ridges(xmax - xmin, rng)
+    if cfg.mountain_sources_per_km2 <= 0:
+        # no mountain sources: no mountain terrain either (the ridges are still drawn, so the random
+        # stream and everything after it are as with mountains)
+        ridges = Ridges(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
     obs = (X.ravel() * 1000.0, Y.ravel() * 1000.0, np.full(X.size, cfg.height_m))
     # a little beyond the grid so edges are not source-free
     sx0, sx1, sy0, sy1 = xg[0] - 5, xg[-1] + 5, yg[0] - 5, yg[-1] + 5
@@ -104,20 +132,41 @@ def make_field(cfg, extent_km, e0_km: float, n0_km: float, rng) -> AnomalyField:
     if px.size:
         g_m = hm.point_gravity(obs, (px * 1000.0, py * 1000.0, pz), mass, field="g_z", parallel=True)
     mask_grid = ridges.contains(X, Y).ravel()
-    s = np.std(g_m[mask_grid]) if mask_grid.any() else np.std(g_m)
+    along = getattr(cfg, "field_std_over", "grid") == "lines"
+    if along:
+        if line_pts_km is None:
+            raise ValueError('field_std_over = "lines" needs the line points')
+        lx, ly = (np.asarray(v, dtype=float) for v in line_pts_km)
+        lobs = (lx * 1000.0, ly * 1000.0, np.full(lx.size, cfg.height_m))
+        lmask = ridges.contains(lx, ly)
+        g_ml = (hm.point_gravity(lobs, (px * 1000.0, py * 1000.0, pz), mass, field="g_z", parallel=True)
+                if px.size else np.zeros(lx.size))
+        s = np.std(g_ml[lmask]) if lmask.any() else np.std(g_ml)
+    else:
+        s = np.std(g_m[mask_grid]) if mask_grid.any() else np.std(g_m)
+    f_m = (cfg.mountain_std_mgal / s) if s > 0 else 1.0
     g_m = g_m * (cfg.mountain_std_mgal / s) if s > 0 else g_m
     # plain: sparse deep sources everywhere
     n_p = max(8, int(cfg.plain_sources_per_km2 * area))
     qx = rng.uniform(sx0 - 20, sx1 + 20, n_p)
     qy = rng.uniform(sy0 - 20, sy1 + 20, n_p)
-    qz = -rng.uniform(6000.0, 20000.0, n_p)
-    g_p = hm.point_gravity(obs, (qx * 1000.0, qy * 1000.0, qz), rng.standard_normal(n_p) * 1e12,
-                           field="g_z", parallel=True)
-    g_p = (g_p - np.mean(g_p)) * (cfg.plain_std_mgal / np.std(g_p))
+    qz = -rng.uniform(*cfg.plain_depth_m, n_p)
+    mass_p = rng.standard_normal(n_p) * 1e12
+    g_p = hm.point_gravity(obs, (qx * 1000.0, qy * 1000.0, qz), mass_p, field="g_z", parallel=True)
+    if along:
+        g_pl = hm.point_gravity(lobs, (qx * 1000.0, qy * 1000.0, qz), mass_p, field="g_z", parallel=True)
+        mu_p, f_p = np.mean(g_pl), cfg.plain_std_mgal / np.std(g_pl)
+        g_p = (g_p - mu_p) * f_p
+    else:
+        mu_p, f_p = np.mean(g_p), cfg.plain_std_mgal / np.std(g_p)
+        g_p = (g_p - np.mean(g_p)) * (cfg.plain_std_mgal / np.std(g_p))
     dg = (g_m + g_p).reshape(X.shape)
+    sources = {"x_m": np.concatenate([px, qx]) * 1000.0, "y_m": np.concatenate([py, qy]) * 1000.0,
+               "z_m": np.concatenate([pz, qz]), "mass_kg": np.concatenate([mass * f_m, mass_p * f_p]),
+               "offset_mgal": float(mu_p * f_p), "n_mountain": int(px.size)}
     info = {"n_mountain_sources": int(px.size), "n_plain_sources": int(n_p),
             "mountain_fraction_of_grid": float(mask_grid.mean()),
             "ridges": [{"x_km": float(a), "y_km": float(b), "angle_deg": float(np.rad2deg(c)),
                         "half_width_km": float(d)} for a, b, c, d in
                        zip(ridges.x_km, ridges.y_km, ridges.angle_rad, ridges.half_width_km)]}
-    return AnomalyField(xg + e0_km, yg + n0_km, dg, e0_km, n0_km, ridges, info)
+    return AnomalyField(xg + e0_km, yg + n0_km, dg, e0_km, n0_km, ridges, info, sources)

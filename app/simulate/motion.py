@@ -58,8 +58,9 @@ def layout_lines(cfg) -> list[PlannedLine]:
         Lr = cfg.repeat_length_km or L
         # midway between the two central main lines
         y = 0.0 if cfg.n_main % 2 == 0 else 0.5 * cfg.main_spacing_km
-        for r in range(cfg.n_repeat):   # all passes in the same direction (racetrack)
-            xa, xb = (-Lr / 2, Lr / 2)
+        alternate = getattr(cfg, "repeat_alternate", False)
+        for r in range(cfg.n_repeat):   # same direction (racetrack) or alternating (reversal turns)
+            xa, xb = (-Lr / 2, Lr / 2) if not (alternate and r % 2 == 1) else (Lr / 2, -Lr / 2)
             out.append(PlannedLine(f"R1-{r + 1}", "repeat", "R1", (xa, y), (xb, y)))
     return out
 
@@ -100,13 +101,34 @@ class FlightPath:
     windows: list[tuple[PlannedLine, float, float]]
 
 
+def gnss_quantum_s(cfg) -> float:
+    """Time quantum of the flight plan: 0.1 s when that is a whole number of GNSS periods (10, 20,
+    50 Hz: the original behaviour), else one GNSS period (2 Hz: 0.5 s, 1 Hz: 1 s, 5 Hz: 0.2 s)."""
+    rate = float(cfg.gnss_rate_hz)
+    r = 0.1 * rate
+    return 0.1 if abs(r - round(r)) < 1e-9 and round(r) >= 1 else 1.0 / rate
+
+
+def _quantizer(cfg):
+    q = gnss_quantum_s(cfg)
+    if q == 0.1:
+        return lambda v: round(v, 1)
+    return lambda v: round(round(v / q) * q, 6)
+
+
 def plan_flight(name: str, lines: list[PlannedLine], t0: float, cfg, rng) -> FlightPath:
     """Build the horizontal trajectory of one flight flying ``lines`` in order.
 
-    All segment durations are multiples of 0.1 s, so line windows start and end on
-    GNSS epochs (``t0`` is a whole second).
+    All segment durations are multiples of the plan's time quantum (0.1 s at 10 Hz GNSS, one GNSS
+    period at 1, 2 or 5 Hz), so line windows start and end on GNSS epochs (``t0`` is a whole second).
+    With ``cfg.wind_ms`` the ground speed on a line is ``speed_ms + wind_ms·(east component of the
+    heading)`` (a wind blowing towards the east).  A pass that reverses onto the same track
+    (alternating repeat passes) is reached by a reversal: straight on, a U-turn to the left
+    (diameter 2r, r = v·T/π) and an S-curve back onto the track over 7.5 r.
     """
+    rq = _quantizer(cfg)
     v = cfg.speed_ms
+    wind = float(getattr(cfg, "wind_ms", 0.0))
     breaks = [t0]
     cx, cy = [], []
     windows = []
@@ -118,8 +140,9 @@ def plan_flight(name: str, lines: list[PlannedLine], t0: float, cfg, rng) -> Fli
         d = b - a
         length = float(np.hypot(*d))
         u = d / length
-        dur = round(length / v, 1)
-        vv = u * (length / dur)                 # exact speed so the window is a whole number of 0.1 s
+        v_line = v + wind * float(u[0]) if wind != 0.0 else v
+        dur = rq(length / v_line)
+        vv = u * (length / dur)                 # exact speed so the window is a whole number of quanta
         pre = cfg.run_in_s + (cfg.lead_s if k == 0 else 0.0)
         post = cfg.run_out_s + (cfg.tail_s if k == len(lines) - 1 else 0.0)
         s0 = a - vv * pre                       # start of the straight segment
@@ -129,12 +152,38 @@ def plan_flight(name: str, lines: list[PlannedLine], t0: float, cfg, rng) -> Fli
             P = np.array([px, py])
             vp = np.array([pvx, pvy])
             dist = float(np.hypot(*(s0 - P)))
-            T = round(float(rng.uniform(*cfg.turn_s)), 1)
-            if dist <= 2.5 * cfg.main_spacing_km * 1000.0 + 1.0:
+            T = rq(float(rng.uniform(*cfg.turn_s)))
+            up_ = vp / np.hypot(*vp)
+            un_ = vv / np.hypot(*vv)
+            lateral = float(up_[0] * (s0 - P)[1] - up_[1] * (s0 - P)[0])
+            if float(np.dot(up_, un_)) < -0.99 and abs(lateral) < 100.0:
+                # reversal onto the same track: straight, U-turn (left), S-curve back onto the track
+                sp = float(np.hypot(*vp))
+                r = sp * T / np.pi
+                nrm = np.array([-up_[1], up_[0]])
+                Ls = 7.5 * r
+                along = max(float(np.dot(s0 - P, up_)), 0.0)
+                T0 = rq((along + Ls) / sp)
+                A = P + vp * T0
+                B = A + nrm * 2.0 * r
+                Tsc = rq(float(np.dot(B - s0, up_)) / float(np.hypot(*vv)))
+                cx.append(np.array([0, 0, 0, 0, vp[0], P[0]], dtype=float))
+                cy.append(np.array([0, 0, 0, 0, vp[1], P[1]], dtype=float))
+                t = rq(t + T0)
+                breaks.append(t)
+                cx.append(_quintic(A[0], vp[0], B[0], vv[0], T))
+                cy.append(_quintic(A[1], vp[1], B[1], vv[1], T))
+                t = rq(t + T)
+                breaks.append(t)
+                cx.append(_quintic(B[0], vv[0], s0[0], vv[0], Tsc))
+                cy.append(_quintic(B[1], vv[1], s0[1], vv[1], Tsc))
+                t = rq(t + Tsc)
+                breaks.append(t)
+            elif dist <= 2.5 * cfg.main_spacing_km * 1000.0 + 1.0:
                 # turn onto a neighbouring line: one smooth transition
                 cx.append(_quintic(P[0], vp[0], s0[0], vv[0], T))
                 cy.append(_quintic(P[1], vp[1], s0[1], vv[1], T))
-                t = round(t + T, 1)
+                t = rq(t + T)
                 breaks.append(t)
             else:
                 # transit: circular-like turn towards the target, straight at cruise speed,
@@ -154,24 +203,24 @@ def plan_flight(name: str, lines: list[PlannedLine], t0: float, cfg, rng) -> Fli
                 Ls = float(np.dot(W2 - W1, ut))
                 if Ls < 500.0:
                     # target too close for a turn–straight–turn: one smooth transition
-                    Tq = round(max(T, dist / v * 1.3 + 30.0), 1)
+                    Tq = rq(max(T, dist / v * 1.3 + 30.0))
                     cx.append(_quintic(P[0], vp[0], s0[0], vv[0], Tq))
                     cy.append(_quintic(P[1], vp[1], s0[1], vv[1], Tq))
-                    t = round(t + Tq, 1)
+                    t = rq(t + Tq)
                     breaks.append(t)
                 else:
-                    Ts = round(Ls / v, 1)
+                    Ts = rq(Ls / v)
                     vt = (W2 - W1) / Ts
                     pieces = []
                     if th1 > 0.05:
-                        pieces.append(("q", P, vp, W1, vt, round(max(r * th1 / v, 5.0), 1)))
+                        pieces.append(("q", P, vp, W1, vt, rq(max(r * th1 / v, 5.0))))
                     else:
                         W1 = P
-                        Ts = round(float(np.hypot(*(W2 - W1))) / v, 1)
+                        Ts = rq(float(np.hypot(*(W2 - W1))) / v)
                         vt = (W2 - W1) / Ts
                     pieces.append(("s", W1, vt, None, None, Ts))
                     if th2 > 0.05:
-                        pieces.append(("q", W2, vt, s0, vv, round(max(r * th2 / v, 5.0), 1)))
+                        pieces.append(("q", W2, vt, s0, vv, rq(max(r * th2 / v, 5.0))))
                     else:   # no final turn: stretch the straight to s0
                         pieces[-1] = ("s", W1, (s0 - W1) / Ts, None, None, Ts)
                     for kind_, A, va, B, vb, TT in pieces:
@@ -181,13 +230,13 @@ def plan_flight(name: str, lines: list[PlannedLine], t0: float, cfg, rng) -> Fli
                         else:
                             cx.append(np.array([0, 0, 0, 0, va[0], A[0]], dtype=float))
                             cy.append(np.array([0, 0, 0, 0, va[1], A[1]], dtype=float))
-                        t = round(t + TT, 1)
+                        t = rq(t + TT)
                         breaks.append(t)
-        seg_T = round(pre + dur + post, 1)
+        seg_T = rq(pre + dur + post)
         cx.append(np.array([0, 0, 0, 0, vv[0], s0[0]], dtype=float))
         cy.append(np.array([0, 0, 0, 0, vv[1], s0[1]], dtype=float))
-        windows.append((ln, round(t + pre, 1), round(t + pre + dur, 1)))
-        t = round(t + seg_T, 1)
+        windows.append((ln, rq(t + pre), rq(t + pre + dur)))
+        t = rq(t + seg_T)
         breaks.append(t)
         prev_end = (s0[0] + vv[0] * seg_T, s0[1] + vv[1] * seg_T, vv[0], vv[1])
     x_pp = PPoly(np.array(cx).T, np.array(breaks))
@@ -231,9 +280,22 @@ def vertical_motion(t0: float, t1: float, cfg, rng):
     f_lo, f_hi = cfg.turbulence_band_hz
     fmax = cfg.motion_max_hz
 
-    def turb_gain(f):
-        g = (f / f_lo) ** 2 / (1.0 + (f / f_lo) ** 2) / (1.0 + (f / f_hi) ** 4)
-        return np.where(f < fmax, g, 0.0)
+    if getattr(cfg, "turbulence_spectrum", "band") == "peaked":
+        # PSD ∝ x^α / (1 + x^(α+β)), x = f / f_peak: rises as f^α, falls as f^−β (real aircraft:
+        # most power 0.1–0.5 Hz)
+        fpk = cfg.turbulence_peak_hz
+        al, be = cfg.turbulence_slopes
+
+        def turb_gain(f):
+            x = f / fpk
+            g = np.sqrt(x ** al / (1.0 + x ** (al + be)))
+            return np.where(f < fmax, g, 0.0)
+    elif getattr(cfg, "turbulence_spectrum", "band") == "band":
+        def turb_gain(f):
+            g = (f / f_lo) ** 2 / (1.0 + (f / f_lo) ** 2) / (1.0 + (f / f_hi) ** 4)
+            return np.where(f < fmax, g, 0.0)
+    else:
+        raise ValueError(f"unknown turbulence_spectrum {cfg.turbulence_spectrum!r}")
 
     turb = _band_noise(n, fs, turb_gain, rng)
     turb /= max(np.std(turb), 1e-300)
@@ -241,7 +303,7 @@ def vertical_motion(t0: float, t1: float, cfg, rng):
     lvl_lo, lvl_hi = cfg.turbulence_rms_ms2
     env = _band_noise(n, fs, lambda f: np.exp(-(f * 600.0) ** 2), rng)
     env = env / max(np.std(env), 1e-300)
-    env = np.exp(0.5 * env)
+    env = np.exp(getattr(cfg, "turbulence_envelope_log_std", 0.5) * env)
     env = env / np.mean(env) * rng.uniform(lvl_lo, lvl_hi)
     a = turb * env
     # phugoid: narrow band around 1/T_p with height amplitude ~ phugoid_amp_m
@@ -268,3 +330,54 @@ def vertical_motion(t0: float, t1: float, cfg, rng):
     info = {"turbulence_rms_ms2": float(np.std(turb * env)), "phugoid_period_s": Tp,
             "a_rms_ms2": float(np.std(a))}
     return a_pp, v_pp, h_pp, info
+
+
+@dataclass
+class Drape:
+    """Draped flight surface: height above the nominal flight height (m) as a smooth function of
+    position, a sum of plane waves (random directions, wavelengths uniform in a range, random
+    phases) plus a constant, scaled and shifted so that on the planned line windows it spans
+    exactly ``[−amp, +amp]`` (the flight height is ``height_m ± amp`` there).  Repeat passes over
+    a track therefore fly the same profile (terrain following)."""
+
+    kx: np.ndarray         # rad/m, per component
+    ky: np.ndarray
+    phase: np.ndarray
+    amp: np.ndarray        # m, per component
+    offset: float = 0.0    # m
+
+    def __call__(self, x_m, y_m) -> np.ndarray:
+        x = np.asarray(x_m, dtype=float)[..., None]
+        y = np.asarray(y_m, dtype=float)[..., None]
+        return np.sum(self.amp * np.cos(self.kx * x + self.ky * y + self.phase), axis=-1) + self.offset
+
+    def info(self) -> dict:
+        return {"wavelength_km": (2 * np.pi / np.hypot(self.kx, self.ky) / 1000.0).tolist(),
+                "direction_deg": np.rad2deg(np.arctan2(self.kx, self.ky)).tolist(),
+                "phase_rad": self.phase.tolist(), "amplitude_m": self.amp.tolist(),
+                "offset_m": self.offset,
+                "formula": "sum(amplitude_m*cos(kx*x + ky*y + phase_rad)) + offset_m, k = 2*pi/wavelength, "
+                           "(kx, ky) = k*(sin, cos)(direction_deg), x, y metres east/north of the survey centre"}
+
+
+def make_drape(cfg, lines: list[PlannedLine], rng) -> Drape:
+    """The drape surface of ``cfg`` (``drape_amp_m``, ``drape_wavelength_km``, ``drape_components``)."""
+    n = int(cfg.drape_components)
+    lam = rng.uniform(*cfg.drape_wavelength_km, n) * 1000.0
+    th = rng.uniform(0.0, np.pi, n)
+    ph = rng.uniform(0.0, 2 * np.pi, n)
+    k = 2 * np.pi / lam
+    dr = Drape(k * np.sin(th), k * np.cos(th), ph, np.ones(n))
+    pts = []
+    for ln in lines:
+        a, b = np.array(ln.start_km) * 1000.0, np.array(ln.end_km) * 1000.0
+        m = max(2, int(np.hypot(*(b - a)) / 50.0) + 1)
+        s = np.linspace(0.0, 1.0, m)[:, None]
+        pts.append(a + s * (b - a))
+    P = np.concatenate(pts)
+    v = dr(P[:, 0], P[:, 1])
+    half = 0.5 * float(v.max() - v.min())
+    scale = cfg.drape_amp_m / half
+    dr.amp = np.full(n, scale)
+    dr.offset = -0.5 * float(v.max() + v.min()) * scale
+    return dr

@@ -18,6 +18,19 @@ Physics (SPEC §1, "up" positive).  For every flight, on one time scale:
   (``g_base`` = ``[gravimeter] base_gravity_mgal``), through the same lag and scale, on
   the instrument's continuous sampling grid; the drift runs on through the gaps.
 
+Realistic regimes (docs/SIMULATOR.md; all off by default, the original presets are unchanged):
+
+* platform gravimeter: point samples or interval means (``gravimeter_sampling``) on a free or
+  aligned clock (exact multiples of the period), behind an internal zero-phase FIR of cascaded
+  boxcars (``gravimeter_fir_*``, exact for piecewise polynomials) and the lag ``tau_true_s``,
+  neither of which the processing is told (``survey.toml`` has ``tau_declared_s``);
+* heavy turbulence with a peaked spectrum (``turbulence_spectrum = "peaked"``);
+* draped flight (``drape_amp_m``): the height follows a smooth surface of the position, the
+  gravimeter and GNSS see its exact acceleration/velocity, and ``dg_true`` is the anomaly of the
+  point sources at the actual height (``truth/grid.nc`` stays at ``height_m``);
+* heights-only GNSS (``gnss_velocity = False``: time, lat, lon, h) with a Gauss–Markov height
+  error (``h_colored_m``) on top of the white one.
+
 The injected δg is built so that its mean over every GNSS interval (t_{k−1}, t_k]
 is exactly ``dg_true_mgal[k]`` of ``truth/lines.parquet``; the true vertical
 velocity is the exact integral of the true vertical acceleration.  So with all
@@ -30,6 +43,7 @@ from __future__ import annotations
 
 import dataclasses
 import time as _time
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -40,12 +54,81 @@ from app.core.geodesy import (OMEGA_EARTH, eotvos_mgal, normal_gravity_mgal, pro
                               radii_of_curvature_m, unproject_km)
 from app.simulate.field import make_field
 from app.simulate.markov import empirical_transition, make_state_map, markov_line
-from app.simulate.motion import layout_lines, plan_flight, vertical_motion
+from app.simulate.motion import layout_lines, make_drape, plan_flight, vertical_motion
 from app.simulate.presets import PRESETS, SimConfig
-from app.simulate.sensors import (LaggedResponse, noise_episodes, quadratic_from_means,
-                                  sigma_factor)
+from app.simulate.sensors import (LaggedResponse, LaggedResponseN, fir_pp, gauss_markov, noise_episodes,
+                                  quadratic_from_means, sigma_factor)
 
 MGAL = 1e-5  # m/s² per mGal
+
+# tags of the auxiliary random streams (np.random.SeedSequence([seed, tag, flight index])): options
+# draw from their own streams so that switching one on leaves the rest of the survey unchanged
+_TAG_VU_COLORED = 0xC01
+_TAG_VU_POSITION = 0xB05
+_TAG_H_COLORED = 0x4C0
+_TAG_H_COLORED_APRON = 0x4CA
+_TAG_DRAPE = 0xD4A
+
+
+def _aux_rng(seed, tag: int, index: int = 0) -> np.random.Generator:
+    """A deterministic auxiliary stream: same (seed, tag, index), same numbers, in every process."""
+    return np.random.default_rng(np.random.SeedSequence([int(seed), int(tag), int(index)]))
+
+
+def _legacy_gravimeter(cfg: SimConfig) -> bool:
+    """The original GT-1A sampling: interval means on a free-running clock, no internal filter."""
+    return (cfg.gravimeter_sampling == "mean" and cfg.gravimeter_clock == "free"
+            and cfg.gravimeter_fir_boxcars == 0)
+
+
+def _check_regime(cfg: SimConfig) -> None:
+    if cfg.gravimeter_sampling not in ("mean", "point"):
+        raise ValueError(f"gravimeter_sampling must be 'mean' or 'point', not {cfg.gravimeter_sampling!r}")
+    if cfg.gravimeter_clock not in ("free", "aligned"):
+        raise ValueError(f"gravimeter_clock must be 'free' or 'aligned', not {cfg.gravimeter_clock!r}")
+    if cfg.gravimeter_fir_boxcars < 0 or (cfg.gravimeter_fir_boxcars > 0 and cfg.gravimeter_fir_width_s <= 0):
+        raise ValueError("gravimeter_fir_boxcars > 0 needs gravimeter_fir_width_s > 0")
+    if cfg.field_std_over not in ("grid", "lines"):
+        raise ValueError(f"field_std_over must be 'grid' or 'lines', not {cfg.field_std_over!r}")
+    if cfg.drape_amp_m > 0 and cfg.field_kind != "sources":
+        raise ValueError("draped flight (drape_amp_m > 0) needs field_kind = 'sources'")
+
+
+def _fir_half_s(cfg: SimConfig) -> float:
+    return 0.5 * cfg.gravimeter_fir_boxcars * cfg.gravimeter_fir_width_s
+
+
+def _instrument_output(comps, cfg: SimConfig, times, edges) -> np.ndarray:
+    """Sum over input components (PPoly, m/s²) of the gravimeter output (new regimes).
+
+    Each component goes through the internal zero-phase FIR (``gravimeter_fir_*``, exact), the
+    lag and scale (``τ·ẏ + k·y = u``, exact) and is then sampled: at ``times`` ("point") or as the
+    mean over ``[edges[j], edges[j+1]]`` ("mean").
+    """
+    out = np.zeros(len(times))
+    for pp in comps:
+        if cfg.gravimeter_fir_boxcars > 0:
+            pp = fir_pp(pp, cfg.gravimeter_fir_boxcars, cfg.gravimeter_fir_width_s)
+        lr = LaggedResponseN(pp, cfg.tau_true_s, cfg.scale_true)
+        out += lr.y(times) if cfg.gravimeter_sampling == "point" else lr.interval_means(edges)
+    return out
+
+
+def _sample_lattice(cfg: SimConfig, origin: float, lo: float, hi: float):
+    """Samples whose intervals ``[t − P/2, t + P/2]`` lie in ``[lo, hi]`` on the lattice of interval
+    edges ``origin + j·P`` (P = 1/rate).  Returns ``(times, edges)``; with the aligned clock the times
+    are exact multiples of P (computed as ``j/rate``)."""
+    rate = cfg.gravimeter_rate_hz
+    j0 = int(np.ceil((lo - origin) * rate - 1e-9))
+    j1 = int(np.floor((hi - origin) * rate + 1e-9))
+    j = np.arange(j0, j1 + 1)
+    if cfg.gravimeter_clock == "aligned":
+        edges = (j - 0.5) / rate
+        times = j[:-1] / rate
+    else:
+        edges = origin + j / rate
+        times = 0.5 * (edges[:-1] + edges[1:])
+    return times, edges
 
 
 def _cubic_pp(t, y) -> PPoly:
@@ -102,23 +185,30 @@ def _apron_segments(path, cfg: SimConfig):
     return [("before", round(a1 - cfg.apron_s, 1), a1), ("after", b0, round(b0 + cfg.apron_s, 1))]
 
 
-def simulate_apron(seg, cfg: SimConfig, rng, airport: dict, drift_full: PPoly, g_start: float):
+def simulate_apron(seg, cfg: SimConfig, rng, airport: dict, drift_full: PPoly, g_start: float, h_rng=None):
     """Static readings on the apron over the GNSS span ``seg = (name, a, b)``.
 
     The gravimeter reads the true specific force at rest ``f = g_base`` (+ drift + noise) through
     the same lag and scale as in flight, on the instrument's continuous 18.24 Hz sampling grid
-    (the one started at ``g_start``); only intervals wholly inside ``[a, b]`` are written.
+    (the one started at ``g_start``); only intervals wholly inside ``[a, b]`` are written.  New
+    regimes (internal FIR, point samples, aligned clock) sample the same way as in flight; ``h_rng``
+    draws the coloured height error of the static GNSS (``h_colored_m``).
     """
     name, a, b = seg
     n = int(round((b - a) * cfg.gnss_rate_hz)) + 1
     tg = a + np.arange(n) / cfg.gnss_rate_hz
     lat0, lon0, h0 = airport["lat_deg"], airport["lon_deg"], airport["h_m"]
     # --- gravimeter
-    rate_g = cfg.gravimeter_rate_hz
-    j0 = int(np.ceil((a - g_start) * rate_g))
-    j1 = int(np.floor((b - g_start) * rate_g))
-    edges = g_start + np.arange(j0, j1 + 1) / rate_g
-    edges = edges[(edges >= a) & (edges <= b)]
+    legacy = _legacy_gravimeter(cfg)
+    if legacy:
+        rate_g = cfg.gravimeter_rate_hz
+        j0 = int(np.ceil((a - g_start) * rate_g))
+        j1 = int(np.floor((b - g_start) * rate_g))
+        edges = g_start + np.arange(j0, j1 + 1) / rate_g
+        edges = edges[(edges >= a) & (edges <= b)]
+        centres = 0.5 * (edges[:-1] + edges[1:])
+    else:
+        centres, edges = _sample_lattice(cfg, g_start, a, b)
     m = edges.size - 1
     cref = airport["g_base_mgal"] * MGAL
     fz = np.full(m, cref / cfg.scale_true)
@@ -128,9 +218,11 @@ def simulate_apron(seg, cfg: SimConfig, rng, airport: dict, drift_full: PPoly, g
         tn = np.arange(a - 20.0, b + 10.0, 1.0 / fs)
         sd = cfg.grav_noise_mgal_rthz * np.sqrt(fs) * MGAL
         comps.append(_cubic_pp(tn, rng.standard_normal(tn.size) * sd))
-    for pp in comps:
-        fz += LaggedResponse(pp, cfg.tau_true_s, cfg.scale_true).interval_means(edges)
-    centres = 0.5 * (edges[:-1] + edges[1:])
+    if legacy:
+        for pp in comps:
+            fz += LaggedResponse(pp, cfg.tau_true_s, cfg.scale_true).interval_means(edges)
+    else:
+        fz += _instrument_output(comps, cfg, centres, edges)
     grav = pd.DataFrame({"time": np.round(centres + cfg.time_offset_s, 3), "f_z": fz,
                          "f_x": rng.standard_normal(m) * cfg.horizontal_noise_ms2,
                          "f_y": rng.standard_normal(m) * cfg.horizontal_noise_ms2})
@@ -147,6 +239,10 @@ def simulate_apron(seg, cfg: SimConfig, rng, airport: dict, drift_full: PPoly, g
         "vn": rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
         "sigma_v": sig_vu * np.exp(rng.normal(0.0, 0.2, n)),
     })
+    if cfg.h_colored_m > 0 and h_rng is not None:
+        gnss["h"] += gauss_markov(tg, cfg.h_colored_m, cfg.h_colored_tau_s, h_rng)
+    if not cfg.gnss_velocity:
+        gnss = gnss[["time", "lat", "lon", "h"]]
     D = drift_full.antiderivative()
     info = {"segment": name, "t_start": a, "t_end": b,
             "gravimeter_t_start": float(edges[0]), "gravimeter_t_end": float(edges[-1]),
@@ -157,7 +253,7 @@ def simulate_apron(seg, cfg: SimConfig, rng, airport: dict, drift_full: PPoly, g
 
 
 def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight_idx: int = 0,
-                    apron_rng=None, airport: dict | None = None):
+                    apron_rng=None, airport: dict | None = None, seed: int | None = None, drape=None):
     """Simulate one flight.
 
     Parameters
@@ -174,6 +270,11 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
     airport : dict, optional
         ``lat_deg, lon_deg, h_m, g_base_mgal`` of the parking place; with ``cfg.apron_s > 0``
         static segments are added before and after the airborne data (see :func:`simulate_apron`).
+    seed : int, optional
+        Survey seed: the auxiliary streams (coloured GNSS errors) are
+        ``SeedSequence([seed, tag, flight_idx])``; None uses a stable hash of the flight start.
+    drape : app.simulate.motion.Drape, optional
+        Draped flight surface (m above ``height_m`` as a function of position relative to the centre).
 
     Returns
     -------
@@ -184,18 +285,32 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
     n = int(round((t1 - t0) * cfg.gnss_rate_hz)) + 1
     tg = t0 + np.arange(n) / cfg.gnss_rate_hz
     dt = 1.0 / cfg.gnss_rate_hz
+    aux_seed = seed if seed is not None else zlib.crc32(repr((float(t0), path.name)).encode())
     # --- vertical motion (exact piecewise cubic acceleration and its integrals)
     a_pp, v_pp, h_pp, motion_info = vertical_motion(t0, t1, cfg, rng)
-    h = cfg.height_m + h_pp(tg)
-    vu = v_pp(tg)
+    d_pp = None
+    if drape is not None:
+        # draped height as an exact quintic spline in time through 1 s samples along the path;
+        # its first and second derivatives are the drape's vertical velocity and acceleration
+        from scipy.interpolate import make_interp_spline
+        ts = np.arange(t0 - 40.0, t1 + 40.0 + 0.5, 1.0)
+        d_pp = PPoly.from_spline(make_interp_spline(ts, drape(path.x_pp(ts), path.y_pp(ts)), k=5))
+        h = cfg.height_m + h_pp(tg) + d_pp(tg)
+        vu = v_pp(tg) + d_pp.derivative()(tg)
+    else:
+        h = cfg.height_m + h_pp(tg)
+        vu = v_pp(tg)
     x, y, lat, lon, ve, vn = _geo_state(path, tg, h, cfg, e0_km, n0_km)
     gamma = normal_gravity_mgal(lat, h, cfg.normal_gravity)
     eot = eotvos_mgal(lat, h, ve, vn)
-    # --- anomaly: interval means over (t_{k-1}, t_k] from positions at the midpoints
+    # --- anomaly: interval means over (t_{k-1}, t_k] from positions (and heights) at the midpoints
     tm = tg - 0.5 * dt
     xm = path.x_pp(tm) / 1000.0 + e0_km
     ym = path.y_pp(tm) / 1000.0 + n0_km
-    dg, extra = dg_means_fn(tg, xm, ym)
+    if d_pp is not None:
+        dg, extra = dg_means_fn(tg, xm, ym, cfg.height_m + h_pp(tm) + d_pp(tm))
+    else:
+        dg, extra = dg_means_fn(tg, xm, ym)
     # --- drift (mGal): offset + linear + random walk on a 10 s grid
     rate = float(rng.uniform(*cfg.drift_rate_mgal_h)) * float(rng.choice([-1.0, 1.0]))
     if cfg.drift_rate_mgal_h[1] == 0.0:
@@ -210,6 +325,8 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
     slow = (gamma - eot) * MGAL
     cref = float(np.round(np.mean(slow), 3))
     comps = [a_pp, _cubic_pp(tg, slow - cref), quadratic_from_means(tg, dg * MGAL), drift_pp]
+    if d_pp is not None:
+        comps.append(d_pp.derivative(2))
     fs = cfg.fine_rate_hz
     noise_sd_mgal = cfg.grav_noise_mgal_rthz * np.sqrt(fs)
     if cfg.grav_noise_mgal_rthz > 0:
@@ -219,12 +336,22 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
     rate_g = cfg.gravimeter_rate_hz
     phase = float(rng.uniform(0.0, 1.0 / rate_g))
     g_start = t0 + 20.0 + phase      # ≥ 10 τ after the ODE inputs start
-    m = int(np.floor((t1 - 1.0 - g_start) * rate_g))
-    edges = g_start + np.arange(m + 1) / rate_g
-    fz = np.full(m, cref / cfg.scale_true)
-    for pp in comps:
-        fz += LaggedResponse(pp, cfg.tau_true_s, cfg.scale_true).interval_means(edges)
-    centres = 0.5 * (edges[:-1] + edges[1:])
+    if _legacy_gravimeter(cfg):
+        m = int(np.floor((t1 - 1.0 - g_start) * rate_g))
+        edges = g_start + np.arange(m + 1) / rate_g
+        fz = np.full(m, cref / cfg.scale_true)
+        for pp in comps:
+            fz += LaggedResponse(pp, cfg.tau_true_s, cfg.scale_true).interval_means(edges)
+        centres = 0.5 * (edges[:-1] + edges[1:])
+    else:
+        # new regimes: internal FIR, point or mean samples, free or aligned clock (lattice origin
+        # g_start, or −P/2 so that the samples sit on exact multiples of the period P)
+        if cfg.gravimeter_clock == "aligned":
+            g_start = -0.5 / rate_g
+        centres, edges = _sample_lattice(cfg, g_start, t0 + 20.0 + _fir_half_s(cfg),
+                                         t1 - 1.0 - _fir_half_s(cfg))
+        m = centres.size
+        fz = np.full(m, cref / cfg.scale_true) + _instrument_output(comps, cfg, centres, edges)
     # horizontal specific force (east, north) at the centres: kinematic + Coriolis
     ae = path.x_pp.derivative(2)(centres)
     an = path.y_pp.derivative(2)(centres)
@@ -240,17 +367,27 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
     episodes = noise_episodes(t0, t1, cfg.episode_rate_per_h, cfg.episode_len_s, cfg.episode_factor, rng)
     sig_vu = cfg.sigma_vu_cms / 100.0 * sigma_factor(tg, episodes)       # m/s
     r_m, r_n = radii_of_curvature_m(lat)
+    vu_extra = 0.0
+    if cfg.vu_colored_cms > 0:
+        vu_extra = vu_extra + _colored_noise(tg, cfg, _aux_rng(aux_seed, _TAG_VU_COLORED, flight_idx))
+    if cfg.vu_from_position_m > 0:
+        vu_extra = vu_extra + _position_derived_noise(tg, cfg, _aux_rng(aux_seed, _TAG_VU_POSITION, flight_idx))
     gnss = pd.DataFrame({
         "time": tg,
         "lat": lat + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / (r_m + h)),
         "lon": lon + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / ((r_n + h) * np.cos(np.deg2rad(lat)))),
         "h": h + rng.standard_normal(n) * cfg.sigma_h_m,
-        "vu": vu + rng.standard_normal(n) * sig_vu + _colored_noise(tg, cfg) + _position_derived_noise(tg, cfg),
+        "vu": vu + rng.standard_normal(n) * sig_vu + vu_extra,
         "ve": ve + rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
         "vn": vn + rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
         # receiver's formal sigma: follows the true level, imperfectly
         "sigma_v": sig_vu * np.exp(rng.normal(0.0, 0.2, n)),
     })
+    if cfg.h_colored_m > 0:
+        gnss["h"] += gauss_markov(tg, cfg.h_colored_m, cfg.h_colored_tau_s,
+                                  _aux_rng(aux_seed, _TAG_H_COLORED, flight_idx))
+    if not cfg.gnss_velocity:
+        gnss = gnss[["time", "lat", "lon", "h"]]
     # truth per epoch, rounded far below every noise level (keeps the committed sample small)
     # --- parking-place readings before and after (separate random stream; drift keeps running)
     segs = _apron_segments(path, cfg) if airport is not None else []
@@ -260,7 +397,10 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
             raise ValueError("apron segments need apron_rng")
         drift_full = _extend_drift(drift_pp, td, rw, off, rate, t0, segs[0][1] - 60.0, segs[-1][2] + 60.0,
                                    cfg, apron_rng)
-        parts = [simulate_apron(sg, cfg, apron_rng, airport, drift_full, g_start) for sg in segs]
+        parts = [simulate_apron(sg, cfg, apron_rng, airport, drift_full, g_start,
+                                _aux_rng(aux_seed, _TAG_H_COLORED_APRON, 2 * flight_idx + j) if cfg.h_colored_m > 0
+                                else None)
+                 for j, sg in enumerate(segs)]
         aprons = [p[2] for p in parts]
         grav = pd.concat([parts[0][0], grav, parts[1][0]], ignore_index=True)
         gnss = pd.concat([parts[0][1], gnss, parts[1][1]], ignore_index=True)
@@ -269,16 +409,24 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
         "dg_true_mgal": np.round(dg, 5), "R_true_cm2s2": (sig_vu * 100.0) ** 2,
         "drift_mgal": np.round(drift_at, 4), "vu_true_ms": np.round(vu, 5),
     })
+    if not cfg.gnss_velocity:
+        epochs["R_true_cm2s2"] = np.nan      # no velocity in the file: no velocity noise level
     for k, v in extra.items():
         epochs[k] = v
     epochs["state_true"] = epochs["state_true"].astype(np.int8)
-    epochs = epochs[["time", "easting_km", "northing_km", "dg_true_mgal", "terrain", "state_true",
-                     "Q_true_mgal2", "R_true_cm2s2", "drift_mgal", "vu_true_ms"]]
+    cols = ["time", "easting_km", "northing_km", "dg_true_mgal", "terrain", "state_true",
+            "Q_true_mgal2", "R_true_cm2s2", "drift_mgal", "vu_true_ms"]
+    if _truth_has_height(cfg):
+        epochs["h_true_m"] = h               # true (draped, moving) ellipsoidal height, full precision
+        cols.append("h_true_m")
+    epochs = epochs[cols]
     info = {"t0": t0, "t1": t1, "drift_offset_mgal": off, "drift_rate_mgal_h": rate,
             "drift_rw_mgal_rth": cfg.drift_rw_mgal_rth, "gravimeter_first_interval_start": g_start,
             "gnss_noisy_episodes": [{"t_start": s, "t_end": e, "sigma_factor": f} for s, e, f in episodes],
             "apron": aprons,
             **motion_info}
+    if not _legacy_gravimeter(cfg):
+        info["gravimeter_first_sample_time"] = float(centres[0])
     return {"gravimeter": grav, "gnss": gnss, "epochs": epochs, "info": info}
 
 
@@ -299,7 +447,9 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
     Parameters
     ----------
     preset : str
-        A key of :data:`PRESETS` (``tiny``, ``omolon-mini``, ``omolon``, ``kalgoorlie``, ``markov``).
+        A key of :data:`PRESETS` (``tiny``, ``omolon-mini``, ``omolon``, ``kalgoorlie``, ``markov``, and the
+        realistic regimes ``testline-2hz``, ``platform-*``, ``heights-only-*``, ``turbulent``, ``draped``;
+        docs/SIMULATOR.md).
     out_dir : path
         Destination directory (replaced atomically if it exists).
     seed : int
@@ -319,6 +469,7 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
     cfg = PRESETS[preset].replace(**overrides)
+    _check_regime(cfg)
     rng = np.random.default_rng(seed)
     clock = _time.perf_counter()
 
@@ -338,14 +489,33 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
     report("field", 0.05)
 
     truth_extra: dict = {}
+    drape = make_drape(cfg, planned, _aux_rng(seed, _TAG_DRAPE)) if cfg.drape_amp_m > 0 else None
     if cfg.field_kind == "sources":
-        fld = make_field(cfg, ext, e0, n0, rng)
+        line_pts = None
+        if cfg.field_std_over == "lines":
+            pts = []
+            for ln in planned:
+                a, b = np.array(ln.start_km), np.array(ln.end_km)
+                k = max(2, int(np.hypot(*(b - a)) / 0.1) + 1)
+                pts.append(a + np.linspace(0.0, 1.0, k)[:, None] * (b - a))
+            P = np.concatenate(pts)
+            line_pts = (P[:, 0], P[:, 1])
+        fld = make_field(cfg, ext, e0, n0, rng, line_pts)
         truth_extra["field"] = fld.info
+        if drape is not None:
+            src = fld.sources
+            truth_extra["field"] = {**fld.info, "sources": {
+                "note": ("draped flight: dg_true = harmonica point_gravity(field='g_z') of these point masses "
+                         "at the actual position and height (x, y relative to survey_centre_km, metres; "
+                         "z, height in metres) minus offset_mgal; truth/grid.nc stays at the nominal height_m"),
+                "x_m": src["x_m"], "y_m": src["y_m"], "z_m": src["z_m"], "mass_kg": src["mass_kg"],
+                "offset_mgal": src["offset_mgal"], "n_mountain": src["n_mountain"]}}
 
         def dg_fn_for(path):
-            def fn(tg, xm, ym):
+            def fn(tg, xm, ym, hm=None):
                 mnt = fld.terrain_mountain(xm, ym)
-                return fld(xm, ym), {"terrain": np.where(mnt, "mountain", "plain"),
+                val = fld(xm, ym) if hm is None else fld.at(xm, ym, hm)
+                return val, {"terrain": np.where(mnt, "mountain", "plain"),
                                      "state_true": mnt.astype(np.int64),
                                      "Q_true_mgal2": np.full(tg.size, np.nan)}
             return fn
@@ -357,7 +527,7 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
         block_paths = []
 
         def dg_fn_for(path):
-            def fn(tg, xm, ym):
+            def fn(tg, xm, ym, hm=None):
                 nq = tg.size
                 dg = np.full(nq, np.nan)
                 state = np.zeros(nq, np.int64)
@@ -403,7 +573,7 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
     for i, path in enumerate(paths):
         report(f"flight {path.name}", 0.1 + 0.75 * i / len(paths), {"flight": path.name})
         res = simulate_flight(path, cfg, rng, e0, n0, dg_fn_for(path), i,
-                              apron_rng=apron_rngs[i], airport=airport)
+                              apron_rng=apron_rngs[i], airport=airport, seed=seed, drape=drape)
         flights[path.name] = (res["gravimeter"], res["gnss"])
         flight_info[path.name] = res["info"]
         ep = res["epochs"]
@@ -473,6 +643,9 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
         "flights": flight_info,
         **truth_extra,
     }
+    regime = _regime_notes(cfg, drape)
+    if regime:
+        truth_json["regime"] = regime
     if cfg.field_kind == "markov":
         P = empirical_transition(block_paths)
         pi = np.bincount(np.concatenate(block_paths), minlength=2) / sum(len(b) for b in block_paths)
@@ -492,29 +665,88 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
                            "base_gravity_mgal": airport["g_base_mgal"] if airport else None},
             "processing": dict(cfg.processing)}
     report("write", 0.9)
-    out = write_survey(out_dir, toml, lines, flights, truth_lines, grid, truth_json, compress=cfg.compress)
+    from app.io.survey_writer import GNSS_HEIGHTS_ONLY_COLUMNS
+    out = write_survey(out_dir, toml, lines, flights, truth_lines, grid, truth_json, compress=cfg.compress,
+                       gnss_columns=None if cfg.gnss_velocity else GNSS_HEIGHTS_ONLY_COLUMNS)
     report("done", 1.0, {"seconds": _time.perf_counter() - clock})
     return out
 
 
-def _position_derived_noise(t, cfg) -> np.ndarray:
+def _regime_notes(cfg: SimConfig, drape) -> dict:
+    """truth.json ``regime``: what the new (realistic) options injected; empty for the original presets."""
+    out: dict = {}
+    if not _legacy_gravimeter(cfg):
+        from app.simulate.sensors import fir_gain
+        g = {"sampling": cfg.gravimeter_sampling, "clock": cfg.gravimeter_clock,
+             "rate_hz": cfg.gravimeter_rate_hz,
+             "sampling_note": ("point: f_z is the instrument's output (after its internal filter, lag and scale) "
+                               "at the sample time; mean: its mean over [t - P/2, t + P/2]; stamp = sample time "
+                               "+ time_offset_s, rounded to 1 ms"
+                               + ("; aligned clock: sample times are exact multiples of P = 1/rate_hz"
+                                  if cfg.gravimeter_clock == "aligned" else ""))}
+        if cfg.gravimeter_fir_boxcars > 0:
+            n, W = cfg.gravimeter_fir_boxcars, cfg.gravimeter_fir_width_s
+            f = np.array([0.01, 0.05, 0.1, 0.2, 0.3, 0.5])
+            g["internal_filter"] = {
+                "kind": "zero-phase FIR: cascaded boxcars (linear phase, delay removed from the stamps)",
+                "boxcars": n, "width_s": W, "response": "H(f) = sinc(f*width_s)**boxcars (real)",
+                "gain_at_hz": dict(zip([f"{v:g}" for v in f], fir_gain(f, n, W).round(5).tolist())),
+                "note": "not declared in survey.toml: the processing does not know it"}
+        out["gravimeter"] = g
+    if cfg.turbulence_spectrum != "band":
+        out["turbulence"] = {"spectrum": cfg.turbulence_spectrum, "peak_hz": cfg.turbulence_peak_hz,
+                             "psd_slopes": list(cfg.turbulence_slopes),
+                             "note": "PSD of the turbulence acceleration ∝ x^a/(1 + x^(a+b)), x = f/peak_hz"}
+    if drape is not None:
+        out["drape"] = {"amp_m": cfg.drape_amp_m, "wavelength_km": list(cfg.drape_wavelength_km),
+                        "components": drape.info(),
+                        "note": ("height = height_m + drape(x, y) + turbulence/phugoid motion; drape = sum of plane "
+                                 "waves in the survey plane (x, y m from the centre) plus a constant, spanning exactly "
+                                 "[-amp_m, +amp_m] on the line windows; the true height per epoch is h_true_m "
+                                 "in lines.parquet; truth/grid.nc stays at height_m")}
+    if not cfg.gnss_velocity or cfg.h_colored_m > 0:
+        out["gnss"] = {"velocity_columns": bool(cfg.gnss_velocity), "rate_hz": cfg.gnss_rate_hz,
+                       "h_white_m": cfg.sigma_h_m, "h_colored_m": cfg.h_colored_m,
+                       "h_colored_tau_s": cfg.h_colored_tau_s,
+                       "note": ("height error = white (h_white_m) + first-order Gauss-Markov (h_colored_m, "
+                                "correlation exp(-|dt|/tau)); heights-only: gnss.csv has time, lat, lon, h, "
+                                "R_true_cm2s2 is NaN")}
+    if cfg.wind_ms != 0.0:
+        out["wind_ms"] = cfg.wind_ms
+    return out
+
+
+def _truth_has_height(cfg: SimConfig) -> bool:
+    """``h_true_m`` is in truth/lines.parquet when the height matters: draped flight or heights-only GNSS."""
+    return cfg.drape_amp_m > 0 or not cfg.gnss_velocity
+
+
+def _stable_rng(*key) -> np.random.Generator:
+    """Fallback stream from a process-independent hash (zlib.crc32 of the key's repr), not ``hash()``
+    (string hashing is randomised per process by PYTHONHASHSEED)."""
+    return np.random.default_rng(zlib.crc32(repr(key).encode()))
+
+
+def _position_derived_noise(t, cfg, rng=None) -> np.ndarray:
     """GNSS vertical velocity error of a receiver that differences its positions: white
     position noise (std ``vu_from_position_m``) differenced over each epoch, so the error
-    has *less* power at low frequency than white velocity noise (blue, not red)."""
+    has *less* power at low frequency than white velocity noise (blue, not red).
+    ``rng``: its own stream (the simulator passes ``SeedSequence([seed, tag, flight])``)."""
     if cfg.vu_from_position_m <= 0:
         return np.zeros(t.size)
-    g = np.random.default_rng(abs(hash((float(t[0]), "position"))) % (2 ** 32))
+    g = rng if rng is not None else _stable_rng(float(t[0]), "position")
     e = g.standard_normal(t.size + 1) * cfg.vu_from_position_m
     dt = np.diff(t, prepend=t[0] - np.median(np.diff(t)))
     return np.diff(e) / dt
 
 
-def _colored_noise(t, cfg) -> np.ndarray:
+def _colored_noise(t, cfg, rng=None) -> np.ndarray:
     """Exponentially correlated GNSS velocity error (m/s), not the white noise the model
-    assumes; its own random stream so the rest of the survey is unchanged."""
+    assumes; its own random stream (``rng``; default: a stable hash of the start time and τ) so the
+    rest of the survey is unchanged."""
     if cfg.vu_colored_cms <= 0:
         return np.zeros(t.size)
-    g = np.random.default_rng(abs(hash((float(t[0]), cfg.vu_colored_tau_s))) % (2 ** 32))
+    g = rng if rng is not None else _stable_rng(float(t[0]), float(cfg.vu_colored_tau_s))
     dt = np.diff(t, prepend=t[0])
     a = np.exp(-dt / cfg.vu_colored_tau_s)
     w = g.standard_normal(t.size) * cfg.vu_colored_cms / 100.0

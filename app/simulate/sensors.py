@@ -139,3 +139,146 @@ def sigma_factor(t, episodes) -> np.ndarray:
         m = (t >= s) & (t < e)
         f[m] = np.maximum(f[m], k)
     return f
+
+
+# ---------------------------------------------------------------- platform gravimeter (new regimes)
+#
+# A platform gravimeter (AIRGrav class) delivers f_z at 1–10 Hz after an internal digital low-pass
+# (anti-alias) filter that the processing does not know.  It is modelled as a linear-phase FIR whose
+# group delay the instrument removes from its time stamps, i.e. a zero-phase filter: ``n`` cascaded
+# moving averages (boxcars) of width ``W`` s (n = 2: a triangular window of base 2W,
+# H(f) = sinc(f·W)^n).  Everything below is exact for piecewise-polynomial inputs.
+
+
+def taylor_shift(c: np.ndarray, delta) -> np.ndarray:
+    """Coefficients (highest power first, one column per piece) of ``p(s + delta)`` given those of
+    ``p(s)`` (repeated synthetic division; exact up to rounding)."""
+    a = np.array(c, dtype=float, copy=True)
+    K = a.shape[0] - 1
+    d = np.broadcast_to(np.asarray(delta, dtype=float), a.shape[1:])
+    for k in range(K):
+        for j in range(1, K + 1 - k):
+            a[j] += d * a[j - 1]
+    return a
+
+
+def boxcar_pp(pp: PPoly, width_s: float, merge_s: float = 1e-7) -> PPoly:
+    """Exact centred moving average ``M(t) = (1/W)·∫_{t−W/2}^{t+W/2} u`` of a piecewise polynomial.
+
+    The result is a piecewise polynomial one degree higher, defined on ``[x0 + W/2, x_end − W/2]``,
+    with breakpoints at the input's breakpoints shifted by ±W/2 (near-coincident ones merged).  Each
+    new piece is built from the antiderivative's pieces re-centred by a Taylor shift, so only one
+    level of antiderivative is involved (no cancellation of large accumulated integrals).
+    """
+    W = float(width_s)
+    if W <= 0:
+        raise ValueError("boxcar width must be positive")
+    F = pp.antiderivative()
+    x = F.x
+    half = 0.5 * W
+    lo, hi = x[0] + half, x[-1] - half
+    if hi <= lo:
+        raise ValueError("input too short for the boxcar")
+    cand = np.concatenate([x - half, x + half, [lo, hi]])
+    cand = np.sort(cand[(cand >= lo) & (cand <= hi)])
+    keep = np.concatenate([[True], np.diff(cand) > merge_s])
+    b = cand[keep]
+    b[-1] = hi
+    mid = 0.5 * (b[:-1] + b[1:])
+    iu = np.clip(np.searchsorted(x, mid + half, side="right") - 1, 0, x.size - 2)
+    il = np.clip(np.searchsorted(x, mid - half, side="right") - 1, 0, x.size - 2)
+    cu = taylor_shift(F.c[:, iu], b[:-1] + half - x[iu])
+    cl = taylor_shift(F.c[:, il], b[:-1] - half - x[il])
+    return PPoly((cu - cl) / W, b)
+
+
+def fir_pp(pp: PPoly, n_boxcars: int, width_s: float) -> PPoly:
+    """The zero-phase FIR of ``n_boxcars`` cascaded boxcars of ``width_s`` applied exactly."""
+    out = pp
+    for _ in range(int(n_boxcars)):
+        out = boxcar_pp(out, width_s)
+    return out
+
+
+def fir_gain(f, n_boxcars: int, width_s: float) -> np.ndarray:
+    """Frequency response of :func:`fir_pp` (real: zero phase), ``sinc(f·W)^n``."""
+    return np.sinc(np.asarray(f, dtype=float) * width_s) ** int(n_boxcars)
+
+
+class LaggedResponseN:
+    """Exact response of ``τ·ẏ + k·y = u`` to a piecewise polynomial ``u`` of any degree.
+
+    Same method as :class:`LaggedResponse` (which is kept unchanged for the original presets):
+    on each piece ``y(s) = p(s) + (y_i − p(0))·exp(−s/T)``, ``T = τ/k``,
+    ``p = Σ_j (−T)^j u^{(j)} / k``; interval means from the ODE, ``∫y = (∫u − τ·Δy)/k``.
+    """
+
+    def __init__(self, u_pp: PPoly, tau_s: float, scale: float):
+        self.u_pp = u_pp
+        self.x = np.asarray(u_pp.x, dtype=float)
+        self.tau = float(tau_s)
+        self.k = float(scale)
+        self.U_pp = u_pp.antiderivative()
+        if self.tau == 0.0:
+            return
+        T = self.tau / self.k
+        self.T = T
+        c = np.asarray(u_pp.c, dtype=float)
+        K = c.shape[0] - 1
+        d = c.copy()
+        der = c
+        for j in range(1, K + 1):
+            kk = der.shape[0] - 1
+            der = der[:-1] * np.arange(kk, 0, -1)[:, None]
+            d[-der.shape[0]:] += (-T) ** j * der
+        d /= self.k
+        self.d = d
+        h = np.diff(self.x)
+        beta = np.exp(-h / T)
+        p_end = d[0].copy()
+        for row in d[1:]:
+            p_end = p_end * h + row
+        rhs = np.empty(h.size + 1)
+        rhs[:-1] = p_end - beta * d[-1]
+        rhs[-1] = c[-1, 0] / self.k       # quasi-static start u(x0)/k
+        self.y_knots = _recurrence(beta, rhs)
+
+    def y(self, t) -> np.ndarray:
+        t = np.asarray(t, dtype=float)
+        if self.tau == 0.0:
+            return self.u_pp(t) / self.k
+        i = np.clip(np.searchsorted(self.x, t, side="right") - 1, 0, self.x.size - 2)
+        s = t - self.x[i]
+        d = self.d[:, i]
+        p = d[0].copy()
+        for row in d[1:]:
+            p = p * s + row
+        return p + (self.y_knots[i] - d[-1]) * np.exp(-s / self.T)
+
+    def interval_means(self, edges) -> np.ndarray:
+        e = np.asarray(edges, dtype=float)
+        U = self.U_pp(e)
+        if self.tau == 0.0:
+            return np.diff(U) / np.diff(e) / self.k
+        return (np.diff(U) - self.tau * np.diff(self.y(e))) / (self.k * np.diff(e))
+
+
+def gauss_markov(t, sigma: float, tau_s: float, rng) -> np.ndarray:
+    """Stationary first-order Gauss–Markov sequence (std ``sigma``, correlation ``exp(−|Δt|/τ)``)
+    at times ``t``; zeros when ``sigma <= 0``."""
+    t = np.asarray(t, dtype=float)
+    if sigma <= 0 or t.size == 0:
+        return np.zeros(t.size)
+    dt = np.diff(t, prepend=t[0])
+    a = np.exp(-dt / tau_s)
+    w = rng.standard_normal(t.size) * sigma
+    return _ar1(a, np.sqrt(1.0 - a ** 2) * w, w[0])
+
+
+@njit(cache=True)
+def _ar1(a, e, x0):
+    out = np.empty(a.size)
+    out[0] = x0
+    for i in range(1, a.size):
+        out[i] = a[i] * out[i - 1] + e[i]
+    return out
