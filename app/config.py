@@ -27,10 +27,14 @@ class GravimeterSection(_Strict):
     tau_s: float = Field(2.0, ge=0.0, le=60.0, description="First-order lag time constant (s); 0 if already de-lagged")
     scale: float = Field(1.0, gt=0.0, description="Scale k of the gravimeter model τ·ḟ' + k·f' = f_g + …")
     base_gravity_mgal: float | None = Field(None, description="Absolute gravity at the parking place (mGal)")
-    rate_hz: float = Field(18.24, gt=0.0, description="Declared sampling rate of the gravimeter (Hz)")
+    rate_hz: float | None = Field(None, gt=0.0, description="Declared sampling rate of the gravimeter (Hz): "
+                                  "a check of the rate inferred from the time stamps (median interval); "
+                                  "None infers it (0.5–100 Hz accepted)")
     time_offset_s: float | None = Field(
-        None, description="G file only: seconds added to UTC seconds of day to reach the survey time scale "
-        "(e.g. day·86400 + GPS−UTC leap seconds); whole days inferred from the GNSS times when None")
+        None, description="G file: seconds added to UTC seconds of day to reach the survey time scale "
+        "(e.g. day·86400 + GPS−UTC leap seconds); DGS .dat: seconds added to the GPS seconds of week "
+        "(the survey time of the first record when the records carry no GPS time); whole days inferred "
+        "from the GNSS times when None")
 
 
 class ProcessingParams(_Strict):

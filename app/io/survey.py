@@ -41,6 +41,9 @@ GNSS_REQUIRED = ("time", "lat", "lon", "h", "vu")
 GNSS_OPTIONAL = ("ve", "vn", "sigma_v")
 #: plausible median |f_z| (m/s²) of a gravimeter file in m/s² with Z up
 F_Z_PLAUSIBLE_MS2 = (7.0, 13.0)
+#: rates (Hz) accepted when none is declared (airborne and marine gravimeters; GNSS receivers)
+GRAVIMETER_RATE_SANITY_HZ = (0.5, 100.0)
+GNSS_RATE_SANITY_HZ = (0.5, 50.0)
 
 
 @dataclass
@@ -242,7 +245,8 @@ def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: flo
         df = _finish_series(df, rows, display, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL)
     t = df["time"].to_numpy()
     check_time_increasing(t, rows, display)
-    check_rate(t, display, config.gravimeter.rate_hz, p.rate_tolerance, "gravimeter", "gravimeter.rate_hz")
+    check_rate(t, display, config.gravimeter.rate_hz, p.rate_tolerance, "gravimeter", "gravimeter.rate_hz",
+               sanity_hz=GRAVIMETER_RATE_SANITY_HZ)
     med = float(np.median(df["f_z"].to_numpy()))
     lo, hi = F_Z_PLAUSIBLE_MS2
     if not (lo <= med <= hi):
@@ -259,7 +263,8 @@ def read_gnss(path, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, n
     df = _finish_series(df, rows, display, p.max_nan_run, GNSS_REQUIRED, GNSS_OPTIONAL)
     check_range(df, "lat", -90.0, 90.0, rows, display, "latitude")
     check_range(df, "lon", -180.0, 360.0, rows, display, "longitude")
-    check_rate(df["time"].to_numpy(), display, p.gnss_rate_hz, p.rate_tolerance, "GNSS", "processing.gnss_rate_hz")
+    check_rate(df["time"].to_numpy(), display, p.gnss_rate_hz, p.rate_tolerance, "GNSS", "processing.gnss_rate_hz",
+               sanity_hz=GNSS_RATE_SANITY_HZ)
     return df, rows
 
 
