@@ -37,8 +37,8 @@ __all__ = ["Flight", "Survey", "read_survey", "read_config", "read_lines", "read
 LINE_KINDS = ("main", "tie", "repeat")
 GRAV_REQUIRED = ("time", "f_z")
 GRAV_OPTIONAL = ("f_x", "f_y")
-GNSS_REQUIRED = ("time", "lat", "lon", "h", "vu")
-GNSS_OPTIONAL = ("ve", "vn", "sigma_v")
+GNSS_REQUIRED = ("time", "lat", "lon", "h")
+GNSS_OPTIONAL = ("vu", "ve", "vn", "sigma_v")  # vu derived from h when absent
 #: plausible median |f_z| (m/s²) of a gravimeter file in m/s² with Z up
 F_Z_PLAUSIBLE_MS2 = (7.0, 13.0)
 #: rates (Hz) accepted when none is declared (airborne and marine gravimeters; GNSS receivers)
@@ -52,6 +52,9 @@ class Flight:
 
     ``gravimeter``: DataFrame[time, f_z, (f_x, f_y)] (s, m/s²).
     ``gnss``: DataFrame[time, lat, lon, h, vu, (ve, vn, sigma_v)] (s, deg, m, m/s).
+    ``vu_derived_from_h``: True when the GNSS file had no ``vu`` and the column
+    was derived from the heights (:func:`derive_vu_from_h`); the pipeline
+    reports it.
     """
 
     name: str
@@ -59,6 +62,7 @@ class Flight:
     gnss: pd.DataFrame
     gravimeter_path: Path
     gnss_path: Path
+    vu_derived_from_h: bool = False
 
 
 @dataclass
@@ -256,15 +260,82 @@ def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: flo
     return df, rows
 
 
-def read_gnss(path, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, np.ndarray]:
-    """Read ``gnss.csv[.gz]``; validate; return (DataFrame[time, lat, lon, h, vu, (ve, vn, sigma_v)], rows)."""
+def gnss_runs(t: np.ndarray, max_gap_s: float) -> list[tuple[int, int]]:
+    """Index ranges ``[i0, i1)`` of the contiguous stretches of a GNSS record.
+
+    A record gap is a step longer than ``max(max_gap_s, 1.5 × median step)``
+    (the gaps a survey line may not contain; a coarse receiver's regular step
+    is never a gap).
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size < 2:
+        return [(0, int(t.size))]
+    dt = np.diff(t)
+    limit = max(float(max_gap_s), 1.5 * float(np.median(dt)))
+    cut = np.flatnonzero(dt > limit) + 1
+    edges = np.concatenate(([0], cut, [t.size]))
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def derive_vu_from_h(df: pd.DataFrame, rows: np.ndarray, display: str, max_gap_s: float) -> np.ndarray:
+    """``vu`` (m/s) from the heights of a GNSS table that has none.
+
+    Per contiguous run (:func:`gnss_runs`), ``vu_k`` is the derivative at
+    ``t_k`` of the not-a-knot cubic spline through ``(t, h)``
+    (:func:`app.core.geodesy.vertical_velocity_from_heights_ms`), so that the
+    pipeline's ``(V_k − V_{k−1})/Δt`` is the spline's mean vertical
+    acceleration over each GNSS interval.  No spline crosses a record gap.
+
+    Raises
+    ------
+    InputError
+        A run shorter than 4 samples (names its rows, column ``h``).
+    """
+    from app.core.geodesy import vertical_velocity_from_heights_ms
+
+    t = df["time"].to_numpy(dtype=float)
+    h = df["h"].to_numpy(dtype=float)
+    vu = np.empty_like(t)
+    for a, b in gnss_runs(t, max_gap_s):
+        if b - a < 4:
+            span = f"rows {int(rows[a])}–{int(rows[b - 1])}" if b - a > 1 else f"row {int(rows[a])}"
+            raise InputError(display, int(rows[a]), "h",
+                             f"no vu column, and the {b - a} GNSS sample(s) of {span} between record gaps are too "
+                             f"few to derive vu from h (a cubic spline needs at least 4 samples per contiguous "
+                             f"run): add a vu column or remove these rows")
+        vu[a:b] = vertical_velocity_from_heights_ms(t[a:b], h[a:b])
+    return vu
+
+
+def finish_gnss(df: pd.DataFrame, rows: np.ndarray, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, bool]:
+    """Validate a parsed GNSS table (any file format) and derive ``vu`` when absent.
+
+    Returns
+    -------
+    (DataFrame[time, lat, lon, h, vu, (ve, vn, sigma_v)], vu_derived_from_h)
+    """
     p = config.processing
-    df, rows = read_csv_table(path, display, GNSS_REQUIRED, GNSS_OPTIONAL, min_rows=2)
     df = _finish_series(df, rows, display, p.max_nan_run, GNSS_REQUIRED, GNSS_OPTIONAL)
     check_range(df, "lat", -90.0, 90.0, rows, display, "latitude")
     check_range(df, "lon", -180.0, 360.0, rows, display, "longitude")
     check_rate(df["time"].to_numpy(), display, p.gnss_rate_hz, p.rate_tolerance, "GNSS", "processing.gnss_rate_hz",
                sanity_hz=GNSS_RATE_SANITY_HZ)
+    derived = "vu" not in df
+    if derived:
+        df.insert(4, "vu", derive_vu_from_h(df, rows, display, p.max_gap_s))
+    cols = [c for c in ("time", "lat", "lon", "h", "vu", "ve", "vn", "sigma_v") if c in df]
+    return df[cols].reset_index(drop=True), derived
+
+
+def read_gnss(path, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, np.ndarray]:
+    """Read ``gnss.csv[.gz]``; validate; return (DataFrame[time, lat, lon, h, vu, (ve, vn, sigma_v)], rows).
+
+    Without a ``vu`` column, ``vu`` is derived from ``h`` (:func:`derive_vu_from_h`)
+    and ``df.attrs["vu_derived_from_h"]`` is True.
+    """
+    df, rows = read_csv_table(path, display, GNSS_REQUIRED, GNSS_OPTIONAL, min_rows=2)
+    df, derived = finish_gnss(df, rows, display, config)
+    df.attrs["vu_derived_from_h"] = derived
     return df, rows
 
 
@@ -373,7 +444,8 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
                                      f"{t[j]:.3f} s) inside line {lines['line'].iloc[sel[k]]} "
                                      f"({ts[k]:.3f}–{te[k]:.3f} s); at most {p.max_gap_s:g} s allowed "
                                      f"(processing.max_gap_s)")
-        flights[name] = Flight(name=name, gravimeter=grav, gnss=gnss, gravimeter_path=grav_path, gnss_path=gnss_path)
+        flights[name] = Flight(name=name, gravimeter=grav, gnss=gnss, gravimeter_path=grav_path, gnss_path=gnss_path,
+                               vu_derived_from_h=bool(gnss.attrs.get("vu_derived_from_h", False)))
     return Survey(root=root, config=config, lines=lines, flights=flights)
 
 

@@ -91,6 +91,9 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     series = gm.integrate_samples(gr["time"].to_numpy(float), gr["f_z"].to_numpy(float))
     offset, corr, applied = 0.0, float("nan"), False
     notes = []
+    if getattr(flight, "vu_derived_from_h", False):
+        notes.append("vu derived from the GNSS heights (the file has no vu column): derivative of the not-a-knot "
+                     "cubic spline through h, per contiguous run")
     if p.estimate_time_offset:
         try:
             offset, corr = gm.estimate_time_offset_s(series, t, vu, tau, k, p.max_time_offset_s)

@@ -191,8 +191,8 @@ def test_bad_survey_toml_names_key_and_row(survey_dir):
 
 def test_missing_required_column(survey_dir):
     root, lines, tabs = survey_dir
-    tabs["F1"][1].drop(columns="vu").to_csv(root / "flights/F1/gnss.csv", index=False)
-    expect_error(root, "flights/F1/gnss.csv", 1, "vu", match="missing")
+    tabs["F1"][1].drop(columns="h").to_csv(root / "flights/F1/gnss.csv", index=False)
+    expect_error(root, "flights/F1/gnss.csv", 1, "h", match="missing")
 
 
 def test_missing_column_in_lines(survey_dir):
