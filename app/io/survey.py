@@ -3,9 +3,34 @@
 ::
 
     <survey>/survey.toml
-    <survey>/lines.csv
-    <survey>/flights/<flight>/gravimeter.csv[.gz]   (or gravimeter.g, *.G, G*.dat)
-    <survey>/flights/<flight>/gnss.csv[.gz]
+    <survey>/lines.csv                               (optional with XYZ Line/Tie blocks)
+    <survey>/flights/<flight>/gravimeter.csv[.gz]    or gravimeter.xyz[.gz], a G file (gravimeter.g,
+                                                     *.G, a G file *.dat), DGS AT1A/AT1M records (*.dat)
+    <survey>/flights/<flight>/gnss.csv[.gz]          or gnss.xyz[.gz]
+    <survey>/flights/<flight>/<name>.xyz[.gz]        one Geosoft XYZ file holding both (instead)
+
+Formats: :mod:`app.io.tables` (CSV), :mod:`app.io.gfile`, :mod:`app.io.dgs`,
+:mod:`app.io.xyz` (with the ``[columns]`` table of survey.toml).  ``.dat`` files
+are told apart by their content (:func:`app.io.dgs.sniff_dat`), never by name
+alone; each sensor must have exactly one file.
+
+Rates are inferred from the time stamps (median interval); ``gravimeter.rate_hz``
+and ``processing.gnss_rate_hz`` are only checks of them (0.5–100 Hz and
+0.5–50 Hz are accepted when nothing is declared).
+
+Without ``lines.csv`` the survey lines come from the XYZ blocks
+(:func:`lines_from_blocks`): ``Line <id>`` → main, ``Tie <id>`` → tie, the
+window from the block's first to last GNSS time; an id used twice needs a
+lines.csv.
+
+GNSS without ``vu``: ``vu`` is derived from ``h`` — per contiguous run (no
+record gap longer than ``max(processing.max_gap_s, 1.5 × median step)``),
+``V(t_k)`` is the derivative at ``t_k`` of the not-a-knot cubic spline through
+``(t, h)``; the pipeline's ``(V_k − V_{k−1})/Δt`` is then exactly the spline's
+mean vertical acceleration over ``(t_{k−1}, t_k]``.  Runs shorter than 4
+samples are errors naming their rows.  ``Flight.vu_derived_from_h`` records it
+(the pipeline reports it as a flight note).  ``ve``/``vn`` are left to the
+pipeline, which derives them from the positions when absent.
 
 Every problem raises :class:`app.io.errors.InputError` naming the file (relative
 to the survey directory, POSIX separators), the 1-based line number in the file
