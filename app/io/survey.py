@@ -54,7 +54,7 @@ from app.core.geodesy import radii_of_curvature_m
 from app.io.errors import InputError
 from app.io.dgs import read_dgs, sniff_dat
 from app.io.gfile import is_gfile_name, read_gfile
-from app.io.xyz import LINE_KIND_OF_KEYWORD, XyzTable, scan_xyz, xyz_table
+from app.io.xyz import XyzTable, scan_xyz, xyz_table
 from app.io.tables import (check_finite, check_range, check_rate, check_time_increasing, fill_short_nan_runs,
                            gap_rows_in_windows, median_rate_hz, read_csv_table)
 

@@ -203,3 +203,22 @@ def test_inspect_works_on_dgs_and_xyz_surveys(tmp_path):
     q = inspect_survey(root)
     assert q.loc[q["level"] == "line", "line"].tolist() == ["1001", "2001"]
     assert {"lag_s", "lag_corr", "length_km"} <= set(q.columns)
+
+
+def test_records_without_gps_time_in_a_survey_need_rate_and_offset(tmp_path):
+    d = tmp_path / "s" / "flights" / "F1"
+    d.mkdir(parents=True)
+    lines, grav, _ = records(600, gps=False)
+    write(d / "meter.dat", lines)
+    tn = 7000.0 + np.arange(600) / HZ
+    pd.DataFrame({"time": tn, "lat": 1.0, "lon": 1.0 + 1e-5 * np.arange(600), "h": 1.0, "vu": 0.0}).to_csv(
+        d / "gnss.csv", index=False)
+    (tmp_path / "s" / "lines.csv").write_text("line,flight,t_start,t_end,kind\nL,F1,7010,7050,main\n")
+    (tmp_path / "s" / "survey.toml").write_text("[gravimeter]\nreading_offset_mgal = 970000.0\n")
+    with pytest.raises(InputError) as ei:
+        read_survey(tmp_path / "s")
+    assert ei.value.file == "flights/F1/meter.dat" and "gravimeter.rate_hz" in str(ei.value)
+    (tmp_path / "s" / "survey.toml").write_text("[gravimeter]\nreading_offset_mgal = 970000.0\nrate_hz = 10.0\n"
+                                                "time_offset_s = 7000.0\n")
+    g = read_survey(tmp_path / "s").flights["F1"].gravimeter
+    np.testing.assert_allclose(g["time"], tn, rtol=0, atol=1e-9)

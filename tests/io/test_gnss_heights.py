@@ -8,12 +8,11 @@ Expectations are analytic: a not-a-knot cubic spline reproduces a cubic exactly,
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from app.io.errors import InputError
 from app.io.survey import read_survey
-from tests.io.test_io_survey import T0, TOML, make_tables, write_survey
+from tests.io.test_io_survey import T0, make_tables, write_survey
 
 
 def _survey_without_vu(tmp_path, h_fn, drop=None):

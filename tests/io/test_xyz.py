@@ -357,3 +357,12 @@ def test_error_no_lines_anywhere(tmp_path):
     root, *_ = make_xyz_survey(tmp_path / "s", grav_text=xyz_text(grav, ["TIME", "F_Z"], one),
                                gnss_text=xyz_text(gnss, ["time", "lat", "lon", "h", "vu"], one))
     expect(root, "lines.csv", None, None, match="Line/Tie")
+
+
+def test_gnss_xyz_without_vu_derives_it(tmp_path):
+    _, gnss = _tables()
+    txt = xyz_text(gnss.drop(columns="vu"), ["time", "lat", "lon", "h"], BLOCKS)
+    root, *_ = make_xyz_survey(tmp_path / "s", gnss_text=txt)
+    fl = read_survey(root).flights["F1"]
+    assert fl.vu_derived_from_h
+    np.testing.assert_allclose(fl.gnss["vu"], 0.01 * HZ, rtol=0, atol=1e-9)  # h rises 1 cm per 0.1 s
