@@ -7,9 +7,9 @@ Units live in the names.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
 
 
 class _Strict(BaseModel):
@@ -27,10 +27,109 @@ class GravimeterSection(_Strict):
     tau_s: float = Field(2.0, ge=0.0, le=60.0, description="First-order lag time constant (s); 0 if already de-lagged")
     scale: float = Field(1.0, gt=0.0, description="Scale k of the gravimeter model τ·ḟ' + k·f' = f_g + …")
     base_gravity_mgal: float | None = Field(None, description="Absolute gravity at the parking place (mGal)")
-    rate_hz: float = Field(18.24, gt=0.0, description="Declared sampling rate of the gravimeter (Hz)")
+    reading_offset_mgal: float | None = Field(
+        None, description="DGS .dat only: mGal added to the meter's relative gravity reading to make an absolute-"
+        "looking specific force; None: 0 when the readings already look absolute (7e5–1.3e6 mGal), otherwise the "
+        "nominal 978000 mGal (the base tie then fixes the level)")
+    rate_hz: float | None = Field(None, gt=0.0, description="Declared sampling rate of the gravimeter (Hz): "
+                                  "a check of the rate inferred from the time stamps (median interval); "
+                                  "None infers it (0.5–100 Hz accepted)")
     time_offset_s: float | None = Field(
-        None, description="G file only: seconds added to UTC seconds of day to reach the survey time scale "
-        "(e.g. day·86400 + GPS−UTC leap seconds); whole days inferred from the GNSS times when None")
+        None, description="G file: seconds added to UTC seconds of day to reach the survey time scale "
+        "(e.g. day·86400 + GPS−UTC leap seconds); DGS .dat: seconds added to the GPS seconds of week "
+        "(the survey time of the first record when the records carry no GPS time); whole days inferred "
+        "from the GNSS times when None")
+
+
+def _column_ref(v):
+    if isinstance(v, bool) or not isinstance(v, (str, int)):
+        raise ValueError("expected a column name (text) or a column number (integer, from 1)")
+    if isinstance(v, int) and v < 1:
+        raise ValueError("a column number counts from 1")
+    if isinstance(v, str):
+        if not v.strip():
+            raise ValueError("a column name cannot be empty")
+        return v.strip()
+    return v
+
+
+#: a column of an XYZ file: its name in the file's header (matched without regard to case) or its
+#: 1-based position (for files without a header line)
+ColumnRef = Annotated[str | int, BeforeValidator(_column_ref)]
+
+F_Z_UNITS = ("m/s2", "mGal", "um/s2")
+#: multiplier turning each f_z unit into m/s²
+F_Z_UNIT_TO_MS2 = {"m/s2": 1.0, "mGal": 1e-5, "um/s2": 1e-6}
+
+
+class _ColumnMap(_Strict):
+    time: ColumnRef | None = Field(None, description="Time (s, survey time scale)")
+    line: ColumnRef | None = Field(None, description="Line id column (instead of Line/Tie block headers)")
+
+    def refs(self, fields) -> dict:
+        """``{field: ref}`` of the given fields that are set."""
+        return {f: getattr(self, f) for f in fields if getattr(self, f, None) is not None}
+
+
+class GravimeterColumns(_ColumnMap):
+    f_z: ColumnRef | None = Field(None, description="Vertical specific force, up")
+    f_x: ColumnRef | None = None
+    f_y: ColumnRef | None = None
+    f_z_unit: Literal["m/s2", "mGal", "um/s2"] | None = Field(
+        None, description="Unit of f_z (and f_x, f_y); inferred from the magnitude (~9.8 → m/s², ~980000 → mGal, "
+        "~9.8e6 → µm/s²) when None")
+
+
+class GnssColumns(_ColumnMap):
+    lat: ColumnRef | None = None
+    lon: ColumnRef | None = None
+    h: ColumnRef | None = None
+    vu: ColumnRef | None = None
+    ve: ColumnRef | None = None
+    vn: ColumnRef | None = None
+    sigma_v: ColumnRef | None = None
+
+
+GRAVIMETER_FIELDS = ("time", "line", "f_z", "f_x", "f_y")
+GNSS_FIELDS = ("time", "line", "lat", "lon", "h", "vu", "ve", "vn", "sigma_v")
+
+
+class ColumnsSection(GravimeterColumns, GnssColumns):
+    """``[columns]``: which column of an XYZ file holds what (SPEC §4 names).
+
+    Keys at the top level apply to every XYZ file of the survey;
+    ``[columns.gravimeter]`` and ``[columns.gnss]`` override them for
+    ``gravimeter.xyz`` and ``gnss.xyz`` (and for the gravimeter and GNSS
+    columns of a combined ``<name>.xyz``).  An unmapped field is looked up in
+    the file's header under its own name (``time``, ``f_z``, …).
+    """
+
+    gravimeter: GravimeterColumns | None = None
+    gnss: GnssColumns | None = None
+
+    def for_role(self, role: str) -> dict:
+        """Effective ``{field: ref}`` (and ``f_z_unit``) for ``role`` ∈ {"gravimeter", "gnss"}."""
+        fields = GRAVIMETER_FIELDS if role == "gravimeter" else GNSS_FIELDS
+        out = self.refs(fields)
+        sub = self.gravimeter if role == "gravimeter" else self.gnss
+        if sub is not None:
+            out.update(sub.refs(fields))
+        if role == "gravimeter":
+            unit = (sub.f_z_unit if sub is not None and sub.f_z_unit is not None else self.f_z_unit)
+            out["f_z_unit"] = unit
+        return out
+
+    @model_validator(mode="after")
+    def _distinct(self):
+        for role in ("gravimeter", "gnss"):
+            m = {k: v for k, v in self.for_role(role).items() if k != "f_z_unit"}
+            seen: dict = {}
+            for k, v in m.items():
+                key = v.lower() if isinstance(v, str) else v
+                if key in seen:
+                    raise ValueError(f"{seen[key]} and {k} name the same column {v!r} (for the {role} file)")
+                seen[key] = k
+        return self
 
 
 class ProcessingParams(_Strict):
@@ -166,3 +265,4 @@ class SurveyConfig(_Strict):
     survey: SurveySection = SurveySection()
     gravimeter: GravimeterSection = GravimeterSection()
     processing: ProcessingParams = ProcessingParams()
+    columns: ColumnsSection = ColumnsSection()

@@ -134,6 +134,43 @@ def velocities_from_positions_ms(t_s, lat_deg, lon_deg, h_m):
     return dlon * (r_n + h) * np.cos(phi), dlat * (r_m + h)
 
 
+def vertical_velocity_from_heights_ms(t_s, h_m):
+    """Vertical velocity (m/s, up) of one contiguous GNSS run from its heights alone.
+
+    ``V(t_k) = s'(t_k)`` where ``s`` is the not-a-knot cubic spline through
+    ``(t_k, h_k)``.  The measurement (SPEC §1) uses ``(V_k − V_{k−1})/Δt``; for
+    the spline that difference is ``∫ s''(t) dt / Δt`` over ``(t_{k−1}, t_k]``,
+    i.e. exactly the mean vertical acceleration of the interpolated trajectory
+    over the GNSS interval — the quantity the interval-mean gravimeter reading
+    ``f̄_k`` is compared with.
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (n,)
+        Strictly increasing times (s) of one run without record gaps, n ≥ 4.
+    h_m : ndarray, shape (n,)
+        Ellipsoidal heights (m).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        ``V`` (m/s).
+
+    Raises
+    ------
+    ValueError
+        Fewer than 4 samples (the not-a-knot spline needs 4).
+    """
+    from scipy.interpolate import CubicSpline
+
+    t = np.asarray(t_s, dtype=float)
+    h = np.asarray(h_m, dtype=float)
+    if t.size < 4:
+        raise ValueError(f"a not-a-knot cubic spline needs at least 4 samples, got {t.size}")
+    x = t - t[0]  # GPS seconds since the epoch are ~1e9: keep the abscissae small
+    return CubicSpline(x, h, bc_type="not-a-knot")(x, 1)
+
+
 def utm_crs_for(lon_deg, lat_deg) -> str:
     """EPSG code of the UTM zone containing the mean of the given points."""
     lon = float(np.nanmean(lon_deg))

@@ -3,9 +3,34 @@
 ::
 
     <survey>/survey.toml
-    <survey>/lines.csv
-    <survey>/flights/<flight>/gravimeter.csv[.gz]   (or gravimeter.g, *.G, G*.dat)
-    <survey>/flights/<flight>/gnss.csv[.gz]
+    <survey>/lines.csv                               (optional with XYZ Line/Tie blocks)
+    <survey>/flights/<flight>/gravimeter.csv[.gz]    or gravimeter.xyz[.gz], a G file (gravimeter.g,
+                                                     *.G, a G file *.dat), DGS AT1A/AT1M records (*.dat)
+    <survey>/flights/<flight>/gnss.csv[.gz]          or gnss.xyz[.gz]
+    <survey>/flights/<flight>/<name>.xyz[.gz]        one Geosoft XYZ file holding both (instead)
+
+Formats: :mod:`app.io.tables` (CSV), :mod:`app.io.gfile`, :mod:`app.io.dgs`,
+:mod:`app.io.xyz` (with the ``[columns]`` table of survey.toml).  ``.dat`` files
+are told apart by their content (:func:`app.io.dgs.sniff_dat`), never by name
+alone; each sensor must have exactly one file.
+
+Rates are inferred from the time stamps (median interval); ``gravimeter.rate_hz``
+and ``processing.gnss_rate_hz`` are only checks of them (0.5–100 Hz and
+0.5–50 Hz are accepted when nothing is declared).
+
+Without ``lines.csv`` the survey lines come from the XYZ blocks
+(:func:`lines_from_blocks`): ``Line <id>`` → main, ``Tie <id>`` → tie, the
+window from the block's first to last GNSS time; an id used twice needs a
+lines.csv.
+
+GNSS without ``vu``: ``vu`` is derived from ``h`` — per contiguous run (no
+record gap longer than ``max(processing.max_gap_s, 1.5 × median step)``),
+``V(t_k)`` is the derivative at ``t_k`` of the not-a-knot cubic spline through
+``(t, h)``; the pipeline's ``(V_k − V_{k−1})/Δt`` is then exactly the spline's
+mean vertical acceleration over ``(t_{k−1}, t_k]``.  Runs shorter than 4
+samples are errors naming their rows.  ``Flight.vu_derived_from_h`` records it
+(the pipeline reports it as a flight note).  ``ve``/``vn`` are left to the
+pipeline, which derives them from the positions when absent.
 
 Every problem raises :class:`app.io.errors.InputError` naming the file (relative
 to the survey directory, POSIX separators), the 1-based line number in the file
@@ -27,7 +52,9 @@ from pydantic import ValidationError
 from app.config import SurveyConfig
 from app.core.geodesy import radii_of_curvature_m
 from app.io.errors import InputError
+from app.io.dgs import read_dgs, sniff_dat
 from app.io.gfile import is_gfile_name, read_gfile
+from app.io.xyz import XyzTable, scan_xyz, xyz_table
 from app.io.tables import (check_finite, check_range, check_rate, check_time_increasing, fill_short_nan_runs,
                            gap_rows_in_windows, median_rate_hz, read_csv_table)
 
@@ -37,10 +64,13 @@ __all__ = ["Flight", "Survey", "read_survey", "read_config", "read_lines", "read
 LINE_KINDS = ("main", "tie", "repeat")
 GRAV_REQUIRED = ("time", "f_z")
 GRAV_OPTIONAL = ("f_x", "f_y")
-GNSS_REQUIRED = ("time", "lat", "lon", "h", "vu")
-GNSS_OPTIONAL = ("ve", "vn", "sigma_v")
+GNSS_REQUIRED = ("time", "lat", "lon", "h")
+GNSS_OPTIONAL = ("vu", "ve", "vn", "sigma_v")  # vu derived from h when absent
 #: plausible median |f_z| (m/s²) of a gravimeter file in m/s² with Z up
 F_Z_PLAUSIBLE_MS2 = (7.0, 13.0)
+#: rates (Hz) accepted when none is declared (airborne and marine gravimeters; GNSS receivers)
+GRAVIMETER_RATE_SANITY_HZ = (0.5, 100.0)
+GNSS_RATE_SANITY_HZ = (0.5, 50.0)
 
 
 @dataclass
@@ -49,6 +79,9 @@ class Flight:
 
     ``gravimeter``: DataFrame[time, f_z, (f_x, f_y)] (s, m/s²).
     ``gnss``: DataFrame[time, lat, lon, h, vu, (ve, vn, sigma_v)] (s, deg, m, m/s).
+    ``vu_derived_from_h``: True when the GNSS file had no ``vu`` and the column
+    was derived from the heights (:func:`derive_vu_from_h`); the pipeline
+    reports it.
     """
 
     name: str
@@ -56,6 +89,7 @@ class Flight:
     gnss: pd.DataFrame
     gravimeter_path: Path
     gnss_path: Path
+    vu_derived_from_h: bool = False
 
 
 @dataclass
@@ -75,25 +109,35 @@ class Survey:
 
 
 def _toml_key_row(text: str, loc: tuple) -> int | None:
-    """Line number of ``key`` in table ``[section]`` of a TOML text (best effort)."""
-    if len(loc) == 1:  # an unknown or bad table: point at its header
+    """Line number of ``key`` in table ``[section]`` of a TOML text (best effort).
+
+    ``loc`` is a pydantic error location: ``(table,)`` points at the table's
+    header, ``(table, key)`` or ``(table, subtable, key)`` at the key (or, when
+    it is not written as a key, at the header ``[table.subtable]``).
+    """
+    def header_row(name: str) -> int | None:
         for i, line in enumerate(text.splitlines(), start=1):
-            if re.match(rf"^\[\s*\"?{re.escape(str(loc[0]))}\"?\s*\]", line.strip()):
+            m = re.match(r"^\[\s*([^\]]+?)\s*\]", line.strip())
+            if m and m.group(1).replace('"', "").replace(" ", "") == name:
                 return i
         return None
-    if len(loc) < 2:
+
+    loc = tuple(str(x) for x in loc)
+    if not loc:
         return None
-    section, key = str(loc[0]), str(loc[1])
+    if len(loc) == 1:  # an unknown or bad table: point at its header
+        return header_row(loc[0])
+    section, key = ".".join(loc[:-1]), loc[-1]
     current = None
     for i, line in enumerate(text.splitlines(), start=1):
-        s = line.strip()
-        m = re.match(r"^\[\s*([^\]]+?)\s*\]", s)
+        st = line.strip()
+        m = re.match(r"^\[\s*([^\]]+?)\s*\]", st)
         if m:
-            current = m.group(1).strip().strip('"')
+            current = m.group(1).replace('"', "").replace(" ", "")
             continue
-        if current == section and re.match(rf'^"?{re.escape(key)}"?\s*=', s):
+        if current == section and re.match(rf'^"?{re.escape(key)}"?\s*=', st):
             return i
-    return None
+    return header_row(".".join(loc)) or header_row(section)
 
 
 def read_config(path, overrides: dict | None = None, display: str = "survey.toml") -> SurveyConfig:
@@ -212,72 +256,154 @@ def _finish_series(df: pd.DataFrame, rows: np.ndarray, display: str, max_nan_run
     return df
 
 
-def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: float | None = None,
-                    gnss_time_range: tuple[float, float] | None = None) -> tuple[pd.DataFrame, np.ndarray]:
-    """Read ``gravimeter.csv[.gz]`` or a G file; validate; return (DataFrame[time, f_z, (f_x, f_y)], rows).
+def _days_to_gnss(t: np.ndarray, gnss_time_range: tuple[float, float] | None) -> float:
+    """Whole days (s) that best put the series ``t`` inside the GNSS time range (0 without one)."""
+    if gnss_time_range is None:
+        return 0.0
+    mid_g = 0.5 * (t[0] + t[-1])
+    mid_n = 0.5 * (gnss_time_range[0] + gnss_time_range[1])
+    return 86400.0 * float(np.round((mid_n - mid_g) / 86400.0))
 
-    For a G file, ``time_offset_s`` maps UTC seconds of day onto the survey
-    scale; when None it is the whole number of days that best puts the G
-    data inside ``gnss_time_range`` (no leap seconds: GNSS assumed on UTC, or
-    the pipeline's lag estimate absorbs the rest; see the report).
-    """
-    path = Path(path)
+
+def finish_gravimeter(df: pd.DataFrame, rows: np.ndarray, display: str, config: SurveyConfig) -> pd.DataFrame:
+    """Checks common to every gravimeter format: time order, rate, plausible f_z (m/s², up)."""
     p = config.processing
-    if is_gfile_name(path.name):
-        offset = 0.0 if time_offset_s is None else float(time_offset_s)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            g = read_gfile(path, time_offset_s=offset, max_nan_run=p.max_nan_run, display=display)
-        for w in caught:
-            warnings.warn(str(w.message), stacklevel=2)
-        if time_offset_s is None and gnss_time_range is not None:
-            mid_g = 0.5 * (g["time"].iloc[0] + g["time"].iloc[-1])
-            mid_n = 0.5 * (gnss_time_range[0] + gnss_time_range[1])
-            days = np.round((mid_n - mid_g) / 86400.0)
-            g["time"] = g["time"] + 86400.0 * days
-        rows = g["source_row"].to_numpy(dtype=np.int64)
-        df = g[["time", "f_z", "f_x", "f_y"]].copy()
-    else:
-        df, rows = read_csv_table(path, display, GRAV_REQUIRED, GRAV_OPTIONAL, min_rows=2)
-        df = _finish_series(df, rows, display, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL)
     t = df["time"].to_numpy()
     check_time_increasing(t, rows, display)
-    check_rate(t, display, config.gravimeter.rate_hz, p.rate_tolerance, "gravimeter", "gravimeter.rate_hz")
+    check_rate(t, display, config.gravimeter.rate_hz, p.rate_tolerance, "gravimeter", "gravimeter.rate_hz",
+               sanity_hz=GRAVIMETER_RATE_SANITY_HZ)
     med = float(np.median(df["f_z"].to_numpy()))
     lo, hi = F_Z_PLAUSIBLE_MS2
     if not (lo <= med <= hi):
         hint = (" (negative: the Z axis must point up)" if -hi <= med <= -lo else
                 " (the values must be specific force in m/s², about +9.8 at rest)")
         raise InputError(display, None, "f_z", f"median f_z is {med:.6g} m/s², not plausible{hint}")
-    return df, rows
+    return df
 
 
-def read_gnss(path, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, np.ndarray]:
-    """Read ``gnss.csv[.gz]``; validate; return (DataFrame[time, lat, lon, h, vu, (ve, vn, sigma_v)], rows)."""
+def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: float | None = None,
+                    gnss_time_range: tuple[float, float] | None = None,
+                    kind: str | None = None) -> tuple[pd.DataFrame, np.ndarray]:
+    """Read ``gravimeter.csv[.gz]``, a G file or DGS records; validate; return (DataFrame[time, f_z, (f_x, f_y)], rows).
+
+    ``kind`` is ``"csv"``, ``"gfile"`` or ``"dgs"`` (None: from the name and,
+    for ``.dat`` files, the content).  For a G file, ``time_offset_s`` maps UTC
+    seconds of day onto the survey scale; for DGS records it is added to the
+    GPS seconds of week (:mod:`app.io.dgs`).  When None it is the whole number
+    of days that best puts the data inside ``gnss_time_range`` (no leap
+    seconds: GNSS assumed on UTC for G files, on GPS time for DGS records, or
+    the pipeline's lag estimate absorbs the rest; see the report).
+    """
+    path = Path(path)
     p = config.processing
-    df, rows = read_csv_table(path, display, GNSS_REQUIRED, GNSS_OPTIONAL, min_rows=2)
+    if kind is None:
+        low = path.name.lower()
+        if low.endswith(".dat") or low.endswith(".dat.gz"):
+            kind = sniff_dat(path) or ("gfile" if is_gfile_name(path.name) else "dgs")
+        elif is_gfile_name(path.name):
+            kind = "gfile"
+        else:
+            kind = "csv"
+    if kind in ("gfile", "dgs"):
+        offset = 0.0 if time_offset_s is None else float(time_offset_s)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            if kind == "gfile":
+                g = read_gfile(path, time_offset_s=offset, max_nan_run=p.max_nan_run, display=display)
+            else:
+                g = read_dgs(path, time_offset_s=time_offset_s, rate_hz=config.gravimeter.rate_hz,
+                             reading_offset_mgal=config.gravimeter.reading_offset_mgal,
+                             max_nan_run=p.max_nan_run, display=display)
+        for w in caught:
+            warnings.warn(str(w.message), stacklevel=2)
+        if time_offset_s is None:
+            g["time"] = g["time"] + _days_to_gnss(g["time"].to_numpy(), gnss_time_range)
+        rows = g["source_row"].to_numpy(dtype=np.int64)
+        df = g[[c for c in ("time", "f_z", "f_x", "f_y") if c in g]].copy()
+        df.attrs.update(g.attrs)
+    else:
+        df, rows = read_csv_table(path, display, GRAV_REQUIRED, GRAV_OPTIONAL, min_rows=2)
+        df = _finish_series(df, rows, display, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL)
+    return finish_gravimeter(df, rows, display, config), rows
+
+
+def gnss_runs(t: np.ndarray, max_gap_s: float) -> list[tuple[int, int]]:
+    """Index ranges ``[i0, i1)`` of the contiguous stretches of a GNSS record.
+
+    A record gap is a step longer than ``max(max_gap_s, 1.5 × median step)``
+    (the gaps a survey line may not contain; a coarse receiver's regular step
+    is never a gap).
+    """
+    t = np.asarray(t, dtype=float)
+    if t.size < 2:
+        return [(0, int(t.size))]
+    dt = np.diff(t)
+    limit = max(float(max_gap_s), 1.5 * float(np.median(dt)))
+    cut = np.flatnonzero(dt > limit) + 1
+    edges = np.concatenate(([0], cut, [t.size]))
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def derive_vu_from_h(df: pd.DataFrame, rows: np.ndarray, display: str, max_gap_s: float) -> np.ndarray:
+    """``vu`` (m/s) from the heights of a GNSS table that has none.
+
+    Per contiguous run (:func:`gnss_runs`), ``vu_k`` is the derivative at
+    ``t_k`` of the not-a-knot cubic spline through ``(t, h)``
+    (:func:`app.core.geodesy.vertical_velocity_from_heights_ms`), so that the
+    pipeline's ``(V_k − V_{k−1})/Δt`` is the spline's mean vertical
+    acceleration over each GNSS interval.  No spline crosses a record gap.
+
+    Raises
+    ------
+    InputError
+        A run shorter than 4 samples (names its rows, column ``h``).
+    """
+    from app.core.geodesy import vertical_velocity_from_heights_ms
+
+    t = df["time"].to_numpy(dtype=float)
+    h = df["h"].to_numpy(dtype=float)
+    vu = np.empty_like(t)
+    for a, b in gnss_runs(t, max_gap_s):
+        if b - a < 4:
+            span = f"rows {int(rows[a])}–{int(rows[b - 1])}" if b - a > 1 else f"row {int(rows[a])}"
+            raise InputError(display, int(rows[a]), "h",
+                             f"no vu column, and the {b - a} GNSS sample(s) of {span} between record gaps are too "
+                             f"few to derive vu from h (a cubic spline needs at least 4 samples per contiguous "
+                             f"run): add a vu column or remove these rows")
+        vu[a:b] = vertical_velocity_from_heights_ms(t[a:b], h[a:b])
+    return vu
+
+
+def finish_gnss(df: pd.DataFrame, rows: np.ndarray, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, bool]:
+    """Validate a parsed GNSS table (any file format) and derive ``vu`` when absent.
+
+    Returns
+    -------
+    (DataFrame[time, lat, lon, h, vu, (ve, vn, sigma_v)], vu_derived_from_h)
+    """
+    p = config.processing
     df = _finish_series(df, rows, display, p.max_nan_run, GNSS_REQUIRED, GNSS_OPTIONAL)
     check_range(df, "lat", -90.0, 90.0, rows, display, "latitude")
     check_range(df, "lon", -180.0, 360.0, rows, display, "longitude")
-    check_rate(df["time"].to_numpy(), display, p.gnss_rate_hz, p.rate_tolerance, "GNSS", "processing.gnss_rate_hz")
+    check_rate(df["time"].to_numpy(), display, p.gnss_rate_hz, p.rate_tolerance, "GNSS", "processing.gnss_rate_hz",
+               sanity_hz=GNSS_RATE_SANITY_HZ)
+    derived = "vu" not in df
+    if derived:
+        df.insert(4, "vu", derive_vu_from_h(df, rows, display, p.max_gap_s))
+    cols = [c for c in ("time", "lat", "lon", "h", "vu", "ve", "vn", "sigma_v") if c in df]
+    return df[cols].reset_index(drop=True), derived
+
+
+def read_gnss(path, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, np.ndarray]:
+    """Read ``gnss.csv[.gz]``; validate; return (DataFrame[time, lat, lon, h, vu, (ve, vn, sigma_v)], rows).
+
+    Without a ``vu`` column, ``vu`` is derived from ``h`` (:func:`derive_vu_from_h`)
+    and ``df.attrs["vu_derived_from_h"]`` is True.
+    """
+    df, rows = read_csv_table(path, display, GNSS_REQUIRED, GNSS_OPTIONAL, min_rows=2)
+    df, derived = finish_gnss(df, rows, display, config)
+    df.attrs["vu_derived_from_h"] = derived
     return df, rows
-
-
-def _find_file(d: Path, stem: str) -> Path | None:
-    for name in (f"{stem}.csv", f"{stem}.csv.gz"):
-        if (d / name).is_file():
-            return d / name
-    return None
-
-
-def _find_gfile(d: Path, root: Path) -> Path | None:
-    cands = sorted(p for p in d.iterdir() if p.is_file() and is_gfile_name(p.name))
-    if len(cands) > 1:
-        names = ", ".join(p.name for p in cands)
-        raise InputError(_rel(root, d) + "/", None, None,
-                         f"several gravimeter G files in one flight ({names}): keep one per flight directory "
-                         f"(merge split recordings into one file, or make each a flight of its own)")
-    return cands[0] if cands else None
 
 
 def _rel(root: Path, p: Path) -> str:
@@ -285,6 +411,161 @@ def _rel(root: Path, p: Path) -> str:
         return p.relative_to(root).as_posix()
     except ValueError:
         return str(p)
+
+
+def _is(name: str, *suffixes: str) -> bool:
+    low = name.lower()
+    return any(low.endswith(sfx) for sfx in suffixes)
+
+
+@dataclass
+class _Source:
+    kind: str            # csv | gfile | dgs | xyz
+    path: Path
+    combined: bool = False
+
+
+def flight_sources(d: Path, root: Path) -> dict[str, _Source]:
+    """The gravimeter and GNSS files of a flight directory.
+
+    gravimeter: ``gravimeter.csv[.gz]``, ``gravimeter.xyz[.gz]``, a G file
+    (``gravimeter.g``, ``*.G``, or a ``*.dat`` whose content is a G file) or DGS
+    records (a ``*.dat`` whose content is DGS records; :func:`app.io.dgs.sniff_dat`);
+    GNSS: ``gnss.csv[.gz]``, ``gnss.xyz[.gz]``; and one ``<name>.xyz[.gz]``
+    serves every sensor that has no file of its own (a combined file).
+
+    Raises
+    ------
+    InputError
+        Two candidates for one sensor, raw DGS strings, or a missing sensor.
+    """
+    files = sorted(p for p in d.iterdir() if p.is_file() and not p.name.startswith("."))
+    grav: list[_Source] = []
+    gnss: list[_Source] = []
+    other_xyz: list[Path] = []
+    unknown_dat: list[str] = []
+    for f in files:
+        low = f.name.lower()
+        if low in ("gravimeter.csv", "gravimeter.csv.gz"):
+            grav.append(_Source("csv", f))
+        elif low in ("gnss.csv", "gnss.csv.gz"):
+            gnss.append(_Source("csv", f))
+        elif low in ("gravimeter.xyz", "gravimeter.xyz.gz"):
+            grav.append(_Source("xyz", f))
+        elif low in ("gnss.xyz", "gnss.xyz.gz"):
+            gnss.append(_Source("xyz", f))
+        elif _is(f.name, ".xyz", ".xyz.gz"):
+            other_xyz.append(f)
+        elif _is(f.name, ".dat", ".dat.gz"):
+            what = sniff_dat(f)
+            if what in ("gfile", "dgs"):
+                grav.append(_Source(what, f))
+            elif what == "dgs_raw":
+                raise InputError(_rel(root, f), 1, None,
+                                 "raw DGS serial strings ('$…': A/D counts before the meter's calibration) are not "
+                                 "read: use the records the DGS logger writes")
+            else:
+                unknown_dat.append(f.name)
+        elif low == "gravimeter.g" or f.name.endswith(".G"):
+            grav.append(_Source("gfile", f))
+    where = _rel(root, d) + "/"
+    if len(other_xyz) > 1:
+        raise InputError(where, None, None,
+                         f"several XYZ files in one flight ({', '.join(p.name for p in other_xyz)}): use "
+                         f"gravimeter.xyz and gnss.xyz, or one <name>.xyz holding both")
+    if other_xyz:
+        if grav and gnss:
+            raise InputError(_rel(root, other_xyz[0]), None, None,
+                             f"the flight already has its gravimeter file ({grav[0].path.name}) and GNSS file "
+                             f"({gnss[0].path.name}): remove {other_xyz[0].name} or them")
+        for lst in (grav, gnss):
+            if not lst:
+                lst.append(_Source("xyz", other_xyz[0], combined=True))
+    for what, lst in (("gravimeter", grav), ("GNSS", gnss)):
+        if len(lst) > 1:
+            names = ", ".join(x.path.name for x in lst)
+            raise InputError(where, None, None,
+                             f"several {what} files in one flight ({names}): keep one per flight directory "
+                             f"(merge split recordings into one file, or make each a flight of its own)")
+    if not gnss:
+        raise InputError(_rel(root, d / "gnss.csv"), None, None,
+                         f"flight {d.name} has no gnss.csv (or gnss.csv.gz, gnss.xyz, or one <name>.xyz with both "
+                         f"sensors)")
+    if not grav:
+        extra = (f"; {', '.join(unknown_dat)} is neither DGS records nor a G file" if unknown_dat else "")
+        raise InputError(_rel(root, d / "gravimeter.csv"), None, None,
+                         f"flight {d.name} has no gravimeter.csv (or .csv.gz, gravimeter.xyz, a G file: "
+                         f"gravimeter.g, *.G, G*.dat, or DGS records *.dat){extra}")
+    return {"gravimeter": grav[0], "gnss": gnss[0]}
+
+
+def _xyz_role(src: _Source, role: str, root: Path, config: SurveyConfig, scans: dict) -> XyzTable:
+    if src.path not in scans:
+        scans[src.path] = scan_xyz(src.path, _rel(root, src.path))
+    return xyz_table(scans[src.path], role, config.columns, combined=src.combined)
+
+
+@dataclass
+class _BlockSource:
+    display: str
+    table: XyzTable
+    time: np.ndarray      # validated times of the table's rows
+
+
+def lines_from_blocks(block_sources: dict[str, dict[str, _BlockSource]]) -> tuple[pd.DataFrame, list]:
+    """Survey lines from the XYZ blocks of each flight (when there is no lines.csv).
+
+    ``Line <id>`` → kind main, ``Tie <id>`` → kind tie, ``t_start``/``t_end`` =
+    the block's first/last time in the flight's GNSS file (the gravimeter
+    file's when the GNSS file has no such blocks); other blocks are not
+    survey lines.  The gravimeter and GNSS files must list the same lines.
+
+    Returns
+    -------
+    lines : DataFrame[line, flight, t_start, t_end, kind, track]
+    origins : list of (file, row)
+        Where each line was declared (its block header).
+    """
+    recs: list[dict] = []
+    origins: list[tuple[str, int | None]] = []
+    first_seen: dict[str, tuple[str, int | None]] = {}
+    for flight, by_role in block_sources.items():
+        def survey_blocks(bs: _BlockSource):
+            return [b for b in bs.table.blocks if b.kind is not None]
+
+        use = by_role.get("gnss") if "gnss" in by_role and survey_blocks(by_role["gnss"]) else by_role.get("gravimeter")
+        if use is None or not survey_blocks(use):
+            continue
+        for other in by_role.values():
+            if other is use or not survey_blocks(other):
+                continue
+            a = {(b.line_id, b.kind) for b in survey_blocks(use)}
+            b_ = {(b.line_id, b.kind) for b in survey_blocks(other)}
+            if a != b_:
+                diff = sorted(a ^ b_)
+                raise InputError(other.display, None, None,
+                                 f"the Line/Tie blocks of {other.display} and {use.display} differ "
+                                 f"({', '.join(f'{k} {i}' for i, k in diff[:5])}): both files must list the same "
+                                 f"survey lines")
+        for b in survey_blocks(use):
+            t = use.time[b.start:b.stop]
+            if t.size < 2:
+                raise InputError(use.display, b.row, "line",
+                                 f"{b.keyword.capitalize()} {b.line_id} has {t.size} sample(s): a survey line needs "
+                                 f"at least 2")
+            if b.line_id in first_seen:
+                f0, r0 = first_seen[b.line_id]
+                raise InputError(use.display, b.row, "line",
+                                 f"line id {b.line_id!r} appears in two blocks (first in {f0} at row {r0}): a line "
+                                 f"flown again (kind repeat) or split needs a lines.csv listing each part with its "
+                                 f"own id (and track); otherwise give the blocks distinct ids")
+            first_seen[b.line_id] = (use.display, b.row)
+            recs.append({"line": b.line_id, "flight": flight, "t_start": float(t[0]), "t_end": float(t[-1]),
+                         "kind": b.kind, "track": None})
+            origins.append((use.display, b.row))
+    lines = pd.DataFrame(recs, columns=["line", "flight", "t_start", "t_end", "kind", "track"])
+    lines["track"] = pd.Series([None] * len(lines), dtype=object)
+    return lines, origins
 
 
 # --------------------------------------------------------------------------- survey
@@ -314,61 +595,94 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
         raise InputError(str(root), None, None, "survey directory not found")
     config = read_config(root / "survey.toml", overrides)
     p = config.processing
-    lines, line_rows = read_lines(root / "lines.csv")
+    have_lines_csv = (root / "lines.csv").is_file()
+    lines = None
+    origins: list[tuple[str, int | None]] = []
+    if have_lines_csv:
+        lines, line_rows = read_lines(root / "lines.csv")
+        origins = [("lines.csv", int(r)) for r in line_rows]
 
     fdir = root / "flights"
     if not fdir.is_dir():
         raise InputError("flights/", None, None, "the survey has no flights/ directory")
     flight_dirs = {d.name: d for d in sorted(fdir.iterdir()) if d.is_dir() and not d.name.startswith(".")}
     known = set(flight_dirs)
-    bad = np.flatnonzero(~lines["flight"].isin(known).to_numpy())
-    if bad.size:
-        i = int(bad[0])
-        have = ", ".join(sorted(known)) or "none"
-        raise InputError("lines.csv", int(line_rows[i]), "flight",
-                         f"line {lines['line'].iloc[i]} refers to flight {lines['flight'].iloc[i]!r}, which has no "
-                         f"directory under flights/ (flights found: {have})")
+    if lines is not None:
+        bad = np.flatnonzero(~lines["flight"].isin(known).to_numpy())
+        if bad.size:
+            i = int(bad[0])
+            have = ", ".join(sorted(known)) or "none"
+            raise InputError("lines.csv", origins[i][1], "flight",
+                             f"line {lines['line'].iloc[i]} refers to flight {lines['flight'].iloc[i]!r}, which has no "
+                             f"directory under flights/ (flights found: {have})")
 
     flights: dict[str, Flight] = {}
+    series: dict[str, tuple] = {}
+    block_sources: dict[str, dict[str, _BlockSource]] = {}
     for name, d in flight_dirs.items():
-        gnss_path = _find_file(d, "gnss")
-        if gnss_path is None:
-            raise InputError(_rel(root, d / "gnss.csv"), None, None, f"flight {name} has no gnss.csv (or gnss.csv.gz)")
-        grav_path = _find_file(d, "gravimeter") or _find_gfile(d, root)
-        if grav_path is None:
-            raise InputError(_rel(root, d / "gravimeter.csv"), None, None,
-                             f"flight {name} has no gravimeter.csv (or .csv.gz, or a G file: gravimeter.g, *.G, G*.dat)")
-        gnss_disp, grav_disp = _rel(root, gnss_path), _rel(root, grav_path)
-        gnss, gnss_rows = read_gnss(gnss_path, gnss_disp, config)
+        src = flight_sources(d, root)
+        scans: dict = {}
+        gsrc, nsrc = src["gravimeter"], src["gnss"]
+        gnss_disp, grav_disp = _rel(root, nsrc.path), _rel(root, gsrc.path)
+        if nsrc.kind == "xyz":
+            tab = _xyz_role(nsrc, "gnss", root, config, scans)
+            gnss, derived = finish_gnss(tab.df, tab.rows, gnss_disp, config)
+            gnss.attrs["vu_derived_from_h"] = derived
+            gnss_rows = tab.rows
+            block_sources.setdefault(name, {})["gnss"] = _BlockSource(gnss_disp, tab, gnss["time"].to_numpy())
+        else:
+            gnss, gnss_rows = read_gnss(nsrc.path, gnss_disp, config)
         tn = gnss["time"].to_numpy()
-        offset = getattr(config.gravimeter, "time_offset_s", None)
-        grav, grav_rows = read_gravimeter(grav_path, grav_disp, config, time_offset_s=offset,
-                                          gnss_time_range=(float(tn[0]), float(tn[-1])))
-        tg = grav["time"].to_numpy()
+        if gsrc.kind == "xyz":
+            tab = _xyz_role(gsrc, "gravimeter", root, config, scans)
+            grav = _finish_series(tab.df, tab.rows, grav_disp, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL)
+            grav = finish_gravimeter(grav.reset_index(drop=True), tab.rows, grav_disp, config)
+            grav_rows = tab.rows
+            block_sources.setdefault(name, {})["gravimeter"] = _BlockSource(grav_disp, tab, grav["time"].to_numpy())
+        else:
+            grav, grav_rows = read_gravimeter(gsrc.path, grav_disp, config,
+                                              time_offset_s=config.gravimeter.time_offset_s,
+                                              gnss_time_range=(float(tn[0]), float(tn[-1])), kind=gsrc.kind)
+        series[name] = (grav, grav_rows, grav_disp, gnss, gnss_rows, gnss_disp)
+        flights[name] = Flight(name=name, gravimeter=grav, gnss=gnss, gravimeter_path=gsrc.path, gnss_path=nsrc.path,
+                               vu_derived_from_h=bool(gnss.attrs.get("vu_derived_from_h", False)))
 
+    if lines is None:
+        lines, origins = lines_from_blocks(block_sources)
+        missing = [f for f in flights if f not in block_sources or not (lines["flight"] == f).any()]
+        if len(lines) == 0 or missing:
+            which = f" (flight {', '.join(missing)} has none)" if missing and len(lines) else ""
+            raise InputError("lines.csv", None, None,
+                             f"file not found, and the survey lines cannot be taken from the flights' XYZ Line/Tie "
+                             f"blocks{which}: add a lines.csv")
+
+    for name, (grav, grav_rows, grav_disp, gnss, gnss_rows, gnss_disp) in series.items():
+        tg = grav["time"].to_numpy()
+        tn = gnss["time"].to_numpy()
         sel = np.flatnonzero((lines["flight"] == name).to_numpy())
-        if sel.size:
-            ts = lines["t_start"].to_numpy()[sel]
-            te = lines["t_end"].to_numpy()[sel]
-            for k, i in enumerate(sel):
-                for t, disp in ((tg, grav_disp), (tn, gnss_disp)):
-                    if ts[k] < t[0] or te[k] > t[-1]:
-                        col, val = ("t_start", ts[k]) if ts[k] < t[0] else ("t_end", te[k])
-                        raise InputError("lines.csv", int(line_rows[i]), col,
-                                         f"line {lines['line'].iloc[i]} window {ts[k]:.3f}–{te[k]:.3f} s is outside "
-                                         f"the data of {disp} ({t[0]:.3f}–{t[-1]:.3f} s): {col} = {val:.3f}")
-            for t, rows, disp in ((tg, grav_rows, grav_disp), (tn, gnss_rows, gnss_disp)):
-                g = gap_rows_in_windows(t, ts, te, p.max_gap_s)
-                hit = np.flatnonzero(g >= 0)
-                if hit.size:
-                    k = int(hit[0])
-                    j = int(g[k])
-                    raise InputError(disp, int(rows[j]), "time",
-                                     f"gap of {t[j] - t[j - 1]:.3f} s before this row (from {t[j - 1]:.3f} to "
-                                     f"{t[j]:.3f} s) inside line {lines['line'].iloc[sel[k]]} "
-                                     f"({ts[k]:.3f}–{te[k]:.3f} s); at most {p.max_gap_s:g} s allowed "
-                                     f"(processing.max_gap_s)")
-        flights[name] = Flight(name=name, gravimeter=grav, gnss=gnss, gravimeter_path=grav_path, gnss_path=gnss_path)
+        if not sel.size:
+            continue
+        ts = lines["t_start"].to_numpy()[sel]
+        te = lines["t_end"].to_numpy()[sel]
+        for k, i in enumerate(sel):
+            ofile, orow = origins[i]
+            for t, disp in ((tg, grav_disp), (tn, gnss_disp)):
+                if ts[k] < t[0] or te[k] > t[-1]:
+                    col, val = ("t_start", ts[k]) if ts[k] < t[0] else ("t_end", te[k])
+                    raise InputError(ofile, orow, col,
+                                     f"line {lines['line'].iloc[i]} window {ts[k]:.3f}–{te[k]:.3f} s is outside "
+                                     f"the data of {disp} ({t[0]:.3f}–{t[-1]:.3f} s): {col} = {val:.3f}")
+        for t, rows, disp in ((tg, grav_rows, grav_disp), (tn, gnss_rows, gnss_disp)):
+            g = gap_rows_in_windows(t, ts, te, p.max_gap_s)
+            hit = np.flatnonzero(g >= 0)
+            if hit.size:
+                k = int(hit[0])
+                j = int(g[k])
+                raise InputError(disp, int(rows[j]), "time",
+                                 f"gap of {t[j] - t[j - 1]:.3f} s before this row (from {t[j - 1]:.3f} to "
+                                 f"{t[j]:.3f} s) inside line {lines['line'].iloc[sel[k]]} "
+                                 f"({ts[k]:.3f}–{te[k]:.3f} s); at most {p.max_gap_s:g} s allowed "
+                                 f"(processing.max_gap_s)")
     return Survey(root=root, config=config, lines=lines, flights=flights)
 
 

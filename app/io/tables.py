@@ -272,6 +272,9 @@ def check_rate(t: np.ndarray, display: str, declared_hz: float | None, tolerance
                what: str, setting: str, sanity_hz: tuple[float, float] = (1.0, 100.0)) -> float:
     """Compare the median rate with the declared one (or a sanity range when None).
 
+    The rate is always inferred from the time stamps (:func:`median_rate_hz`);
+    a declared rate is only a check of it (relative ``tolerance``).
+
     Returns
     -------
     float
@@ -284,7 +287,7 @@ def check_rate(t: np.ndarray, display: str, declared_hz: float | None, tolerance
                              f"the {what} samples come at {rate:.4g} Hz (median interval), but {declared_hz:g} Hz "
                              f"is declared ({setting}; tolerance ±{tolerance:.0%}). Check the time column units "
                              f"or the declared rate.")
-    elif not (sanity_hz[0] <= rate <= sanity_hz[1]):
+    elif not (sanity_hz[0] * (1 - 1e-9) <= rate <= sanity_hz[1] * (1 + 1e-9)):  # rounding of the stamps
         raise InputError(display, None, "time",
                          f"the {what} samples come at {rate:.4g} Hz (median interval), outside the plausible "
                          f"{sanity_hz[0]:g}–{sanity_hz[1]:g} Hz. Check the time column units (seconds expected) "

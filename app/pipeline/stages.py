@@ -94,6 +94,9 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     offset, corr, applied = 0.0, float("nan"), False
     notes = []
     offset_info: dict = {"estimated": False}
+    if getattr(flight, "vu_derived_from_h", False):
+        notes.append("vu derived from the GNSS heights (the file has no vu column): derivative of the not-a-knot "
+                     "cubic spline through h, per contiguous run")
     if p.estimate_time_offset:
         try:
             fit = gm.fit_time_offset(series, t, vu, tau, k, p.max_time_offset_s)

@@ -191,8 +191,8 @@ def test_bad_survey_toml_names_key_and_row(survey_dir):
 
 def test_missing_required_column(survey_dir):
     root, lines, tabs = survey_dir
-    tabs["F1"][1].drop(columns="vu").to_csv(root / "flights/F1/gnss.csv", index=False)
-    expect_error(root, "flights/F1/gnss.csv", 1, "vu", match="missing")
+    tabs["F1"][1].drop(columns="h").to_csv(root / "flights/F1/gnss.csv", index=False)
+    expect_error(root, "flights/F1/gnss.csv", 1, "h", match="missing")
 
 
 def test_missing_column_in_lines(survey_dir):
@@ -350,17 +350,54 @@ def test_duplicate_line_id(survey_dir):
     expect_error(root, "lines.csv", 4, "line", match="twice")
 
 
-def test_gravimeter_rate_far_from_declared(tmp_path):
+def test_gravimeter_rate_inferred_declared_is_a_check(tmp_path):
+    """No rate in survey.toml: a 2 Hz and a 10 Hz gravimeter are read; a declared rate is checked."""
     lines, tabs = make_tables()
     grav, gnss = tabs["F1"]
-    t = np.round(T0 + np.arange(6000) / 10.0, 3)  # 10 Hz instead of 18.24
-    g = pd.DataFrame({"time": t, "f_z": 9.81})
-    root = write_survey(tmp_path / "s", lines, {"F1": (g, gnss)})
-    expect_error(root, "flights/F1/gravimeter.csv", None, "time", match="18.24")
-    # declaring the rate makes it acceptable
-    toml = TOML.replace("scale = 1.0", "scale = 1.0\nrate_hz = 10.0")
+    for hz in (2.0, 10.0):
+        t = np.round(T0 + np.arange(int(600 * hz)) / hz, 3)
+        g = pd.DataFrame({"time": t, "f_z": 9.81})
+        root = write_survey(tmp_path / f"s{hz:g}", lines, {"F1": (g, gnss)})
+        s = read_survey(root)
+        assert s.config.gravimeter.rate_hz is None
+        q = survey_summary(s)
+        assert q.loc[q["level"] == "flight", "gravimeter_rate_hz"].iloc[0] == pytest.approx(hz, rel=1e-9)
+    # declaring a different rate makes the 10 Hz file an error naming the declared rate and the setting
+    toml = TOML.replace("scale = 1.0", "scale = 1.0\nrate_hz = 18.24")
     (root / "survey.toml").write_text(toml)
+    err = expect_error(root, "flights/F1/gravimeter.csv", None, "time", match="18.24")
+    assert "gravimeter.rate_hz" in str(err) and "10 Hz" in str(err)
+    # the declared, correct rate is accepted
+    (root / "survey.toml").write_text(TOML.replace("scale = 1.0", "scale = 1.0\nrate_hz = 10.0"))
     read_survey(root)
+
+
+@pytest.mark.parametrize("hz, ok", [(0.5, True), (100.0, True), (0.4, False), (125.0, False)])
+def test_gravimeter_rate_sanity_range_when_undeclared(tmp_path, hz, ok):
+    lines, tabs = make_tables()
+    n = int(700 * hz)
+    t = T0 - 50.0 + np.arange(n) / hz  # covers every line window (t0+20 … t0+590)
+    g = pd.DataFrame({"time": t, "f_z": 9.81})
+    root = write_survey(tmp_path / "s", lines, {"F1": (g, tabs["F1"][1])})
+    if ok:
+        read_survey(root, {"max_gap_s": 3.0})
+    else:
+        expect_error(root, "flights/F1/gravimeter.csv", None, "time", overrides={"max_gap_s": 3.0},
+                     match="outside the plausible 0.5–100 Hz")
+
+
+@pytest.mark.parametrize("hz, ok", [(1.0, True), (50.0, True), (0.25, False), (64.0, False)])
+def test_gnss_rate_sanity_range_when_undeclared(tmp_path, hz, ok):
+    lines, tabs = make_tables()
+    n = int(700 * hz)
+    t = T0 - 50.0 + np.arange(n) / hz
+    nav = pd.DataFrame({"time": t, "lat": LAT0, "lon": LON0 + 1e-6 * np.arange(n), "h": 3000.0, "vu": 0.0})
+    root = write_survey(tmp_path / "s", lines, {"F1": (tabs["F1"][0], nav)})
+    if ok:
+        read_survey(root, {"max_gap_s": 5.0})
+    else:
+        expect_error(root, "flights/F1/gnss.csv", None, "time", overrides={"max_gap_s": 5.0},
+                     match="outside the plausible 0.5–50 Hz")
 
 
 def test_gnss_rate(survey_dir):
