@@ -203,6 +203,12 @@ class ProcessingParams(_Strict):
     noise_fit_repeats: bool = Field(True, description="Fit the noise model also to the differences of the passes "
                                     "of repeat tracks (the anomaly cancels: the noise alone, down to the band "
                                     "where it hides under the anomaly)")
+    em_level_scale_min: float = Field(1e-3, gt=0, le=1, description="The local noise level R(t) is scaled to the "
+                                      "EM's level on the regularized band (where anomaly and noise meet); this "
+                                      "bounds the factor from below (1 = only ever scale up, as before the noise "
+                                      "shape was fitted)")
+    noise_fit_octave_weights: bool = Field(False, description="Weight the spectra's bins so that every octave "
+                                           "counts like the lowest one")
     noise_fit_fmax_hz: float = Field(0.2, gt=0, description="Highest frequency (Hz) of the spectra the noise "
                                      "model is fitted to (clipped to 0.8 × the GNSS Nyquist frequency)")
     refine_max_epochs: int = Field(300_000, ge=1000, description="Cap on epochs used by the level refinement")

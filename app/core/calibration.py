@@ -305,8 +305,9 @@ def derivative_of_interval_means(f_ms2, dt_s: float) -> np.ndarray:
     return np.convolve(f, _STENCIL[::-1], mode="valid") / dt_s
 
 
-def _weights(n: int, dt_s: float, spectra: CalibrationSpectra) -> np.ndarray:
-    """rfft-bin weights so that (1/n)·Σ_bins w·Re(A B*) = Aᵀ Σ_circ⁻¹ B; DC excluded."""
+def _weights(n: int, dt_s: float, spectra: CalibrationSpectra, fmax_hz: float | None = None) -> np.ndarray:
+    """rfft-bin weights so that (1/n)·Σ_bins w·Re(A B*) = Aᵀ Σ_circ⁻¹ B; DC excluded; bins above
+    ``fmax_hz`` (when given) get no weight."""
     omega = 2.0 * np.pi * np.fft.rfftfreq(n, dt_s)
     s = spectra.density_ms2(omega, dt_s)
     lam = 2.0 * np.pi * s / dt_s               # circulant eigenvalues, (m/s²)² per sample
@@ -319,13 +320,15 @@ def _weights(n: int, dt_s: float, spectra: CalibrationSpectra) -> np.ndarray:
         mult[-1] = 1.0
     w = w * mult / n
     w[0] = 0.0                                  # DC: constant drift / anomaly mean
+    if fmax_hz is not None:
+        w[omega > 2.0 * np.pi * float(fmax_hz)] = 0.0
     return w
 
 
 def calibrate(t_s, z_ms2, f_raw_ms2, f_x_ms2=None, f_y_ms2=None, *, spectra: CalibrationSpectra,
               params: Sequence[str] = PARAM_NAMES, tau0_s: float = 0.0, k0: float = 1.0,
               d1_0_rad: float = 0.0, d2_0_rad: float = 0.0, fdot_raw_ms3=None, alpha1_rad=None, alpha2_rad=None, drift_degree: int = 1,
-              min_samples: int = 64) -> CalibrationResult:
+              min_samples: int = 64, fmax_hz: float | None = None) -> CalibrationResult:
     """Estimate gravimeter lag, scale and misalignments from a manoeuvre segment.
 
     Frequency-domain weighted least squares (seed 001 eqs. 13–14); see the
@@ -364,6 +367,9 @@ def calibrate(t_s, z_ms2, f_raw_ms2, f_x_ms2=None, f_y_ms2=None, *, spectra: Cal
         Degree (≥ 1) of the polynomial drift estimated jointly (constant implicit).
     min_samples : int
         Smallest accepted record after trimming (samples).
+    fmax_hz : float, optional
+        Use only frequencies up to this (Hz): above it the GNSS-derived acceleration of a
+        1–2 Hz receiver or of differenced heights no longer follows the aircraft's.
 
     Returns
     -------
@@ -425,7 +431,7 @@ def calibrate(t_s, z_ms2, f_raw_ms2, f_x_ms2=None, f_y_ms2=None, *, spectra: Cal
         e[i] = 1.0
         A.append(e)
     A = np.array(A)                              # (m, n)
-    w = _weights(n, dt, spectra)
+    w = _weights(n, dt, spectra, fmax_hz)
     Ah = np.fft.rfft(A, axis=1)
     yh = np.fft.rfft(y)
     M = np.real((Ah * w) @ Ah.conj().T)

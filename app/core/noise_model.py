@@ -451,7 +451,7 @@ def _unpack(theta, spec):
 def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                     families=FAMILIES, nw: float = 3.0, min_duration_s: float = 120.0,
                     n_starts: int = 4, seed: int = 0, bic_margin: float = 10.0,
-                    differences=()) -> NoiseFit:
+                    differences=(), octave_weights: bool = False) -> NoiseFit:
     """Fit the error of z by the Whittle likelihood of prewhitened multitaper spectra.
 
     Model of z's spectrum: ``S(f) = S_anomaly(f; Q, m) + Σ_c S_c(f)``; each family of
@@ -521,6 +521,12 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     f_all = np.concatenate([s_.f_hz for s_ in specs])
     I_all = np.concatenate([s_.psd for s_ in specs])
     wt = np.concatenate([np.full(s_.f_hz.size, 0.5 * s_.dof / (2.0 * nw)) for s_ in specs])
+    if octave_weights:
+        # every octave counts as much as the octave at the lowest frequency: the high band,
+        # where bins are many and the shape matters least to the smoother, must not decide
+        # the shape at the crossover
+        f_ref = float(np.min(f_all))
+        wt = wt * np.minimum(1.0, 2.0 * f_ref / f_all)
     nu_all = f_all * dt_s
     n_eff = float(wt.sum())
     # a line's z: anomaly + noise; a difference of two passes of one track: the noise of both,

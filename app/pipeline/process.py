@@ -265,7 +265,7 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
         # see); and it is trusted only from enough points.
         hf = np.concatenate([t[5][np.asarray(t[2]) % n_r == 0] for t in prepared])
         if hf.size and n_dec >= 200:
-            r_scale = float(np.clip(Rs[0] / np.median(hf), 1.0, 1e4))
+            r_scale = float(np.clip(Rs[0] / np.median(hf), p.em_level_scale_min, 1e4))
     if p.refine_levels:
         from app.core.level_ml import refine_levels
 

@@ -99,7 +99,8 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
                      "cubic spline through h, per contiguous run")
     if p.estimate_time_offset:
         try:
-            fit = gm.fit_time_offset(series, t, vu, tau, k, p.max_time_offset_s)
+            fit = gm.fit_time_offset(series, t, vu, tau, k, p.max_time_offset_s,
+                                     band_hz=(0.01, acceleration_band_top_hz(float(np.median(np.diff(t))))))
             offset, corr = fit.offset_s, fit.correlation
             offset_info = {"estimated": True, "offset_s": offset, "se_s": fit.se_s, "correlation": corr,
                            "residual_reduction": fit.relative_improvement}
@@ -166,6 +167,15 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
                          f"(> {p.despike_threshold:g} local robust std from the neighbours' mean)")
     return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
                              float(offset), float(corr), applied, notes, despike, offset_info)
+
+
+def acceleration_band_top_hz(dt_s: float) -> float:
+    """Highest frequency (Hz) at which the GNSS-derived vertical acceleration is compared with
+    the gravimeter's (time offset, lag check): a fifth of the GNSS rate, at most 1 Hz.  Above
+    it a 1–2 Hz receiver's (or differenced heights') acceleration no longer follows the
+    aircraft's (aliasing, interpolation), and fitting it biased the lag of a 1 Hz heights-only
+    survey by 0.35 s."""
+    return float(min(1.0, 0.2 / dt_s))
 
 
 def static_segments(t_s, ve_ms, vn_ms, vu_ms, min_duration_s: float = 60.0, max_speed_ms: float = 0.5,
@@ -294,7 +304,8 @@ def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600
     # came out 11σ / 2σ / 0.7σ from the truth on the simulator (τ within 1σ in all three).
     spectra = CalibrationSpectra.from_epoch_variances(dt, f_var_mgal2=1.0, dg_step_var_mgal2=10.0, r_cm2s2=r)
     res = calibrate(tt[sl], z[sl], fraw[sl], spectra=spectra, params=tuple(params),
-                    tau0_s=cfg.gravimeter.tau_s, k0=cfg.gravimeter.scale, fdot_raw_ms3=fdot[sl])
+                    tau0_s=cfg.gravimeter.tau_s, k0=cfg.gravimeter.scale, fdot_raw_ms3=fdot[sl],
+                    fmax_hz=acceleration_band_top_hz(dt))
     names = list(res.names)
     return {"flight": flight.name, "t_start": float(tt[1]), "t_end": float(tt[-1]),
             "tau_s": float(res.tau_s), "k": float(res.k),
@@ -370,7 +381,8 @@ def fit_noise(lines: list[LineData], dt_s: float, p):
     segs = [ln.z_mgal[a:b] for ln in lines for a, b in finite_segments(ln.z_mgal)]
     fmax = min(float(p.noise_fit_fmax_hz), 0.8 * 0.5 / dt_s)
     diffs = repeat_differences(lines, dt_s, min(2.0 * fmax, 0.45 / dt_s)) if p.noise_fit_repeats else []
-    fit = fit_noise_model(segs, dt_s, m=2, fmax_hz=fmax, families=fams, differences=diffs)
+    fit = fit_noise_model(segs, dt_s, m=2, fmax_hz=fmax, families=fams, differences=diffs,
+                          octave_weights=p.noise_fit_octave_weights)
     return fit, fit.model.normalized(level_band(p, dt_s))
 
 
