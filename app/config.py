@@ -203,7 +203,7 @@ class ProcessingParams(_Strict):
     noise_fit_repeats: bool = Field(True, description="Fit the noise model also to the differences of the passes "
                                     "of repeat tracks (the anomaly cancels: the noise alone, down to the band "
                                     "where it hides under the anomaly)")
-    em_level_scale_min: float = Field(1e-3, gt=0, le=1, description="The local noise level R(t) is scaled to the "
+    em_level_scale_min: float = Field(1.0, gt=0, le=1, description="The local noise level R(t) is scaled to the "
                                       "EM's level on the regularized band (where anomaly and noise meet); this "
                                       "bounds the factor from below (1 = only ever scale up, as before the noise "
                                       "shape was fitted)")
