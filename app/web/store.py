@@ -248,16 +248,20 @@ def extract_survey_zip(fileobj, dest: Path, max_bytes: int | None = None,
             target.parent.mkdir(parents=True, exist_ok=True)
             try:
                 with zf.open(info) as src, open(target, "wb") as out:
+                    size = 0
                     while True:
                         chunk = src.read(1 << 20)
                         if not chunk:
                             break
+                        size += len(chunk)
                         written += len(chunk)
                         if max_bytes is not None and written > max_bytes:
                             raise InputError("upload", None, None,
                                              f"the archive expands to more than the {max_bytes / 2**20:.0f} MB "
                                              "allowed (AEROGRAV_MAX_UNCOMPRESSED_MB)")
                         out.write(chunk)
+                if size != info.file_size:
+                    raise zipfile.BadZipFile(f"{size} bytes where the header says {info.file_size}")
             except InputError:
                 raise
             except (zipfile.BadZipFile, zlib.error, EOFError, RuntimeError, NotImplementedError, ValueError) as exc:
