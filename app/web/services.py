@@ -29,7 +29,7 @@ from app.io.errors import InputError
 
 from .db import ACTIVE_STATES, Flight, Job, Line, Result, Survey, utcnow
 from .jobs import JobManager
-from .store import Store, link_tree, relativize, survey_qc
+from .store import Store, link_tree, relativize, release_memory, survey_qc
 
 
 class SurveyConflict(Exception):
@@ -118,17 +118,21 @@ def survey_name(survey, fallback: str) -> str:
 def import_survey_tree(db: Session, store: Store, reader: Callable, root: Path, fallback_name: str,
                        budget_bytes: int | None = None) -> Survey:
     """Validate the survey directory ``root`` (already staged under the store's tmp) and store it."""
-    survey = validate(reader, root)
-    check_budget(store, None, root, budget_bytes)
-    s = Survey(name=survey_name(survey, fallback_name))
-    db.add(s)
-    db.flush()
     try:
-        install_snapshot(db, store, s, root, survey)
-    except Exception:
-        db.rollback()
-        raise
-    return s
+        survey = validate(reader, root)
+        check_budget(store, None, root, budget_bytes)
+        s = Survey(name=survey_name(survey, fallback_name))
+        db.add(s)
+        db.flush()
+        try:
+            install_snapshot(db, store, s, root, survey)
+        except Exception:
+            db.rollback()
+            raise
+        return s
+    finally:
+        survey = None
+        release_memory()
 
 
 def import_survey_dir(db: Session, store: Store, reader: Callable, src: Path) -> Survey:
@@ -190,6 +194,7 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
             install_snapshot(db, store, s, root, survey, expect_input_dir=base, check_expected=True)
         finally:
             shutil.rmtree(staging, ignore_errors=True)
+            release_memory()
         prune_survey(db, store, s.id)
     return s
 

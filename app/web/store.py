@@ -141,6 +141,24 @@ class Store:
         return removed
 
 
+def release_memory() -> None:
+    """Give the memory freed after a large request (a survey read into DataFrames) back to the
+    system: glibc keeps freed blocks in per-thread arenas, so a server's RSS would otherwise
+    stay at the largest survey ever validated times the number of worker threads."""
+    global _TRIM
+    if _TRIM is None:
+        try:
+            import ctypes
+            _TRIM = ctypes.CDLL("libc.so.6").malloc_trim
+        except (OSError, AttributeError):  # not glibc
+            _TRIM = False
+    if _TRIM:
+        _TRIM(0)
+
+
+_TRIM = None
+
+
 def link_tree(src: Path, dst: Path) -> None:
     """``dst`` as a tree of hard links to the files of ``src`` (copies where linking fails).
     Files in ``dst`` must be replaced (``os.replace`` / unlink first), never rewritten in place."""
