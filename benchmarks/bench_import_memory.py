@@ -6,6 +6,10 @@ hardening issue).  Prints the status, the time to answer and the server's RSS be
 peak (VmHWM, reset just before the request) and after.
 
     .venv/bin/python benchmarks/bench_import_memory.py [--csv-mb 386] [--upload-mb 20]
+
+Measured (2 shared cores): before the hardening 152 -> 1128 MB peak (+977 MB), 422 after 3.7 s;
+after it +3 MB, 422 after 0.03 s (the archive's 386 MB exceed the 80 MB uncompressed budget).
+A CSV within the budget (``--csv-mb 75``) is parsed: +203 MB, about 2.7x its size.
 """
 
 from __future__ import annotations

@@ -223,13 +223,20 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             app.state.cache.get(("recognition", r.id), lambda: _load_recognition(r))
 
     def _prune(job_id: int) -> None:
-        """After any job ended: remove the survey's snapshots and results no longer needed."""
+        """After any job ended: remove the survey's snapshots and results no longer needed (in a
+        thread of its own: waiting for the survey's lock must not hold up the job monitor)."""
         from .db import Job
         from .services import prune_survey
-        with Session() as s:
-            job = s.get(Job, job_id)
-            if job is not None:
-                prune_survey(s, store, job.survey_id)
+
+        def run():
+            try:
+                with Session() as s:
+                    job = s.get(Job, job_id)
+                    if job is not None:
+                        prune_survey(s, store, job.survey_id)
+            except Exception:  # pragma: no cover - retried after the next job or upload
+                log.exception("pruning after job %s failed", job_id)
+        threading.Thread(target=run, name=f"aerograv-prune-{job_id}", daemon=True).start()
 
     jobs.on_finished.append(_warm)
     jobs.on_finished.append(_prune)
