@@ -37,7 +37,7 @@ import numpy as np
 from app.config import check_name
 from app.io.errors import InputError
 
-SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,99}$")
+SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,99}\Z")  # \Z: "$" would accept a final newline
 #: zip archives: most entries, deepest path, longest path element
 MAX_ZIP_ENTRIES = 10_000
 MAX_ZIP_DEPTH = 8

@@ -425,7 +425,7 @@ def test_09_names_validated_at_every_entry_point(client, tiny_src, tmp_path):
     r = client.post(f"/api/surveys/{sid}/flights", files=_flight_files(tiny_src, ""), data={"flight": "F1"})
     assert r.status_code == 201, r.text
     r = client.post(f"/api/surveys/{sid}/flights", files=_flight_files(tiny_src, "x"), data={"flight": "F2\n"})
-    assert r.status_code == 422
+    assert r.status_code == 422 and r.json()["detail"]["column"] == "flight", r.text
     assert client.get(f"/api/surveys/{sid}").json()["flights"] == ["F1"]
     # a flight folder with a newline, a line id with '/', rate_hz = inf, f_z = 1e308
     files = _survey_files(tiny_src)
