@@ -1,14 +1,25 @@
 """Command line: ``aerograv simulate | inspect | process | evaluate | serve``.
 
-Thin: parse arguments, call the pipeline, print where things are.
+Thin: parse arguments, call the pipeline, print where things are.  Every error ends the
+command with one line ``error: …`` on stderr (on its own line, after any progress bar) and
+exit code 2, and removes an ``--out`` folder the command created (``AEROGRAV_DEBUG=1`` shows
+the traceback of an unexpected error).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import shutil
 import sys
 from pathlib import Path
+
+_BARS: list = []
+
+
+class CommandError(Exception):
+    """A user error found by the command line itself (bad option value)."""
 
 
 def _progress_bar(desc: str):
@@ -16,6 +27,7 @@ def _progress_bar(desc: str):
 
     bar = tqdm(total=1000, desc=desc, unit="‰", bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}",
                file=sys.stderr)
+    _BARS.append(bar)
     state = {"stage": None}
 
     def progress(stage: str, fraction: float, info: dict | None = None):
@@ -42,9 +54,43 @@ def _fmt(v):
         return str(v)
 
 
+def _close_bars() -> None:
+    while _BARS:
+        bar = _BARS.pop()
+        try:
+            bar.close()  # ends the bar's line: what follows starts on a line of its own
+        except Exception:  # pragma: no cover
+            pass
+
+
+def _params(text: str | None) -> dict | None:
+    """``--params``: a JSON object of ProcessingParams overrides, validated before any work."""
+    if not text:
+        return None
+    try:
+        obj = json.loads(text)
+    except (ValueError, RecursionError) as exc:
+        raise CommandError(f"--params is not valid JSON: {exc}") from None
+    if not isinstance(obj, dict):
+        raise CommandError("--params must be a JSON object, e.g. '{\"m\": 1}'")
+    from pydantic import ValidationError
+
+    from app.config import ProcessingParams
+    try:
+        ProcessingParams.model_validate(obj)
+    except ValidationError as exc:
+        e = exc.errors()[0]
+        where = ".".join(str(x) for x in e.get("loc", ())) or "params"
+        raise CommandError(f"--params: {where}: {e.get('msg')} (got {str(e.get('input'))[:60]})") from None
+    return obj
+
+
 def cmd_simulate(args) -> int:
     from app.simulate import simulate_survey
+    from app.simulate.presets import PRESETS
 
+    if args.preset not in PRESETS:
+        raise CommandError(f"unknown preset {args.preset!r}; choose one of {', '.join(sorted(PRESETS))}")
     path = simulate_survey(args.preset, args.out, seed=args.seed, progress=_progress_bar(f"simulate {args.preset}"))
     print(f"survey written to {Path(path).resolve()}")
     return 0
@@ -64,7 +110,9 @@ def cmd_inspect(args) -> int:
 def cmd_process(args) -> int:
     from app.pipeline.process import process_survey
 
-    overrides = json.loads(args.params) if args.params else None
+    overrides = _params(args.params)
+    if not Path(args.survey).is_dir():
+        raise CommandError(f"survey directory {args.survey} not found")
     report = process_survey(args.survey, args.out, overrides=overrides, progress=_progress_bar("process"))
     out = Path(args.out).resolve()
     cx = report.get("crossovers", {})
@@ -79,6 +127,11 @@ def cmd_process(args) -> int:
 def cmd_evaluate(args) -> int:
     from app.pipeline.evaluate import evaluate
 
+    for p, what in ((Path(args.survey) / "truth", "the survey has no truth/ folder (only simulated surveys can be "
+                                                   "evaluated)"), (Path(args.out) / "lines.parquet",
+                                                                   f"{args.out} holds no outputs of `aerograv process`")):
+        if not p.exists():
+            raise CommandError(what)
     res = evaluate(args.survey, args.out)
     print(json.dumps(res, indent=2))
     return 0
@@ -129,13 +182,35 @@ def main(argv=None) -> int:
     s.set_defaults(func=cmd_serve)
 
     args = ap.parse_args(argv)
-    from app.io.errors import InputError
-
+    out = getattr(args, "out", None) if args.cmd in ("simulate", "process") else None
+    created = out is not None and not Path(out).exists()
     try:
         return args.func(args)
-    except InputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except BaseException as exc:  # noqa: BLE001 - every error ends as one line
+        _close_bars()
+        if created and Path(out).is_dir():
+            shutil.rmtree(out, ignore_errors=True)  # nothing left behind by a failed command
+        if isinstance(exc, SystemExit):
+            raise
+        if isinstance(exc, KeyboardInterrupt):
+            print("\nerror: interrupted", file=sys.stderr)
+            return 130
+        if os.environ.get("AEROGRAV_DEBUG"):
+            raise
+        print(f"error: {_one_line(exc)}", file=sys.stderr)
         return 2
+
+
+def _one_line(exc: BaseException) -> str:
+    from app.io.errors import InputError
+
+    if isinstance(exc, (InputError, CommandError)):
+        msg = str(exc)
+    elif isinstance(exc, (ValueError, OSError, KeyError, TypeError)) and str(exc):
+        msg = f"{type(exc).__name__}: {exc}" if not isinstance(exc, ValueError) else str(exc)
+    else:
+        msg = f"{type(exc).__name__}: {exc} (set AEROGRAV_DEBUG=1 for the traceback)"
+    return " ".join(msg.split())[:2000]
 
 
 if __name__ == "__main__":  # pragma: no cover

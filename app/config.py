@@ -3,39 +3,100 @@
 ``ProcessingParams`` holds every tunable of the pipeline with its default; the
 ``[processing]`` table of ``survey.toml`` and the web job ``params`` override it.
 Units live in the names.
+
+Every number is finite (``allow_inf_nan=False`` on the shared base class, so new fields get it
+too) and bounded; the bounds that protect the machine rather than the method are the ``MAX_*``
+caps below, in one place, quoted in the validation messages.
 """
 
 from __future__ import annotations
 
+import re
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
+from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
+
+# --- caps derived from what one job on one worker (a few GB, 1-2 cores) can do --------------
+#: grid nodes of the anomaly map: 2000 × 2000; dg and dg_std in float64 are 64 MB, the
+#: collocation solves one small local system per node (checked from the lines' extent and
+#: ``grid_spacing_km`` when the job is submitted and again when the pipeline has the extent)
+MAX_GRID_CELLS = 4_000_000
+#: EM iterations (the default stops within ~60; each iteration is a pass over all lines)
+MAX_EM_ITER = 1000
+#: decimation factor n (100 at 10 Hz and 100 m/s for 1 km; the Kaiser filter has ~n·A/20 taps)
+MAX_DECIMATION_N = 10_000
+#: MA orders K, L (chosen ≤ 20 when automatic; the EM chain has N + N(N−1)·p super-states with
+#: (p+1)² covariances each)
+MAX_MA_ORDER = 40
+#: names: survey, flight, line and track ids
+MAX_NAME_LENGTH = 200
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+
+
+def check_name(value: str, what: str = "name") -> str:
+    """A name shown in the browser and used as a file or folder name: not empty, at most
+    ``MAX_NAME_LENGTH`` characters, no control characters, no path separators."""
+    if not isinstance(value, str):
+        raise ValueError(f"{what} must be text")
+    if not value.strip():
+        raise ValueError(f"{what} is empty")
+    if len(value) > MAX_NAME_LENGTH:
+        raise ValueError(f"{what} is {len(value)} characters long; at most {MAX_NAME_LENGTH} allowed")
+    m = _CONTROL.search(value)
+    if m:
+        raise ValueError(f"{what} contains the control character {m.group()!r} (newline, tab, NUL, …)")
+    if "/" in value or "\\" in value:
+        raise ValueError(f"{what} contains a path separator ('/' or '\\')")
+    if value.strip() in (".", ".."):
+        raise ValueError(f"{what} cannot be '.' or '..'")
+    return value
+
+
+#: a validated name (see :func:`check_name`)
+Name = Annotated[str, AfterValidator(check_name)]
+
+
+def grid_cells(extent_e_km: float, extent_n_km: float, spacing_km: float) -> int:
+    """Nodes of the regular grid over an extent (as ``app.core.gridding`` lays it out)."""
+    nx = int(extent_e_km / spacing_km + 1e-9) + 1
+    ny = int(extent_n_km / spacing_km + 1e-9) + 1
+    return nx * ny
+
+
+def check_grid_cells(extent_e_km: float, extent_n_km: float, spacing_km: float) -> None:
+    """ValueError naming the bound when the grid over the extent would exceed ``MAX_GRID_CELLS``."""
+    n = grid_cells(extent_e_km, extent_n_km, spacing_km)
+    if n > MAX_GRID_CELLS:
+        finest = ((extent_e_km * extent_n_km) / MAX_GRID_CELLS) ** 0.5
+        raise ValueError(f"grid_spacing_km = {spacing_km:g} over {extent_e_km:.1f} × {extent_n_km:.1f} km gives "
+                         f"{n:,} grid cells, more than the {MAX_GRID_CELLS:,} allowed (use ≥ {finest:.3g} km)")
 
 
 class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class SurveySection(_Strict):
-    name: str = "survey"
-    crs: str | None = Field(None, description="Projected CRS for distances and grids, e.g. 'EPSG:32657'; UTM chosen if absent")
+    name: Name = "survey"
+    crs: str | None = Field(None, max_length=200, description="Projected CRS for distances and grids, e.g. 'EPSG:32657'; UTM chosen if absent")
     normal_gravity: Literal["WGS84", "Helmert1901"] = "WGS84"
 
 
 class GravimeterSection(_Strict):
-    model: str = "GT-1A"
+    model: str = Field("GT-1A", max_length=MAX_NAME_LENGTH)
     tau_s: float = Field(2.0, ge=0.0, le=60.0, description="First-order lag time constant (s); 0 if already de-lagged")
-    scale: float = Field(1.0, gt=0.0, description="Scale k of the gravimeter model τ·ḟ' + k·f' = f_g + …")
-    base_gravity_mgal: float | None = Field(None, description="Absolute gravity at the parking place (mGal)")
+    scale: float = Field(1.0, gt=0.0, le=10.0, description="Scale k of the gravimeter model τ·ḟ' + k·f' = f_g + …")
+    base_gravity_mgal: float | None = Field(None, ge=970_000.0, le=990_000.0, description="Absolute gravity at the parking place (mGal)")
     reading_offset_mgal: float | None = Field(
-        None, description="DGS .dat only: mGal added to the meter's relative gravity reading to make an absolute-"
+        None, ge=-2e6, le=2e6, description="DGS .dat only: mGal added to the meter's relative gravity reading to make an absolute-"
         "looking specific force; None: 0 when the readings already look absolute (7e5–1.3e6 mGal), otherwise the "
         "nominal 978000 mGal (the base tie then fixes the level)")
-    rate_hz: float | None = Field(None, gt=0.0, description="Declared sampling rate of the gravimeter (Hz): "
+    rate_hz: float | None = Field(None, gt=0.0, le=1000.0, description="Declared sampling rate of the gravimeter (Hz): "
                                   "a check of the rate inferred from the time stamps (median interval); "
                                   "None infers it (0.5–100 Hz accepted)")
     time_offset_s: float | None = Field(
-        None, description="G file: seconds added to UTC seconds of day to reach the survey time scale "
+        None, ge=-1e10, le=1e10, description="G file: seconds added to UTC seconds of day to reach the survey time scale "
         "(e.g. day·86400 + GPS−UTC leap seconds); DGS .dat: seconds added to the GPS seconds of week "
         "(the survey time of the first record when the records carry no GPS time); whole days inferred "
         "from the GNSS times when None")
@@ -136,24 +197,24 @@ class ProcessingParams(_Strict):
     """Every pipeline default (SPEC §2, §3). All fields overridable."""
 
     # --- ingest / validation
-    gnss_rate_hz: float | None = Field(None, gt=0, description="Declared GNSS rate (Hz); inferred when None")
-    rate_tolerance: float = Field(0.25, gt=0, description="Allowed relative deviation of the median rate from the declared one")
-    max_gap_s: float = Field(1.0, gt=0, description="Longest allowed gap between consecutive samples inside a line window (s)")
-    gravimeter_gap_margin_s: float = Field(2.0, ge=0, description="Epochs of z within this margin of a gap in "
+    gnss_rate_hz: float | None = Field(None, gt=0, le=1000, description="Declared GNSS rate (Hz); inferred when None")
+    rate_tolerance: float = Field(0.25, gt=0, le=1, description="Allowed relative deviation of the median rate from the declared one")
+    max_gap_s: float = Field(1.0, gt=0, le=3600, description="Longest allowed gap between consecutive samples inside a line window (s)")
+    gravimeter_gap_margin_s: float = Field(2.0, ge=0, le=600, description="Epochs of z within this margin of a gap in "
                                            "the gravimeter record are treated as missing (the lag inversion "
                                            "spreads the unknown integral over ~τ)")
-    despike_threshold: float | None = Field(6.0, gt=0, description="Epochs of z whose residual from the mean "
+    despike_threshold: float | None = Field(6.0, gt=0, le=1000, description="Epochs of z whose residual from the mean "
                                             "of their neighbours exceeds this many local robust std (GNSS velocity "
                                             "spikes, cycle slips) are repaired; None keeps z as it is")
     despike_max_fraction: float = Field(0.01, gt=0, le=1, description="Spike repair stands down (z left as "
                                         "measured, with a warning) when it would flag more than this share "
                                         "of a flight's epochs")
-    max_nan_run: int = Field(0, ge=0, description="Longest run of missing values tolerated (interpolated); longer runs are errors")
+    max_nan_run: int = Field(0, ge=0, le=100_000, description="Longest run of missing values tolerated (interpolated); longer runs are errors")
     # --- measurement
     estimate_time_offset: bool = True
     apply_time_offset: bool = Field(True, description="Shift the gravimeter time scale by the cross-correlation estimate")
-    max_time_offset_s: float = Field(2.0, gt=0)
-    time_offset_min_z: float = Field(3.0, ge=0, description="Apply the estimated time offset only when it exceeds "
+    max_time_offset_s: float = Field(2.0, gt=0, le=60)
+    time_offset_min_z: float = Field(3.0, ge=0, le=1000, description="Apply the estimated time offset only when it exceeds "
                                      "this many standard errors")
     time_offset_min_improvement: float = Field(0.01, ge=0, lt=1, description="… and removes at least this share "
                                                "of the band-passed acceleration residual")
@@ -165,24 +226,24 @@ class ProcessingParams(_Strict):
         "spectra up to noise_fit_fmax_hz (m = 1..3, where the anomaly meets the noise); 'likelihood' = the "
         "full-rate Kalman likelihood (m = 1, 2; dominated by the high-frequency noise)")
     # --- regularization (SPEC §2 step 1)
-    decimation_n: int | None = Field(None, ge=2, description="Decimation factor n; chosen for ~1 km steps when None")
-    decimation_step_km: float = Field(1.0, gt=0)
-    cutoff_hz: float | None = Field(None, gt=0, description="Kaiser low-pass cut-off ω_s (Hz); from n when None")
-    stopband_attenuation_db: float = Field(60.0, gt=10)
+    decimation_n: int | None = Field(None, ge=2, le=MAX_DECIMATION_N, description="Decimation factor n; chosen for ~1 km steps when None")
+    decimation_step_km: float = Field(1.0, gt=0, le=50)
+    cutoff_hz: float | None = Field(None, gt=0, le=500, description="Kaiser low-pass cut-off ω_s (Hz); from n when None")
+    stopband_attenuation_db: float = Field(60.0, gt=10, le=200)
     regularization_difference_grid: Literal["decimated", "full"] = Field(
         "decimated", description="Where ∇^m is taken: on the decimated grid (default; keeps the GNSS noise "
         "from aliasing through the Kaiser side-lobes) or at full rate (the literal order of seed 000)")
-    ma_order_K: int | None = Field(None, ge=0)
-    ma_order_L: int | None = Field(None, ge=0)
+    ma_order_K: int | None = Field(None, ge=0, le=MAX_MA_ORDER)
+    ma_order_L: int | None = Field(None, ge=0, le=MAX_MA_ORDER)
     # --- EM learning (step 2)
     n_q: int | None = Field(None, ge=1, le=4, description="N1: number of anomaly intensity levels Q_i; None: 2, "
                             "or 1 (the stationary model) when the lines give fewer than min_points_adaptive "
                             "decimated points")
-    min_points_adaptive: int = Field(200, ge=1, description="Decimated points needed for two anomaly levels (n_q = None)")
+    min_points_adaptive: int = Field(200, ge=1, le=10_000_000, description="Decimated points needed for two anomaly levels (n_q = None)")
     n_r: int | None = Field(2, ge=1, le=3, description="N2: number of GNSS noise levels R_j; None chooses "
                             "1 or 2 by BIC (GNSS noise episodes need 2)")
-    em_max_iter: int = Field(60, ge=1)
-    em_tol: float = Field(1e-6, gt=0, description="Stop when the relative objective increase is below this")
+    em_max_iter: int = Field(60, ge=1, le=MAX_EM_ITER)
+    em_tol: float = Field(1e-6, gt=0, le=1, description="Stop when the relative objective increase is below this")
     include_tie_lines: bool = True
     refine_levels: bool = Field(True, description="Re-estimate Q_i, R_j by full-rate Kalman likelihood given the "
                                 "recognised states (the decimated EM can collapse a smooth state's Q)")
@@ -209,37 +270,37 @@ class ProcessingParams(_Strict):
                                       "shape was fitted)")
     noise_fit_octave_weights: bool = Field(False, description="Weight the spectra's bins so that every octave "
                                            "counts like the lowest one")
-    noise_fit_fmax_hz: float = Field(0.2, gt=0, description="Highest frequency (Hz) of the spectra the noise "
+    noise_fit_fmax_hz: float = Field(0.2, gt=0, le=500, description="Highest frequency (Hz) of the spectra the noise "
                                      "model is fitted to (clipped to 0.8 × the GNSS Nyquist frequency)")
-    refine_max_epochs: int = Field(300_000, ge=1000, description="Cap on epochs used by the level refinement")
+    refine_max_epochs: int = Field(300_000, ge=1000, le=10_000_000, description="Cap on epochs used by the level refinement")
 
     @field_validator("noise_band_hz")
     @classmethod
     def _band_increasing(cls, v):
-        if not 0 < v[0] < v[1]:
-            raise ValueError("noise_band_hz must be (f1, f2) with 0 < f1 < f2 (Hz)")
+        if not 0 < v[0] < v[1] <= 500:
+            raise ValueError("noise_band_hz must be (f1, f2) with 0 < f1 < f2 ≤ 500 (Hz)")
         return v
-    recognition_pool_h_per_km: float = Field(0.7, ge=0, description="Decay of the weights with which neighbouring "
+    recognition_pool_h_per_km: float = Field(0.7, ge=0, le=100, description="Decay of the weights with which neighbouring "
                                              "lines' evidence about the anomaly intensity enters each line's recognition")
     recognition_pool_rho_km: float = Field(5.0, ge=0, le=15, description="Radius of that evidence pooling (km); 0 = off "
                                            "(the paper's per-line recognition)")
     # --- recognition smoothing (step 4)
-    nlmeans_h_per_km: float = Field(0.5, ge=0, description="NL-means weight decay h (1/km); SPEC default 0.5 (the paper used 1.4)")
-    nlmeans_rho_km: float = Field(10.0, ge=0, description="NL-means radius ρ (km); SPEC default 10 (the paper used 5)")
+    nlmeans_h_per_km: float = Field(0.5, ge=0, le=100, description="NL-means weight decay h (1/km); SPEC default 0.5 (the paper used 1.4)")
+    nlmeans_rho_km: float = Field(10.0, ge=0, le=15, description="NL-means radius ρ (km); SPEC default 10 (the paper used 5)")
     nlmeans_mode: Literal["hard", "soft"] = "soft"
     # --- filtering (steps 5-6)
     smoother: Literal["bf", "rts"] = "bf"
-    fir_cutoff_period_s: float = Field(100.0, gt=0)
+    fir_cutoff_period_s: float = Field(100.0, gt=0, le=10_000)
     # --- survey level (SPEC §3)
     calibrate: bool = False
-    lag_check_s: float | None = Field(0.05, gt=0, description="Estimate the gravimeter lag τ in flight (τ only, "
+    lag_check_s: float | None = Field(0.05, gt=0, le=10, description="Estimate the gravimeter lag τ in flight (τ only, "
                                       "first three flights) and use the median when it differs from survey.toml's "
                                       "by more than this (s) and the flights agree within it; None trusts "
                                       "survey.toml")
     leveling_degree: int = Field(1, ge=0, le=2)
     std_crossover_check: bool = Field(True, description="Rescale dg_std by what the crossover differences say "
                                       "about the two lines' errors (widen only, below std_crossover_min_n)")
-    std_crossover_min_n: int = Field(20, ge=3, description="Crossovers needed to also narrow dg_std (fewer: the "
+    std_crossover_min_n: int = Field(20, ge=3, le=1_000_000, description="Crossovers needed to also narrow dg_std (fewer: the "
                                      "check only widens it)")
     std_crossover_min_factor: float = Field(0.75, gt=0, le=1, description="Never narrow dg_std by more than this "
                                             "factor (errors are correlated along lines: a few tens of crossovers "
@@ -259,10 +320,11 @@ class ProcessingParams(_Strict):
                                       "does not reduce the error as independent data would)")
     grid_std_cross_validate: bool = Field(False, description="Scale the grid std up by the RMS of leave-line-out "
                                           "normalised residuals when the collocation model under-states it")
-    grid_error_corr_km: float = Field(1.0, ge=0, description="Along-line error correlation length for thinning in collocation")
-    grid_spacing_km: float = Field(1.0, gt=0)
+    grid_error_corr_km: float = Field(1.0, ge=0, le=1000, description="Along-line error correlation length for thinning in collocation")
+    grid_spacing_km: float = Field(1.0, ge=0.01, le=100, description="Grid node spacing (km); the grid "
+                                   f"over the lines' extent may have at most {MAX_GRID_CELLS:,} nodes")
     gridding: Literal["collocation", "spline"] = "collocation"
-    grid_mask_km: float | None = Field(None, gt=0, description="Mask cells farther than this from any line; 1.5× line spacing when None")
+    grid_mask_km: float | None = Field(None, gt=0, le=1000, description="Mask cells farther than this from any line; 1.5× line spacing when None")
 
 
 class SurveyConfig(_Strict):

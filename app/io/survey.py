@@ -49,14 +49,14 @@ import numpy as np
 import pandas as pd
 from pydantic import ValidationError
 
-from app.config import SurveyConfig
+from app.config import SurveyConfig, check_name
 from app.core.geodesy import radii_of_curvature_m
 from app.io.errors import InputError
 from app.io.dgs import read_dgs, sniff_dat
 from app.io.gfile import is_gfile_name, read_gfile
 from app.io.xyz import XyzTable, scan_xyz, xyz_table
-from app.io.tables import (check_finite, check_range, check_rate, check_time_increasing, fill_short_nan_runs,
-                           gap_rows_in_windows, median_rate_hz, read_csv_table)
+from app.io.tables import (check_file_size, check_finite, check_range, check_rate, check_time_increasing,
+                           fill_short_nan_runs, gap_rows_in_windows, median_rate_hz, read_csv_table)
 
 __all__ = ["Flight", "Survey", "read_survey", "read_config", "read_lines", "read_gravimeter", "read_gnss",
            "survey_summary", "path_length_km", "LINE_KINDS"]
@@ -71,6 +71,13 @@ F_Z_PLAUSIBLE_MS2 = (7.0, 13.0)
 #: rates (Hz) accepted when none is declared (airborne and marine gravimeters; GNSS receivers)
 GRAVIMETER_RATE_SANITY_HZ = (0.5, 100.0)
 GNSS_RATE_SANITY_HZ = (0.5, 50.0)
+#: every value must lie in these ranges (wider than any flight: a value outside is a unit or file
+#: error, reported with its row before it can overflow the processing)
+VALUE_RANGES = {"time": (-1e10, 1e10, "time (s)"), "f_z": (-100.0, 100.0, "specific force (m/s²)"),
+                "f_x": (-100.0, 100.0, "specific force (m/s²)"), "f_y": (-100.0, 100.0, "specific force (m/s²)"),
+                "h": (-1000.0, 100_000.0, "ellipsoidal height (m)"), "vu": (-1000.0, 1000.0, "velocity (m/s)"),
+                "ve": (-1000.0, 1000.0, "velocity (m/s)"), "vn": (-1000.0, 1000.0, "velocity (m/s)"),
+                "sigma_v": (0.0, 1000.0, "velocity std (m/s)")}
 
 
 @dataclass
@@ -159,6 +166,8 @@ def read_config(path, overrides: dict | None = None, display: str = "survey.toml
     except tomllib.TOMLDecodeError as exc:
         m = re.search(r"line (\d+)", str(exc))
         raise InputError(display, int(m.group(1)) if m else None, None, f"not valid TOML: {exc}") from None
+    except RecursionError:
+        raise InputError(display, None, None, "not valid TOML: nested too deeply") from None
     overrides = dict(overrides or {})
     if overrides:
         proc = data.get("processing", {})
@@ -171,7 +180,7 @@ def read_config(path, overrides: dict | None = None, display: str = "survey.toml
         e = exc.errors()[0]
         loc = tuple(e.get("loc", ()))
         key = ".".join(str(x) for x in loc) or None
-        value = e.get("input")
+        value = _short(e.get("input"))
         msg = e.get("msg", "invalid value")
         if e.get("type") == "extra_forbidden":
             msg = "unknown setting"
@@ -179,6 +188,20 @@ def read_config(path, overrides: dict | None = None, display: str = "survey.toml
             raise InputError("overrides", None, key, f"{msg} (got {value!r})") from None
         detail = f"{msg} (got {value!r})" if e.get("type") != "extra_forbidden" else msg
         raise InputError(display, _toml_key_row(text, loc), key, detail) from None
+
+
+class _Short:
+    """A value shown in an error message, its repr cut to ~80 characters."""
+
+    def __init__(self, v):
+        self.r = repr(v)
+
+    def __repr__(self) -> str:
+        return self.r if len(self.r) <= 80 else f"{self.r[:60]}… ({len(self.r)} characters)"
+
+
+def _short(v):
+    return v if isinstance(v, (int, float, bool, type(None))) else _Short(v)
 
 
 # --------------------------------------------------------------------------- lines.csv
@@ -206,6 +229,9 @@ def read_lines(path, display: str = "lines.csv") -> tuple[pd.DataFrame, np.ndarr
         if bad.size:
             raise InputError(display, int(rows[bad[0]]), col, f"empty {col}")
         df[col] = s
+    for col in ("line", "flight", "track"):
+        if col in df:
+            _check_names(df[col], rows, display, col)
     check_finite(df, ("t_start", "t_end"), rows, display)
     for col in ("t_start", "t_end"):
         bad = np.flatnonzero(np.isnan(df[col].to_numpy()))
@@ -240,6 +266,27 @@ def read_lines(path, display: str = "lines.csv") -> tuple[pd.DataFrame, np.ndarr
     return df, rows
 
 
+def _check_names(col: pd.Series, rows: np.ndarray, display: str, what: str) -> None:
+    """Ids shown in the browser and used in URLs: app.config.check_name, row by row."""
+    for i, v in enumerate(col.tolist()):
+        if isinstance(v, str) and v != "":
+            try:
+                check_name(v, f"{what} id")
+            except ValueError as exc:
+                raise InputError(display, int(rows[i]), what, f"{exc}: {_short(v)!r}") from None
+
+
+def _check_ranges(df: pd.DataFrame, rows: np.ndarray, display: str) -> None:
+    """Every finite value within VALUE_RANGES; the error names the first row outside."""
+    for col, (lo, hi, what) in VALUE_RANGES.items():
+        if col in df:
+            v = df[col].to_numpy(dtype=float)
+            bad = np.flatnonzero(np.isfinite(v) & ((v < lo) | (v > hi)))
+            if bad.size:
+                i = int(bad[0])
+                raise InputError(display, int(rows[i]), col, f"{what} {v[i]:.6g} is outside [{lo:g}, {hi:g}]")
+
+
 # --------------------------------------------------------------------------- flight files
 
 
@@ -251,6 +298,7 @@ def _finish_series(df: pd.DataFrame, rows: np.ndarray, display: str, max_nan_run
             df = df.drop(columns=c)
     cols = [c for c in required + optional if c in df]
     check_finite(df, cols, rows, display)
+    _check_ranges(df, rows, display)
     fill_short_nan_runs(df, cols, rows, display, max_nan_run)
     check_time_increasing(df["time"].to_numpy(), rows, display)
     return df
@@ -306,6 +354,7 @@ def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: flo
             kind = "csv"
     if kind in ("gfile", "dgs"):
         offset = 0.0 if time_offset_s is None else float(time_offset_s)
+        check_file_size(path, display)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             if kind == "gfile":
@@ -321,6 +370,7 @@ def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: flo
         rows = g["source_row"].to_numpy(dtype=np.int64)
         df = g[[c for c in ("time", "f_z", "f_x", "f_y") if c in g]].copy()
         df.attrs.update(g.attrs)
+        _check_ranges(df, rows, display)
     else:
         df, rows = read_csv_table(path, display, GRAV_REQUIRED, GRAV_OPTIONAL, min_rows=2)
         df = _finish_series(df, rows, display, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL)
@@ -606,6 +656,11 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
     if not fdir.is_dir():
         raise InputError("flights/", None, None, "the survey has no flights/ directory")
     flight_dirs = {d.name: d for d in sorted(fdir.iterdir()) if d.is_dir() and not d.name.startswith(".")}
+    for name in flight_dirs:
+        try:
+            check_name(name, "flight name")
+        except ValueError as exc:
+            raise InputError(f"flights/{_short(name)!r}/", None, None, str(exc)) from None
     known = set(flight_dirs)
     if lines is not None:
         bad = np.flatnonzero(~lines["flight"].isin(known).to_numpy())

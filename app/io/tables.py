@@ -9,12 +9,23 @@ the file line number of every data row, so that checks done after parsing
 an editor.  Blank lines are kept while parsing (``skip_blank_lines=False``) so
 that the numbering stays exact; blank lines at the end of a file are dropped,
 blank lines inside it count as missing values.
+
+Size limits: inside :func:`table_limits` (the web application's reader) every table file is
+refused when it is larger than ``max_bytes`` (decompressed, counted while reading a
+``.csv.gz``; checked on the file size before parsing a plain file) or has more than
+``max_rows`` data rows, so one file can never make the reader buffer more than that.
 """
 
 from __future__ import annotations
 
+import contextlib
+import gzip
+import io
 import re
 import warnings
+import zlib
+from contextvars import ContextVar
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterable, Sequence
 
@@ -34,7 +45,84 @@ __all__ = [
     "check_range",
     "gap_rows_in_windows",
     "parser_error_row",
+    "table_limits",
+    "check_file_size",
 ]
+
+
+@dataclass(frozen=True)
+class _Limits:
+    max_bytes: int | None = None
+    max_rows: int | None = None
+
+
+_LIMITS: ContextVar[_Limits] = ContextVar("aerograv_table_limits", default=_Limits())
+
+
+@contextlib.contextmanager
+def table_limits(max_bytes: int | None = None, max_rows: int | None = None):
+    """Within this context, a table file larger than ``max_bytes`` (decompressed) or with more
+    than ``max_rows`` data rows is an :class:`InputError` (raised before or while reading)."""
+    tok = _LIMITS.set(_Limits(max_bytes, max_rows))
+    try:
+        yield
+    finally:
+        _LIMITS.reset(tok)
+
+
+def _mb(n: int) -> str:
+    return f"{n / 2**20:.3g} MB"
+
+
+def check_file_size(path: Path, display: str) -> None:
+    """Refuse a plain file larger than the current ``max_bytes`` before reading it."""
+    lim = _LIMITS.get().max_bytes
+    if lim is not None and not str(path).endswith(".gz"):
+        size = Path(path).stat().st_size
+        if size > lim:
+            raise InputError(display, None, None, f"the file is {_mb(size)}, more than the {_mb(lim)} allowed "
+                                                  "per file")
+
+
+class _TooLarge(Exception):
+    pass
+
+
+class _LimitedReader(io.RawIOBase):
+    """A decompressing reader that stops with :class:`_TooLarge` after ``limit`` bytes."""
+
+    def __init__(self, raw, limit: int):
+        self._raw, self._left = raw, limit
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, b) -> int:
+        n = self._raw.readinto(b)
+        self._left -= n
+        if self._left < 0:
+            raise _TooLarge()
+        return n
+
+    def close(self) -> None:
+        self._raw.close()
+        super().close()
+
+
+@contextlib.contextmanager
+def _source(path: Path, display: str):
+    """``(source, read_csv keywords)`` for ``path``: the path itself, or a size-limited
+    decompressing stream for a ``.csv.gz`` when a limit is in force."""
+    lim = _LIMITS.get().max_bytes
+    if lim is None or not str(path).endswith(".gz"):
+        yield path, {}
+        return
+    with _LimitedReader(gzip.open(path, "rb"), lim) as fh, io.BufferedReader(fh, 1 << 20) as buf:
+        try:
+            yield buf, {"compression": None}
+        except _TooLarge:
+            raise InputError(display, None, None, f"the file expands to more than the {_mb(lim)} allowed "
+                                                  "per file") from None
 
 
 def parser_error_row(exc: Exception) -> int | None:
@@ -45,11 +133,14 @@ def parser_error_row(exc: Exception) -> int | None:
 
 def _header(path: Path, display: str, **kw) -> list[str]:
     try:
-        head = pd.read_csv(path, nrows=0, **kw)
+        with _source(path, display) as (src, skw):
+            head = pd.read_csv(src, nrows=0, **skw, **kw)
     except pd.errors.EmptyDataError:
         raise InputError(display, None, None, "the file is empty (expected a header line with column names)") from None
-    except (OSError, UnicodeDecodeError, EOFError) as exc:
+    except (OSError, UnicodeDecodeError, EOFError, zlib.error) as exc:
         raise InputError(display, None, None, f"cannot read the file: {exc}") from None
+    except pd.errors.ParserError as exc:
+        raise InputError(display, 1, None, f"cannot read the header line: {exc}") from None
     return [str(c) for c in head.columns]
 
 
@@ -60,28 +151,41 @@ def locate_bad_cell(path: Path, display: str, usecols: Sequence[str], float_cols
     Re-reads the file as text and returns an :class:`InputError` for the first
     offending cell (smallest line number; left-most column on ties), or None.
     """
-    raw = pd.read_csv(path, usecols=list(usecols), dtype=str, skip_blank_lines=False, **read_kw)
-    raw = raw.rename(columns=rename)
     best: tuple[int, int, str, str] | None = None
-    for j, col in enumerate(float_cols):
-        s = raw[col]
-        num = pd.to_numeric(s.str.strip(), errors="coerce")
-        bad = np.flatnonzero(num.isna().to_numpy() & s.notna().to_numpy()
-                             & (s.fillna("").str.strip() != "").to_numpy())
-        if bad.size:
-            cand = (int(bad[0]) + 2, j, col, str(s.iloc[bad[0]]))
-            if best is None or cand[:2] < best[:2]:
-                best = cand
+    offset = 0
+    # in chunks: the text of a whole large file as Python strings would take ~10x its size
+    with _source(path, display) as (src, skw):
+        for raw in pd.read_csv(src, usecols=list(usecols), dtype=str, skip_blank_lines=False, chunksize=200_000,
+                               **skw, **read_kw):
+            raw = raw.rename(columns=rename)
+            for j, col in enumerate(float_cols):
+                s = raw[col]
+                num = pd.to_numeric(s.str.strip(), errors="coerce")
+                bad = np.flatnonzero(num.isna().to_numpy() & s.notna().to_numpy()
+                                     & (s.fillna("").str.strip() != "").to_numpy())
+                if bad.size:
+                    cand = (offset + int(bad[0]) + 2, j, col, str(s.iloc[bad[0]]))
+                    if best is None or cand[:2] < best[:2]:
+                        best = cand
+            if best is not None:
+                break
+            offset += len(raw)
     if best is None:
         return None
     row, _, col, val = best
     return InputError(display, row, col, f"not a number: {val!r}")
 
 
-def _read_all_columns(path: Path, dtype: dict) -> pd.DataFrame:
+def _read_all_columns(path: Path, dtype: dict, display: str) -> pd.DataFrame:
     # All columns are tokenized (extra ones are dropped afterwards): with ``usecols`` pandas would
     # silently drop surplus fields on a line, hiding a stray separator ("9,81").
-    return pd.read_csv(path, dtype=dtype, skip_blank_lines=False, engine="c", low_memory=False, index_col=False)
+    max_rows = _LIMITS.get().max_rows
+    with _source(path, display) as (src, skw):
+        df = pd.read_csv(src, dtype=dtype, skip_blank_lines=False, engine="c", low_memory=False, index_col=False,
+                         nrows=None if max_rows is None else max_rows + 1, **skw)
+    if max_rows is not None and len(df) > max_rows:
+        raise InputError(display, max_rows + 2, None, f"more than the {max_rows:,} data rows allowed per file")
+    return df
 
 
 def read_csv_table(path: Path | str, display: str, required: Sequence[str],
@@ -118,6 +222,7 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
     path = Path(path)
     if not path.is_file():
         raise InputError(display, None, None, "file not found")
+    check_file_size(path, display)
     names = _header(path, display)
     lookup: dict[str, str] = {}
     for n in names:
@@ -136,7 +241,9 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
         with warnings.catch_warnings():
             # the first data line having more fields than the header only warns: make it an error
             warnings.simplefilter("error", pd.errors.ParserWarning)
-            df = _read_all_columns(path, dtype)
+            df = _read_all_columns(path, dtype, display)
+    except InputError:
+        raise
     except pd.errors.ParserWarning:
         raise InputError(display, 2, None, f"this line has more fields than the header ({len(names)}): "
                                            f"a stray separator or a decimal comma?") from None
@@ -145,11 +252,16 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
                          f"this line has more fields than the header ({len(names)}): a stray separator "
                          f"or a decimal comma? ({exc})") from None
     except ValueError as exc:
-        err = locate_bad_cell(path, display, usecols, float_cols, rename)
+        try:
+            err = locate_bad_cell(path, display, usecols, float_cols, rename)
+        except InputError:
+            raise
+        except Exception:  # noqa: BLE001 - the first error is the one reported
+            err = None
         if err is not None:
             raise err from None
         raise InputError(display, None, None, f"cannot parse the file: {exc}") from None
-    except (OSError, UnicodeDecodeError, EOFError) as exc:
+    except (OSError, UnicodeDecodeError, EOFError, zlib.error) as exc:
         raise InputError(display, None, None, f"cannot read the file: {exc}") from None
     df = df.rename(columns=rename)[wanted]
     # drop blank lines at the end of the file

@@ -142,6 +142,7 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None,
                         "reliable, absolute values are not")
     crs = stages.survey_crs(cfg, flights)
     lines = stages.cut_lines(survey.lines, flights, crs)
+    _check_grid_size(lines, p)
     dt_s = float(np.median(np.concatenate([np.diff(m.t_s) for m in flights.values()])))
 
     noise_fit, noise = stages.fit_noise(lines, dt_s, p)
@@ -447,6 +448,22 @@ def _level(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFrame, dict]:
     rep.update(status="leveled", rms_after_mgal=float(res.rms_after))
     rep["std_check"] = _std_check(after, pred_var, p)
     return cx[cols], rep
+
+
+def _check_grid_size(lines, p) -> None:
+    """Refuse, before the heavy stages, a grid over the lines' extent with more than
+    ``app.config.MAX_GRID_CELLS`` nodes."""
+    from app.config import check_grid_cells
+    from app.io.errors import InputError
+
+    e = np.concatenate([ln.easting_km for ln in lines] or [np.zeros(1)])
+    n = np.concatenate([ln.northing_km for ln in lines] or [np.zeros(1)])
+    e, n = e[np.isfinite(e)], n[np.isfinite(n)]
+    if e.size and n.size:
+        try:
+            check_grid_cells(float(np.ptp(e)), float(np.ptp(n)), p.grid_spacing_km)
+        except ValueError as exc:
+            raise InputError(None, None, "processing.grid_spacing_km", str(exc)) from None
 
 
 def _std_check(diff_mgal, pred_var_mgal2, p) -> dict:

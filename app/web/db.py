@@ -5,6 +5,9 @@ data directory.  A survey points to its current input snapshot (``input_dir``) a
 to its current result (``current_result_id``); both pointers are switched in one
 transaction only after the new files are complete, so a failed upload or job never
 leaves a survey half-written.
+
+At most one job per survey is active (queued or running): a unique partial index says so, so
+concurrent submissions cannot both succeed whatever the timing.
 """
 
 from __future__ import annotations
@@ -12,12 +15,17 @@ from __future__ import annotations
 import datetime as dt
 from typing import Any
 
-from sqlalchemy import JSON, Float, ForeignKey, Integer, String, Text, create_engine, event
+import logging
+
+from sqlalchemy import JSON, Float, ForeignKey, Index, Integer, String, Text, create_engine, event, text, update
+from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.engine import Engine
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship, sessionmaker
 
 JOB_STATES = ("queued", "running", "succeeded", "failed", "cancelled")
 ACTIVE_STATES = ("queued", "running")
+_ACTIVE_SQL = "status IN ('queued', 'running')"
+log = logging.getLogger("aerograv.web.db")
 
 
 def utcnow() -> dt.datetime:
@@ -35,7 +43,7 @@ class Survey(Base):
     created_at: Mapped[dt.datetime] = mapped_column(default=utcnow)
     input_dir: Mapped[str | None] = mapped_column(Text, nullable=True)  # current input snapshot
     current_result_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
-    crs: Mapped[str | None] = mapped_column(String(64), nullable=True)
+    crs: Mapped[str | None] = mapped_column(Text, nullable=True)
     flights: Mapped[list["Flight"]] = relationship(back_populates="survey", cascade="all, delete-orphan",
                                                    order_by="Flight.name")
     lines: Mapped[list["Line"]] = relationship(back_populates="survey", cascade="all, delete-orphan",
@@ -67,6 +75,8 @@ class Line(Base):
 
 class Job(Base):
     __tablename__ = "jobs"
+    __table_args__ = (Index("uq_jobs_one_active_per_survey", "survey_id", unique=True,
+                            sqlite_where=text(_ACTIVE_SQL), postgresql_where=text(_ACTIVE_SQL)),)
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     survey_id: Mapped[int] = mapped_column(ForeignKey("surveys.id"), index=True)
     kind: Mapped[str] = mapped_column(String(16))
@@ -116,8 +126,29 @@ def get_engine(url: str) -> Engine:
         else:
             eng = create_engine(url, pool_pre_ping=True)
         Base.metadata.create_all(eng)
+        ensure_indexes(eng)
         _ENGINES[url] = eng
     return eng
+
+
+def ensure_indexes(eng: Engine) -> None:
+    """Indexes added after a data directory was created (``create_all`` skips existing tables).
+    Duplicate active jobs left by an older version are failed first: only the newest stays."""
+    for idx in Job.__table__.indexes:
+        try:
+            idx.create(eng, checkfirst=True)
+        except IntegrityError:
+            with eng.begin() as c:
+                rows = c.execute(text(f"SELECT id, survey_id FROM jobs WHERE {_ACTIVE_SQL} ORDER BY id DESC")).all()
+                seen: set[int] = set()
+                for jid, sid in rows:
+                    if sid in seen:
+                        c.execute(update(Job).where(Job.id == jid).values(
+                            status="failed", error="another job was active on this survey", finished_at=utcnow()))
+                    seen.add(sid)
+            idx.create(eng, checkfirst=True)
+        except OperationalError as exc:  # e.g. a database that does not support partial indexes
+            log.warning("index %s not created: %s", idx.name, exc)
 
 
 def session_factory(url: str) -> sessionmaker:

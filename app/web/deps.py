@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Callable, Iterator
+from typing import Annotated, Callable, Iterator
 
-from fastapi import Depends, HTTPException, Request
+from fastapi import Depends, HTTPException, Path, Request
 from sqlalchemy.orm import Session
 
 from .db import Survey
@@ -34,13 +34,26 @@ def get_cache(request: Request) -> ResultCache:
     return request.app.state.cache
 
 
-def get_survey_reader() -> Callable:
-    """``read_survey(path)`` validating a survey directory (raises InputError)."""
+def get_survey_reader(request: Request) -> Callable:
+    """``read_survey(path)`` validating a survey directory (raises InputError), with the upload
+    limits on every table file (size, decompressed while reading, and rows)."""
     from app.io.survey import read_survey
-    return read_survey
+    from app.io.tables import table_limits
+
+    settings: Settings = request.app.state.settings
+
+    def read(path, overrides=None):
+        with table_limits(settings.max_uncompressed_bytes, settings.max_table_rows):
+            return read_survey(path, overrides)
+    return read
 
 
-def get_survey_or_404(survey_id: int, db: Session = Depends(get_db)) -> Survey:
+#: a database id (SQLite and PostgreSQL integers are 64-bit: larger ids are a 422, not a 500)
+SurveyId = Annotated[int, Path(ge=0, le=2**63 - 1, description="survey id")]
+JobId = Annotated[int, Path(ge=0, le=2**63 - 1, description="job id")]
+
+
+def get_survey_or_404(survey_id: SurveyId, db: Session = Depends(get_db)) -> Survey:
     s = db.get(Survey, survey_id)
     if s is None:
         raise HTTPException(404, f"survey {survey_id} not found")

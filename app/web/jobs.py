@@ -11,7 +11,12 @@ or declared dead by the server can never overwrite the survey's results afterwar
 
 The server-side :class:`JobManager` starts workers, cancels them, and watches them:
 a worker process that dies (killed, out of memory, segfault) turns its job into
-``failed`` with the reason; the survey and its previous results are untouched.
+``failed`` with the reason; the survey and its previous results are untouched.  That record
+is durable: when the store refuses the write (disk full, database locked) the death stays
+pending and is written again on every pass until the store accepts it.  Active jobs in the
+store are also reconciled with the live workers: at start-up all of them are failed (no
+worker survives its server), and every ``reconcile_interval_s`` a local job whose worker
+process is gone is failed.
 """
 
 from __future__ import annotations
@@ -153,6 +158,20 @@ def _death_reason(exitcode: int | None) -> str:
     return f"worker process died with exit code {exitcode}"
 
 
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(int(pid), 0)
+    except ProcessLookupError:
+        return False
+    except (PermissionError, OverflowError, ValueError):
+        return True
+    try:  # a zombie is not alive
+        with open(f"/proc/{int(pid)}/stat") as fh:
+            return fh.read().rsplit(")", 1)[-1].split()[0] != "Z"
+    except OSError:
+        return True
+
+
 class JobManager:
     """Starts, cancels and watches jobs (local processes or a Dask cluster)."""
 
@@ -163,6 +182,8 @@ class JobManager:
         self._futures: dict[int, Any] = {}
         self._lock = threading.Lock()
         self._client = None
+        self._pending: dict[int, str] = {}  # job id -> reason of a worker death not yet recorded
+        self._last_reconcile = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         #: called with the job id after a worker ended (any outcome), from the monitor thread
@@ -185,6 +206,10 @@ class JobManager:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=5)
+        try:
+            self._record_pending()
+        except Exception:  # pragma: no cover
+            pass
         with self._lock:
             procs = list(self._procs.values())
             self._procs.clear()
@@ -246,6 +271,7 @@ class JobManager:
 
     # -- watching ----------------------------------------------------------
     def _fail_if_active(self, job_id: int, reason: str) -> None:
+        """Record the failure (raises when the store refuses the write)."""
         with self.Session() as s:
             s.execute(update(Job).where(Job.id == job_id, Job.status.in_(ACTIVE_STATES))
                       .values(status="failed", error=reason, finished_at=utcnow()))
@@ -268,8 +294,7 @@ class JobManager:
                 del self._futures[jid]
         for jid, p in dead:
             p.join(timeout=1)
-            self._fail_if_active(jid, _death_reason(p.exitcode))
-            self._notify(jid)
+            self._pending[jid] = _death_reason(p.exitcode)
         for jid, f in done:
             if f.status == "error":
                 try:
@@ -281,8 +306,52 @@ class JobManager:
                 reason = "dask task cancelled or lost"
             else:
                 reason = "job ended without reporting its result"
-            self._fail_if_active(jid, reason)
+            self._pending[jid] = reason
+        self._record_pending()
+        now = time.monotonic()
+        if now - self._last_reconcile >= getattr(self.settings, "reconcile_interval_s", 10.0):
+            self._last_reconcile = now
+            self.reconcile()
+
+    def _record_pending(self) -> None:
+        for jid, reason in list(self._pending.items()):
+            try:
+                self._fail_if_active(jid, reason)
+            except Exception as exc:  # noqa: BLE001 - kept, written again on the next pass
+                log.warning("job %s: could not record the worker's end yet (%s); will retry", jid, exc)
+                continue
+            del self._pending[jid]
             self._notify(jid)
+
+    def reconcile(self, queued_grace_s: float = 60.0) -> list[int]:
+        """Fail local jobs the store says are active but that have no live worker: not watched by
+        this server, and their worker process (``worker_pid``) gone; a queued job without a worker
+        gets ``queued_grace_s`` to start.  Returns the ids failed."""
+        import datetime as dt
+        from sqlalchemy import select
+
+        failed = []
+        with self._lock:
+            watched = set(self._procs) | set(self._futures) | set(self._pending)
+        with self.Session() as s:
+            active = list(s.scalars(select(Job).where(Job.status.in_(ACTIVE_STATES), Job.backend == "local")))
+        cutoff = utcnow() - dt.timedelta(seconds=queued_grace_s)
+        for j in active:
+            if j.id in watched or self.backend != "local":
+                continue
+            if j.worker_pid and _pid_alive(j.worker_pid):
+                continue
+            if j.status == "queued" and j.created_at and j.created_at > cutoff:
+                continue
+            reason = "worker lost: no live worker process for this job"
+            try:
+                self._fail_if_active(j.id, reason)
+                failed.append(j.id)
+            except Exception as exc:  # noqa: BLE001
+                log.warning("job %s: could not record the lost worker yet (%s)", j.id, exc)
+                with self._lock:
+                    self._pending[j.id] = reason
+        return failed
 
     def _notify(self, job_id: int) -> None:
         for cb in self.on_finished:

@@ -3,25 +3,40 @@
 REST API under ``/api`` (OpenAPI at ``/docs``), the static browser frontend at ``/``
 (``frontend/``, no build step) and Plotly's JavaScript served from the installed
 ``plotly`` package at ``/vendor/plotly.min.js``.
+
+Every request passes :class:`GuardMiddleware`: the Host header must be allowed (DNS
+rebinding), mutating ``/api`` requests need the token when one is set and, when none is set,
+must come from the page itself (``Sec-Fetch-Site`` / ``Origin``: another web site cannot drive
+the analyst's browser), bodies are limited (413), and every response carries the security
+headers (a CSP without inline scripts, ``X-Frame-Options: DENY``, ``nosniff``).  Malformed
+requests are answered 4xx with a reason, never 500: validation errors echo at most a short
+excerpt of the offending value and never a non-finite number.
 """
 
 from __future__ import annotations
 
+import errno
 import hmac
 import json
 import logging
 import os
+import threading
+import time
 from contextlib import asynccontextmanager
 from pathlib import Path
+from urllib.parse import urlsplit
 
 from fastapi import FastAPI, HTTPException, Request
+from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
+from sqlalchemy.exc import OperationalError
 
 from app.config import ProcessingParams
 from app.io.errors import InputError
 
 from .db import session_factory
+from .errors import validation_detail
 from .jobs import JobManager
 from .settings import Settings
 from .store import ResultCache, Store
@@ -31,6 +46,17 @@ log = logging.getLogger("aerograv.web")
 # the checkout's frontend/ (editable install); AEROGRAV_FRONTEND_DIR for installed copies (Dockerfile)
 FRONTEND_DIR = Path(os.environ.get("AEROGRAV_FRONTEND_DIR") or Path(__file__).resolve().parents[2] / "frontend")
 MUTATING = {"POST", "PUT", "PATCH", "DELETE"}
+CSP = ("default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; img-src 'self' data: blob:; "
+       "font-src 'self' data:; connect-src 'self'; worker-src 'self' blob:; object-src 'none'; base-uri 'none'; "
+       "form-action 'self'; frame-ancestors 'none'")
+# the OpenAPI pages (/docs, /redoc) load Swagger UI / ReDoc from a CDN with an inline bootstrap script
+CSP_DOCS = ("default-src 'self'; script-src 'self' 'unsafe-inline' https://cdn.jsdelivr.net; "
+            "style-src 'self' 'unsafe-inline' https://cdn.jsdelivr.net https://fonts.googleapis.com; "
+            "img-src 'self' data: https://fastapi.tiangolo.com https://cdn.redoc.ly; font-src 'self' data: "
+            "https://fonts.gstatic.com; worker-src 'self' blob:; connect-src 'self'; object-src 'none'; "
+            "frame-ancestors 'none'")
+SECURITY_HEADERS = [(b"x-frame-options", b"DENY"), (b"x-content-type-options", b"nosniff"),
+                    (b"referrer-policy", b"no-referrer"), (b"cross-origin-opener-policy", b"same-origin")]
 
 
 class PayloadTooLarge(HTTPException):
@@ -46,8 +72,22 @@ async def _send_json(send, status: int, body: dict, headers: list | None = None)
     await send({"type": "http.response.body", "body": raw})
 
 
+def _split_host(value: str) -> tuple[str, str | None]:
+    """'Example.org:8000' → ('example.org', '8000'); '[::1]:80' → ('::1', '80')."""
+    value = value.strip().lower()
+    if value.startswith("["):
+        host, _, rest = value[1:].partition("]")
+        return host, rest[1:] if rest.startswith(":") else None
+    if value.count(":") == 1:
+        host, _, port = value.partition(":")
+        return host, port
+    return value, None
+
+
 class GuardMiddleware:
-    """Token check on mutating /api requests (401) and the request body limit (413).
+    """Host allow-list (400), same-origin check of mutating /api requests when no token is set
+    (403), token check on mutating /api requests (401), the request body limit (413) and the
+    security headers of every response.
 
     The body limit is enforced on the declared Content-Length and, for streamed
     bodies, on the bytes actually received."""
@@ -55,14 +95,58 @@ class GuardMiddleware:
     def __init__(self, app, settings: Settings):
         self.app = app
         self.settings = settings
+        self.allowed = settings.allowed_host_set()
+
+    def _host_ok(self, host: str) -> bool:
+        if self.allowed is None:
+            return True
+        name, port = _split_host(host)
+        return name in self.allowed or (port is not None and f"{name}:{port}" in self.allowed)
+
+    @staticmethod
+    def _same_origin(headers: dict, host: str) -> str | None:
+        """Why a browser request comes from another site (None: it does not, or not a browser)."""
+        site = headers.get(b"sec-fetch-site", b"").decode("latin-1").strip().lower()
+        if site and site not in ("same-origin", "none"):
+            return f"Sec-Fetch-Site: {site}"
+        origin = headers.get(b"origin")
+        if origin is not None:
+            o = origin.decode("latin-1").strip()
+            parts = urlsplit(o) if o.lower() != "null" else None
+            if parts is None or not parts.hostname:
+                return f"Origin: {o[:100]}"
+            name, port = _split_host(host)
+            oport = str(parts.port or {"http": 80, "https": 443}.get(parts.scheme, ""))
+            hport = port or {"http": "80", "https": "443"}.get(parts.scheme, "")
+            if parts.hostname.lower() != name or oport != hport:
+                return f"Origin: {o[:100]}"
+        return None
 
     async def __call__(self, scope, receive, send):
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
+        path = scope.get("path", "")
+        csp = (CSP_DOCS if path.startswith(("/docs", "/redoc")) else CSP).encode()
+
+        async def send_secure(msg):
+            if msg["type"] == "http.response.start":
+                msg = {**msg, "headers": list(msg.get("headers", [])) + SECURITY_HEADERS
+                       + [(b"content-security-policy", csp)]}
+            await send(msg)
+
         method = scope["method"]
         headers = {k.lower(): v for k, v in scope.get("headers", [])}
+        host = headers.get(b"host", b"").decode("latin-1")
+        if not self._host_ok(host):
+            return await _send_json(send_secure, 400, {"detail": f"host {host[:100]!r} is not allowed "
+                                                       "(AEROGRAV_ALLOWED_HOSTS)"})
         token = self.settings.token
-        if token and method in MUTATING and scope["path"].startswith("/api"):
+        if not token and method in MUTATING and path.startswith("/api"):
+            why = self._same_origin(headers, host)
+            if why:
+                return await _send_json(send_secure, 403, {"detail": f"cross-site request refused ({why}); "
+                                                           "changes come from this application's own page"})
+        if token and method in MUTATING and path.startswith("/api"):
             given = None
             auth = headers.get(b"authorization", b"").decode("latin-1")
             if auth.lower().startswith("bearer "):
@@ -70,12 +154,12 @@ class GuardMiddleware:
             elif b"x-aerograv-token" in headers:
                 given = headers[b"x-aerograv-token"].decode("latin-1").strip()
             if not given or not hmac.compare_digest(given.encode(), token.encode()):
-                return await _send_json(send, 401, {"detail": "missing or invalid token: send 'Authorization: Bearer <token>'"},
+                return await _send_json(send_secure, 401, {"detail": "missing or invalid token: send 'Authorization: Bearer <token>'"},
                                         [(b"www-authenticate", b"Bearer")])
         limit = self.settings.max_upload_bytes
         cl = headers.get(b"content-length")
         if cl is not None and cl.isdigit() and int(cl) > limit:
-            return await _send_json(send, 413, {"detail": PayloadTooLarge(self.settings.max_upload_mb).detail})
+            return await _send_json(send_secure, 413, {"detail": PayloadTooLarge(self.settings.max_upload_mb).detail})
         received = 0
 
         async def limited_receive():
@@ -87,7 +171,7 @@ class GuardMiddleware:
                     raise PayloadTooLarge(self.settings.max_upload_mb)
             return msg
 
-        return await self.app(scope, limited_receive, send)
+        return await self.app(scope, limited_receive, send_secure)
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -99,6 +183,15 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     n = jobs.recover()
     if n:
         log.warning("%d job(s) left running by a previous server marked failed", n)
+    from .db import ACTIVE_STATES, Job
+    with Session() as db:
+        active_out = {j.out_dir for j in db.query(Job).filter(Job.status.in_(ACTIVE_STATES)) if j.out_dir}
+    removed = store.clean_start(active_out)
+    if removed:
+        log.warning("removed %d half-written folder(s) left by a previous server", len(removed))
+    if settings.allowed_host_set() is None:
+        log.warning("any Host header is accepted (bound to %s): set AEROGRAV_ALLOWED_HOSTS to this server's "
+                    "names to protect browsers against DNS rebinding", settings.bind_host or settings.allowed_hosts)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -129,11 +222,50 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if r is not None and (Path(r.dir) / "recognition.parquet").exists():
             app.state.cache.get(("recognition", r.id), lambda: _load_recognition(r))
 
+    def _prune(job_id: int) -> None:
+        """After any job ended: remove the survey's snapshots and results no longer needed (in a
+        thread of its own: waiting for the survey's lock must not hold up the job monitor)."""
+        from .db import Job
+        from .services import prune_survey
+
+        def run():
+            try:
+                with Session() as s:
+                    job = s.get(Job, job_id)
+                    if job is not None:
+                        prune_survey(s, store, job.survey_id)
+            except Exception:  # pragma: no cover - retried after the next job or upload
+                log.exception("pruning after job %s failed", job_id)
+        threading.Thread(target=run, name=f"aerograv-prune-{job_id}", daemon=True).start()
+
     jobs.on_finished.append(_warm)
+    jobs.on_finished.append(_prune)
 
     @app.exception_handler(InputError)
     async def _input_error(_req: Request, exc: InputError):
         return JSONResponse(status_code=422, content={"detail": exc.to_dict()})
+
+    @app.exception_handler(RequestValidationError)
+    async def _validation_error(_req: Request, exc: RequestValidationError):
+        return JSONResponse(status_code=422, content={"detail": validation_detail(exc.errors())})
+
+    @app.exception_handler(RecursionError)
+    async def _too_deep(_req: Request, _exc: RecursionError):
+        return JSONResponse(status_code=400, content={"detail": "the request is nested too deeply"})
+
+    @app.exception_handler(OperationalError)
+    async def _db_unavailable(_req: Request, exc: OperationalError):
+        log.error("database error: %s", exc)
+        return JSONResponse(status_code=503, content={"detail": f"the database refused the operation, try again "
+                                                                f"later ({str(exc.orig)[:200]})"},
+                            headers={"Retry-After": "10"})
+
+    @app.exception_handler(OSError)
+    async def _os_error(_req: Request, exc: OSError):
+        if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+            return JSONResponse(status_code=507, content={"detail": "the server's disk is full; nothing was stored"})
+        log.exception("I/O error")
+        return JSONResponse(status_code=500, content={"detail": f"I/O error on the server: {exc.strerror or exc}"})
 
     from .routers import jobs as jobs_router, results, surveys
     app.include_router(surveys.router)
@@ -145,10 +277,35 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         """ProcessingParams: JSON schema with defaults and descriptions (for the parameters form)."""
         return {"schema": ProcessingParams.model_json_schema(), "defaults": ProcessingParams().model_dump()}
 
+    usage_cache: dict = {"t": -1e9, "v": None}
+    usage_lock = threading.Lock()
+
+    def storage_report() -> dict:
+        """Disk used by each survey against its budget (walked at most every 10 s)."""
+        with usage_lock:
+            if time.monotonic() - usage_cache["t"] > 10 or usage_cache["v"] is None:
+                budget = settings.survey_storage_bytes
+                from .db import Survey
+                with Session() as db:
+                    ids = [i for (i,) in db.query(Survey.id).order_by(Survey.id)]
+                rows = []
+                for sid in ids:
+                    used = store.survey_usage_bytes(sid)
+                    rows.append({"survey_id": sid, "used_mb": round(used / 2**20, 3),
+                                 "over_budget": used > budget})
+                usage_cache["v"] = {"budget_mb_per_survey": round(budget / 2**20, 3), "surveys": rows,
+                                    "used_mb_total": round(sum(r["used_mb"] for r in rows), 3)}
+                usage_cache["t"] = time.monotonic()
+            return usage_cache["v"]
+
     @app.get("/api/health", tags=["meta"])
     def health() -> dict:
+        hosts = settings.allowed_host_set()
         return {"status": "ok", "backend": jobs.backend, "auth": bool(settings.token),
-                "max_upload_mb": settings.max_upload_mb}
+                "max_upload_mb": settings.max_upload_mb,
+                "max_uncompressed_mb": round(settings.max_uncompressed_bytes / 2**20, 3),
+                "allowed_hosts": sorted(hosts) if hosts is not None else ["*"],
+                "storage": storage_report()}
 
     @app.get("/vendor/plotly.min.js", include_in_schema=False)
     def plotly_js():

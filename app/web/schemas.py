@@ -7,12 +7,16 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
+from app.config import Name
+
 JobKind = Literal["process", "identify", "filter"]
 JobStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 
 
 class SurveyCreate(BaseModel):
-    name: str = Field(..., min_length=1, max_length=200, description="Survey name")
+    model_config = ConfigDict(allow_inf_nan=False)
+    name: Name = Field(..., min_length=1, max_length=200, description="Survey name (no control characters, "
+                       "no '/' or '\\')")
 
 
 class FlightOut(BaseModel):
@@ -44,6 +48,7 @@ class EMIteration(BaseModel):
 
 
 class JobCreate(BaseModel):
+    model_config = ConfigDict(allow_inf_nan=False)
     kind: JobKind = "process"
     params: dict[str, Any] = Field(default_factory=dict,
                                    description="ProcessingParams overrides (see GET /api/params/schema)")

@@ -41,6 +41,9 @@ def serve(host: str = "127.0.0.1", port: int = 8000, bootstrap: str | None = Non
     import uvicorn
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(name)s %(levelname)s %(message)s")
+    settings = settings or Settings()
+    if settings.bind_host is None:  # the default Host allow-list is the bind address and localhost
+        settings.bind_host = host
     app = create_app(settings)
     if bootstrap:
         bootstrap_store(app, bootstrap)

@@ -5,6 +5,13 @@
 ``AEROGRAV_DASK_SCHEDULER`` address of a Dask scheduler; jobs run there when set
 ``AEROGRAV_TOKEN``         when set, every mutating request needs ``Authorization: Bearer <token>``
 ``AEROGRAV_MAX_UPLOAD_MB`` request body limit (413 above it)
+``AEROGRAV_MAX_UNCOMPRESSED_MB`` total uncompressed size of an imported zip, also the largest table
+                           file the reader accepts (default 4 × the upload limit)
+``AEROGRAV_MAX_TABLE_ROWS`` most data rows of one uploaded table file
+``AEROGRAV_SURVEY_STORAGE_MB`` storage budget per survey (inputs and results kept on disk;
+                           default 10 × the upload limit); reported in ``/api/health``
+``AEROGRAV_ALLOWED_HOSTS`` comma-separated Host header values accepted (``*`` = any); default: the
+                           bind address, ``localhost``, ``127.0.0.1`` and ``::1``
 """
 
 from __future__ import annotations
@@ -28,6 +35,16 @@ class Settings(BaseSettings):
         "app.pipeline.process:process_survey",
         description="'module:function' run by jobs; same signature as process_survey (tests swap it)")
     poll_interval_s: float = Field(0.5, gt=0, description="How often the job monitor checks worker processes")
+    reconcile_interval_s: float = Field(10.0, gt=0, description="How often active jobs in the store are checked "
+                                        "against live workers")
+    max_uncompressed_mb: float | None = Field(None, gt=0, description="Largest total uncompressed size of an "
+                                              "imported zip and of one table file (MB); 4 × max_upload_mb when unset")
+    max_table_rows: int = Field(10_000_000, ge=1, description="Most data rows of one uploaded table file")
+    survey_storage_mb: float | None = Field(None, gt=0, description="Storage budget per survey (MB); "
+                                            "10 × max_upload_mb when unset")
+    allowed_hosts: str | None = Field(None, description="Comma-separated Host header values accepted ('*' = any); "
+                                      "default the bind address, localhost, 127.0.0.1, ::1")
+    bind_host: str | None = Field(None, description="The address `aerograv serve` binds (set by serve)")
 
     @property
     def db_url(self) -> str:
@@ -38,6 +55,27 @@ class Settings(BaseSettings):
     @property
     def max_upload_bytes(self) -> int:
         return int(self.max_upload_mb * 1024 * 1024)
+
+    @property
+    def max_uncompressed_bytes(self) -> int:
+        mb = self.max_uncompressed_mb if self.max_uncompressed_mb is not None else 4 * self.max_upload_mb
+        return int(mb * 1024 * 1024)
+
+    @property
+    def survey_storage_bytes(self) -> int:
+        mb = self.survey_storage_mb if self.survey_storage_mb is not None else 10 * self.max_upload_mb
+        return int(mb * 1024 * 1024)
+
+    def allowed_host_set(self) -> set[str] | None:
+        """Host names (lower case, no port) accepted; None = any (``*``, or a wildcard bind address
+        without an explicit list)."""
+        if self.allowed_hosts is not None:
+            hosts = {h.strip().lower().strip("[]") for h in self.allowed_hosts.split(",") if h.strip()}
+            return None if "*" in hosts else hosts
+        bind = (self.bind_host or "").strip().lower().strip("[]")
+        if bind in ("0.0.0.0", "::", "*"):
+            return None
+        return {"localhost", "127.0.0.1", "::1"} | ({bind} if bind else set())
 
 
 @lru_cache

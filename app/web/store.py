@@ -9,24 +9,40 @@ Layout under the data directory::
 New files are staged in ``tmp/``, validated with ``read_survey`` and only then renamed
 into place; the database pointer (``Survey.input_dir``) is switched afterwards in one
 transaction.  A rejected upload leaves nothing behind.
+
+Snapshots are immutable, so a flight upload builds the next snapshot from hard links to the
+current one (no copy).  Changes to one survey's files are serialized by :meth:`Store.survey_lock`;
+:meth:`Store.prune` removes the snapshots and result folders no longer needed (everything but the
+current input, the inputs of active jobs, and the current and previous results with their
+inputs); :meth:`Store.clean_start` removes what a stopped server left half-written.
 """
 
 from __future__ import annotations
 
+import errno
 import os
 import re
+import shutil
 import threading
+import time
 import uuid
 import zipfile
+import zlib
 from collections import OrderedDict
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Iterable
 
 import numpy as np
 
+from app.config import check_name
 from app.io.errors import InputError
 
-SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,99}$")
+SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,99}\Z")  # \Z: "$" would accept a final newline
+#: zip archives: most entries, deepest path, longest path element
+MAX_ZIP_ENTRIES = 10_000
+MAX_ZIP_DEPTH = 8
+MAX_ZIP_NAME = 200
+DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 
 
 class Store:
@@ -35,6 +51,14 @@ class Store:
         self.tmp = self.root / "tmp"
         self.tmp.mkdir(parents=True, exist_ok=True)
         (self.root / "surveys").mkdir(parents=True, exist_ok=True)
+        self._locks: dict[int, threading.RLock] = {}
+        self._locks_guard = threading.Lock()
+
+    def survey_lock(self, survey_id: int) -> threading.RLock:
+        """The lock serializing changes to one survey's input snapshot, jobs and files (in this
+        process; the database's conditional updates catch writers from other processes)."""
+        with self._locks_guard:
+            return self._locks.setdefault(int(survey_id), threading.RLock())
 
     def staging_dir(self) -> Path:
         d = self.tmp / uuid.uuid4().hex
@@ -59,6 +83,92 @@ class Store:
         os.replace(staged, final)
         return final
 
+    # -- storage -------------------------------------------------------------
+    def usage_bytes(self, dirs: Iterable[Path]) -> int:
+        """Bytes on disk under ``dirs``, each file counted once (snapshots share hard links)."""
+        seen: set[tuple[int, int]] = set()
+        total = 0
+        for d in dirs:
+            for dirpath, _dirs, files in os.walk(d):
+                for f in files:
+                    try:
+                        st = os.lstat(os.path.join(dirpath, f))
+                    except OSError:
+                        continue
+                    key = (st.st_dev, st.st_ino)
+                    if key not in seen:
+                        seen.add(key)
+                        total += st.st_size
+        return total
+
+    def survey_usage_bytes(self, survey_id: int) -> int:
+        return self.usage_bytes([self.survey_dir(survey_id)])
+
+    def prune(self, survey_id: int, keep: set[str]) -> list[Path]:
+        """Remove the input snapshots and result folders of a survey whose paths are not in ``keep``
+        (``.partial`` folders of running jobs are left alone); returns what was removed."""
+        keep = {str(Path(k).resolve()) for k in keep if k}
+        removed = []
+        for sub in ("input", "results"):
+            d = self.survey_dir(survey_id) / sub
+            if not d.is_dir():
+                continue
+            for p in d.iterdir():
+                if p.name.endswith(".partial") or str(p.resolve()) in keep:
+                    continue
+                shutil.rmtree(p, ignore_errors=True)
+                removed.append(p)
+        return removed
+
+    def clean_start(self, active_out_dirs: set[str], tmp_age_s: float = 3600.0) -> list[Path]:
+        """At start-up: ``.partial`` result folders of jobs not active, and staging folders older
+        than ``tmp_age_s`` (another server may share the data directory), are removed."""
+        removed = []
+        active = {str(Path(d).resolve()) + ".partial" for d in active_out_dirs if d}
+        for p in (self.root / "surveys").glob("*/results/*.partial"):
+            if str(p.resolve()) not in active:
+                shutil.rmtree(p, ignore_errors=True)
+                removed.append(p)
+        now = time.time()
+        for p in self.tmp.iterdir():
+            try:
+                old = now - p.stat().st_mtime > tmp_age_s
+            except OSError:
+                continue
+            if old:
+                shutil.rmtree(p, ignore_errors=True) if p.is_dir() else p.unlink(missing_ok=True)
+                removed.append(p)
+        return removed
+
+
+def release_memory() -> None:
+    """Give the memory freed after a large request (a survey read into DataFrames) back to the
+    system: glibc keeps freed blocks in per-thread arenas, so a server's RSS would otherwise
+    stay at the largest survey ever validated times the number of worker threads."""
+    global _TRIM
+    if _TRIM is None:
+        try:
+            import ctypes
+            _TRIM = ctypes.CDLL("libc.so.6").malloc_trim
+        except (OSError, AttributeError):  # not glibc
+            _TRIM = False
+    if _TRIM:
+        _TRIM(0)
+
+
+_TRIM = None
+
+
+def link_tree(src: Path, dst: Path) -> None:
+    """``dst`` as a tree of hard links to the files of ``src`` (copies where linking fails).
+    Files in ``dst`` must be replaced (``os.replace`` / unlink first), never rewritten in place."""
+    def link(a, b):
+        try:
+            os.link(a, b)
+        except OSError:
+            shutil.copy2(a, b)
+    shutil.copytree(src, dst, copy_function=link)
+
 
 def relativize(err: InputError, root: Path) -> InputError:
     """Report file names relative to the survey directory, not the staging path."""
@@ -71,34 +181,114 @@ def relativize(err: InputError, root: Path) -> InputError:
     return err
 
 
-def extract_survey_zip(fileobj, dest: Path, max_bytes: int | None = None) -> Path:
-    """Extract a zip safely into ``dest`` (no absolute or '..' paths, bounded uncompressed size);
-    return the survey root (possibly nested one level)."""
+def _clip(name: str, n: int = 80) -> str:
+    return name if len(name) <= n else f"{name[:n]}… ({len(name)} characters)"
+
+
+def _entry_parts(name: str) -> list[str]:
+    """The path elements of a zip entry name, or InputError when it is unsafe or unreasonable."""
+    if len(name) > MAX_ZIP_DEPTH * (MAX_ZIP_NAME + 1):
+        raise InputError(_clip(name), None, None, f"zip entry name of {len(name)} characters is too long")
+    n = name.replace("\\", "/")
+    parts = [p for p in n.split("/") if p not in ("", ".")]
+    if n.startswith("/") or re.match(r"^[A-Za-z]:", n) or ".." in parts:
+        raise InputError(_clip(name), None, None, "unsafe path in the zip archive")
+    if len(parts) > MAX_ZIP_DEPTH:
+        raise InputError(_clip(name), None, None,
+                         f"zip entry nested {len(parts)} folders deep; at most {MAX_ZIP_DEPTH} allowed")
+    for p in parts:
+        if len(p) > MAX_ZIP_NAME or len(p.encode("utf-8", "surrogateescape")) > 255:
+            raise InputError(_clip(name), None, None,
+                             f"a name in this zip entry's path is longer than {MAX_ZIP_NAME} characters")
+    return parts
+
+
+def _survey_member(rel: list[str]) -> bool:
+    """The files of a survey directory the reader uses (everything else in a zip is not stored)."""
+    return rel in (["survey.toml"], ["lines.csv"]) or (len(rel) == 3 and rel[0] == "flights")
+
+
+def extract_survey_zip(fileobj, dest: Path, max_bytes: int | None = None,
+                       max_entries: int = MAX_ZIP_ENTRIES) -> Path:
+    """Extract the survey files of a zip into ``dest``; return the survey root (``dest`` or one
+    folder below it).
+
+    Streamed: every entry is decompressed in 1 MB chunks and the bytes actually produced are
+    counted against ``max_bytes`` (the declared sizes are checked first, but not trusted), so
+    memory stays constant whatever the archive claims.  Only ``survey.toml``, ``lines.csv`` and
+    the files of ``flights/<flight>/`` are extracted.  Unsafe, over-long or over-deep names,
+    encrypted, damaged or size-lying entries and more than ``max_entries`` entries are
+    InputErrors."""
     try:
         zf = zipfile.ZipFile(fileobj)
-    except zipfile.BadZipFile:
-        raise InputError("upload", None, None, "not a zip archive")
+        infos = zf.infolist()
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, ValueError, NotImplementedError, RuntimeError,
+            OSError) as exc:
+        if isinstance(exc, OSError) and exc.errno in DISK_FULL:
+            raise
+        raise InputError("upload", None, None, f"not a zip archive (or a damaged one): {exc}") from None
     with zf:
-        total = sum(i.file_size for i in zf.infolist())
+        if len(infos) > max_entries:
+            raise InputError("upload", None, None, f"the archive has {len(infos):,} entries; at most "
+                                                   f"{max_entries:,} allowed")
+        total = sum(i.file_size for i in infos)
         if max_bytes is not None and total > max_bytes:
             raise InputError("upload", None, None, f"the archive expands to {total / 2**20:.0f} MB, more than the "
-                             f"{max_bytes / 2**20:.0f} MB allowed")
-        for info in zf.infolist():
-            name = info.filename
-            if name.startswith("__MACOSX/") or name.endswith(".DS_Store"):
+                             f"{max_bytes / 2**20:.0f} MB allowed (AEROGRAV_MAX_UNCOMPRESSED_MB)")
+        files: list[tuple[zipfile.ZipInfo, list[str]]] = []
+        for info in infos:
+            parts = _entry_parts(info.filename)
+            if (info.is_dir() or not parts or parts[0] == "__MACOSX" or parts[-1] == ".DS_Store"
+                    or parts[-1].startswith("._")):
                 continue
-            p = Path(name)
-            if p.is_absolute() or ".." in p.parts:
-                raise InputError(name, None, None, "unsafe path in the zip archive")
-            zf.extract(info, dest)
-    if (dest / "survey.toml").is_file():
-        return dest
-    subdirs = [d for d in dest.iterdir() if d.is_dir() and d.name != "__MACOSX"]
-    candidates = [d for d in subdirs if (d / "survey.toml").is_file()]
-    if len(candidates) == 1:
-        return candidates[0]
-    raise InputError("survey.toml", None, None,
-                     "the zip must contain a survey directory: survey.toml at the top level or in one folder")
+            files.append((info, parts))
+        tops = [p[:-1] for _, p in files if p[-1] == "survey.toml" and len(p) <= 2]
+        if [] in tops:
+            root_parts: list[str] = []
+        elif len(tops) == 1:
+            root_parts = tops[0]
+        else:
+            raise InputError("survey.toml", None, None,
+                             "the zip must contain a survey directory: survey.toml at the top level or in one folder")
+        written = 0
+        for info, parts in files:
+            rel = parts[len(root_parts):]
+            if parts[:len(root_parts)] != root_parts or not _survey_member(rel):
+                continue
+            for p in rel[1:-1]:
+                try:
+                    check_name(p, "flight name")
+                except ValueError as exc:
+                    raise InputError(_clip(info.filename), None, None, str(exc)) from None
+            if info.flag_bits & 0x1:
+                raise InputError(_clip(info.filename), None, None, "the zip entry is encrypted (password protected)")
+            target = dest.joinpath(*parts)
+            target.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                with zf.open(info) as src, open(target, "wb") as out:
+                    size = 0
+                    while True:
+                        chunk = src.read(1 << 20)
+                        if not chunk:
+                            break
+                        size += len(chunk)
+                        written += len(chunk)
+                        if max_bytes is not None and written > max_bytes:
+                            raise InputError("upload", None, None,
+                                             f"the archive expands to more than the {max_bytes / 2**20:.0f} MB "
+                                             "allowed (AEROGRAV_MAX_UNCOMPRESSED_MB)")
+                        out.write(chunk)
+                if size != info.file_size:
+                    raise zipfile.BadZipFile(f"{size} bytes where the header says {info.file_size}")
+            except InputError:
+                raise
+            except (zipfile.BadZipFile, zlib.error, EOFError, RuntimeError, NotImplementedError, ValueError) as exc:
+                raise InputError(_clip(info.filename), None, None, f"damaged zip entry: {exc}") from None
+            except OSError as exc:
+                if exc.errno in DISK_FULL:
+                    raise
+                raise InputError(_clip(info.filename), None, None, f"cannot extract: {exc.strerror or exc}") from None
+    return dest.joinpath(*root_parts)
 
 
 def _gaps(t: np.ndarray) -> tuple[float, float]:

@@ -5,17 +5,27 @@ export const STATE_COLORS = ["#2c7fb8", "#e6550d", "#31a354", "#756bb1", "#de2d2
 
 export function stateColor(i) { return STATE_COLORS[i % STATE_COLORS.length]; }
 
+// Text for Plotly (titles, trace names, hover templates, hover text): Plotly renders a subset of
+// HTML there (<a href>, <b>, …) and substitutes %{…} in templates, so user-supplied names
+// (surveys, lines, flights) go through esc(): shown literally, never as markup or links.
+export function esc(s) {
+  return String(s ?? "").replace(/&/g, "&amp;").replace(/</g, "&lt;").replace(/>/g, "&gt;").replace(/%/g, "&#37;");
+}
+
+// A download file name from a survey name.
+export function fileName(s) { return String(s ?? "").replace(/[^A-Za-z0-9_.-]+/g, "_").slice(0, 100) || "aerograv"; }
+
 export function plotConfig(filename) {
   return {
     responsive: true, displaylogo: false,
-    toImageButtonOptions: { format: "png", filename, scale: 2 },
+    toImageButtonOptions: { format: "png", filename: fileName(filename), scale: 2 },
     modeBarButtonsToRemove: ["lasso2d", "select2d"],
   };
 }
 
 export function mapLayout(title, extra = {}) {
   return {
-    title: { text: title, font: { size: 15 } },
+    title: { text: esc(title), font: { size: 15 } },
     margin: { l: 70, r: 30, t: 40, b: 55 },
     xaxis: { title: { text: "Easting (km)" }, zeroline: false, ticksuffix: "" },
     yaxis: { title: { text: "Northing (km)" }, zeroline: false, scaleanchor: "x", scaleratio: 1 },
@@ -30,7 +40,7 @@ export function pngButton(plotDiv, filename) {
   const b = document.createElement("button");
   b.textContent = "Save PNG";
   b.className = "png-btn";
-  b.addEventListener("click", () => Plotly.downloadImage(plotDiv, { format: "png", filename, scale: 2, width: plotDiv.clientWidth, height: plotDiv.clientHeight }));
+  b.addEventListener("click", () => Plotly.downloadImage(plotDiv, { format: "png", filename: fileName(filename), scale: 2, width: plotDiv.clientWidth, height: plotDiv.clientHeight }));
   return b;
 }
 

@@ -73,7 +73,7 @@ def make_client(tmp_path, monkeypatch):
         kw.setdefault("data_dir", tmp_path / "data")
         kw.setdefault("pipeline_entry", FAKE_ENTRY)
         kw.setdefault("poll_interval_s", 0.1)
-        c = TestClient(create_app(Settings(**kw)))
+        c = TestClient(create_app(Settings(**kw)), base_url="http://localhost")
         c.__enter__()
         clients.append(c)
         return c

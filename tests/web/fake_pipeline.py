@@ -41,8 +41,9 @@ def write_outputs(out: Path, lines_df: pd.DataFrame, crs: str = "EPSG:32657", se
     df["R_cm2s2"] = 1.7
     df.to_parquet(out / "lines.parquet", index=False)
 
-    # decimated recognition points: every 10th epoch
-    rec = df.groupby("line", sort=False).nth(slice(None, None, 10)).reset_index(drop=True)
+    # decimated recognition points: every 10th epoch (AEROGRAV_FAKE_DECIMATE; 100 = ~1 km, as the pipeline)
+    stride = int(os.environ.get("AEROGRAV_FAKE_DECIMATE", "10"))
+    rec = df.groupby("line", sort=False).nth(slice(None, None, stride)).reset_index(drop=True)
     p1 = 1 / (1 + np.exp(-3 * np.sin(rec["easting_km"].to_numpy() / 5.0) + 0.9)) * 0.8 + rng.uniform(0, 0.2, len(rec))
     p1 = np.clip(p1, 0, 1)
     recog = pd.DataFrame({"line": rec["line"], "time": rec["time"], "easting_km": rec["easting_km"],

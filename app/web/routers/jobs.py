@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import json
-
 from fastapi import APIRouter, Depends, HTTPException
 from pydantic import ValidationError
 from sqlalchemy import select
@@ -12,11 +10,12 @@ from sqlalchemy.orm import Session
 from app.config import ProcessingParams
 
 from ..db import ACTIVE_STATES, Job, Survey
-from ..deps import get_db, get_jobs, get_store, get_survey_or_404
+from ..deps import JobId, get_db, get_jobs, get_store, get_survey_or_404
 from ..jobs import JobManager
 from ..schemas import JobCreate, JobOut
-from ..services import JobConflict, start_job
+from ..services import JobConflict, check_grid_size, start_job
 from ..store import Store
+from ..errors import validation_detail
 from .surveys import job_out
 
 router = APIRouter(tags=["jobs"])
@@ -29,7 +28,8 @@ def create_job(body: JobCreate, s: Survey = Depends(get_survey_or_404), db: Sess
     try:
         params = ProcessingParams.model_validate(body.params).model_dump(exclude_unset=True, mode="json")
     except ValidationError as e:
-        raise HTTPException(422, json.loads(e.json(include_url=False)))
+        raise HTTPException(422, validation_detail(e.errors()))
+    check_grid_size(s, params)
     try:
         job = start_job(db, store, jobs, s, body.kind, params)
     except JobConflict as e:
@@ -50,12 +50,12 @@ def _job_or_404(db: Session, job_id: int) -> Job:
 
 
 @router.get("/api/jobs/{job_id}", response_model=JobOut)
-def get_job(job_id: int, db: Session = Depends(get_db)) -> JobOut:
+def get_job(job_id: JobId, db: Session = Depends(get_db)) -> JobOut:
     return job_out(_job_or_404(db, job_id))
 
 
 @router.post("/api/jobs/{job_id}/cancel", response_model=JobOut)
-def cancel_job(job_id: int, db: Session = Depends(get_db), jobs: JobManager = Depends(get_jobs)) -> JobOut:
+def cancel_job(job_id: JobId, db: Session = Depends(get_db), jobs: JobManager = Depends(get_jobs)) -> JobOut:
     """Cancel a queued or running job (409 when it already finished)."""
     j = _job_or_404(db, job_id)
     if j.status not in ACTIVE_STATES:

@@ -153,7 +153,7 @@ def list_lines(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get
     return out
 
 
-@router.get("/{survey_id}/lines/{line}", response_model=ProfileOut)
+@router.get("/{survey_id}/lines/{line:path}", response_model=ProfileOut)
 def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, description="decimate to about this many points"),
                  z_lowpass_s: float = Query(30.0, ge=0, le=600, description="Gaussian low-pass of z, full width at half maximum (s)"),
                  s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
@@ -170,12 +170,13 @@ def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, descr
     dist = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(e), np.diff(nn)))])
     z = g["z_mgal"].to_numpy(float)
     dt = float(np.median(np.diff(t))) if n > 1 else 0.1
-    if z_lowpass_s > 0 and n > 2:
+    sigma = z_lowpass_s / (2.3548 * dt) if dt > 0 and math.isfinite(dt) else 0.0
+    if sigma >= 0.2 and n > 2:  # a Gaussian narrower than a fifth of a sample leaves z as it is
         # Gaussian low-pass with FWHM = z_lowpass_s: smooth weights matter here, because z holds
         # the differenced GNSS velocity noise, which a boxcar only telescopes down to σ_r·√2/T.
         from scipy.ndimage import gaussian_filter1d
         zf = np.where(np.isfinite(z), z, np.nanmean(z))
-        z = gaussian_filter1d(zf, sigma=z_lowpass_s / (2.3548 * dt), mode="nearest", truncate=3.0)
+        z = gaussian_filter1d(zf, sigma=sigma, mode="nearest", truncate=3.0)
     step = max(1, math.ceil(n / max_points))
     sl = slice(None, None, step)
 

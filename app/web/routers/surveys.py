@@ -2,23 +2,19 @@
 
 from __future__ import annotations
 
-import io
 import shutil
 from pathlib import Path
 from typing import Callable
 
-import pandas as pd
 from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile
 from sqlalchemy import select
 from sqlalchemy.orm import Session
-
-from app.io.errors import InputError
 
 from ..db import Job, Survey
 from ..deps import get_db, get_settings, get_store, get_survey_or_404, get_survey_reader
 from ..settings import Settings
 from ..schemas import FlightOut, JobOut, LineOut, QCOut, SurveyCreate, SurveyOut
-from ..services import import_survey_tree, install_snapshot, validate
+from ..services import StorageBudgetExceeded, SurveyConflict, add_flight, import_survey_tree
 from ..store import SAFE_NAME, Store, extract_survey_zip
 
 router = APIRouter(prefix="/api/surveys", tags=["surveys"])
@@ -61,12 +57,16 @@ def import_survey(file: UploadFile = File(..., description="zip of a survey dire
                   db: Session = Depends(get_db), store: Store = Depends(get_store),
                   reader: Callable = Depends(get_survey_reader),
                   settings: Settings = Depends(get_settings)) -> SurveyOut:
-    """Validate a zipped survey directory, then store it atomically (uncompressed size ≤ 20 × the upload limit)."""
+    """Validate a zipped survey directory, then store it atomically (extracted in a stream; the
+    uncompressed total and every table file are limited by AEROGRAV_MAX_UNCOMPRESSED_MB)."""
     staging = store.staging_dir()
     try:
-        root = extract_survey_zip(file.file, staging, max_bytes=20 * settings.max_upload_bytes)
-        s = import_survey_tree(db, store, reader, root, Path(file.filename or "survey.zip").stem)
+        root = extract_survey_zip(file.file, staging, max_bytes=settings.max_uncompressed_bytes)
+        s = import_survey_tree(db, store, reader, root, Path(file.filename or "survey.zip").stem[:300],
+                               budget_bytes=settings.survey_storage_bytes)
         return survey_out(db, s)
+    except StorageBudgetExceeded as e:
+        raise HTTPException(413, str(e))
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 
@@ -83,45 +83,27 @@ def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv
                   lines: UploadFile | None = File(None, description="lines.csv rows for this flight"),
                   flight: str | None = Form(None, description="flight name (directory name)"),
                   s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
-                  store: Store = Depends(get_store), reader: Callable = Depends(get_survey_reader)) -> SurveyOut:
-    """Add (or replace) one flight: the new survey snapshot is validated before it replaces the old one."""
-    name = flight or f"flight{len(s.flights) + 1}"
-    if not SAFE_NAME.match(name):
+                  store: Store = Depends(get_store), reader: Callable = Depends(get_survey_reader),
+                  settings: Settings = Depends(get_settings)) -> SurveyOut:
+    """Add (or replace) one flight: the new survey snapshot is validated before it replaces the old one.
+    Concurrent uploads to one survey are applied in turn (each one is kept)."""
+    if flight is not None and not SAFE_NAME.match(flight):
         raise HTTPException(422, {"file": None, "row": None, "column": "flight",
-                                  "message": f"flight name {name!r}: use letters, digits, '_', '-', '.'"})
-    staging = store.staging_dir()
-    try:
-        root = staging / "survey"
-        if s.input_dir and Path(s.input_dir).is_dir():
-            shutil.copytree(s.input_dir, root)
-        else:
-            root.mkdir()
-            (root / "survey.toml").write_text(f'[survey]\nname = "{s.name.replace(chr(34), "")}"\n')
-        fdir = root / "flights" / name
-        shutil.rmtree(fdir, ignore_errors=True)
+                                  "message": f"flight name {flight[:100]!r}: use letters, digits, '_', '-', '.' "
+                                             "(at most 100 characters)"})
+
+    def write_files(fdir: Path) -> None:
         _write_upload(gravimeter, fdir / "gravimeter.csv")
         _write_upload(gnss, fdir / "gnss.csv")
-        if lines is not None:
-            raw = lines.file.read()
-            try:
-                new = pd.read_csv(io.BytesIO(raw), dtype=str, keep_default_na=False)
-            except Exception as e:
-                raise InputError("lines.csv", None, None, f"cannot read the uploaded lines file: {e}")
-            if "flight" not in new.columns:
-                new.insert(1 if len(new.columns) else 0, "flight", name)
-            else:
-                new["flight"] = new["flight"].replace("", name)
-            lp = root / "lines.csv"
-            if lp.exists():
-                old = pd.read_csv(lp, dtype=str, keep_default_na=False)
-                old = old[old["flight"] != name] if "flight" in old.columns else old
-                new = pd.concat([old, new], ignore_index=True).fillna("")
-            new.to_csv(lp, index=False)
-        survey = validate(reader, root)
-        install_snapshot(db, store, s, root, survey)
-        return survey_out(db, s)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+
+    try:
+        add_flight(db, store, reader, s, flight, write_files, lines.file.read() if lines is not None else None,
+                   budget_bytes=settings.survey_storage_bytes)
+    except SurveyConflict as e:
+        raise HTTPException(409, str(e))
+    except StorageBudgetExceeded as e:
+        raise HTTPException(413, str(e))
+    return survey_out(db, s)
 
 
 @router.get("/{survey_id}/qc", response_model=QCOut)

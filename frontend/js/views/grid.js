@@ -1,6 +1,6 @@
 // Anomaly grid: heatmap or contours of δg (or its σ) with lines and crossovers overlaid, equal aspect in km.
 import { endpoints } from "../api.js";
-import { el, fmt, mapLayout, plotConfig, pngButton } from "../plots.js";
+import { el, esc, fmt, mapLayout, plotConfig, pngButton } from "../plots.js";
 
 export async function render(sec, ctx) {
   const s = ctx.survey;
@@ -40,7 +40,7 @@ export async function render(sec, ctx) {
     if (linesIn.checked) {
       g.lines.forEach((l, i) => traces.push({ x: l.easting_km, y: l.northing_km, type: "scatter", mode: "lines",
         line: { color: isStd ? "rgba(255,255,255,0.75)" : (l.kind === "tie" ? "rgba(60,60,60,0.8)" : "rgba(0,0,0,0.55)"), width: 1, dash: l.kind === "tie" ? "dash" : "solid" },
-        name: "lines", legendgroup: "lines", showlegend: i === 0, hovertemplate: `line ${l.line}<extra></extra>` }));
+        name: "lines", legendgroup: "lines", showlegend: i === 0, hovertemplate: `line ${esc(l.line)}<extra></extra>` }));
     }
     // overlapping repeat passes are not crossings: show main/tie intersections only
     const kind = Object.fromEntries(g.lines.map((l) => [l.line, l.kind]));
@@ -48,7 +48,7 @@ export async function render(sec, ctx) {
     if (xoIn.checked && xo.length) {
       traces.push({ x: xo.map((c) => c.easting_km), y: xo.map((c) => c.northing_km), type: "scatter", mode: "markers",
         name: "crossovers", marker: { symbol: "x-thin", size: 7, color: "rgba(0,0,0,0.7)", line: { width: 1.5, color: "rgba(0,0,0,0.7)" } },
-        text: xo.map((c) => `${c.line_a} × ${c.line_b}: before ${fmt(c.diff_before_mgal, 2)}, after ${fmt(c.diff_after_mgal, 2)} mGal`),
+        text: xo.map((c) => `${esc(c.line_a)} × ${esc(c.line_b)}: before ${fmt(c.diff_before_mgal, 2)}, after ${fmt(c.diff_after_mgal, 2)} mGal`),
         hovertemplate: "%{text}<extra></extra>" });
     }
     await Plotly.react(plot, traces, mapLayout(`${s.name}: ${isStd ? "posterior σ of δg" : "free-air anomaly δg at flight height"}`), plotConfig(`${s.name}-grid`));

@@ -1,6 +1,6 @@
 // Line profiles: z low-passed, adaptive δg ± 2σ, stationary smoother, FIR 100 s, state bands.
 import { endpoints } from "../api.js";
-import { el, fmt, plotConfig, pngButton, stateColor } from "../plots.js";
+import { el, esc, fmt, plotConfig, pngButton, stateColor } from "../plots.js";
 
 function stateShapes(x, state) {
   const shapes = [];
@@ -54,7 +54,7 @@ export async function render(sec, ctx) {
     const vals = [...lo, ...hi, ...p.dg_stationary, ...p.dg_fir].filter((v) => v !== null && Number.isFinite(v));
     const ymin = Math.min(...vals), ymax = Math.max(...vals), pad = 0.25 * Math.max(ymax - ymin, 1);
     const layout = {
-      title: { text: `Line ${p.line} (${p.kind}, flight ${p.flight})`, font: { size: 15 } },
+      title: { text: `Line ${esc(p.line)} (${esc(p.kind)}, flight ${esc(p.flight)})`, font: { size: 15 } },
       margin: { l: 70, r: 20, t: 40, b: 55 },
       xaxis: { title: { text: "Distance along line (km)" } },
       yaxis: { title: { text: "Gravity anomaly δg (mGal)" }, range: vals.length ? [ymin - pad, ymax + pad] : undefined },

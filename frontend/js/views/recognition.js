@@ -1,6 +1,6 @@
 // Recognition state map: decimated points coloured by state; h and ρ re-smooth on the server (NL-means).
 import { endpoints } from "../api.js";
-import { el, fmt, mapLayout, plotConfig, pngButton, stateColor } from "../plots.js";
+import { el, esc, fmt, mapLayout, plotConfig, pngButton, stateColor } from "../plots.js";
 
 function stateLabel(states, i) {
   const st = states.find((x) => x.index === i);
@@ -42,7 +42,7 @@ export async function render(sec, ctx) {
     x: [null], y: [null], type: "scattergl", mode: "markers", name: stateLabel(base.states, i),
     marker: { color: stateColor(i), size: 9 }, hoverinfo: "skip" }));
   const colors = (arr) => arr.map((v) => stateColor(v));
-  const text = base.line.map((l) => `line ${l}`);
+  const text = base.line.map((l) => `line ${esc(l)}`);
   const trace = { x: base.easting_km, y: base.northing_km, type: "scattergl", mode: "markers", showlegend: false,
     marker: { color: colors(current), size: 7 }, text,
     hovertemplate: "%{text}<br>E %{x:.2f} km, N %{y:.2f} km<extra></extra>" };
