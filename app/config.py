@@ -268,6 +268,9 @@ class ProcessingParams(_Strict):
                                       "EM's level on the regularized band (where anomaly and noise meet); this "
                                       "bounds the factor from below (1 = only ever scale up, as before the noise "
                                       "shape was fitted)")
+    noise_knee_max_fraction: float | None = Field(None, gt=0, le=100, description="Corner frequencies of the "
+                                                  "AR(1) noise components at most this × the lowest fitted "
+                                                  "frequency (None: anywhere)")
     noise_fit_octave_weights: bool = Field(False, description="Weight the spectra's bins so that every octave "
                                            "counts like the lowest one")
     noise_fit_fmax_hz: float = Field(0.2, gt=0, le=500, description="Highest frequency (Hz) of the spectra the noise "

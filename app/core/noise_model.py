@@ -434,7 +434,7 @@ class NoiseFit:
     fmax_hz: float
 
 
-def _unpack(theta, spec):
+def _unpack(theta, spec, phi_min: float = 0.0):
     Q = float(np.exp(theta[0]))
     comps, k = [], 1
     for order, free_phi in spec:
@@ -442,16 +442,22 @@ def _unpack(theta, spec):
         k += 1
         phi = 0.0
         if free_phi:
-            phi = float(PHI_MAX / (1.0 + np.exp(-theta[k])))
+            phi = float(phi_min + (PHI_MAX - phi_min) / (1.0 + np.exp(-theta[k])))
             k += 1
         comps.append(NoiseComponent(order, phi, w))
     return Q, comps
 
 
+def knee_hz(phi: float, dt_s: float) -> float:
+    """Corner frequency (Hz) of an AR(1) component, ``(1 − φ)/(2π Δt)``."""
+    return float((1.0 - phi) / (2.0 * np.pi * dt_s))
+
+
 def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                     families=FAMILIES, nw: float = 3.0, min_duration_s: float = 120.0,
                     n_starts: int = 4, seed: int = 0, bic_margin: float = 10.0,
-                    differences=(), octave_weights: bool = False) -> NoiseFit:
+                    differences=(), octave_weights: bool = False,
+                    knee_max_fraction: float | None = None, hidden_knees: bool = True) -> NoiseFit:
     """Fit the error of z by the Whittle likelihood of prewhitened multitaper spectra.
 
     Model of z's spectrum: ``S(f) = S_anomaly(f; Q, m) + Σ_c S_c(f)``; each family of
@@ -476,6 +482,11 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     families : sequence of (name, spec)
     min_duration_s : float
         Stretches shorter than this are skipped.
+    knee_max_fraction : float, optional
+        Corners of the AR(1) components at most this × the lowest fitted frequency.
+    hidden_knees : bool
+        Move corners that fall between the lowest fitted frequency and twice the
+        anomaly/noise crossover below the data and refit (see the code comment).
     differences : sequence of PassDifference
         Differences of two passes of one repeat track on a common along-track grid: the
         anomaly cancels, so their spectra show the noise alone — also where it hides under
@@ -537,11 +548,18 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     w2 = np.concatenate([np.full(s_.f_hz.size, 1.0 if d else 0.0) for s_, d in zip(specs, is_diff)])
     n_diff_bins = int(np.sum(w2 > 0))
     d_anom = {mm: np.abs(1.0 - np.exp(-2j * np.pi * nu_all)) ** (2 * mm) for mm in (1, 2, 3)}
+    # AR corners no higher than knee_max_fraction × the lowest fitted frequency: a corner inside the
+    # band would be decided where the anomaly hides the noise, and every corner lowers the noise
+    # below it — the direction in which a wrong guess leaks noise into the anomaly
+    f_low = float(np.min(f_all))
+    phi_low = float(np.clip(1.0 - 2.0 * np.pi * dt_s * f_low, 0.0, PHI_MAX - 1e-6))
+    phi_min = 0.0 if knee_max_fraction is None else float(
+        np.clip(1.0 - 2.0 * np.pi * dt_s * knee_max_fraction * f_low, 0.0, PHI_MAX - 1e-6))
 
     def nll(theta, spec, mm):
         if np.any(np.abs(theta) > 200):
             return 1e300
-        Q, comps = _unpack(theta, spec)
+        Q, comps = _unpack(theta, spec, phi_min)
         with np.errstate(divide="ignore"):
             S = np.where(a_mask > 0, dt_s * Q / d_anom[mm], 0.0)
         for c in comps:
@@ -582,7 +600,7 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         family never ends worse than a simpler one it contains."""
         out = []
         for c in cands:
-            Q, comps = _unpack(c["_theta"], c["_spec"])
+            Q, comps = _unpack(c["_theta"], c["_spec"], phi_min)
             pool = list(comps)
             th = [np.log(Q)]
             for order, free_phi in spec:
@@ -595,25 +613,49 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                     th.append(np.log(level) - 3.0 * order - 12.0)
                     phi = 0.0
                 if free_phi:
-                    th.append(float(np.log(max(phi, 1e-6) / max(PHI_MAX - phi, 1e-9))))
+                    u = (max(phi, phi_min) - phi_min) / (PHI_MAX - phi_min)
+                    th.append(float(np.log(max(u, 1e-6) / max(1.0 - u, 1e-9))))
             if not pool:  # every fitted component was placed: a nested start
                 out.append(th)
         return out
 
-    cands = []
-    for name, spec in families:
-        best = fit(spec, m, random_starts(spec) + warm_starts(spec))
-        Q, comps = _unpack(best.x, spec)
-        k = len(best.x)
-        cands.append({"family": name, "nll": float(best.fun), "n_params": k,
-                      "bic": float(2.0 * best.fun + k * np.log(max(n_eff, 2.0))),
-                      "Q_mgal2": Q, "components": [{"order": c.order, "phi": c.phi, "weight_mgal2": c.weight}
-                                                    for c in comps], "_theta": best.x, "_spec": spec})
-    # the simplest family within bic_margin of the best: a richer shape must be strongly
-    # supported (ΔBIC > 10), because its behaviour below the noise-dominated band — where the
-    # data cannot check it — decides how the smoother separates anomaly from noise
-    best_bic = min(c["bic"] for c in cands)
-    chosen = next(c for c in sorted(cands, key=lambda c: c["n_params"]) if c["bic"] <= best_bic + bic_margin)
+    cands: list = []
+
+    def select():
+        cands.clear()
+        for name, spec in families:
+            best = fit(spec, m, random_starts(spec) + warm_starts(spec))
+            Q, comps = _unpack(best.x, spec, phi_min)
+            k = len(best.x)
+            cands.append({"family": name, "nll": float(best.fun), "n_params": k,
+                          "bic": float(2.0 * best.fun + k * np.log(max(n_eff, 2.0))),
+                          "Q_mgal2": Q, "components": [{"order": c.order, "phi": c.phi, "weight_mgal2": c.weight}
+                                                        for c in comps], "_theta": best.x, "_spec": spec})
+        # the simplest family within bic_margin of the best: a richer shape must be strongly
+        # supported (ΔBIC > 10), because its behaviour below the noise-dominated band — where the
+        # data cannot check it — decides how the smoother separates anomaly from noise
+        best_bic = min(c["bic"] for c in cands)
+        return next(c for c in sorted(cands, key=lambda c: c["n_params"]) if c["bic"] <= best_bic + bic_margin)
+
+    chosen = select()
+    hidden = []
+    if hidden_knees:
+        # An AR corner lowers the noise below it.  Placed above the lowest fitted frequency but
+        # below twice the anomaly/noise crossover, it was decided where the anomaly hides the
+        # noise — and a corner guessed too high lets noise through as anomaly.  Such corners are
+        # moved below the data (the noise keeps its slope down to the lowest frequency) and the
+        # families are fitted again.
+        Qc, comps_c = _unpack(chosen["_theta"], chosen["_spec"], phi_min)
+        fg = np.geomspace(f_low, float(np.max(f_all)), 400)
+        sn = NoiseModel(tuple(comps_c), float(dt_s), "x").psd(fg)
+        sa = anomaly_psd(fg, Qc, m, dt_s)
+        above = np.flatnonzero(sa >= sn)
+        f_x = float(fg[above[-1]]) if above.size else f_low
+        hidden = [knee_hz(c.phi, dt_s) for c in comps_c
+                  if c.phi > 0 and f_low < knee_hz(c.phi, dt_s) < 2.0 * f_x]
+        if hidden and phi_min < phi_low:
+            phi_min = phi_low
+            chosen = select()
     # the anomaly's order m by the same likelihood in the same band (the chosen family refitted
     # with m = 1, 2, 3 from the m = 2 solution; equal parameter counts)
     orders = {m: (chosen["nll"], chosen["_theta"])}
@@ -625,11 +667,12 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         res = fit(chosen["_spec"], mm, starts)
         orders[mm] = (float(res.fun), res.x)
     m_best = min(orders, key=lambda mm: orders[mm][0])
-    Q_best, comps_best = _unpack(orders[m_best][1], chosen["_spec"])
+    Q_best, comps_best = _unpack(orders[m_best][1], chosen["_spec"], phi_min)
     model = NoiseModel(tuple(comps_best), float(dt_s), chosen["family"],
                        info={"fit": "Whittle, prewhitened multitaper", "fmax_hz": float(fmax_hz),
                              "n_bins": int(f_all.size), "n_difference_bins": n_diff_bins,
                              "n_pass_differences": int(sum(is_diff)), "m": int(m_best),
+                             "hidden_corners_hz": hidden, "max_corner_hz": knee_hz(phi_min, dt_s) if phi_min > 0 else None,
                              "nll_by_m": {str(k): float(v[0]) for k, v in orders.items()}})
     for c in cands:
         c.pop("_theta")

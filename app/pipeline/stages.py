@@ -382,7 +382,7 @@ def fit_noise(lines: list[LineData], dt_s: float, p):
     fmax = min(float(p.noise_fit_fmax_hz), 0.8 * 0.5 / dt_s)
     diffs = repeat_differences(lines, dt_s, min(2.0 * fmax, 0.45 / dt_s)) if p.noise_fit_repeats else []
     fit = fit_noise_model(segs, dt_s, m=2, fmax_hz=fmax, families=fams, differences=diffs,
-                          octave_weights=p.noise_fit_octave_weights)
+                          octave_weights=p.noise_fit_octave_weights, knee_max_fraction=p.noise_knee_max_fraction)
     return fit, fit.model.normalized(level_band(p, dt_s))
 
 
