@@ -1,0 +1,135 @@
+"""Checks of an estimate against the data alone (no truth): is it flattened, is it
+consistent at the crossovers?
+
+The adaptive smoother is optimal when its model fits; these checks catch the cases
+where it does not, so that the pipeline can fall back to a simpler estimate and say
+why (``app.pipeline`` model choice).
+
+* :func:`fir_noise_variance_mgal2` — variance of the FIR 100 s estimate's error due to
+  the noise, from the fitted noise model: what the FIR passes of the noise.
+* :func:`flattening_ratio` — along-line variance of an estimate against the anomaly
+  variance the FIR estimate shows beyond its own noise.  A Kalman smoother whose anomaly
+  level collapsed draws a straight line: its variance falls far below what the data
+  support.  This is a failure to detect, not a result.
+* :func:`crossover_comparison` — paired comparison of two estimates' crossover
+  differences: two crossing lines' errors are nearly independent (different directions,
+  flights, times), so the mean square difference estimates the sum of their mean square
+  errors, and the difference between two estimators of it is their difference in accuracy.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+
+def fir_noise_variance_mgal2(noise, level: float, dt_s: float, cutoff_period_s: float = 100.0) -> float:
+    """Variance (mGal²) of the noise of z after the FIR low-pass of :mod:`app.core.baselines`.
+
+    Parameters
+    ----------
+    noise : app.core.noise_model.NoiseModel
+        Shape of the error of z (a level R multiplies it).
+    level : float
+        Level R of the stretch (the model's unit, e.g. (cm/s)² of equivalent white velocity noise).
+    dt_s : float
+        GNSS step (s).
+    cutoff_period_s : float
+        The FIR's cut-off period (s).
+    """
+    from app.core.baselines import fir_kernel
+
+    h = fir_kernel(dt_s, cutoff_period_s)
+    nfft = 1 << int(np.ceil(np.log2(max(8 * h.size, 1 << 14))))
+    H = np.fft.rfft(h, nfft)
+    f = np.fft.rfftfreq(nfft, dt_s)
+    s = noise.psd(f, level)                        # two-sided, mGal²/Hz
+    return float(2.0 * np.trapezoid(np.abs(H) ** 2 * s, f))
+
+
+@dataclass(frozen=True)
+class Flattening:
+    """Result of :func:`flattening_ratio`.
+
+    Attributes
+    ----------
+    ratio : float
+        ``var(estimate) / (var(FIR) − FIR noise variance)``; NaN when the FIR shows no
+        anomaly beyond its noise (nothing to detect).
+    signal_var_mgal2 : float
+        Anomaly variance the FIR estimate shows beyond its noise.
+    detectable : bool
+        The FIR's anomaly variance exceeds ``min_snr`` × its noise variance.
+    """
+
+    ratio: float
+    signal_var_mgal2: float
+    detectable: bool
+
+
+def flattening_ratio(estimate_mgal, fir_mgal, fir_noise_var_mgal2: float, min_snr: float = 4.0) -> Flattening:
+    """Along-line variance of ``estimate_mgal`` against the anomaly variance in ``fir_mgal``.
+
+    Parameters
+    ----------
+    estimate_mgal, fir_mgal : ndarray, shape (n,)
+        The estimate to check and the FIR 100 s estimate on the same epochs (NaN ignored).
+    fir_noise_var_mgal2 : float
+        :func:`fir_noise_variance_mgal2` for the stretch.
+    min_snr : float
+        The check applies only where the FIR's anomaly variance exceeds this × its noise.
+    """
+    e = np.asarray(estimate_mgal, dtype=float)
+    f = np.asarray(fir_mgal, dtype=float)
+    ok = np.isfinite(e) & np.isfinite(f)
+    if ok.sum() < 10:
+        return Flattening(float("nan"), float("nan"), False)
+    sig = float(np.var(f[ok]) - fir_noise_var_mgal2)
+    detectable = sig > min_snr * fir_noise_var_mgal2 and sig > 0
+    ratio = float(np.var(e[ok]) / sig) if sig > 0 else float("nan")
+    return Flattening(ratio, sig, bool(detectable))
+
+
+@dataclass(frozen=True)
+class CrossoverComparison:
+    """Result of :func:`crossover_comparison`.
+
+    Attributes
+    ----------
+    n : int
+        Crossovers used.
+    rms_a_mgal, rms_b_mgal : float
+        RMS of each estimate's crossover differences (after removing their mean).
+    p_value : float
+        One-sided p of "a is less accurate than b" (paired t-test on the squared differences).
+    """
+
+    n: int
+    rms_a_mgal: float
+    rms_b_mgal: float
+    p_value: float
+
+
+def crossover_comparison(diff_a_mgal, diff_b_mgal) -> CrossoverComparison:
+    """Compare two estimates through their crossover differences (module docstring).
+
+    The differences' mean (a level offset that leveling removes) is taken out of each.
+    """
+    from scipy import stats
+
+    a = np.asarray(diff_a_mgal, dtype=float)
+    b = np.asarray(diff_b_mgal, dtype=float)
+    ok = np.isfinite(a) & np.isfinite(b)
+    a, b = a[ok] - np.mean(a[ok]) if ok.any() else a[ok], b[ok] - np.mean(b[ok]) if ok.any() else b[ok]
+    n = int(a.size)
+    if n < 3:
+        return CrossoverComparison(n, float("nan"), float("nan"), float("nan"))
+    d = a ** 2 - b ** 2
+    sd = float(np.std(d, ddof=1))
+    if sd == 0:
+        p = 0.5
+    else:
+        t = float(np.mean(d) / (sd / np.sqrt(n)))
+        p = float(stats.t.sf(t, n - 1))
+    return CrossoverComparison(n, float(np.sqrt(np.mean(a ** 2))), float(np.sqrt(np.mean(b ** 2))), p)
