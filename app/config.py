@@ -221,10 +221,21 @@ class ProcessingParams(_Strict):
     # --- anomaly model
     m: int | None = Field(None, ge=1, le=3, description="Order of the difference operator ∇^m δg = q; None "
                           "chooses it from the data (model_order)")
-    model_order: Literal["spectrum", "likelihood"] = Field(
-        "likelihood", description="How m is chosen when not given: 'spectrum' = the Whittle likelihood of the lines' "
-        "spectra up to noise_fit_fmax_hz (m = 1..3, where the anomaly meets the noise); 'likelihood' = the "
-        "full-rate Kalman likelihood (m = 1, 2; dominated by the high-frequency noise)")
+    model_order: Literal["crossovers", "spectrum", "likelihood"] = Field(
+        "crossovers", description="How m is chosen when not given: 'crossovers' = m = 1 and 2 both identified and "
+        "filtered, the one whose estimates disagree less at the crossovers is used (with fewer than "
+        "choice_min_crossovers crossovers: m = 2, SPEC's default); 'spectrum' = the Whittle likelihood of the lines' "
+        "spectra up to noise_fit_fmax_hz; 'likelihood' = the full-rate Kalman likelihood (m = 1, 2; dominated "
+        "by the high-frequency noise)")
+    choice_min_crossovers: int = Field(10, ge=3, le=1_000_000, description="Crossovers needed to choose between "
+                                       "models (m, the FIR guard) by their crossover differences")
+    flatten_check: bool = Field(True, description="A line whose estimate is flattened (flatten_min_ratio) takes the "
+                                "stationary or the FIR estimate")
+    flatten_min_ratio: float = Field(0.5, gt=0, le=1, description="An estimate whose along-line variance is below "
+                                     "this share of the anomaly variance the FIR shows beyond its noise is flattened")
+    fir_guard: bool = Field(True, description="Use FIR 100 s when the chosen estimate disagrees significantly more "
+                            "at the crossovers than FIR does")
+    fir_guard_p: float = Field(0.01, gt=0, lt=0.5, description="Significance of that test (one-sided p)")
     # --- regularization (SPEC §2 step 1)
     decimation_n: int | None = Field(None, ge=2, le=MAX_DECIMATION_N, description="Decimation factor n; chosen for ~1 km steps when None")
     decimation_step_km: float = Field(1.0, gt=0, le=50)

@@ -100,7 +100,8 @@ def test_missing_base_tie_is_reported(tmp_path, tiny_processed):
 
 def test_one_hz_gnss_survey_is_processed(tmp_path):
     """A 1 Hz GNSS receiver (Nyquist 0.5 Hz): every band of the pipeline must fit below
-    it, and the adaptive estimate must still beat FIR 100 s against the truth."""
+    it, and the adaptive estimate must still beat FIR 100 s against the truth (on the
+    lines' cores, 10 km from their ends, as every accuracy figure of the project)."""
     from app.pipeline.process import process_survey
     from app.simulate import simulate_survey
 
@@ -108,6 +109,8 @@ def test_one_hz_gnss_survey_is_processed(tmp_path):
     out = tmp_path / "out"
     process_survey(survey, out)
     m = merge_truth(pd.read_parquet(out / "lines.parquet"), pd.read_parquet(survey / "truth" / "lines.parquet"))
+    L = m.groupby("line")["along_km"].transform("max")
+    m = m[(m["along_km"] >= 10.0) & (m["along_km"] <= L - 10.0)]
     err = {c: m[c] - m["dg_true_mgal"] for c in ("dg_unleveled_mgal", "dg_fir_mgal")}
     rms = {c: float(np.sqrt(np.nanmean((e - e.groupby(m["line"]).transform("mean")) ** 2))) for c, e in err.items()}
     assert rms["dg_unleveled_mgal"] < rms["dg_fir_mgal"], rms

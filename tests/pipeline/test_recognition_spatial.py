@@ -3,8 +3,8 @@
 The lines' decimated sequences are drawn exactly from the MA model of the markov
 preset's regularization (m = 1, 10 Hz, 100 m/s) with seed 000's Θ; the state map is
 a thresholded smooth random field, so the truth of every point is known.  The
-stage functions of the pipeline (:func:`app.pipeline.stages.pooled_evidence`,
-:func:`app.pipeline.stages.smooth_recognition`) are run on it.
+stage functions of the pipeline (:func:`app.pipeline.stages.recognition.pooled_evidence`,
+:func:`app.pipeline.stages.recognition.smooth_recognition`) are run on it.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from scipy.ndimage import gaussian_filter
 from app.core.ma_approx import fit_ma_model
 from app.core.recognition import recognize_lines
 from app.core.regularize import design_regularization
-from app.pipeline import stages
+from app.pipeline.stages import recognition as stages
 
 Q_TRUE = np.array([0.0414, 0.3533])
 R_TRUE = 1.6787

@@ -18,7 +18,7 @@ def test_posterior_weighted_q_beats_hard_states_on_plains(tmp_path):
     rms = {}
     for soft in (True, False):
         out = tmp_path / f"soft{soft}"
-        process_survey(survey, out, {"q_from_posteriors": soft})
+        process_survey(survey, out, {"q_from_posteriors": soft, "m": 1})
         m = merge_truth(pd.read_parquet(out / "lines.parquet"), truth)
         L = m.groupby("line")["along_km"].transform("max")
         core = m[(m["along_km"] > 10) & (m["along_km"] < L - 10)]

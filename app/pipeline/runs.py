@@ -1,0 +1,207 @@
+"""Runs of the stages: ``identify`` (measurement → noise → identification) and ``filter``
+(NL-means → filtering → model choice → leveling → gridding → outputs).
+
+``process`` is both.  The web's ``identify`` job stores an :class:`Identified`
+(:func:`save_identified`) beside its outputs; its ``filter`` job loads it and runs
+:func:`run_filter` with the analyst's h, ρ — the EM is not recomputed.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from app.config import SurveyConfig
+from app.pipeline.stages import storage
+from app.pipeline.stages.choice import Candidate, choose_model, count_crossovers
+from app.pipeline.stages.filtering import fir_baseline, filter_survey
+from app.pipeline.stages.gridding import grid_survey
+from app.pipeline.stages.identification import identify
+from app.pipeline.stages.leveling import level_survey
+from app.pipeline.stages.lines import survey_lines
+from app.pipeline.stages.measurement import measure
+from app.pipeline.stages.model_order import candidate_orders, choose_model_order
+from app.pipeline.stages.noise import model_noise
+from app.pipeline.stages.outputs import build_report, identification_json, write_outputs
+from app.pipeline.stages.recognition import state_map
+
+Progress = Callable[[str, float, dict | None], None]
+
+#: Stage weights for the overall progress fraction (identify: 0–0.75, filter: 0.75–1).
+STAGE_WEIGHTS = {"ingest": 0.05, "measurement": 0.15, "noise": 0.07, "fir": 0.02, "regularization": 0.04,
+                 "learning": 0.34, "recognition": 0.08, "nlmeans": 0.02, "filtering": 0.13, "choice": 0.02,
+                 "leveling": 0.02, "gridding": 0.04, "writing": 0.02}
+STAGE_ORDER = list(STAGE_WEIGHTS)
+
+
+class Tracker:
+    """Progress and timings: ``start(stage)``, ``emit(fraction within, info)``, ``close()``."""
+
+    def __init__(self, progress: Progress | None):
+        self.progress = progress
+        self.timings: dict[str, float] = {}
+        self._stage: str | None = None
+        self._t0 = 0.0
+
+    def start(self, stage: str) -> None:
+        self._finish()
+        self._stage = stage
+        self._t0 = time.perf_counter()
+        self.emit(0.0)
+
+    def emit(self, within: float, info: dict | None = None) -> None:
+        if self.progress is None or self._stage is None:
+            return
+        done = sum(STAGE_WEIGHTS[s] for s in STAGE_ORDER[:STAGE_ORDER.index(self._stage)])
+        self.progress(self._stage, min(1.0, done + STAGE_WEIGHTS[self._stage] * float(within)), info)
+
+    def _finish(self) -> None:
+        if self._stage is not None:
+            self.timings[self._stage] = round(self.timings.get(self._stage, 0.0) + time.perf_counter() - self._t0, 4)
+            self._stage = None
+
+    def close(self) -> None:
+        self._finish()
+        if self.progress is not None:
+            self.progress("done", 1.0, None)
+
+
+@dataclass
+class FlightSeries:
+    """What the filter needs of a flight's measurement: z (mGal) at the GNSS epochs (s) and the
+    measurement's decisions with their evidence (time offset, spike repair)."""
+
+    name: str
+    t_s: np.ndarray
+    z_mgal: np.ndarray
+    time_offset_s: float
+    time_offset_corr: float
+    time_offset_applied: bool
+    time_offset: dict
+    despike: dict
+
+
+@dataclass
+class Identified:
+    """Result of :func:`run_identify`: everything :func:`run_filter` starts from."""
+
+    config: dict
+    crs: str
+    dt_s: float
+    lines: list
+    flights: dict
+    fir: dict
+    noise: object
+    identifications: dict
+    n_crossovers: int
+    measurement_report: dict
+    warnings: list
+    timings: dict
+
+    @property
+    def cfg(self) -> SurveyConfig:
+        return SurveyConfig.model_validate(self.config)
+
+
+def run_identify(survey, tr: Tracker) -> Identified:
+    """Measurement → lines → noise model → FIR → identification of every candidate order."""
+    cfg = survey.config
+    p = cfg.processing
+    tr.start("measurement")
+    meas = measure(survey, progress=tr.emit)
+    sl = survey_lines(survey, meas)
+    tr.start("noise")
+    noise = model_noise(sl.lines, meas.flights, meas.dt_s, p)
+    tr.start("fir")
+    fir = {name: fir_baseline(m, p.fir_cutoff_period_s) for name, m in meas.flights.items()}
+    warnings = list(meas.warnings)
+    n_cx = count_crossovers(sl.lines, p.leveling_include_repeat)
+    extra: dict = {}
+    if p.m is None and p.model_order == "likelihood":
+        order = choose_model_order(sl.lines, meas.dt_s, noise.model, noise.r_local)
+        orders = [order.m]
+        extra["likelihood"] = {"m": order.m, "loglik": {str(k): v for k, v in order.loglik.items()},
+                               "Q_stationary_mgal2": {str(k): v for k, v in order.Q_mgal2.items()}}
+    elif p.m is None and p.model_order == "spectrum":
+        orders = [noise.fit.m]
+    else:
+        orders = candidate_orders(p, n_cx)
+    idents = {}
+    for k, m in enumerate(orders):
+        def em_cb(rec, m=m, k=k):
+            tr.emit(min(0.95, (k + min(1.0, rec["iteration"] / max(2, p.em_max_iter))) / len(orders)),
+                    {"em_iteration": {**rec, "model": f"m={m} {rec.get('model', '')}".strip()}})
+
+        idents[m] = identify(sl.lines, meas.dt_s, noise.model, cfg, m, callback=em_cb, progress=tr.start)
+        warnings.extend(w for w in idents[m].warnings if w not in warnings)
+    flights = {n: FlightSeries(n, f.t_s, f.z_mgal, f.time_offset_s, f.time_offset_corr, f.time_offset_applied,
+                               f.time_offset, f.despike) for n, f in meas.flights.items()}
+    mrep = {"base_ties": meas.base_ties, "lag_check": meas.lag_check, "calibration": meas.calibration,
+            "model_order_candidates": orders, **({"model_order_likelihood": extra["likelihood"]} if extra else {})}
+    return Identified(cfg.model_dump(mode="json"), sl.crs, meas.dt_s, sl.lines, flights, fir, noise, idents, n_cx,
+                      mrep, warnings, dict(tr.timings))
+
+
+def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = None, rho_km: float | None = None,
+               survey_name: str | None = None) -> dict:
+    """NL-means (h, ρ; default the survey's) → filtering of every identified order → model choice
+    → leveling → gridding → the files of SPEC §5.  Returns the report."""
+    cfg = idf.cfg
+    p = cfg.processing
+    h = p.nlmeans_h_per_km if h_per_km is None else float(h_per_km)
+    rho = p.nlmeans_rho_km if rho_km is None else float(rho_km)
+    warnings = list(idf.warnings)
+    cands = {}
+    for m, ident in idf.identifications.items():
+        tr.start("nlmeans")
+        smap = state_map(ident.recognition, h, rho, p.nlmeans_mode)
+        tr.start("filtering")
+        filt = filter_survey(idf.lines, idf.flights, idf.fir, ident, smap, idf.noise.r_local, idf.noise.model,
+                             idf.dt_s, p, warnings, progress=tr.emit)
+        cands[m] = Candidate(ident, smap, filt)
+    tr.start("choice")
+    choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings)
+    best = cands[choice.m]
+    table = choice.table
+    tr.start("leveling")
+    leveled = level_survey(table, p, warnings)
+    tr.start("gridding")
+    grid = grid_survey(table, p, warnings, leveled.report.get("rms_after_mgal"))
+    tr.start("writing")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_outputs(out, table, best.smap.table(best.ident.recognition), leveled.crossovers,
+                  identification_json(best.ident, idf.noise.model, best.smap, idf.dt_s), grid, idf.crs)
+    tr.close()
+    report = build_report(survey_name or cfg.survey.name, idf.crs, table, idf.flights, leveled, best.ident, grid,
+                          warnings)
+    report.update(idf.measurement_report)
+    report["noise_model"] = idf.noise.describe()
+    report["model_choice"] = choice.report
+    level_rep = best.filtered.report(p)
+    if level_rep is not None:
+        report["level_refinement"] = level_rep
+    if grid is not None and grid.cross_validation:
+        report["grid_std_cross_validation"] = grid.cross_validation
+    report["timings_s"] = {**idf.timings, **tr.timings}
+    return report
+
+
+IDENTIFIED_DIR = "identified"
+
+
+def save_identified(idf: Identified, out_dir) -> Path:
+    """Store the identification beside the outputs (``<out>/identified/``)."""
+    return storage.save(idf, Path(out_dir) / IDENTIFIED_DIR)
+
+
+def load_identified(out_dir) -> Identified:
+    """The :class:`Identified` stored by :func:`save_identified` in ``out_dir``."""
+    obj = storage.load(Path(out_dir) / IDENTIFIED_DIR)
+    if not isinstance(obj, Identified):
+        raise ValueError(f"{out_dir}: the stored stage is not an identification")
+    return obj

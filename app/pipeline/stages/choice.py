@@ -1,0 +1,161 @@
+"""Stage 9, model choice: which estimate becomes ``dg_mgal``, decided from the data alone.
+
+1. **Anomaly order.**  When ``processing.m`` is not set and the survey has at least
+   ``choice_min_crossovers`` crossovers, the orders m = 1 and m = 2 are both identified and
+   filtered; the one whose estimates disagree less at the crossovers wins.  Two crossing
+   lines' errors are nearly independent (different directions, flights, times), so the
+   mean square crossover difference estimates the sum of the two lines' mean square errors
+   — distortion included, which repeat passes cannot see.  Without enough crossovers the
+   SPEC default m = 2 is used.
+2. **Flattened lines.**  An estimate whose along-line variance is far below the anomaly
+   variance the FIR 100 s estimate shows beyond its own noise
+   (:func:`app.core.model_check.flattening_ratio` < ``flatten_min_ratio``) failed to detect
+   the anomaly: that line takes the stationary estimate, or FIR if that is flattened too.
+3. **FIR guard.**  With enough crossovers, when the chosen estimate disagrees
+   significantly more at the crossovers than FIR 100 s does (paired test, one-sided
+   p < ``fir_guard_p``), every line takes FIR.
+
+Every decision is returned with its evidence (the report's ``model_choice`` section).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from app.core.leveling import LineTrack, find_crossovers
+from app.core.model_check import crossover_comparison, fir_noise_variance_mgal2, flattening_ratio
+from app.pipeline.stages.leveling import tracks
+
+
+@dataclass
+class Candidate:
+    """One identified and filtered order: the identification, its state map, its filter."""
+
+    ident: object
+    smap: object
+    filtered: object
+
+
+@dataclass
+class ModelChoice:
+    """Result of :func:`choose_model`.
+
+    Attributes
+    ----------
+    m : int
+        The order whose outputs are used.
+    table : DataFrame
+        The line table with ``dg_mgal``/``dg_unleveled_mgal``/``dg_std_mgal`` from the chosen
+        estimate of every line.
+    report : dict
+        The evidence: per-order crossover RMS and test, per-line estimate and flattening
+        ratio, the FIR guard.
+    """
+
+    m: int
+    table: pd.DataFrame
+    report: dict
+
+
+def crossover_differences(table: pd.DataFrame, col: str, include_repeat: bool) -> np.ndarray:
+    """Differences of ``col`` at the crossovers of the table's lines (line_a − line_b)."""
+    try:
+        cx = find_crossovers(tracks(table, col), include_repeat=include_repeat)
+    except ValueError:
+        return np.zeros(0)
+    if len(cx) == 0:
+        return np.zeros(0)
+    return (cx["dg_a"] - cx["dg_b"]).to_numpy(float)
+
+
+def count_crossovers(lines: list, include_repeat: bool) -> int:
+    """Crossovers between the survey lines (geometry only), as leveling will find them."""
+    tr = {ln.line: LineTrack(ln.easting_km, ln.northing_km, ln.t_s, np.zeros(ln.t_s.size), np.ones(ln.t_s.size),
+                             ln.kind) for ln in lines if ln.t_s.size >= 2}
+    try:
+        return int(len(find_crossovers(tr, include_repeat=include_repeat)))
+    except ValueError:
+        return 0
+
+
+def choose_order(candidates: dict, p) -> tuple[int, dict]:
+    """Step 1 of the module docstring."""
+    orders = sorted(candidates)
+    if len(orders) == 1:
+        return orders[0], {"criterion": "fixed" if p.m is not None else "default (too few crossovers)",
+                           "m": orders[0]}
+    diffs = {m: crossover_differences(candidates[m].filtered.table, "dg_unleveled_mgal",
+                                      p.leveling_include_repeat) for m in orders}
+    rms = {m: float(np.sqrt(np.mean((d - d.mean()) ** 2))) if d.size else float("inf") for m, d in diffs.items()}
+    best = min(orders, key=lambda m: rms[m])
+    cmp = crossover_comparison(diffs[orders[0]], diffs[orders[1]])
+    return best, {"criterion": "crossover RMS (each line's errors are independent of the crossing line's)",
+                  "crossover_rms_mgal": {str(m): rms[m] for m in orders}, "n_crossovers": cmp.n,
+                  f"p_m{orders[0]}_worse_than_m{orders[1]}": cmp.p_value, "m": best}
+
+
+def _use(table: pd.DataFrame, rows: np.ndarray, values, std) -> None:
+    table.loc[rows, "dg_mgal"] = values
+    table.loc[rows, "dg_unleveled_mgal"] = values
+    table.loc[rows, "dg_std_mgal"] = std
+
+
+def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dict:
+    """Step 2 (in place): flattened lines take the stationary or the FIR estimate."""
+    out = {}
+    for line, g in table.groupby("line", sort=False):
+        level = float(np.nanmean(g["R_cm2s2"]))
+        fir_var = fir_noise_variance_mgal2(noise, level, dt_s, p.fir_cutoff_period_s)
+        fl = flattening_ratio(g["dg_unleveled_mgal"], g["dg_fir_mgal"], fir_var)
+        rec = {"estimate": "adaptive", "flattening_ratio": fl.ratio, "fir_signal_var_mgal2": fl.signal_var_mgal2,
+               "fir_noise_std_mgal": float(np.sqrt(fir_var))}
+        if fl.detectable and fl.ratio < p.flatten_min_ratio:
+            st = flattening_ratio(g["dg_stationary_mgal"], g["dg_fir_mgal"], fir_var)
+            if st.ratio >= p.flatten_min_ratio:
+                _use(table, g.index, g["dg_stationary_mgal"].to_numpy(), g["dg_std_mgal"].to_numpy())
+                rec["estimate"] = "stationary"
+            else:
+                _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), np.sqrt(fir_var)))
+                rec["estimate"] = "FIR"
+            warnings.append(f"line {line}: the adaptive estimate is flattened (variance {fl.ratio:.2f} of the "
+                            f"anomaly variance FIR shows beyond its noise): {rec['estimate']} estimate used")
+        out[str(line)] = rec
+    return out
+
+
+def fir_guard(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dict:
+    """Step 3 (in place)."""
+    d_est = crossover_differences(table, "dg_unleveled_mgal", p.leveling_include_repeat)
+    if d_est.size < p.choice_min_crossovers:
+        return {"applied": False, "reason": f"{d_est.size} crossovers (< {p.choice_min_crossovers})"}
+    d_fir = crossover_differences(table, "dg_fir_mgal", p.leveling_include_repeat)
+    cmp = crossover_comparison(d_est, d_fir)
+    rep = {"n_crossovers": cmp.n, "crossover_rms_mgal": cmp.rms_a_mgal, "crossover_rms_fir_mgal": cmp.rms_b_mgal,
+           "p_value": cmp.p_value, "applied": bool(cmp.p_value < p.fir_guard_p)}
+    if rep["applied"]:
+        for line, g in table.groupby("line", sort=False):
+            fir_var = fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s, p.fir_cutoff_period_s)
+            _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), np.sqrt(fir_var)))
+        warnings.append(f"the adaptive estimate disagrees more at the crossovers than FIR 100 s "
+                        f"({cmp.rms_a_mgal:.2f} vs {cmp.rms_b_mgal:.2f} mGal, p = {cmp.p_value:.3g}): FIR used")
+    return rep
+
+
+def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list) -> ModelChoice:
+    """Stage 9 over the filtered candidates ``{m: Candidate}``."""
+    m, order_rep = choose_order(candidates, p)
+    table = candidates[m].filtered.table.copy()
+    lines = check_lines(table, noise, dt_s, p, warnings) if p.flatten_check else {}
+    guard = fir_guard(table, noise, dt_s, p, warnings) if p.fir_guard else {"applied": False, "reason": "off"}
+    used = {r["estimate"] for r in lines.values()} or {"adaptive"}
+    chosen = "FIR" if guard.get("applied") else ("adaptive" if used == {"adaptive"} else "mixed")
+    n_q = len(candidates[m].ident.learned.em.Q)
+    why = ("two anomaly levels (Markov-switching Q)" if n_q > 1 else
+           f"one anomaly level: {candidates[m].ident.n_points} decimated points "
+           f"(< {p.min_points_adaptive}) cannot tell two apart" if p.n_q is None else "n_q = 1 set")
+    rep = {"chosen": chosen, "m": m, "order": order_rep, "anomaly_levels": n_q, "anomaly_levels_reason": why,
+           "lines": lines, "fir_guard": guard}
+    return ModelChoice(m, table, rep)

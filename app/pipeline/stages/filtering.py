@@ -1,0 +1,199 @@
+"""Stage 8, filtering (SPEC §2 steps 5–6): the smoothed recognition map held on the full-rate
+grid, Q(t) from the map's probabilities, the local noise level R(t), the Q levels refined by
+the full-rate likelihood, the non-stationary Kalman smoother with posterior std, the
+stationary (Q₁, R) smoother and the FIR 100 s low-pass beside it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from app.core.baselines import fir_lowpass_mgal
+from app.core.level_ml import refine_levels
+from app.core.smoother import kalman_smooth
+from app.pipeline.stages.lines import LineData
+from app.pipeline.stages.measurement import FlightMeasurement
+
+#: Seconds of flight data on either side of a line given to the smoother (run-in).
+MARGIN_S = 60.0
+
+
+def fir_baseline(m: FlightMeasurement, cutoff_period_s: float) -> np.ndarray:
+    """FIR 100 s low-pass (seed 004) of ``z`` over the whole flight (mGal), so line edges
+    see the run-in data as in industry practice."""
+    dt = float(np.median(np.diff(m.t_s)))
+    return fir_lowpass_mgal(m.z_mgal, dt, cutoff_period_s)
+
+
+def hold_states(n_epochs: int, idx: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """Hold decimated states on the full-rate grid: each epoch takes the state of the
+    nearest decimated point (by index)."""
+    idx = np.asarray(idx, int)
+    states = np.asarray(states, int)
+    if idx.size == 0:
+        raise ValueError("no decimated points")
+    mid = 0.5 * (idx[1:] + idx[:-1])
+    k = np.searchsorted(mid, np.arange(n_epochs), side="right")
+    return states[k]
+
+
+def filter_line(z_mgal, Q_mgal2, R_cm2s2, dt_s: float, m: int, method: str, noise=None):
+    """Non-stationary Kalman smoother on one line: (dg_mgal, dg_std_mgal)."""
+    res = kalman_smooth(np.asarray(z_mgal, float), np.asarray(Q_mgal2, float),
+                        np.asarray(R_cm2s2, float), dt_s, m=m, method=method, noise=noise)
+    return np.asarray(res.dg_mgal), np.asarray(res.dg_std_mgal)
+
+
+@dataclass
+class PreparedLine:
+    """One line ready for smoothing: the line, its states held on the full-rate grid, and z
+    and R(t) over the line plus ``MARGIN_S`` of run-in on either side (``inner`` selects the
+    line itself).  ``idx``/``pq``: the decimated points' indices and Q-level probabilities
+    (None for a line that was not identified)."""
+
+    line: LineData
+    s_full: np.ndarray
+    s_ext: np.ndarray
+    z_ext: np.ndarray
+    inner: slice
+    r_ext: np.ndarray | None
+    idx: np.ndarray | None
+    pq: np.ndarray | None
+
+
+def prepare_lines(lines: list[LineData], flights: dict[str, FlightMeasurement], reg, smap, n_q: int, n_r: int,
+                  r_local: dict, dt_s: float) -> list[PreparedLine]:
+    """States of the smoothed map held at full rate, run-in margins, local levels."""
+    state_of, pq_of = {}, {}
+    pq_all = smap.probs.reshape(len(smap.probs), n_q, n_r).sum(axis=2)
+    off = 0
+    for ln, idx in zip(reg.lines, reg.idx):
+        nl = len(idx)
+        state_of[ln.line] = (np.asarray(idx, int), smap.states[off:off + nl])
+        pq_of[ln.line] = pq_all[off:off + nl]
+        off += nl
+    margin = int(round(MARGIN_S / dt_s))
+    out = []
+    for ln in lines:
+        m = flights[ln.flight]
+        n = ln.t_s.size
+        idx = pq = None
+        if ln.line in state_of:
+            idx, st = state_of[ln.line]
+            pq = pq_of[ln.line]
+            s_full = hold_states(n, idx, st)
+        else:
+            s_full = np.zeros(n, int)  # documented fallback: the smoothest state
+        a0 = max(0, ln.sl.start - margin)
+        a1 = min(m.t_s.size, ln.sl.stop + margin)
+        s_ext = np.concatenate([np.full(ln.sl.start - a0, s_full[0]), s_full, np.full(a1 - ln.sl.stop, s_full[-1])])
+        out.append(PreparedLine(ln, s_full, s_ext, m.z_mgal[a0:a1], slice(ln.sl.start - a0, ln.sl.start - a0 + n),
+                                r_local[ln.flight][a0:a1] if r_local else None, idx, pq))
+    return out
+
+
+def em_level_scale(prepared: list[PreparedLine], R_levels, n_r: int, n_dec: int, p) -> float:
+    """Factor from the local level R(t) to the EM's level on the regularized band.
+
+    The level of R(t) comes from the EM on the regularized band — what the smoother's pass
+    band sees.  The measured local level only gives its shape in time: with coloured GNSS
+    velocity noise the band level is many times the white level.  The factor is bounded
+    below by ``em_level_scale_min`` (1: only ever scale up) and trusted only from
+    ``min_points_adaptive`` decimated points."""
+    if not prepared or prepared[0].r_ext is None or n_dec < p.min_points_adaptive:
+        return 1.0
+    hf = np.concatenate([pr.r_ext[np.asarray(pr.s_ext) % n_r == 0] for pr in prepared])
+    if not hf.size:
+        return 1.0
+    return float(np.clip(R_levels[0] / np.median(hf), p.em_level_scale_min, 1e4))
+
+
+def q_series(pr: PreparedLine, Q_levels, n_r: int, q_from_posteriors: bool) -> np.ndarray:
+    """Q(t) over the extended line: the held state's level, or — where the map is unsure
+    between levels — a level between them (geometric mean weighted by the smoothed
+    probabilities), changing smoothly between decimated points instead of jumping at the
+    hold boundaries."""
+    q = Q_levels[pr.s_ext // n_r]
+    if q_from_posteriors and pr.pq is not None:
+        logq = pr.pq @ np.log(Q_levels)
+        q = np.exp(np.interp(np.arange(len(pr.s_ext)) - pr.inner.start, pr.idx, logq))
+    return q
+
+
+@dataclass
+class Filtered:
+    """Result of :func:`filter_survey`.
+
+    Attributes
+    ----------
+    table : DataFrame
+        One row per GNSS epoch on the lines (the columns of ``lines.parquet`` before leveling).
+    Q_levels : ndarray
+        The Q levels used (after the refinement).
+    level_fit : app.core.level_ml.LevelFit or None
+    r_scale : float
+        :func:`em_level_scale`.
+    """
+
+    table: pd.DataFrame
+    Q_levels: np.ndarray
+    level_fit: object
+    r_scale: float
+
+    def report(self, p) -> dict | None:
+        """The report's ``level_refinement`` section."""
+        f = self.level_fit
+        if f is None:
+            return None
+        return {"Q_mgal2": np.asarray(f.Q_mgal2).tolist(), "R_local_scale": self.r_scale, "noise_model": p.noise_model,
+                "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations}
+
+
+def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], fir: dict, ident, smap,
+                  r_local: dict, noise, dt_s: float, p, warnings: list, progress=None) -> Filtered:
+    """Stage 8 for one identification (order ``ident.m``) and one smoothed map."""
+    em = ident.learned.em
+    Qs, Rs = np.asarray(em.Q, float), np.asarray(em.R, float)
+    n_r = len(Rs)
+    prepared = prepare_lines(lines, flights, ident.regularized, smap, len(Qs), n_r, r_local, dt_s)
+    r_scale = em_level_scale(prepared, Rs, n_r, ident.n_points, p)
+    level_fit = None
+    if p.refine_levels:
+        try:
+            level_fit = refine_levels([pr.z_ext for pr in prepared], [pr.s_ext for pr in prepared], Qs, Rs, dt_s,
+                                      ident.m, max_epochs=p.refine_max_epochs,
+                                      r_base_lines=[r_scale * pr.r_ext for pr in prepared] if r_local else None,
+                                      fit_r=False, noise=noise)
+            Qs = level_fit.Q_mgal2
+        except (ValueError, FloatingPointError) as exc:
+            warnings.append(f"level refinement skipped: {exc}")
+    if r_local:
+        r_stationary = r_scale * float(np.median(np.concatenate([pr.r_ext for pr in prepared])))
+    else:
+        r_stationary = float(Rs[0])
+    frames = []
+    for i, pr in enumerate(prepared):
+        ln, inner = pr.line, pr.inner
+        q = q_series(pr, Qs, n_r, p.q_from_posteriors)
+        r = Rs[pr.s_ext % n_r] if pr.r_ext is None else r_scale * pr.r_ext
+        dg, std = filter_line(pr.z_ext, q, r, dt_s, ident.m, p.smoother, noise)
+        # stationary baseline (seed 000 Fig. 8): one (Q₁, R₁) pair — the smooth state's Q
+        # and the survey's typical noise level
+        dgs, _ = filter_line(pr.z_ext, np.full_like(q, Qs[0]), np.full_like(q, r_stationary), dt_s, ident.m,
+                             p.smoother, noise)
+        frames.append(pd.DataFrame({
+            "line": ln.line, "flight": ln.flight, "kind": ln.kind, "time": ln.t_s,
+            "lat": ln.lat_deg, "lon": ln.lon_deg, "h": ln.h_m,
+            "easting_km": ln.easting_km, "northing_km": ln.northing_km,
+            "z_mgal": ln.z_mgal, "dg_mgal": dg[inner], "dg_std_mgal": std[inner],
+            "dg_unleveled_mgal": dg[inner], "dg_stationary_mgal": dgs[inner],
+            "dg_fir_mgal": fir[ln.flight][ln.sl], "state": pr.s_full,
+            "Q_mgal2": q[inner], "R_cm2s2": r[inner],
+            "track": ln.track,
+        }))
+        if progress is not None:
+            progress((i + 1) / len(prepared))
+    return Filtered(pd.concat(frames, ignore_index=True), np.asarray(Qs, float), level_fit, r_scale)

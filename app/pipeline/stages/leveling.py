@@ -1,0 +1,113 @@
+"""Stage 10, leveling (SPEC §3): crossovers of main and tie lines, one drift polynomial per
+flight fitted to them, applied only when an F-test says the crossovers support it; the
+crossovers also check the lines' posterior std.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy.stats import f as f_dist
+
+from app.core.accuracy import crossover_std_factor
+from app.core.leveling import LineTrack, find_crossovers, level_lines
+
+
+def tracks(table: pd.DataFrame, col: str):
+    """One :class:`app.core.leveling.LineTrack` per line of the table, carrying column ``col``."""
+    tracks = {}
+    for line, g in table.groupby("line", sort=False):
+        tracks[str(line)] = LineTrack(g["easting_km"].to_numpy(), g["northing_km"].to_numpy(),
+                                      g["time"].to_numpy(), g[col].to_numpy(), g["dg_std_mgal"].to_numpy(),
+                                      str(g["kind"].iloc[0]))
+    return tracks
+
+
+def level_lines_table(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFrame, dict]:
+    """Crossovers and leveling; on failure keep the unleveled estimate and say why."""
+    cols = ["line_a", "line_b", "easting_km", "northing_km", "diff_before_mgal", "diff_after_mgal"]
+    try:
+        cx = find_crossovers(tracks(table, "dg_unleveled_mgal"), include_repeat=p.leveling_include_repeat)
+    except ValueError as exc:
+        warnings.append(f"crossovers: {exc}")
+        return pd.DataFrame(columns=cols), {"status": f"not leveled: {exc}"}
+    if len(cx) == 0:
+        warnings.append("no crossovers between lines: leveling skipped")
+        return pd.DataFrame(columns=cols), {"status": "not leveled: no crossovers"}
+    ranges = {str(l): (float(g["time"].min()), float(g["time"].max()))
+              for l, g in table.groupby("line", sort=False)}
+    try:
+        groups = None
+        if p.leveling_per_flight:
+            groups = {str(l): str(g["flight"].iloc[0]) for l, g in table.groupby("line", sort=False)}
+        res = level_lines(cx, ranges, degree=p.leveling_degree, groups=groups)
+    except ValueError as exc:
+        warnings.append(f"leveling: {exc}")
+        cx = cx.assign(diff_before_mgal=cx["dg_a"] - cx["dg_b"], diff_after_mgal=cx["dg_a"] - cx["dg_b"])
+        return cx[cols], {"status": f"not leveled: {exc}"}
+    before = (cx["dg_a"] - cx["dg_b"]).to_numpy(float)
+    after = np.asarray(res.diff_after, float)
+    # Is the drift model supported by the crossovers at all?  F-test of the drift
+    # parameters against "no correction": after base ties the crossover differences are
+    # mostly the lines' own errors, and fitting them only adds noise to the lines.
+    ok = np.isfinite(before) & np.isfinite(after)
+    pred_var = (cx["std_a"] ** 2 + cx["std_b"] ** 2).to_numpy(float)
+    lines_x = set(cx["line_a"].astype(str)) | set(cx["line_b"].astype(str))
+    units = {groups[l] for l in lines_x} if groups else lines_x
+    k = max(1, (len(units) - 1) * (p.leveling_degree + 1))
+    n = int(ok.sum())
+    ssr0 = float(np.sum(before[ok] ** 2))
+    ssr1 = float(np.sum(after[ok] ** 2))
+    p_value = 0.0
+    if n > k + 1 and ssr1 > 0:
+        F = ((ssr0 - ssr1) / k) / (ssr1 / (n - k))
+        p_value = float(f_dist.sf(F, k, n - k))
+    rep = {"degree": p.leveling_degree, "per_flight": bool(p.leveling_per_flight), "n_crossovers": int(len(cx)),
+           "rms_before_mgal": float(res.rms_before), "n_drift_parameters": k, "p_value": p_value}
+    if p_value > p.leveling_significance:
+        rep.update(status="not leveled: the drift model is not significant at the crossovers "
+                          f"(F-test p = {p_value:.3g} > {p.leveling_significance})",
+                   rms_after_mgal=float(res.rms_before), rms_after_if_leveled_mgal=float(res.rms_after))
+        rep["std_check"] = std_check(before, pred_var, p)
+        cx = cx.assign(diff_before_mgal=before, diff_after_mgal=before)
+        return cx[cols], rep
+    corr = np.zeros(len(table))
+    for line, g in table.groupby("line", sort=False):
+        corr[g.index.to_numpy()] = res.correction(str(line), g["time"].to_numpy())
+    table["dg_mgal"] = table["dg_unleveled_mgal"].to_numpy() - corr
+    cx = cx.assign(diff_before_mgal=before, diff_after_mgal=after)
+    rep.update(status="leveled", rms_after_mgal=float(res.rms_after))
+    rep["std_check"] = std_check(after, pred_var, p)
+    return cx[cols], rep
+
+
+def std_check(diff_mgal, pred_var_mgal2, p) -> dict:
+    """Crossover differences against the lines' posterior std: an independent check of
+    ``dg_std_mgal``."""
+    return crossover_std_factor(diff_mgal, pred_var_mgal2, p.std_crossover_shared_fraction,
+                                p.std_crossover_min_n, p.std_crossover_min_factor)
+
+
+@dataclass
+class Leveled:
+    """Result of :func:`level_survey`: the crossover table (SPEC §5 ``crossovers.csv``) and
+    the report's ``crossovers`` section (status, F-test, RMS before/after, std check)."""
+
+    crossovers: pd.DataFrame
+    report: dict
+
+
+def level_survey(table: pd.DataFrame, p, warnings: list) -> Leveled:
+    """Stage 10 on the line table (in place: ``dg_mgal`` leveled, ``dg_std_mgal`` rescaled by
+    the crossover check of the std)."""
+    crossovers, rep = level_lines_table(table, p, warnings)
+    sc = rep.get("std_check", {})
+    if p.std_crossover_check and "factor" in sc and sc["factor"] != 1.0:
+        # The crossovers are an independent check of dg_std (core.accuracy.crossover_std_factor).
+        # Model misfit shows up in both directions: coloured GNSS noise the model does not see
+        # (std too small), an anomaly smoother than the random-walk model (too large).
+        table["dg_std_mgal"] = table["dg_std_mgal"] * sc["factor"]
+        sc["applied_factor"] = sc["factor"]
+    return Leveled(crossovers, rep)

@@ -1,0 +1,102 @@
+"""Stage 2, lines: the survey lines of ``lines.csv`` cut out of their flights' measurement,
+with positions in the survey's projected CRS (``survey.crs`` or the data's UTM zone).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from app.config import SurveyConfig
+from app.core import geodesy
+from app.pipeline.stages.measurement import FlightMeasurement
+
+
+@dataclass
+@dataclass
+class LineData:
+    """One survey line on the GNSS epochs inside its window."""
+
+    line: str
+    flight: str
+    kind: str
+    track: str | None
+    sl: slice                      # slice of the flight arrays
+    t_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    h_m: np.ndarray
+    easting_km: np.ndarray
+    northing_km: np.ndarray
+    z_mgal: np.ndarray
+    speed_ms: float
+
+
+def survey_crs(cfg: SurveyConfig, flights: dict[str, FlightMeasurement]) -> str:
+    """The projected CRS: ``survey.crs`` or the UTM zone of the data."""
+    if cfg.survey.crs:
+        return cfg.survey.crs
+    lon = np.concatenate([m.lon_deg[:: max(1, m.lon_deg.size // 1000)] for m in flights.values()])
+    lat = np.concatenate([m.lat_deg[:: max(1, m.lat_deg.size // 1000)] for m in flights.values()])
+    return geodesy.utm_crs_for(lon, lat)
+
+
+def cut_lines(lines: pd.DataFrame, flights: dict[str, FlightMeasurement], crs: str) -> list[LineData]:
+    """Cut every line of ``lines.csv`` out of its flight's measurement."""
+    out = []
+    for row in lines.itertuples(index=False):
+        m = flights[str(row.flight)]
+        i0 = int(np.searchsorted(m.t_s, row.t_start, side="left"))
+        i1 = int(np.searchsorted(m.t_s, row.t_end, side="right"))
+        sl = slice(i0, i1)
+        e, n = geodesy.project_km(m.lon_deg[sl], m.lat_deg[sl], crs)
+        z = m.z_mgal[sl].copy()
+        speed = float(np.nanmedian(np.hypot(m.ve_ms[sl], m.vn_ms[sl]))) if i1 > i0 else float("nan")
+        track = getattr(row, "track", None)
+        if track is not None and (isinstance(track, float) and np.isnan(track)):
+            track = None
+        out.append(LineData(str(row.line), str(row.flight), str(row.kind),
+                            None if track is None else str(track), sl, m.t_s[sl], m.lat_deg[sl],
+                            m.lon_deg[sl], m.h_m[sl], np.asarray(e), np.asarray(n), z, speed))
+    return out
+
+
+def finite_segments(z) -> list[tuple[int, int]]:
+    """(start, stop) index pairs of the runs of finite values of z."""
+    ok = np.isfinite(np.asarray(z, float))
+    d = np.diff(np.concatenate([[0], ok.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+
+
+def check_grid_size(lines, p) -> None:
+    """Refuse, before the heavy stages, a grid over the lines' extent with more than
+    ``app.config.MAX_GRID_CELLS`` nodes."""
+    from app.config import check_grid_cells
+    from app.io.errors import InputError
+
+    e = np.concatenate([ln.easting_km for ln in lines] or [np.zeros(1)])
+    n = np.concatenate([ln.northing_km for ln in lines] or [np.zeros(1)])
+    e, n = e[np.isfinite(e)], n[np.isfinite(n)]
+    if e.size and n.size:
+        try:
+            check_grid_cells(float(np.ptp(e)), float(np.ptp(n)), p.grid_spacing_km)
+        except ValueError as exc:
+            raise InputError(None, None, "processing.grid_spacing_km", str(exc)) from None
+
+
+@dataclass
+class SurveyLines:
+    """Result of :func:`survey_lines`: the CRS and every line (in ``lines.csv`` order)."""
+
+    crs: str
+    lines: list
+
+
+def survey_lines(survey, measurement) -> SurveyLines:
+    """Stage 2 on a survey and its :class:`~app.pipeline.stages.measurement.Measurement`."""
+    crs = survey_crs(survey.config, measurement.flights)
+    lines = cut_lines(survey.lines, measurement.flights, crs)
+    check_grid_size(lines, survey.config.processing)
+    return SurveyLines(crs, lines)

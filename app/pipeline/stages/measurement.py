@@ -1,0 +1,404 @@
+"""Stage 1, measurement (SPEC §1, §3): corrections and the anomaly measurement ``z_k`` of every
+flight, the in-flight check of the declared lag, base ties to the parking-place readings.
+
+:func:`measure` runs the stage on a survey and returns a :class:`Measurement`:
+
+* the declared lag τ checked in flight (:func:`check_lag`: τ-only seed-001 calibration on up
+  to three flights, used when they agree and differ from survey.toml), or the full in-flight
+  calibration when ``processing.calibrate``;
+* per flight (:func:`measure_flight`): normal gravity, Eötvös, the gravimeter–GNSS time
+  offset (applied only when significant and useful), lag/scale inversion and interval
+  means, epochs crossing record gaps left missing, spikes repaired;
+* :func:`base_tie`: the static parking-place readings remove each flight's reading error
+  and drift.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from app.config import SurveyConfig
+from app.core import geodesy
+from app.core import gravimeter as gm
+from app.core.calibration import CalibrationSpectra, calibrate
+from app.core.measurement import anomaly_measurement_mgal, repair_spikes, spike_mask
+from app.core.noise_level import local_noise_variance_cm2s2
+
+
+@dataclass
+class FlightMeasurement:
+    """Per-GNSS-epoch measurement of one flight (arrays of shape (n,))."""
+
+    flight: str
+    t_s: np.ndarray
+    lat_deg: np.ndarray
+    lon_deg: np.ndarray
+    h_m: np.ndarray
+    vu_ms: np.ndarray
+    ve_ms: np.ndarray
+    vn_ms: np.ndarray
+    gamma_mgal: np.ndarray
+    eotvos_mgal: np.ndarray
+    fbar_ms2: np.ndarray
+    z_mgal: np.ndarray
+    time_offset_s: float = 0.0
+    time_offset_corr: float = float("nan")
+    time_offset_applied: bool = False
+    notes: list = field(default_factory=list)
+    despike: dict = field(default_factory=dict)
+    time_offset: dict = field(default_factory=dict)
+
+
+def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
+                   scale: float | None = None) -> FlightMeasurement:
+    """Corrections and the anomaly measurement ``z_k`` (SPEC §1) for one whole flight.
+
+    Parameters
+    ----------
+    flight : app.io.survey.Flight
+    cfg : SurveyConfig
+    tau_s, scale : float, optional
+        Override the gravimeter lag and scale of ``survey.toml`` (in-flight calibration).
+    """
+    p = cfg.processing
+    tau = cfg.gravimeter.tau_s if tau_s is None else tau_s
+    k = cfg.gravimeter.scale if scale is None else scale
+    gn = flight.gnss
+    t = gn["time"].to_numpy(float)
+    lat = gn["lat"].to_numpy(float)
+    lon = gn["lon"].to_numpy(float)
+    h = gn["h"].to_numpy(float)
+    vu = gn["vu"].to_numpy(float)
+    if "ve" in gn and "vn" in gn:
+        ve = gn["ve"].to_numpy(float)
+        vn = gn["vn"].to_numpy(float)
+    else:
+        ve, vn = geodesy.velocities_from_positions_ms(t, lat, lon, h)
+    gamma = geodesy.normal_gravity_mgal(lat, h, cfg.survey.normal_gravity)
+    eot = geodesy.eotvos_mgal(lat, h, ve, vn)
+
+    gr = flight.gravimeter
+    series = gm.integrate_samples(gr["time"].to_numpy(float), gr["f_z"].to_numpy(float))
+    notes = []
+    if getattr(flight, "vu_derived_from_h", False):
+        notes.append("vu derived from the GNSS heights (the file has no vu column): derivative of the not-a-knot "
+                     "cubic spline through h, per contiguous run")
+    offset_info = time_offset(series, t, vu, tau, k, p, notes)
+    offset = offset_info.get("offset_s", 0.0)
+    applied = bool(offset_info.get("applied", False))
+    fbar = gm.interval_means(series, t, tau, k, time_offset_s=offset if applied else 0.0)
+    z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
+    mask_gaps(z, t, gr["time"].to_numpy(float) + (offset if applied else 0.0), p.gravimeter_gap_margin_s, notes)
+    z, despike = despike_z(z, float(np.median(np.diff(t))), p, notes)
+    return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
+                             float(offset), float(offset_info.get("correlation", np.nan)), applied, notes,
+                             despike, offset_info)
+
+
+def time_offset(series, t, vu, tau: float, k: float, p, notes: list) -> dict:
+    """The gravimeter–GNSS time offset and the decision to apply it (with its evidence).
+
+    Applied only when the estimate is significant (``time_offset_min_z`` standard errors)
+    and removes a real share of the acceleration residual (``time_offset_min_improvement``):
+    an offset a few ms from zero only trades one response mismatch for another."""
+    if not p.estimate_time_offset:
+        return {"estimated": False}
+    try:
+        fit = gm.fit_time_offset(series, t, vu, tau, k, p.max_time_offset_s,
+                                 band_hz=(0.01, acceleration_band_top_hz(float(np.median(np.diff(t))))))
+    except ValueError as exc:  # too short a flight, etc.
+        notes.append(f"time offset not estimated: {exc}")
+        return {"estimated": False}
+    offset, corr = fit.offset_s, fit.correlation
+    info = {"estimated": True, "offset_s": offset, "se_s": fit.se_s, "correlation": corr,
+            "residual_reduction": fit.relative_improvement}
+    if not p.apply_time_offset:
+        return info
+    why = []
+    if not (np.isfinite(corr) and corr > 0.5):
+        why.append(f"correlation {corr:.2f} ≤ 0.5")
+    if not abs(offset) < p.max_time_offset_s:
+        why.append(f"at the search limit ±{p.max_time_offset_s:g} s")
+    if not abs(offset) > p.time_offset_min_z * fit.se_s:
+        why.append(f"not significant (|offset| ≤ {p.time_offset_min_z:g} × standard error {fit.se_s:.2g} s)")
+    if not fit.relative_improvement >= p.time_offset_min_improvement:
+        why.append(f"removes only {100 * fit.relative_improvement:.2f} % of the residual "
+                   f"(< {100 * p.time_offset_min_improvement:g} %)")
+    info.update(applied=not why, reason="; ".join(why) if why else "significant and improves the fit")
+    if why:
+        notes.append(f"time offset {offset:.4f} s not applied: {'; '.join(why)}")
+    return info
+
+
+def mask_gaps(z, t, t_grav, margin_s: float, notes: list) -> None:
+    """Leave z missing (in place) where its interval spans a GNSS gap or its gravimeter
+    integral crosses a gravimeter record gap.
+
+    An interval spanning a data gap is no measurement of anything; nor is one whose
+    gravimeter integral crosses a gap of the gravimeter record: the spline bridges it, but
+    ∫f over the gap is unknown and every z after it would carry the error (the lag
+    inversion's derivative spreads it over ~τ: keep ``margin_s``)."""
+    dt = np.diff(t)
+    z[np.concatenate([[False], dt > 1.5 * np.median(dt)])] = np.nan
+    gstep = np.diff(t_grav)
+    gh = float(np.median(gstep))
+    for i in np.flatnonzero(gstep > 1.5 * gh):
+        a = t_grav[i] - margin_s
+        b = t_grav[i + 1] + margin_s
+        hit = (t > a) & (np.concatenate([[t[0] - 1.0], t[:-1]]) < b)
+        z[hit] = np.nan
+        if t_grav[i + 1] - t_grav[i] <= 60.0 and hit.any():  # a dropout, not a pause of the recording
+            notes.append(f"gravimeter record gap {t_grav[i]:.2f}–{t_grav[i + 1]:.2f} s: {int(hit.sum())} epochs "
+                         "of z left without measurement")
+
+
+def despike_z(z, dt_s: float, p, notes: list):
+    """Repair isolated spikes of z (:func:`app.core.measurement.spike_mask`); stand down when
+    more than ``despike_max_fraction`` of the epochs would be flagged.  Returns (z, evidence)."""
+    despike = {"threshold": p.despike_threshold, "flagged": 0, "epochs": int(np.isfinite(z).sum()),
+               "applied": False}
+    if p.despike_threshold is None:
+        return z, despike
+    spikes = spike_mask(z, dt_s, p.despike_threshold)
+    n_flag = int(spikes.sum())
+    frac = n_flag / max(1, despike["epochs"])
+    despike.update(flagged=n_flag, fraction=frac)
+    if n_flag and frac > p.despike_max_fraction:
+        # spikes are rare by nature: this many flags means the noise is not what the
+        # detector assumes (a heavy-tailed or rough record); repairing would destroy data
+        despike["reason"] = "stood down: too many flags"
+        notes.append(f"spike repair stood down: {n_flag} of {despike['epochs']} epochs ({100 * frac:.2f} %) "
+                     f"would be flagged, more than {100 * p.despike_max_fraction:g} % — z left as measured")
+    elif n_flag:
+        z = repair_spikes(z, spikes)
+        despike["applied"] = True
+        notes.append(f"{n_flag} epochs of z ({100 * frac:.3f} %) repaired as spikes "
+                     f"(> {p.despike_threshold:g} local robust std from the neighbours' mean)")
+    return z, despike
+
+
+def acceleration_band_top_hz(dt_s: float) -> float:
+    """Highest frequency (Hz) at which the GNSS-derived vertical acceleration is compared with
+    the gravimeter's (time offset, lag check): a fifth of the GNSS rate, at most 1 Hz.  Above
+    it a 1–2 Hz receiver's (or differenced heights') acceleration no longer follows the
+    aircraft's (aliasing, interpolation), and fitting it biased the lag of a 1 Hz heights-only
+    survey by 0.35 s."""
+    return float(min(1.0, 0.2 / dt_s))
+
+
+def static_segments(t_s, ve_ms, vn_ms, vu_ms, min_duration_s: float = 60.0, max_speed_ms: float = 0.5,
+                    trim_s: float = 10.0) -> list[tuple[int, int]]:
+    """Index ranges ``[i0, i1)`` where the aircraft stands still (parking place readings).
+
+    A GNSS epoch is static when its horizontal and vertical speeds are below
+    ``max_speed_ms``; runs shorter than ``min_duration_s`` are ignored and
+    ``trim_s`` is cut from both ends of each run (taxi start/stop)."""
+    t = np.asarray(t_s, float)
+    still = (np.hypot(ve_ms, vn_ms) < max_speed_ms) & (np.abs(vu_ms) < max_speed_ms)
+    out = []
+    if not still.any():
+        return out
+    d = np.diff(np.concatenate([[0], still.astype(int), [0]]))
+    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    for a, b in zip(starts, stops):
+        if b - a < 2 or t[b - 1] - t[a] < min_duration_s:
+            continue
+        a2 = int(np.searchsorted(t, t[a] + trim_s))
+        b2 = int(np.searchsorted(t, t[b - 1] - trim_s, side="right"))
+        if b2 - a2 > 10:
+            out.append((a2, b2))
+    return out
+
+
+def base_tie(m: FlightMeasurement, base_gravity_mgal: float | None) -> dict:
+    """Tie the gravimeter to the parking place (base) readings of a flight, in place.
+
+    At rest ``z = g − γ`` (SPEC §1).  With ``base_gravity_mgal`` known, the mean
+    reading error of each static period is ``mean(z) − (g_base − γ)``; with one
+    period it is removed as a constant, with two or more as a straight line in
+    time (instrument drift) through the first and last.  Without the base value
+    only the change between the first and last static period (the drift) is
+    removed.  The measurement ``z_mgal`` is corrected in place.
+
+    Returns
+    -------
+    dict
+        What was done: periods (time, error), drift rate (mGal/h), constant (mGal).
+    """
+    segs = static_segments(m.t_s, m.ve_ms, m.vn_ms, m.vu_ms)
+    info = {"static_periods": [], "applied": False}
+    if not segs:
+        return info
+    errs, times = [], []
+    for a, b in segs:
+        # at rest V̇ = 0 exactly: use the gravimeter alone (the GNSS velocity noise would
+        # add ~2·10⁴ mGal per epoch to z); the mean of interval means over the segment is
+        # the mean reading
+        reading = m.fbar_ms2[a:b] * 1e5 - m.gamma_mgal[a:b]
+        ok = np.isfinite(reading)
+        if ok.sum() < 10:
+            continue
+        g_minus_gamma = (base_gravity_mgal - m.gamma_mgal[a:b][ok]) if base_gravity_mgal is not None else 0.0
+        e = float(np.mean(reading[ok] - g_minus_gamma))
+        errs.append(e)
+        times.append(float(np.mean(m.t_s[a:b])))
+        info["static_periods"].append({"t_start": float(m.t_s[a]), "t_end": float(m.t_s[b - 1]),
+                                       "reading_error_mgal" if base_gravity_mgal is not None
+                                       else "reading_mgal": e})
+    if not errs:
+        return info
+    t = m.t_s
+    if len(errs) >= 2 and times[-1] - times[0] > 600.0:
+        rate = (errs[-1] - errs[0]) / (times[-1] - times[0])
+        drift = errs[0] + rate * (t - times[0])
+        info["drift_mgal_per_h"] = rate * 3600.0
+    else:
+        drift = np.full(t.shape, errs[0])
+        info["drift_mgal_per_h"] = 0.0
+    if base_gravity_mgal is None:
+        drift = drift - errs[0]  # relative: the absolute level stays unknown
+        if len(errs) < 2:
+            return info
+    m.z_mgal = m.z_mgal - drift
+    info["applied"] = True
+    info["absolute"] = base_gravity_mgal is not None
+    return info
+
+
+def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600.0,
+                         params: tuple = ("tau", "k")) -> dict:
+    """In-flight calibration of τ and k (seed 001 §3–4) on one flight's longest airborne
+    stretch without gaps, by frequency-domain weighted least squares.
+
+    The noise spectra: the GNSS noise level from the high-frequency content of z, a
+    random-walk anomaly of 10 mGal² per step (generous on purpose, see below) and 1 mGal²
+    gravimeter noise per epoch; they only weight the frequencies.
+
+    Returns
+    -------
+    dict
+        ``tau_s``, ``k``, their standard errors (from D_XX) and the segment used.
+    """
+    m = measure_flight(flight, cfg)
+    t = m.t_s
+    dt = float(np.median(np.diff(t)))
+    moving = np.hypot(m.ve_ms, m.vn_ms) > 20.0
+    ok = moving & np.isfinite(m.fbar_ms2)
+    steps_ok = np.concatenate([[False], np.abs(np.diff(t) - dt) < 0.01 * dt])
+    good = ok & steps_ok
+    d = np.diff(np.concatenate([[0], good.astype(int), [0]]))
+    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    if starts.size == 0:
+        raise ValueError(f"flight {flight.name}: no airborne segment to calibrate on")
+    k = int(np.argmax(stops - starts))
+    a, b = int(starts[k]), int(stops[k])
+    b = min(b, a + int(max_duration_s / dt))
+    gr = flight.gravimeter
+    series = gm.integrate_samples(gr["time"].to_numpy(float), gr["f_z"].to_numpy(float))
+    off = m.time_offset_s if m.time_offset_applied else 0.0
+    tt = t[a - 1:b] if a > 0 else t[a:b]
+    fraw = gm.interval_means(series, tt, 0.0, 1.0, time_offset_s=off)
+    fdot = gm.interval_means(series, tt, 1.0, 1.0, time_offset_s=off) - fraw
+    z = anomaly_measurement_mgal(fraw, tt, m.vu_ms[a - 1:b] if a > 0 else m.vu_ms[a:b],
+                                 m.gamma_mgal[a - 1:b] if a > 0 else m.gamma_mgal[a:b],
+                                 m.eotvos_mgal[a - 1:b] if a > 0 else m.eotvos_mgal[a:b]) * 1e-5
+    sl = slice(1, None)
+    r = float(np.median(local_noise_variance_cm2s2(z[sl] * 1e5, dt)))
+    # The gravimeter reading f' (a regressor) itself contains the anomaly, so the anomaly
+    # band must be weighted down generously: with 0.01 / 1 / 10 mGal² per step the scale k
+    # came out 11σ / 2σ / 0.7σ from the truth on the simulator (τ within 1σ in all three).
+    spectra = CalibrationSpectra.from_epoch_variances(dt, f_var_mgal2=1.0, dg_step_var_mgal2=10.0, r_cm2s2=r)
+    res = calibrate(tt[sl], z[sl], fraw[sl], spectra=spectra, params=tuple(params),
+                    tau0_s=cfg.gravimeter.tau_s, k0=cfg.gravimeter.scale, fdot_raw_ms3=fdot[sl],
+                    fmax_hz=acceleration_band_top_hz(dt))
+    names = list(res.names)
+    return {"flight": flight.name, "t_start": float(tt[1]), "t_end": float(tt[-1]),
+            "tau_s": float(res.tau_s), "k": float(res.k),
+            "std": {n: float(v) for n, v in zip(names, np.asarray(res.std))},
+            "chi2_per_dof": float(getattr(res, "chi2_per_dof", np.nan))}
+
+
+@dataclass
+class Measurement:
+    """Result of :func:`measure`.
+
+    Attributes
+    ----------
+    flights : dict of FlightMeasurement
+    base_ties : dict
+        Per flight: what :func:`base_tie` did (periods, drift, absolute or not).
+    lag_check, calibration : dict or None
+        The in-flight lag check / calibration and its decision.
+    warnings : list of str
+    dt_s : float
+        Median GNSS step (s).
+    """
+
+    flights: dict
+    base_ties: dict
+    lag_check: dict | None
+    calibration: dict | None
+    warnings: list
+    dt_s: float
+
+
+def check_lag(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, dict | None]:
+    """The declared lag τ checked in flight (seed 001 calibration, τ only, first three flights).
+
+    A wrong τ leaves (τ_true − τ)·ḟ of the aircraft's jerk in z, thousands of mGal.  The
+    median estimate is used only when every flight agrees within ``lag_check_s`` and it
+    differs from survey.toml's by more than that.  Returns (τ to use or None, evidence)."""
+    p = cfg.processing
+    taus = []
+    for name in sorted(survey.flights)[:3]:
+        try:
+            taus.append(calibrate_gravimeter(survey.flights[name], cfg, params=("tau",))["tau_s"])
+        except (ValueError, np.linalg.LinAlgError):
+            continue
+    if not taus:
+        return None, None
+    tau_est = float(np.median(taus))
+    applied = abs(tau_est - cfg.gravimeter.tau_s) > p.lag_check_s and float(np.ptp(taus)) < p.lag_check_s
+    info = {"declared_tau_s": cfg.gravimeter.tau_s, "estimated_tau_s": taus, "applied": applied}
+    if not applied:
+        return None, info
+    warnings.append(f"gravimeter lag: survey.toml says τ = {cfg.gravimeter.tau_s:g} s, the flights say "
+                    f"{tau_est:.3f} s (estimates {', '.join(f'{v:.3f}' for v in taus)}); using {tau_est:.3f} s")
+    return tau_est, info
+
+
+def measure(survey, progress=None) -> Measurement:
+    """Stage 1 on a survey (:class:`app.io.survey.Survey`): lag check or calibration, every
+    flight measured and tied to its base readings.  ``progress(fraction)`` after each flight."""
+    cfg = survey.config
+    p = cfg.processing
+    warnings: list[str] = []
+    tau_s = scale = None
+    calibration = lag_check = None
+    if p.calibrate:
+        first = sorted(survey.flights)[0]
+        try:
+            calibration = calibrate_gravimeter(survey.flights[first], cfg)
+            tau_s, scale = calibration["tau_s"], calibration["k"]
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            warnings.append(f"in-flight calibration failed, nominal tau/scale used: {exc}")
+    if calibration is None and p.lag_check_s is not None:
+        tau_s, lag_check = check_lag(survey, cfg, warnings)
+    flights, base_ties = {}, {}
+    names = list(survey.flights)
+    for i, name in enumerate(names):
+        flights[name] = measure_flight(survey.flights[name], cfg, tau_s=tau_s, scale=scale)
+        warnings.extend(f"flight {name}: {n}" for n in flights[name].notes)
+        base_ties[name] = base_tie(flights[name], cfg.gravimeter.base_gravity_mgal)
+        if progress is not None:
+            progress((i + 1) / len(names))
+    if not any(b.get("applied") and b.get("absolute") for b in base_ties.values()):
+        why = ("no base_gravity_mgal in survey.toml" if cfg.gravimeter.base_gravity_mgal is None
+               else "no static parking-place segment found in the flights")
+        warnings.append(f"no absolute base tie ({why}): the level of dg carries the gravimeter's reading "
+                        "error (scale × g, easily 100+ mGal); differences along and between lines are "
+                        "reliable, absolute values are not")
+    dt_s = float(np.median(np.concatenate([np.diff(m.t_s) for m in flights.values()])))
+    return Measurement(flights, base_ties, lag_check, calibration, warnings, dt_s)

@@ -1,0 +1,139 @@
+"""Stage 3, noise model: the error of z as a coloured process and its level in time.
+
+* :func:`fit_noise` — the shape (:mod:`app.core.noise_model`), fitted on the multitaper
+  spectra of every line's z and of the pass differences of repeat tracks
+  (:func:`repeat_differences`), normalised so that a level R is the equivalent white
+  velocity noise in :func:`level_band`;
+* :func:`noise_levels` — the local level R(t) of every flight, measured in that band;
+* :func:`level_scale` — the factor that carries the measured level to the fitted model's.
+
+:func:`model_noise` runs the three and returns a :class:`NoiseStage`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.core.noise_level import band_noise_variance_cm2s2, local_noise_variance_cm2s2
+from app.core.noise_model import FAMILIES, fit_noise_model, pass_difference
+from app.pipeline.stages.lines import LineData, finite_segments
+from app.pipeline.stages.measurement import FlightMeasurement
+
+
+def level_band(p, dt_s: float) -> tuple[float, float]:
+    """The band (Hz) in which the local noise level R(t) is measured, inside the GNSS
+    Nyquist frequency (1–2 Hz receivers)."""
+    f2 = min(float(p.noise_band_hz[1]), 0.8 * 0.5 / dt_s)
+    return (min(float(p.noise_band_hz[0]), 0.5 * f2), f2)
+
+
+def fit_noise(lines: list[LineData], dt_s: float, p):
+    """The error of z as a coloured process (:mod:`app.core.noise_model`), fitted on the
+    finite stretches of every line; returns (NoiseFit, model normalised so that a level R is
+    the equivalent white velocity noise in :func:`level_band`)."""
+    fams = FAMILIES if p.noise_family == "auto" else tuple(f for f in FAMILIES if f[0] == p.noise_family)
+    segs = [ln.z_mgal[a:b] for ln in lines for a, b in finite_segments(ln.z_mgal)]
+    fmax = min(float(p.noise_fit_fmax_hz), 0.8 * 0.5 / dt_s)
+    diffs = repeat_differences(lines, dt_s, min(2.0 * fmax, 0.45 / dt_s)) if p.noise_fit_repeats else []
+    fit = fit_noise_model(segs, dt_s, m=2, fmax_hz=fmax, families=fams, differences=diffs,
+                          octave_weights=p.noise_fit_octave_weights, knee_max_fraction=p.noise_knee_max_fraction)
+    return fit, fit.model.normalized(level_band(p, dt_s))
+
+
+def repeat_differences(lines: list[LineData], dt_s: float, lowpass_hz: float) -> list:
+    """Differences of the passes of every repeat track (disjoint consecutive pairs, so the
+    differences are independent), on a common along-track grid (:func:`app.core.noise_model.pass_difference`).
+    The along-track coordinate is the projection on the track's principal axis."""
+    tracks: dict = {}
+    for ln in lines:
+        if ln.kind == "repeat" and ln.track is not None:
+            tracks.setdefault(ln.track, []).append(ln)
+    out = []
+    for passes in tracks.values():
+        passes = sorted(passes, key=lambda ln: float(ln.t_s[0]))
+        if len(passes) < 2:
+            continue
+        e = np.concatenate([ln.easting_km for ln in passes])
+        n = np.concatenate([ln.northing_km for ln in passes])
+        xy = np.column_stack([e - e.mean(), n - n.mean()])
+        axis = np.linalg.svd(xy, full_matrices=False)[2][0]
+        for a, b in zip(passes[0::2], passes[1::2]):
+            sa = 1000.0 * ((a.easting_km - e.mean()) * axis[0] + (a.northing_km - n.mean()) * axis[1])
+            sb = 1000.0 * ((b.easting_km - e.mean()) * axis[0] + (b.northing_km - n.mean()) * axis[1])
+            d = pass_difference(sa, a.z_mgal, sb, b.z_mgal, dt_s, lowpass_hz)
+            if d is not None:
+                out.append(d)
+    return out
+
+
+def noise_levels(flights: dict[str, FlightMeasurement], dt_s: float, p) -> dict[str, np.ndarray]:
+    """Local noise level R(t) ((cm/s)², equivalent white velocity noise) of every flight:
+    z's content in :func:`level_band` (``noise_model = 'band'``) or near the Nyquist frequency
+    (``'local'``); empty for ``'states'`` (the recognised R_j levels are used instead)."""
+    if p.noise_model == "local":
+        return {name: local_noise_variance_cm2s2(fm.z_mgal, dt_s) for name, fm in flights.items()}
+    if p.noise_model == "band":
+        band = level_band(p, dt_s)
+        return {name: band_noise_variance_cm2s2(fm.z_mgal, dt_s, band) for name, fm in flights.items()}
+    return {}
+
+
+def level_scale(noise_fit, band_hz, lines: list[LineData], r_local: dict) -> float:
+    """Factor from the measured local levels R(t) to the fitted noise model's level.
+
+    The model's weights were fitted on the pooled spectra of the lines, i.e. at the mean
+    level over the lines' epochs; the local measurement (in ``band_hz``) gives the level's
+    changes in time.  When the model describes the measurement band well the factor is
+    ≈ 1; where it does not (a turbulence band the family cannot follow) it carries the
+    measured changes in time to the fitted level where the smoother separates anomaly
+    from noise."""
+    if not r_local or noise_fit.model.is_white_velocity:
+        # the paper's shape: the band measurement is already its level
+        return 1.0
+    vals = np.concatenate([r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)] for ln in lines])
+    if not vals.size:
+        return 1.0
+    return float(noise_fit.model.equivalent_white_R(band_hz) / np.mean(vals))
+
+
+@dataclass
+class NoiseStage:
+    """Result of :func:`model_noise`.
+
+    Attributes
+    ----------
+    fit : app.core.noise_model.NoiseFit
+        The Whittle fit (absolute weights, every candidate family).
+    model : app.core.noise_model.NoiseModel
+        The chosen shape, normalised to the equivalent white velocity noise in ``band_hz``.
+    band_hz : (float, float)
+        Band in which the local level is measured.
+    r_local : dict of ndarray
+        Per flight, the level R(t) ((cm/s)², equivalent white) at every GNSS epoch,
+        already multiplied by ``scale``; empty with ``noise_model = 'states'``.
+    scale : float
+        :func:`level_scale`.
+    """
+
+    fit: object
+    model: object
+    band_hz: tuple
+    r_local: dict
+    scale: float
+
+    def describe(self) -> dict:
+        """The report's ``noise_model`` section."""
+        return {**self.model.describe(), "level_band_hz": list(self.band_hz), "level_scale": self.scale,
+                "candidates": self.fit.candidates, "n_bins": self.fit.n_bins, "fit_fmax_hz": self.fit.fmax_hz,
+                "Q_whittle_mgal2": self.fit.Q_mgal2, "m_whittle": self.fit.m}
+
+
+def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt_s: float, p) -> NoiseStage:
+    """Stage 3: the noise model of the survey and the local level of every flight."""
+    fit, model = fit_noise(lines, dt_s, p)
+    band = level_band(p, dt_s)
+    r_local = noise_levels(flights, dt_s, p)
+    scale = level_scale(fit, band, lines, r_local)
+    return NoiseStage(fit, model, band, {k: v * scale for k, v in r_local.items()}, scale)

@@ -1,0 +1,79 @@
+"""Stage 4, regularization (SPEC §2 step 1): ∇^m, Kaiser low-pass, decimation to ~1 km and
+the MA approximation of both components (anomaly and the coloured error of z), each
+stretch of a line without missing epochs on its own.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from app.config import SurveyConfig
+from app.core.ma_approx import fit_ma_model
+from app.core.regularize import design_regularization, min_line_samples, regularize_line
+from app.pipeline.stages.lines import LineData, finite_segments
+
+
+@dataclass
+@dataclass
+class Regularized:
+    design: object                 # app.core.regularize.RegularizationDesign
+    ma: object                     # app.core.ma_approx.MAModel
+    lines: list                    # LineData used for identification
+    x: list                        # decimated regularized sequences
+    idx: list                      # full-rate indices (into the line) of each decimated point
+    skipped: dict                  # line → reason
+
+
+def _regularize_segments(z_mgal, m: int, design):
+    """Regularize each finite stretch of a line separately and join the results.
+
+    A missing epoch of z cannot be filled: z is a difference of velocities, so its noise
+    telescopes (Σ z over a window leaves only the velocity errors at the window's ends);
+    any filled value leaves the neighbours' ±1000·r/Δt uncancelled — thousands of mGal in
+    one sample, tens after the low-pass, which the EM reads as anomaly bursts."""
+    need = min_line_samples(design, m)
+    xs, idxs = [], []
+    for a, b in finite_segments(z_mgal):
+        if b - a >= need:
+            x, idx = regularize_line(np.asarray(z_mgal[a:b], float), m, design)
+            xs.append(x)
+            idxs.append(idx + a)
+    if not xs:
+        n = int(np.isfinite(np.asarray(z_mgal, float)).sum())
+        raise ValueError(f"line too short for regularization: no stretch without missing epochs has {need} "
+                         f"samples ({n} finite of {len(z_mgal)})")
+    return np.concatenate(xs), np.concatenate(idxs)
+
+
+def regularize_lines(lines: list[LineData], cfg: SurveyConfig, dt_s: float, m: int, noise=None) -> Regularized:
+    """∇^m, Kaiser low-pass, decimation and the MA approximation (SPEC §2 step 1), for the
+    anomaly order ``m``; tie lines only with ``include_tie_lines``."""
+    p = cfg.processing
+    use = [ln for ln in lines if ln.kind != "tie" or p.include_tie_lines]
+    if not use:
+        raise ValueError("no lines to identify (all are tie lines and include_tie_lines is false)")
+    speed = float(np.nanmedian([ln.speed_ms for ln in use]))
+    design = design_regularization(dt_s, speed, step_km=p.decimation_step_km, n=p.decimation_n,
+                                   cutoff_hz=p.cutoff_hz, attenuation_db=p.stopband_attenuation_db,
+                                   difference_grid=p.regularization_difference_grid)
+    ma = fit_ma_model(design, m, K=p.ma_order_K, L=p.ma_order_L,
+                      noise=None if noise is None or noise.is_white_velocity else noise)
+    kept, xs, idxs, skipped = [], [], [], {}
+    for ln in use:
+        try:
+            x, idx = _regularize_segments(ln.z_mgal, m, design)
+        except ValueError as exc:
+            skipped[ln.line] = str(exc)
+            continue
+        if len(x) < ma.p + 3:
+            skipped[ln.line] = f"only {len(x)} decimated points (need {ma.p + 3})"
+            continue
+        kept.append(ln)
+        xs.append(np.asarray(x, float))
+        idxs.append(np.asarray(idx, int))
+    if not kept:
+        raise ValueError("every line is too short for the regularization filter: "
+                         + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
+    return Regularized(design, ma, kept, xs, idxs, skipped)
