@@ -502,105 +502,147 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     ValueError
         No stretch long enough.
     """
-    specs, is_diff, ratios = [], [], []
+    spectra = _collect_spectra(z_segments, differences, dt_s, fmax_hz, nw, min_duration_s)
+    prob = _Whittle(spectra, dt_s, np.random.default_rng(seed), n_starts, octave_weights)
+    f_low = float(np.min(spectra.f_hz))
+    if knee_max_fraction is not None:
+        prob.phi_min = float(np.clip(1.0 - 2.0 * np.pi * dt_s * knee_max_fraction * f_low, 0.0, PHI_MAX - 1e-6))
+    chosen = prob.select(families, m, bic_margin)
+    hidden = prob.hidden_corners(chosen, m) if hidden_knees else []
+    phi_low = float(np.clip(1.0 - 2.0 * np.pi * dt_s * f_low, 0.0, PHI_MAX - 1e-6))
+    if hidden and prob.phi_min < phi_low:
+        # An AR corner lowers the noise below it.  Placed above the lowest fitted frequency but
+        # below twice the anomaly/noise crossover, it was decided where the anomaly hides the
+        # noise — and a corner guessed too high lets noise through as anomaly.  Such corners are
+        # moved below the data (the noise keeps its slope down to the lowest frequency) and the
+        # families are fitted again.
+        prob.phi_min = phi_low
+        chosen = prob.select(families, m, bic_margin)
+    orders = prob.orders(chosen, m)
+    m_best = min(orders, key=lambda mm: orders[mm][0])
+    Q_best, comps_best = _unpack(orders[m_best][1], chosen["_spec"], prob.phi_min)
+    model = NoiseModel(tuple(comps_best), float(dt_s), chosen["family"],
+                       info={"fit": "Whittle, prewhitened multitaper", "fmax_hz": float(fmax_hz),
+                             "n_bins": int(spectra.f_hz.size), "n_difference_bins": spectra.n_diff_bins,
+                             "n_pass_differences": spectra.n_differences, "m": int(m_best),
+                             "hidden_corners_hz": hidden,
+                             "max_corner_hz": knee_hz(prob.phi_min, dt_s) if prob.phi_min > 0 else None,
+                             "nll_by_m": {str(k): float(v[0]) for k, v in orders.items()}})
+    cands = [{k: v for k, v in c.items() if not k.startswith("_")} for c in prob.candidates]
+    return NoiseFit(model, float(Q_best), int(m_best), cands, int(spectra.f_hz.size), float(fmax_hz))
+
+
+@dataclass
+class _Spectra:
+    """Every spectral estimate of the fit, concatenated: frequency, PSD, weight, and for each
+    bin whether it belongs to a line (anomaly + noise) or a pass difference (noise of two
+    passes, each at its own speed ratio r1, r2)."""
+
+    f_hz: np.ndarray
+    psd: np.ndarray
+    weight: np.ndarray
+    is_line: np.ndarray
+    r1: np.ndarray
+    r2: np.ndarray
+    is_diff: np.ndarray
+    n_differences: int
+
+    @property
+    def n_diff_bins(self) -> int:
+        return int(np.sum(self.is_diff > 0))
+
+
+def _collect_spectra(z_segments, differences, dt_s, fmax_hz, nw, min_duration_s) -> _Spectra:
+    items = []   # (Spectrum, is_difference, speed ratios)
     for z in z_segments:
         z = np.asarray(z, dtype=float)
-        if z.size * dt_s < min_duration_s:
-            continue
-        try:
-            specs.append(multitaper_psd(z, dt_s, fmax_hz, nw=nw))
-        except ValueError:
-            continue
-        is_diff.append(False)
-        ratios.append((1.0, 1.0))
-    n_lines = len(specs)
+        if z.size * dt_s >= min_duration_s:
+            try:
+                items.append((multitaper_psd(z, dt_s, fmax_hz, nw=nw), False, (1.0, 1.0)))
+            except ValueError:
+                pass
     for d in differences:
-        if d.d_mgal.size * dt_s < min_duration_s:
-            continue
-        try:
-            specs.append(multitaper_psd(d.d_mgal, dt_s, fmax_hz, nw=nw))
-        except ValueError:
-            continue
-        is_diff.append(True)
-        ratios.append(tuple(float(r) for r in d.speed_ratios))
-    keep = [i for i, s_ in enumerate(specs) if s_.f_hz.size > 0]
-    specs = [specs[i] for i in keep]
-    is_diff = [is_diff[i] for i in keep]
-    ratios = [ratios[i] for i in keep]
-    if not any(not d for d in is_diff):
+        if d.d_mgal.size * dt_s >= min_duration_s:
+            try:
+                items.append((multitaper_psd(d.d_mgal, dt_s, fmax_hz, nw=nw), True,
+                              tuple(float(r) for r in d.speed_ratios)))
+            except ValueError:
+                pass
+    items = [it for it in items if it[0].f_hz.size > 0]
+    if not any(not diff for _, diff, _ in items):
         raise ValueError(f"no stretch of z of at least {min_duration_s:g} s to fit the noise model on")
-    f_all = np.concatenate([s_.f_hz for s_ in specs])
-    I_all = np.concatenate([s_.psd for s_ in specs])
-    wt = np.concatenate([np.full(s_.f_hz.size, 0.5 * s_.dof / (2.0 * nw)) for s_ in specs])
-    if octave_weights:
-        # every octave counts as much as the octave at the lowest frequency: the high band,
-        # where bins are many and the shape matters least to the smoother, must not decide
-        # the shape at the crossover
-        f_ref = float(np.min(f_all))
-        wt = wt * np.minimum(1.0, 2.0 * f_ref / f_all)
-    nu_all = f_all * dt_s
-    n_eff = float(wt.sum())
-    # a line's z: anomaly + noise; a difference of two passes of one track: the noise of both,
-    # each seen at its own speed (pseudo-time on the pair's mean speed: S_n(f·r)/r)
-    a_mask = np.concatenate([np.full(s_.f_hz.size, 0.0 if d else 1.0) for s_, d in zip(specs, is_diff)])
-    r1 = np.concatenate([np.full(s_.f_hz.size, r[0]) for s_, r in zip(specs, ratios)])
-    r2 = np.concatenate([np.full(s_.f_hz.size, r[1]) for s_, r in zip(specs, ratios)])
-    w2 = np.concatenate([np.full(s_.f_hz.size, 1.0 if d else 0.0) for s_, d in zip(specs, is_diff)])
-    n_diff_bins = int(np.sum(w2 > 0))
-    d_anom = {mm: np.abs(1.0 - np.exp(-2j * np.pi * nu_all)) ** (2 * mm) for mm in (1, 2, 3)}
-    # AR corners no higher than knee_max_fraction × the lowest fitted frequency: a corner inside the
-    # band would be decided where the anomaly hides the noise, and every corner lowers the noise
-    # below it — the direction in which a wrong guess leaks noise into the anomaly
-    f_low = float(np.min(f_all))
-    phi_low = float(np.clip(1.0 - 2.0 * np.pi * dt_s * f_low, 0.0, PHI_MAX - 1e-6))
-    phi_min = 0.0 if knee_max_fraction is None else float(
-        np.clip(1.0 - 2.0 * np.pi * dt_s * knee_max_fraction * f_low, 0.0, PHI_MAX - 1e-6))
 
-    def nll(theta, spec, mm):
+    def cat(fn):
+        return np.concatenate([np.full(sp.f_hz.size, fn(sp, diff, r)) for sp, diff, r in items])
+
+    return _Spectra(np.concatenate([sp.f_hz for sp, _, _ in items]), np.concatenate([sp.psd for sp, _, _ in items]),
+                    cat(lambda sp, diff, r: 0.5 * sp.dof / (2.0 * nw)), cat(lambda sp, diff, r: 0.0 if diff else 1.0),
+                    cat(lambda sp, diff, r: r[0]), cat(lambda sp, diff, r: r[1]),
+                    cat(lambda sp, diff, r: 1.0 if diff else 0.0), int(sum(diff for _, diff, _ in items)))
+
+
+class _Whittle:
+    """The Whittle likelihood of the spectra under (anomaly order m, family spec, θ) and its
+    minimisation (Nelder–Mead from random and nested starts)."""
+
+    def __init__(self, sp: _Spectra, dt_s: float, rng, n_starts: int, octave_weights: bool):
+        self.sp, self.dt_s, self.rng, self.n_starts = sp, float(dt_s), rng, int(n_starts)
+        self.wt = sp.weight
+        if octave_weights:
+            # every octave counts as much as the octave at the lowest frequency: the high band,
+            # where bins are many and the shape matters least to the smoother, must not decide
+            # the shape at the crossover
+            self.wt = self.wt * np.minimum(1.0, 2.0 * float(np.min(sp.f_hz)) / sp.f_hz)
+        self.n_eff = float(self.wt.sum())
+        self.nu = sp.f_hz * dt_s
+        self.d_anom = {mm: np.abs(1.0 - np.exp(-2j * np.pi * self.nu)) ** (2 * mm) for mm in (1, 2, 3)}
+        self.level = float(np.median(sp.psd / dt_s))
+        self.phi_min = 0.0
+        self.candidates: list = []
+
+    def nll(self, theta, spec, mm) -> float:
         if np.any(np.abs(theta) > 200):
             return 1e300
-        Q, comps = _unpack(theta, spec, phi_min)
+        Q, comps = _unpack(theta, spec, self.phi_min)
+        sp, dt = self.sp, self.dt_s
         with np.errstate(divide="ignore"):
-            S = np.where(a_mask > 0, dt_s * Q / d_anom[mm], 0.0)
+            S = np.where(sp.is_line > 0, dt * Q / self.d_anom[mm], 0.0)
         for c in comps:
-            S = S + dt_s * _component_psd_per_sample(nu_all * r1, c) / r1
-            if n_diff_bins:
-                S = S + w2 * dt_s * _component_psd_per_sample(nu_all * r2, c) / r2
+            S = S + dt * _component_psd_per_sample(self.nu * sp.r1, c) / sp.r1
+            if sp.n_differences:
+                S = S + sp.is_diff * dt * _component_psd_per_sample(self.nu * sp.r2, c) / sp.r2
         if not np.all(np.isfinite(S)) or np.any(S <= 0):
             return 1e300
-        return float(np.sum(wt * (np.log(S) + I_all / S)))
+        return float(np.sum(self.wt * (np.log(S) + sp.psd / S)))
 
-    def fit(spec, mm, starts):
+    def fit(self, spec, mm, starts):
         best = None
         for th0 in starts:
-            res = optimize.minimize(nll, np.array(th0, float), args=(spec, mm), method="Nelder-Mead",
+            res = optimize.minimize(self.nll, np.array(th0, float), args=(spec, mm), method="Nelder-Mead",
                                     options={"maxiter": 400 * len(th0), "xatol": 1e-5, "fatol": 1e-6})
             if best is None or res.fun < best.fun:
                 best = res
         return best
 
-    rng = np.random.default_rng(seed)
-    level = float(np.median(I_all / dt_s))
-
-    def random_starts(spec):
+    def random_starts(self, spec) -> list:
         out = []
-        for _ in range(n_starts):
-            th0 = [np.log(1e-3) + rng.normal(0, 2)]
+        for _ in range(self.n_starts):
+            th0 = [np.log(1e-3) + self.rng.normal(0, 2)]
             for order, free_phi in spec:
                 # start each component near the median level of the spectrum
-                th0.append(np.log(level) - 3.0 * order + rng.normal(0, 2))
+                th0.append(np.log(self.level) - 3.0 * order + self.rng.normal(0, 2))
                 if free_phi:
-                    th0.append(rng.normal(1.0, 2.0))
+                    th0.append(self.rng.normal(1.0, 2.0))
             out.append(th0)
         return out
 
-    def warm_starts(spec):
+    def warm_starts(self, spec) -> list:
         """Starts from the families fitted so far: their components mapped onto this family's
         (same order; a missing component starts negligible, a missing φ at 0), so a richer
         family never ends worse than a simpler one it contains."""
         out = []
-        for c in cands:
-            Q, comps = _unpack(c["_theta"], c["_spec"], phi_min)
+        for c in self.candidates:
+            Q, comps = _unpack(c["_theta"], c["_spec"], self.phi_min)
             pool = list(comps)
             th = [np.log(Q)]
             for order, free_phi in spec:
@@ -610,71 +652,53 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                     th.append(np.log(max(match.weight, 1e-300)))
                     phi = match.phi
                 else:
-                    th.append(np.log(level) - 3.0 * order - 12.0)
+                    th.append(np.log(self.level) - 3.0 * order - 12.0)
                     phi = 0.0
                 if free_phi:
-                    u = (max(phi, phi_min) - phi_min) / (PHI_MAX - phi_min)
+                    u = (max(phi, self.phi_min) - self.phi_min) / (PHI_MAX - self.phi_min)
                     th.append(float(np.log(max(u, 1e-6) / max(1.0 - u, 1e-9))))
             if not pool:  # every fitted component was placed: a nested start
                 out.append(th)
         return out
 
-    cands: list = []
-
-    def select():
-        cands.clear()
+    def select(self, families, m: int, bic_margin: float) -> dict:
+        """Fit every family; the simplest within ``bic_margin`` of the best BIC.  A richer shape
+        must be strongly supported (ΔBIC > 10), because its behaviour below the noise-dominated
+        band — where the data cannot check it — decides how the smoother separates anomaly
+        from noise."""
+        self.candidates = []
         for name, spec in families:
-            best = fit(spec, m, random_starts(spec) + warm_starts(spec))
-            Q, comps = _unpack(best.x, spec, phi_min)
+            best = self.fit(spec, m, self.random_starts(spec) + self.warm_starts(spec))
+            Q, comps = _unpack(best.x, spec, self.phi_min)
             k = len(best.x)
-            cands.append({"family": name, "nll": float(best.fun), "n_params": k,
-                          "bic": float(2.0 * best.fun + k * np.log(max(n_eff, 2.0))),
-                          "Q_mgal2": Q, "components": [{"order": c.order, "phi": c.phi, "weight_mgal2": c.weight}
-                                                        for c in comps], "_theta": best.x, "_spec": spec})
-        # the simplest family within bic_margin of the best: a richer shape must be strongly
-        # supported (ΔBIC > 10), because its behaviour below the noise-dominated band — where the
-        # data cannot check it — decides how the smoother separates anomaly from noise
-        best_bic = min(c["bic"] for c in cands)
-        return next(c for c in sorted(cands, key=lambda c: c["n_params"]) if c["bic"] <= best_bic + bic_margin)
+            self.candidates.append({
+                "family": name, "nll": float(best.fun), "n_params": k,
+                "bic": float(2.0 * best.fun + k * np.log(max(self.n_eff, 2.0))), "Q_mgal2": Q,
+                "components": [{"order": c.order, "phi": c.phi, "weight_mgal2": c.weight} for c in comps],
+                "_theta": best.x, "_spec": spec})
+        best_bic = min(c["bic"] for c in self.candidates)
+        return next(c for c in sorted(self.candidates, key=lambda c: c["n_params"])
+                    if c["bic"] <= best_bic + bic_margin)
 
-    chosen = select()
-    hidden = []
-    if hidden_knees:
-        # An AR corner lowers the noise below it.  Placed above the lowest fitted frequency but
-        # below twice the anomaly/noise crossover, it was decided where the anomaly hides the
-        # noise — and a corner guessed too high lets noise through as anomaly.  Such corners are
-        # moved below the data (the noise keeps its slope down to the lowest frequency) and the
-        # families are fitted again.
-        Qc, comps_c = _unpack(chosen["_theta"], chosen["_spec"], phi_min)
-        fg = np.geomspace(f_low, float(np.max(f_all)), 400)
-        sn = NoiseModel(tuple(comps_c), float(dt_s), "x").psd(fg)
-        sa = anomaly_psd(fg, Qc, m, dt_s)
-        above = np.flatnonzero(sa >= sn)
+    def hidden_corners(self, chosen: dict, m: int) -> list:
+        """Corners (Hz) of the chosen family's AR components that lie between the lowest fitted
+        frequency and twice the anomaly/noise crossover."""
+        Qc, comps = _unpack(chosen["_theta"], chosen["_spec"], self.phi_min)
+        f_low = float(np.min(self.sp.f_hz))
+        fg = np.geomspace(f_low, float(np.max(self.sp.f_hz)), 400)
+        sn = NoiseModel(tuple(comps), self.dt_s, "x").psd(fg)
+        above = np.flatnonzero(anomaly_psd(fg, Qc, m, self.dt_s) >= sn)
         f_x = float(fg[above[-1]]) if above.size else f_low
-        hidden = [knee_hz(c.phi, dt_s) for c in comps_c
-                  if c.phi > 0 and f_low < knee_hz(c.phi, dt_s) < 2.0 * f_x]
-        if hidden and phi_min < phi_low:
-            phi_min = phi_low
-            chosen = select()
-    # the anomaly's order m by the same likelihood in the same band (the chosen family refitted
-    # with m = 1, 2, 3 from the m = 2 solution; equal parameter counts)
-    orders = {m: (chosen["nll"], chosen["_theta"])}
-    for mm in (1, 2, 3):
-        if mm in orders:
-            continue
-        starts = [chosen["_theta"]] + [np.concatenate([[chosen["_theta"][0] + d], chosen["_theta"][1:]])
-                                       for d in (-4.0, 4.0)]
-        res = fit(chosen["_spec"], mm, starts)
-        orders[mm] = (float(res.fun), res.x)
-    m_best = min(orders, key=lambda mm: orders[mm][0])
-    Q_best, comps_best = _unpack(orders[m_best][1], chosen["_spec"], phi_min)
-    model = NoiseModel(tuple(comps_best), float(dt_s), chosen["family"],
-                       info={"fit": "Whittle, prewhitened multitaper", "fmax_hz": float(fmax_hz),
-                             "n_bins": int(f_all.size), "n_difference_bins": n_diff_bins,
-                             "n_pass_differences": int(sum(is_diff)), "m": int(m_best),
-                             "hidden_corners_hz": hidden, "max_corner_hz": knee_hz(phi_min, dt_s) if phi_min > 0 else None,
-                             "nll_by_m": {str(k): float(v[0]) for k, v in orders.items()}})
-    for c in cands:
-        c.pop("_theta")
-        c.pop("_spec")
-    return NoiseFit(model, float(Q_best), int(m_best), cands, int(f_all.size), float(fmax_hz))
+        return [knee_hz(c.phi, self.dt_s) for c in comps if c.phi > 0 and f_low < knee_hz(c.phi, self.dt_s) < 2.0 * f_x]
+
+    def orders(self, chosen: dict, m: int) -> dict:
+        """The chosen family refitted with m = 1, 2, 3 (from the m solution; equal parameter
+        counts): {m: (negative log-likelihood, θ)}."""
+        out = {m: (chosen["nll"], chosen["_theta"])}
+        for mm in (1, 2, 3):
+            if mm not in out:
+                th = chosen["_theta"]
+                starts = [th] + [np.concatenate([[th[0] + d], th[1:]]) for d in (-4.0, 4.0)]
+                res = self.fit(chosen["_spec"], mm, starts)
+                out[mm] = (float(res.fun), res.x)
+        return out

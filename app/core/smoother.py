@@ -83,12 +83,16 @@ class SmootherResult:
         form, natural log), including the prior of ``y_0``.
     filtered_mgal : ndarray, shape (T,)
         Filtered anomaly ``E[δg_k | z_0..z_k]`` (mGal).
+    innovations : ndarray, shape (T,) or None
+        Standardised innovations ``ν_k/√s_k`` of the filter (NaN at missing epochs; None
+        with ``method='rts'``): white with unit variance when the model fits.
     """
 
     dg_mgal: np.ndarray
     dg_std_mgal: np.ndarray
     loglik: float
     filtered_mgal: np.ndarray
+    innovations: np.ndarray | None = None
 
 
 # ---------------------------------------------------------------------------
@@ -316,7 +320,7 @@ def _backward_bf(m, xf0, prow, Kst, nust, sinv, out_mean, out_var):
 
 
 @njit(cache=True)
-def _smooth_bf(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt):
+def _smooth_bf(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt, out_innov):
     N = z.shape[0]
     n = m + 2
     prow = np.empty((N, n))
@@ -325,6 +329,8 @@ def _smooth_bf(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt):
     sinv = np.empty(N)
     ll = _forward_bf(z, Qs, Q0s, Rs, m, x0, P0, out_filt, prow, Kst, nust, sinv)
     _backward_bf(m, out_filt, prow, Kst, nust, sinv, out_mean, out_var)
+    for k in range(N):
+        out_innov[k] = nust[k] * np.sqrt(sinv[k]) if sinv[k] > 0.0 else np.nan
     return ll
 
 
@@ -617,8 +623,11 @@ def kalman_smooth(z_mgal, Q_mgal2, R_cm2s2, dt_s, m: int = 2, method: str = "bf"
     mean = np.empty(N)
     var = np.empty(N)
     filt = np.empty(N)
-    fn = _smooth_bf if method == "bf" else _smooth_rts
-    ll = fn(z, Q, Q0, Rs, m, x0v, P0v, mean, var, filt)
+    if method == "bf":
+        innov = np.empty(N)
+        ll = _smooth_bf(z, Q, Q0, Rs, m, x0v, P0v, mean, var, filt, innov)
+        return _finish(mean, var, ll, filt, innov)
+    ll = _smooth_rts(z, Q, Q0, Rs, m, x0v, P0v, mean, var, filt)
     return _finish(mean, var, ll, filt)
 
 
@@ -976,6 +985,8 @@ def _smooth_coloured(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, noise, method, x0, P0) -
         e3 = np.empty((1, 1, 1))
         ll = _gen_filter(z, Q, R, A, Wa, Wb, c, x0v, P0v, 1, e2, e3, e2, e3, Kst, nust, sinv, prow, filt)
         _gen_backward_bf(A, c, filt, prow, Kst, nust, sinv, mean, var)
+        innov = np.where(sinv > 0.0, nust * np.sqrt(np.maximum(sinv, 0.0)), np.nan)
+        return _finish(mean, var, ll, filt, innov)
     else:
         xf = np.empty((N, n))
         Pf = np.empty((N, n, n))
@@ -988,14 +999,15 @@ def _smooth_coloured(z_mgal, Q_mgal2, R_cm2s2, dt_s, m, noise, method, x0, P0) -
     return _finish(mean, var, ll, filt)
 
 
-def _finish(mean, var, ll, filt) -> SmootherResult:
+def _finish(mean, var, ll, filt, innov=None) -> SmootherResult:
     if np.any(var < 0.0):
         # Only round-off can produce this; report rather than hide it.
         neg = var.min()
         if neg < -1e-9 * max(1.0, float(np.max(np.abs(var)))):
             raise FloatingPointError(f"negative posterior variance {neg:g} (numerical breakdown)")
         var = np.maximum(var, 0.0)
-    return SmootherResult(dg_mgal=mean, dg_std_mgal=np.sqrt(var), loglik=float(ll), filtered_mgal=filt)
+    return SmootherResult(dg_mgal=mean, dg_std_mgal=np.sqrt(var), loglik=float(ll), filtered_mgal=filt,
+                          innovations=innov)
 
 
 def _white_level(noise, dt_s) -> float | None:
