@@ -100,7 +100,9 @@ def read_dem(path, crs: str, bounds_m=None, spacing_m: float | None = None, marg
             raise InputError(name, None, "spacing_m", f"DEM spacing must be a positive number of metres, "
                                                       f"not {spacing_m}")
         if bounds_m is None:
-            w, s_, e, n = src_bounds
+            # the footprint less half a cell: cell centres of an aligned raster stay where they are
+            w, s_, e, n = (src_bounds[0] + spacing_m / 2, src_bounds[1] + spacing_m / 2,
+                           src_bounds[2] - spacing_m / 2, src_bounds[3] - spacing_m / 2)
         else:
             w, e, s_, n = (float(v) for v in bounds_m)
         w, e, s_, n = w - margin_m, e + margin_m, s_ - margin_m, n + margin_m
