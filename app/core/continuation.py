@@ -48,6 +48,8 @@ import numpy as np
 
 #: above this many sources ``method="auto"`` switches from the exact global solve to "gb"
 MAX_EXACT_SOURCES = 4000
+#: sources of the central sub-area whose exact fit gives α (and ν) for method "gb"
+HYPER_SOURCES = 1500
 
 
 # --------------------------------------------------------------------------- data thinning
@@ -391,7 +393,7 @@ def fit_equivalent_sources(easting_m, northing_m, height_m, dg_mgal, std_mgal, l
         # hyperparameters from an exact fit on the sub-area around the centre (≤ max_exact_sources sources)
         ce, cn = np.median(e), np.median(n)
         order = np.argsort(np.hypot(sources[0] - ce, sources[1] - cn))
-        keep_s = order[:max_exact_sources]
+        keep_s = order[:min(max_exact_sources, HYPER_SOURCES)]
         rad = np.hypot(sources[0][keep_s] - ce, sources[1][keep_s] - cn).max()
         keep_d = np.hypot(e - ce, n - cn) <= rad
         sub = tuple(x[keep_s] for x in sources)
