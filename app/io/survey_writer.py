@@ -89,7 +89,7 @@ def _json_default(o):
 def write_survey(out_dir, survey_toml: dict, lines: pd.DataFrame, flights: dict,
                  truth_lines: pd.DataFrame | None = None, truth_grid=None,
                  truth_json: dict | None = None, compress: bool = False,
-                 gravimeter_columns=None, gnss_columns=None) -> Path:
+                 gravimeter_columns=None, gnss_columns=None, dem=None) -> Path:
     """Write a complete survey directory atomically.
 
     Parameters
@@ -112,6 +112,8 @@ def write_survey(out_dir, survey_toml: dict, lines: pd.DataFrame, flights: dict,
         The columns to write, in this order (e.g. :data:`GNSS_HEIGHTS_ONLY_COLUMNS` for a GNSS
         file without velocities); every listed column must be in each frame (``ValueError``
         otherwise).  Default: the SPEC §4 columns present in each frame.
+    dem : app.core.terrain.Dem, optional
+        Written as ``dem.tif`` (GeoTIFF, float32, the DEM's CRS) in the survey directory.
 
     Returns
     -------
@@ -129,6 +131,9 @@ def write_survey(out_dir, survey_toml: dict, lines: pd.DataFrame, flights: dict,
             lc["track"] = None
         lc = lc[LINES_COLUMNS]
         lc.to_csv(tmp / "lines.csv", index=False, float_format="%.2f")
+        if dem is not None:
+            from app.io.dem import write_dem
+            write_dem(tmp / "dem.tif", dem)
         ext = ".csv.gz" if compress else ".csv"
         comp = {"method": "gzip", "compresslevel": 6, "mtime": 0} if compress else None
         for name, (grav, gnss) in flights.items():

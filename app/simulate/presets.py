@@ -78,6 +78,16 @@ class SimConfig:
     drape_amp_m: float = 0.0              # the height spans height_m ± this on the line windows (0: constant)
     drape_wavelength_km: tuple[float, float] = (5.0, 15.0)
     drape_components: int = 12
+    # --- topography as prisms (0: none); docs/SIMULATOR.md, app/simulate/topography.py
+    topo_amp_m: float = 0.0               # terrain spans topo_base_m ± this over the DEM
+    topo_base_m: float = 700.0
+    topo_wavelength_km: tuple[float, float] = (3.0, 25.0)
+    topo_components: int = 24
+    topo_density_kgm3: float = 2670.0
+    topo_spacing_m: float = 250.0         # DEM cell size (each cell one prism from 0 m to its height)
+    topo_margin_km: float = 10.0          # DEM beyond the flight paths (the terrain radius it supports)
+    topo_clearance_m: float = 0.0         # > 0: terrain-following flight this far above the smoothed terrain
+    topo_drape_smooth_km: float = 2.0     # Gaussian smoothing of the terrain the aircraft follows
     # --- gravimeter
     gravimeter_model: str = "GT-1A"
     gravimeter_rate_hz: float = 18.24
@@ -228,6 +238,20 @@ PRESETS.update({
     "draped": _MINI.replace(name="draped", drape_amp_m=50.0, drape_wavelength_km=(5.0, 15.0)),
 })
 
+# ---------------------------------------------------------------- topography (terrain and Bouguer products)
+#  tiny's geometry (4 x 30 km, 2 ties) + 2 repeat passes; terrain 700 +- 450 m (waves 3-25 km) as 250 m
+#  prisms of 2670 kg/m3 over the flight paths + 10 km, written to dem.tif; terrain-following flight
+#  400 m above the terrain smoothed over 2 km; truth: terrain_mgal per epoch, included in dg_true_mgal
+_TOPO = dict(topo_amp_m=450.0, topo_base_m=700.0, topo_clearance_m=400.0, height_m=1100.0, n_repeat=2, repeat_length_km=20.0,
+             grid_margin_km=6.0)
+PRESETS.update({
+    # the anomaly is the topography's gravity only (no point sources): the Bouguer anomaly is flat
+    "topo-only": PRESETS["tiny"].replace(name="topo-only", mountain_sources_per_km2=0.0, plain_std_mgal=0.0,
+                                         **_TOPO),
+    # the topography's gravity plus tiny's point sources
+    "topo-draped": PRESETS["tiny"].replace(name="topo-draped", **_TOPO),
+})
+
 #: one line per preset (``aerograv simulate --help``; the numbers are in docs/SIMULATOR.md)
 PRESET_NOTES: dict[str, str] = {
     "tiny": "4 x 30 km lines, 2 ties, 1 flight (GT-1A 18.24 Hz, 10 Hz GNSS with vu)",
@@ -245,5 +269,8 @@ PRESET_NOTES: dict[str, str] = {
     "heights-only-10hz": "omolon-mini, GNSS 10 Hz time/lat/lon/h only (2.5 cm Gauss-Markov + 7 mm white)",
     "turbulent": "omolon-mini, heavy turbulence 0.3-0.5 m/s2 with a peaked (0.1-0.5 Hz) spectrum",
     "draped": "omolon-mini, height 3000 +- 50 m along the lines (5-15 km waves), truth at the actual height",
+    "topo-only": "tiny + 2 repeats over a 250 m prism DEM (700 +- 450 m, dem.tif), flown 400 m above it; "
+                 "anomaly = the topography only",
+    "topo-draped": "as topo-only, anomaly = topography + tiny's point sources",
 }
 assert set(PRESET_NOTES) == set(PRESETS)

@@ -68,6 +68,7 @@ _TAG_VU_POSITION = 0xB05
 _TAG_H_COLORED = 0x4C0
 _TAG_H_COLORED_APRON = 0x4CA
 _TAG_DRAPE = 0xD4A
+_TAG_TOPO = 0x7090
 
 
 def _aux_rng(seed, tag: int, index: int = 0) -> np.random.Generator:
@@ -92,6 +93,12 @@ def _check_regime(cfg: SimConfig) -> None:
         raise ValueError(f"field_std_over must be 'grid' or 'lines', not {cfg.field_std_over!r}")
     if cfg.drape_amp_m > 0 and cfg.field_kind != "sources":
         raise ValueError("draped flight (drape_amp_m > 0) needs field_kind = 'sources'")
+    if cfg.topo_amp_m > 0 and cfg.field_kind != "sources":
+        raise ValueError("topography (topo_amp_m > 0) needs field_kind = 'sources'")
+    if cfg.topo_clearance_m > 0 and cfg.topo_amp_m <= 0:
+        raise ValueError("terrain-following flight (topo_clearance_m > 0) needs topography (topo_amp_m > 0)")
+    if cfg.topo_clearance_m > 0 and cfg.drape_amp_m > 0:
+        raise ValueError("choose one drape: drape_amp_m (plane waves) or topo_clearance_m (terrain following)")
 
 
 def _fir_half_s(cfg: SimConfig) -> float:
@@ -416,6 +423,8 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
     epochs["state_true"] = epochs["state_true"].astype(np.int8)
     cols = ["time", "easting_km", "northing_km", "dg_true_mgal", "terrain", "state_true",
             "Q_true_mgal2", "R_true_cm2s2", "drift_mgal", "vu_true_ms"]
+    if "terrain_mgal" in epochs:
+        cols.append("terrain_mgal")
     if _truth_has_height(cfg):
         epochs["h_true_m"] = h               # true (draped, moving) ellipsoidal height, full precision
         cols.append("h_true_m")
@@ -490,6 +499,13 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
 
     truth_extra: dict = {}
     drape = make_drape(cfg, planned, _aux_rng(seed, _TAG_DRAPE)) if cfg.drape_amp_m > 0 else None
+    topo = None
+    if cfg.topo_amp_m > 0:
+        from app.simulate.topography import make_topography
+        topo = make_topography(cfg, ext, e0, n0, planned, _aux_rng(seed, _TAG_TOPO))
+        truth_extra["topography"] = topo.info
+        if topo.drape is not None:
+            drape = topo.drape
     if cfg.field_kind == "sources":
         line_pts = None
         if cfg.field_std_over == "lines":
@@ -515,9 +531,15 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
             def fn(tg, xm, ym, hm=None):
                 mnt = fld.terrain_mountain(xm, ym)
                 val = fld(xm, ym) if hm is None else fld.at(xm, ym, hm)
-                return val, {"terrain": np.where(mnt, "mountain", "plain"),
-                                     "state_true": mnt.astype(np.int64),
-                                     "Q_true_mgal2": np.full(tg.size, np.nan)}
+                extra = {"terrain": np.where(mnt, "mountain", "plain"),
+                         "state_true": mnt.astype(np.int64),
+                         "Q_true_mgal2": np.full(tg.size, np.nan)}
+                if topo is not None:
+                    tmg = topo.effect_along(tg, xm, ym, cfg.height_m if hm is None else hm,
+                                            int(round(cfg.gnss_rate_hz)))
+                    val = val + tmg
+                    extra["terrain_mgal"] = np.round(tmg, 5)
+                return val, extra
             return fn
     elif cfg.field_kind == "markov":
         rows = [ln.start_km[1] for ln in planned if ln.kind == "main"]
@@ -667,7 +689,8 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
     report("write", 0.9)
     from app.io.survey_writer import GNSS_HEIGHTS_ONLY_COLUMNS
     out = write_survey(out_dir, toml, lines, flights, truth_lines, grid, truth_json, compress=cfg.compress,
-                       gnss_columns=None if cfg.gnss_velocity else GNSS_HEIGHTS_ONLY_COLUMNS)
+                       gnss_columns=None if cfg.gnss_velocity else GNSS_HEIGHTS_ONLY_COLUMNS,
+                       dem=topo.dem if topo is not None else None)
     report("done", 1.0, {"seconds": _time.perf_counter() - clock})
     return out
 
@@ -697,7 +720,12 @@ def _regime_notes(cfg: SimConfig, drape) -> dict:
         out["turbulence"] = {"spectrum": cfg.turbulence_spectrum, "peak_hz": cfg.turbulence_peak_hz,
                              "psd_slopes": list(cfg.turbulence_slopes),
                              "note": "PSD of the turbulence acceleration ∝ x^a/(1 + x^(a+b)), x = f/peak_hz"}
-    if drape is not None:
+    if drape is not None and cfg.topo_clearance_m > 0:
+        out["drape"] = {"terrain_following": drape.info(), "smooth_km": cfg.topo_drape_smooth_km,
+                        "note": ("height = smoothed terrain + clearance_m + lift_m + turbulence/phugoid motion; the "
+                                 "true height per epoch is h_true_m in lines.parquet; truth/grid.nc (sources only, "
+                                 "no terrain) stays at height_m")}
+    elif drape is not None:
         out["drape"] = {"amp_m": cfg.drape_amp_m, "wavelength_km": list(cfg.drape_wavelength_km),
                         "components": drape.info(),
                         "note": ("height = height_m + drape(x, y) + turbulence/phugoid motion; drape = sum of plane "
@@ -718,7 +746,7 @@ def _regime_notes(cfg: SimConfig, drape) -> dict:
 
 def _truth_has_height(cfg: SimConfig) -> bool:
     """``h_true_m`` is in truth/lines.parquet when the height matters: draped flight or heights-only GNSS."""
-    return cfg.drape_amp_m > 0 or not cfg.gnss_velocity
+    return cfg.drape_amp_m > 0 or cfg.topo_clearance_m > 0 or not cfg.gnss_velocity
 
 
 def _stable_rng(*key) -> np.random.Generator:
