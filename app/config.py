@@ -227,6 +227,10 @@ class ProcessingParams(_Strict):
         "choice_min_crossovers crossovers: m = 2, SPEC's default); 'spectrum' = the Whittle likelihood of the lines' "
         "spectra up to noise_fit_fmax_hz; 'likelihood' = the full-rate Kalman likelihood (m = 1, 2; dominated "
         "by the high-frequency noise)")
+    recognition_order: int | None = Field(1, ge=1, le=3, description="The state map (recognition of the "
+                                          "anomaly levels) of this anomaly order when it is identified, whichever "
+                                          "order filters (m = 1 recognises terrain classes best: the sample 0.80 "
+                                          "against 0.56 with m = 2); None: each order its own")
     choice_min_crossovers: int = Field(10, ge=3, le=1_000_000, description="Crossovers needed to choose between "
                                        "models (m, the FIR guard) by their crossover differences")
     flatten_check: bool = Field(True, description="A line whose estimate is flattened (flatten_min_ratio) takes the "

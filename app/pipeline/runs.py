@@ -17,10 +17,10 @@ import numpy as np
 
 from app.config import SurveyConfig
 from app.pipeline.stages import storage
-from app.pipeline.stages.choice import Candidate, choose_model, count_crossovers
+from app.pipeline.stages.choice import Candidate, choose_model, choose_order, count_crossovers
 from app.pipeline.stages.filtering import fir_baseline, filter_survey
 from app.pipeline.stages.gridding import grid_survey
-from app.pipeline.stages.identification import identify
+from app.pipeline.stages.identification import Identification, identify
 from app.pipeline.stages.leveling import level_survey
 from app.pipeline.stages.lines import survey_lines
 from app.pipeline.stages.measurement import measure
@@ -46,6 +46,7 @@ class Tracker:
         self.timings: dict[str, float] = {}
         self._stage: str | None = None
         self._t0 = 0.0
+        self._last = 0.0
 
     def start(self, stage: str) -> None:
         self._finish()
@@ -57,7 +58,9 @@ class Tracker:
         if self.progress is None or self._stage is None:
             return
         done = sum(STAGE_WEIGHTS[s] for s in STAGE_ORDER[:STAGE_ORDER.index(self._stage)])
-        self.progress(self._stage, min(1.0, done + STAGE_WEIGHTS[self._stage] * float(within)), info)
+        # stages repeat (one identification per anomaly order): the fraction never goes back
+        self._last = max(self._last, min(1.0, done + STAGE_WEIGHTS[self._stage] * float(within)))
+        self.progress(self._stage, self._last, info)
 
     def _finish(self) -> None:
         if self._stage is not None:
@@ -146,6 +149,31 @@ def run_identify(survey, tr: Tracker) -> Identified:
                       mrep, warnings, dict(tr.timings))
 
 
+def filter_orders(idf: Identified, p) -> list[int]:
+    """The identified orders that are filtered: ``processing.m`` when set; m = 2 alone when
+    the crossovers are too few to choose (m = 1 then only lends its state map); else all."""
+    if p.m is not None:
+        return [int(p.m)]
+    if idf.n_crossovers < p.choice_min_crossovers and 2 in idf.identifications:
+        return [2]
+    return sorted(idf.identifications)
+
+
+def _recognised_by(idents: dict, m: int, p):
+    """The identification of order m, with the state map of the order ``recognition_order``
+    when that was identified too and has the same levels (N1 × N2): the recognition of
+    terrain classes is better on the m = 1 regularized band, the Q levels stay m's own."""
+    r = p.recognition_order
+    if r is None or r == m or r not in idents:
+        return idents[m]
+    a, b = idents[m], idents[r]
+    if (len(a.learned.em.Q), len(a.learned.em.R)) != (len(b.learned.em.Q), len(b.learned.em.R)):
+        return a
+    hybrid = Identification(m, b.regularized, a.learned, b.recognition, b.n_points, a.warnings)
+    hybrid.recognition_m = r
+    return hybrid
+
+
 def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = None, rho_km: float | None = None,
                survey_name: str | None = None) -> dict:
     """NL-means (h, ρ; default the survey's) → filtering of every identified order → model choice
@@ -156,15 +184,19 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     rho = p.nlmeans_rho_km if rho_km is None else float(rho_km)
     warnings = list(idf.warnings)
     cands = {}
-    for m, ident in idf.identifications.items():
+    for m in filter_orders(idf, p):
         tr.start("nlmeans")
+        ident = _recognised_by(idf.identifications, m, p)
         smap = state_map(ident.recognition, h, rho, p.nlmeans_mode)
         tr.start("filtering")
         filt = filter_survey(idf.lines, idf.flights, idf.fir, ident, smap, idf.noise.r_local, idf.noise.model,
-                             idf.dt_s, p, warnings, progress=tr.emit)
+                             idf.dt_s, p, warnings, progress=tr.emit, stationary=len(filter_orders(idf, p)) == 1)
         cands[m] = Candidate(ident, smap, filt)
     tr.start("choice")
-    choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings)
+    m_best, order_rep = choose_order(cands, p)
+    if len(cands) > 1:  # the baseline only for the order that is used
+        cands[m_best].filtered.add_stationary(idf.dt_s, m_best, p.smoother, idf.noise.model)
+    choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings, order=(m_best, order_rep))
     best = cands[choice.m]
     table = choice.table
     tr.start("leveling")
@@ -174,8 +206,9 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     tr.start("writing")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    write_outputs(out, table, best.smap.table(best.ident.recognition), leveled.crossovers,
-                  identification_json(best.ident, idf.noise.model, best.smap, idf.dt_s), grid, idf.crs)
+    ident_json = identification_json(idf.identifications[choice.m], idf.noise.model, best.smap, idf.dt_s)
+    ident_json["state_map_from_m"] = best.ident.recognition_m if hasattr(best.ident, "recognition_m") else choice.m
+    write_outputs(out, table, best.smap.table(best.ident.recognition), leveled.crossovers, ident_json, grid, idf.crs)
     tr.close()
     report = build_report(survey_name or cfg.survey.name, idf.crs, table, idf.flights, leveled, best.ident, grid,
                           warnings)

@@ -84,11 +84,17 @@ def count_crossovers(lines: list, include_repeat: bool) -> int:
 def choose_order(candidates: dict, p) -> tuple[int, dict]:
     """Step 1 of the module docstring."""
     orders = sorted(candidates)
+    if p.m is not None:
+        return int(p.m), {"criterion": "fixed (processing.m)", "m": int(p.m)}
     if len(orders) == 1:
-        return orders[0], {"criterion": "fixed" if p.m is not None else "default (too few crossovers)",
-                           "m": orders[0]}
+        return orders[0], {"criterion": f"default: fewer than {p.choice_min_crossovers} crossovers to tell the "
+                                        "orders apart", "m": orders[0]}
     diffs = {m: crossover_differences(candidates[m].filtered.table, "dg_unleveled_mgal",
                                       p.leveling_include_repeat) for m in orders}
+    if min(d.size for d in diffs.values()) < p.choice_min_crossovers:
+        n = min(d.size for d in diffs.values())
+        return 2, {"criterion": f"default: {n} crossovers (< {p.choice_min_crossovers}) cannot tell the orders apart",
+                   "m": 2}
     rms = {m: float(np.sqrt(np.mean((d - d.mean()) ** 2))) if d.size else float("inf") for m, d in diffs.items()}
     best = min(orders, key=lambda m: rms[m])
     cmp = crossover_comparison(diffs[orders[0]], diffs[orders[1]])
@@ -144,9 +150,10 @@ def fir_guard(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dic
     return rep
 
 
-def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list) -> ModelChoice:
-    """Stage 9 over the filtered candidates ``{m: Candidate}``."""
-    m, order_rep = choose_order(candidates, p)
+def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=None) -> ModelChoice:
+    """Stage 9 over the filtered candidates ``{m: Candidate}`` (``order``: the result of
+    :func:`choose_order` when already made)."""
+    m, order_rep = order if order is not None else choose_order(candidates, p)
     table = candidates[m].filtered.table.copy()
     lines = check_lines(table, noise, dt_s, p, warnings) if p.flatten_check else {}
     guard = fir_guard(table, noise, dt_s, p, warnings) if p.fir_guard else {"applied": False, "reason": "off"}

@@ -142,6 +142,19 @@ class Filtered:
     Q_levels: np.ndarray
     level_fit: object
     r_scale: float
+    r_stationary: float = float("nan")
+    prepared: list | None = None
+
+    def add_stationary(self, dt_s: float, m: int, method: str, noise) -> None:
+        """Fill the ``dg_stationary_mgal`` column (when :func:`filter_survey` skipped it): the
+        seed-000 baseline with one (Q₁, R) pair — the smooth state's Q and the survey's typical
+        noise level (Fig. 8)."""
+        col = []
+        for pr in self.prepared:
+            q = np.full(pr.z_ext.size, self.Q_levels[0])
+            dgs, _ = filter_line(pr.z_ext, q, np.full_like(q, self.r_stationary), dt_s, m, method, noise)
+            col.append(dgs[pr.inner])
+        self.table["dg_stationary_mgal"] = np.concatenate(col)
 
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
@@ -153,8 +166,10 @@ class Filtered:
 
 
 def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], fir: dict, ident, smap,
-                  r_local: dict, noise, dt_s: float, p, warnings: list, progress=None) -> Filtered:
-    """Stage 8 for one identification (order ``ident.m``) and one smoothed map."""
+                  r_local: dict, noise, dt_s: float, p, warnings: list, progress=None,
+                  stationary: bool = True) -> Filtered:
+    """Stage 8 for one identification (order ``ident.m``) and one smoothed map; without
+    ``stationary`` the baseline column is left NaN (:meth:`Filtered.add_stationary`)."""
     em = ident.learned.em
     Qs, Rs = np.asarray(em.Q, float), np.asarray(em.R, float)
     n_r = len(Rs)
@@ -182,8 +197,11 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
         dg, std = filter_line(pr.z_ext, q, r, dt_s, ident.m, p.smoother, noise)
         # stationary baseline (seed 000 Fig. 8): one (Q₁, R₁) pair — the smooth state's Q
         # and the survey's typical noise level
-        dgs, _ = filter_line(pr.z_ext, np.full_like(q, Qs[0]), np.full_like(q, r_stationary), dt_s, ident.m,
-                             p.smoother, noise)
+        if stationary:
+            dgs, _ = filter_line(pr.z_ext, np.full_like(q, Qs[0]), np.full_like(q, r_stationary), dt_s, ident.m,
+                                 p.smoother, noise)
+        else:
+            dgs = np.full(pr.z_ext.size, np.nan)
         frames.append(pd.DataFrame({
             "line": ln.line, "flight": ln.flight, "kind": ln.kind, "time": ln.t_s,
             "lat": ln.lat_deg, "lon": ln.lon_deg, "h": ln.h_m,
@@ -196,4 +214,5 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
         }))
         if progress is not None:
             progress((i + 1) / len(prepared))
-    return Filtered(pd.concat(frames, ignore_index=True), np.asarray(Qs, float), level_fit, r_scale)
+    return Filtered(pd.concat(frames, ignore_index=True), np.asarray(Qs, float), level_fit, r_scale, r_stationary,
+                    prepared)

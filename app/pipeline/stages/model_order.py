@@ -26,12 +26,11 @@ def choose_model_order(lines: list[LineData], dt_s: float, noise=None, r_local: 
 
 
 def candidate_orders(p, n_crossovers: int) -> list[int]:
-    """The orders m to identify: ``processing.m`` when set; with ``model_order =
-    'crossovers'`` 1 and 2 when there are at least ``choice_min_crossovers`` crossovers to
-    tell them apart, else the SPEC default 2; with ``'spectrum'``/``'likelihood'`` the one
-    order those criteria choose (made by the caller)."""
+    """The orders m to identify: ``processing.m`` when set (and ``recognition_order`` for its
+    state map); otherwise 1 and 2 — the crossovers choose between them when there are at least
+    ``choice_min_crossovers`` (:mod:`app.pipeline.stages.choice`), else m = 2 (SPEC's
+    default) filters with m = 1's state map."""
     if p.m is not None:
-        return [int(p.m)]
-    if n_crossovers >= p.choice_min_crossovers:
-        return [1, 2]
-    return [2]
+        extra = [p.recognition_order] if p.recognition_order not in (None, p.m) else []
+        return sorted({int(p.m), *extra})
+    return [1, 2]
