@@ -68,23 +68,12 @@ def write_outputs(out: Path, lines_df: pd.DataFrame, crs: str = "EPSG:32657", se
     G = 20 * np.sin(X / 7.0) * np.cos(Y / 9.0) + 0.5 * X
     S = 0.5 + 0.1 * np.abs(Y - Y.mean())
     G[0, 0] = np.nan
-    import xarray as xr
-    ds = xr.Dataset({"dg": (("northing_km", "easting_km"), G, {"units": "mGal"}),
-                     "dg_std": (("northing_km", "easting_km"), S, {"units": "mGal"})},
-                    coords={"easting_km": xs, "northing_km": ys}, attrs={"crs": crs})
-    ds.to_netcdf(out / "grid.nc")
-    import rasterio
-    from rasterio.transform import from_origin
-    with rasterio.open(out / "grid.tif", "w", driver="GTiff", height=len(ys), width=len(xs), count=1,
-                       dtype="float32", crs=crs, nodata=np.nan,
-                       transform=from_origin((xs[0] - 0.5) * 1000, (ys[-1] + 0.5) * 1000, 1000, 1000)) as dst:
-        dst.write(G[::-1].astype("float32"), 1)
-    with open(out / "grid.grd", "w") as fh:
-        fh.write(f"DSAA\n{len(xs)} {len(ys)}\n{xs[0]} {xs[-1]}\n{ys[0]} {ys[-1]}\n{np.nanmin(G)} {np.nanmax(G)}\n")
-        for row in np.where(np.isnan(G), 1.70141e38, G):
-            fh.write(" ".join(f"{v:.4f}" for v in row) + "\n")
-    pd.DataFrame({"easting_km": X.ravel(), "northing_km": Y.ravel(), "dg_mgal": G.ravel(),
-                  "dg_std_mgal": S.ravel()}).to_csv(out / "grid.csv", index=False)
+    # the grid files through the real writers (the export conventions are part of what the web tests check)
+    from app.io import export
+    export.write_grid_netcdf(out / "grid.nc", xs, ys, G, S, crs)
+    export.write_grid_geotiff(out / "grid.tif", xs, ys, G, S, crs)
+    export.write_grid_surfer(out / "grid.grd", xs, ys, G, S)
+    export.write_grid_csv(out / "grid.csv", xs, ys, G, S)
     report = {"crossover_rms_before_mgal": 1.2, "crossover_rms_after_mgal": 0.1, "n_lines": int(df["line"].nunique()),
               "fake": True}
     (out / "report.json").write_text(json.dumps(report))

@@ -28,6 +28,7 @@ EXPORTS = {
     "surfer": ("grid.grd", "text/plain"),
     "csv": ("grid.csv", "text/csv"),
     "parquet": ("lines.parquet", "application/vnd.apache.parquet"),
+    "xyz": ("lines.xyz", "text/plain"),
     "crossovers": ("crossovers.csv", "text/csv"),
     "report": ("report.json", "application/json"),
 }
@@ -223,7 +224,10 @@ def _load_grid(r: Result) -> dict[str, Any]:
         ds = ds.load()
     dg = ds["dg"]
     ydim, xdim = dg.dims[-2], dg.dims[-1]
-    out = {"easting_km": _clean(ds[xdim].values, 4), "northing_km": _clean(ds[ydim].values, 4),
+    # grid.nc: x/y in the CRS's unit with easting_km/northing_km beside them (older results: km only)
+    e = ds["easting_km"].values if "easting_km" in ds.coords else ds[xdim].values / 1000.0
+    n = ds["northing_km"].values if "northing_km" in ds.coords else ds[ydim].values / 1000.0
+    out = {"easting_km": _clean(e, 4), "northing_km": _clean(n, 4),
            "dg": [_clean(row, 3) for row in dg.values],
            "dg_std": [_clean(row, 3) for row in ds["dg_std"].values] if "dg_std" in ds else None,
            "crs": ds.attrs.get("crs") or (ds["crs"].attrs.get("crs_wkt") if "crs" in ds else None)}
@@ -257,13 +261,28 @@ def grid(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
     return _json({"survey_id": s.id, "result_id": r.id, **g, "report": r.report or {}})
 
 
+def _lines_xyz(s: Survey, r: Result) -> Path:
+    """``lines.xyz`` of a result (Geosoft XYZ line data), written beside lines.parquet on first use."""
+    from app.io.export import write_lines_xyz
+
+    p = Path(r.dir) / "lines.xyz"
+    src = Path(r.dir) / "lines.parquet"
+    if not p.exists() and src.exists():
+        crs = (r.report or {}).get("crs") or s.crs
+        write_lines_xyz(p, pd.read_parquet(src), crs,
+                        comments=(f"Aerograv line data: survey {s.name[:100]!r}, result {r.id}",))
+    return p
+
+
 @router.get("/{survey_id}/export")
-def export(format: Literal["geotiff", "netcdf", "surfer", "csv", "parquet", "crossovers", "report"] = Query(...),
+def export(format: Literal["geotiff", "netcdf", "surfer", "csv", "parquet", "xyz", "crossovers", "report"] = Query(
+               ..., description="geotiff, netcdf, surfer (grids: x/y in metres of the CRS), csv (grid), "
+               "parquet or xyz (line data; xyz = Geosoft XYZ with X/Y in metres), crossovers, report"),
            s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db)):
     """Download a stored output of the current result."""
     r = current_result(s, db)
     fname, media = EXPORTS[format]
-    p = Path(r.dir) / fname
+    p = _lines_xyz(s, r) if format == "xyz" else Path(r.dir) / fname
     if not p.exists():
         raise HTTPException(404, f"{fname} is not among the stored results")
     safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in s.name)
