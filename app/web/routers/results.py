@@ -17,7 +17,7 @@ from sqlalchemy.orm import Session
 
 from ..db import Result, Survey
 from ..deps import get_cache, get_db, get_survey_or_404
-from ..schemas import GridOut, LineOut, ProfileOut, RecognitionOut
+from ..schemas import GridOut, LineOut, ProfileOut, RecognitionOut, ReportOut
 from ..store import ResultCache
 
 router = APIRouter(prefix="/api/surveys", tags=["results"])
@@ -216,6 +216,68 @@ def recognition(h: float = Query(0.5, ge=0, le=100, description="NL-means weight
         body.update(rec["coords"])
     body["elapsed_ms"] = round(1000 * (time.perf_counter() - t0), 2)
     return _json(body)
+
+
+def _finite(v) -> float | None:
+    return float(v) if v is not None and math.isfinite(float(v)) else None
+
+
+def _load_report(r: Result) -> dict[str, Any]:
+    """report.json (the database copy when the file is missing), identification.json's summary and
+    the per-line adaptive − FIR differences."""
+    p = Path(r.dir) / "report.json"
+    try:
+        rep = json.loads(p.read_text(encoding="utf-8")) if p.exists() else (r.report or {})
+    except (OSError, ValueError):
+        rep = r.report or {}
+    if not isinstance(rep, dict):
+        rep = {"report": rep}
+    ident = _load_identification(r)
+    em = ident.get("em") or {}
+    iters = em.get("iterations") or []
+    identification = {k: ident[k] for k in ("states", "transition", "lines_skipped", "lines_learned", "m", "units")
+                      if k in ident}
+    identification["em"] = {"selection": em.get("selection"), "model": em.get("model"),
+                            "converged": em.get("converged"), "loglik": em.get("loglik"),
+                            "n_iterations": len(iters), "final": iters[-1] if iters else None}
+    diffs = []
+    lp = Path(r.dir) / "lines.parquet"
+    if lp.exists():
+        import pyarrow.parquet as pq
+        have = set(pq.read_schema(lp).names)
+        # both estimates before leveling: the difference is then filtering alone
+        a = "dg_unleveled_mgal" if "dg_unleveled_mgal" in have else "dg_mgal"
+        cols = [c for c in ("line", "flight", "kind", "time", a, "dg_fir_mgal") if c in have]
+        if "dg_fir_mgal" in have and a in have:
+            df = pd.read_parquet(lp, columns=cols)
+            df["line"] = df["line"].astype(str)
+            df["_d"] = df[a].to_numpy(float) - df["dg_fir_mgal"].to_numpy(float)
+            for line, g in df.groupby("line", sort=False):
+                d = g["_d"].to_numpy()
+                d = d[np.isfinite(d)]
+                diffs.append({"line": str(line), "flight": str(g["flight"].iloc[0]) if "flight" in g else "",
+                              "kind": str(g["kind"].iloc[0]) if "kind" in g else "", "n": int(d.size),
+                              "rms_mgal": _finite(np.sqrt(np.mean(d ** 2))) if d.size else None,
+                              "mean_mgal": _finite(np.mean(d)) if d.size else None,
+                              "std_mgal": _finite(np.std(d)) if d.size else None})
+    warnings = [str(w) for w in rep.get("warnings") or []] if isinstance(rep.get("warnings"), list) else []
+    xo = rep.get("crossovers") if isinstance(rep.get("crossovers"), dict) else {}
+    return {"warnings": warnings, "leveled": xo.get("status") == "leveled", "leveling_status": xo.get("status"),
+            "absolute_base_tie": not any(w.startswith("no absolute base tie") for w in warnings),
+            "adaptive_minus_fir": diffs, "identification": identification, "report": rep}
+
+
+@router.get("/{survey_id}/report", response_model=ReportOut,
+            responses={404: {"description": "no such survey, or no result yet"}})
+def report(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+           cache: ResultCache = Depends(get_cache)):
+    """The current result's report: every warning and automatic decision (base ties, time offsets, lag
+    check, spike repair, leveling F-test, crossovers, noise model, model order, identification, repeat
+    lines), with the per-line RMS of adaptive − FIR computed from lines.parquet."""
+    r = current_result(s, db)
+    body = cache.get(("report", r.id), lambda: _load_report(r))
+    out = ReportOut(survey_id=s.id, result_id=r.id, job_id=r.job_id, **body)
+    return _json(out.model_dump())
 
 
 def _load_grid(r: Result) -> dict[str, Any]:
