@@ -196,6 +196,8 @@ class ReportOut(BaseModel):
                                     "the level of dg is relative")
     adaptive_minus_fir: list[LineDifference] = Field(default_factory=list,
                                                      description="Per line, from lines.parquet")
+    crossovers: list[dict[str, Any]] = Field(default_factory=list, description="crossovers.csv rows: line_a, line_b, "
+                                             "easting_km, northing_km, diff_before_mgal, diff_after_mgal")
     identification: dict[str, Any] = Field(default_factory=dict, description="From identification.json: states "
                                            "{index, Q, R}, transition, em {selection, converged, loglik, "
                                            "n_iterations, final}, lines_skipped")

@@ -260,11 +260,19 @@ def _load_report(r: Result) -> dict[str, Any]:
                               "rms_mgal": _finite(np.sqrt(np.mean(d ** 2))) if d.size else None,
                               "mean_mgal": _finite(np.mean(d)) if d.size else None,
                               "std_mgal": _finite(np.std(d)) if d.size else None})
+    crossovers = []
+    cx = Path(r.dir) / "crossovers.csv"
+    if cx.exists():
+        c = pd.read_csv(cx, dtype={"line_a": str, "line_b": str})
+        for col in c.columns:
+            if c[col].dtype.kind == "f":
+                c[col] = c[col].round(4)
+        crossovers = c.astype(object).where(pd.notna(c), None).to_dict(orient="records")
     warnings = [str(w) for w in rep.get("warnings") or []] if isinstance(rep.get("warnings"), list) else []
     xo = rep.get("crossovers") if isinstance(rep.get("crossovers"), dict) else {}
     return {"warnings": warnings, "leveled": xo.get("status") == "leveled", "leveling_status": xo.get("status"),
             "absolute_base_tie": not any(w.startswith("no absolute base tie") for w in warnings),
-            "adaptive_minus_fir": diffs, "identification": identification, "report": rep}
+            "adaptive_minus_fir": diffs, "crossovers": crossovers, "identification": identification, "report": rep}
 
 
 @router.get("/{survey_id}/report", response_model=ReportOut,
