@@ -41,6 +41,16 @@ class StorageBudgetExceeded(Exception):
     """The survey would use more disk than its budget; nothing was stored."""
 
 
+def refresh_survey(db: Session, s: Survey) -> None:
+    """Reload the survey under its lock; :class:`SurveyConflict` when it was deleted meanwhile."""
+    from sqlalchemy.exc import InvalidRequestError
+    try:
+        db.refresh(s)
+    except InvalidRequestError:
+        db.rollback()
+        raise SurveyConflict(f"survey {s.id} was deleted meanwhile") from None
+
+
 def validate(reader: Callable, root: Path):
     """``reader(root)`` with file names in errors relative to the survey directory."""
     try:
@@ -175,7 +185,7 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
     Without a name the flight is called as the uploaded lines.csv calls it (when it names one flight),
     else ``flight<k>``."""
     with store.survey_lock(s.id):
-        db.refresh(s)
+        refresh_survey(db, s)
         base = s.input_dir
         name = name or flight_from_lines(lines_raw) or f"flight{len(s.flights) + 1}"
         staging = store.staging_dir()
@@ -327,7 +337,7 @@ def patch_survey(db: Session, store: Store, reader: Callable, s: Survey, patch, 
 
     given = {sec: getattr(patch, sec).model_fields_set for sec in SETTINGS_FIELDS if getattr(patch, sec) is not None}
     with store.survey_lock(s.id):
-        db.refresh(s)
+        refresh_survey(db, s)
         base = s.input_dir
         if not base or not (Path(base) / "survey.toml").is_file():
             if any(keys - ({"name"} if sec == "survey" else set()) for sec, keys in given.items()):
@@ -387,7 +397,7 @@ def delete_survey(db: Session, store: Store, s: Survey) -> list[int]:
     from sqlalchemy import delete
 
     with store.survey_lock(s.id):
-        db.refresh(s)
+        refresh_survey(db, s)
         active = db.scalars(select(Job).where(Job.survey_id == s.id, Job.status.in_(ACTIVE_STATES))).first()
         if active is not None:
             raise JobConflict(f"job {active.id} is {active.status} on this survey: cancel it or wait, then delete")
@@ -427,7 +437,7 @@ def check_grid_size(s: Survey, params: dict[str, Any]) -> None:
 
 def start_job(db: Session, store: Store, jobs: JobManager, s: Survey, kind: str, params: dict[str, Any]) -> Job:
     with store.survey_lock(s.id):  # the input snapshot cannot be pruned between reading and using it
-        db.refresh(s)
+        refresh_survey(db, s)
         if not s.input_dir:
             raise JobConflict("the survey has no data yet: import a survey or upload a flight first")
         active = db.scalars(select(Job).where(Job.survey_id == s.id, Job.status.in_(ACTIVE_STATES))).first()

@@ -169,3 +169,13 @@ export function genericView(v, depth = 0) {
 export function jsonDetails(name, v) {
   return el("details", { class: "json" }, el("summary", {}, `${name} (JSON)`), el("pre", {}, JSON.stringify(v, null, 2)));
 }
+
+// WebGL as Plotly's scattergl needs it (regl with two extensions); without it (no GPU, WebGL
+// blocked) the maps fall back to SVG scatter instead of showing a blank plot.
+function webglOk() {
+  try {
+    const gl = document.createElement("canvas").getContext("webgl");
+    return !!(gl && gl.getExtension("ANGLE_instanced_arrays") && gl.getExtension("OES_element_index_uint"));
+  } catch { return false; }
+}
+export const SCATTER_GL = webglOk() ? "scattergl" : "scatter";

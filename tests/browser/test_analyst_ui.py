@@ -178,3 +178,122 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     assert page.locator("#survey-list li:has-text('Block B')").count() == 0
     assert page.locator("#survey-list li.active:has-text('Block A')").count() == 1
     assert not page.errors, page.errors
+
+
+def _click_line_on_map(page, plot_sel, line, axis="x"):
+    """Click, with the mouse, the pixel where the plot draws the first point of ``line``'s track."""
+    xy = page.evaluate("""([sel, line, ax]) => {
+        const gd = document.querySelector(sel);
+        const tr = gd.data.find((t) => t.mode === 'lines' && t.customdata && t.customdata[0] === line
+                                        && (t.xaxis || 'x') === ax);
+        const i = Math.floor(tr.x.length / 2);
+        const fl = gd._fullLayout, xa = fl[ax === 'x' ? 'xaxis' : 'xaxis2'], ya = fl[ax === 'x' ? 'yaxis' : 'yaxis2'];
+        const box = gd.querySelector('.main-svg').getBoundingClientRect();
+        return [box.left + xa._offset + xa.l2p(tr.x[i]), box.top + ya._offset + ya.l2p(tr.y[i])];
+    }""", [plot_sel, line, axis])
+    page.mouse.move(xy[0], xy[1])
+    page.mouse.click(xy[0], xy[1])
+
+
+def test_maps_profiles_em_and_exports(fake_server, browser_page, tmp_path, shots):
+    import numpy as np
+
+    page = browser_page
+    sid = _processed_survey(fake_server.url, tmp_path)
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=grid")
+    page.wait_for_selector("#grid-plot[data-variable] .main-svg", timeout=20000)
+    # diverging scale, white at 0, symmetric robust limits
+    zmin, zmax = float(page.get_attribute("#grid-plot", "data-zmin")), float(page.get_attribute("#grid-plot", "data-zmax"))
+    assert zmin == pytest.approx(-zmax) and zmax > 0
+    cs = page.evaluate("() => document.querySelector('#grid-plot').data[0].colorscale")
+    mid = next(c for p, c in cs if abs(p - 0.5) < 1e-9)
+    assert mid == "#f7f7f7"
+    assert page.locator("#grid-plot .textpoint").count() == 3           # line labels L1, L2, T1
+    shots(page, "grid-default.png")
+    # own limits: white stays at 0
+    page.fill("#grid-zmin", "-5")
+    page.fill("#grid-zmax", "15")
+    page.dispatch_event("#grid-zmax", "change")
+    page.wait_for_function("() => document.querySelector('#grid-plot').dataset.zmax === '15'")
+    cs = page.evaluate("() => document.querySelector('#grid-plot').data[0].colorscale")
+    assert [c for p, c in cs if abs(p - 0.25) < 1e-9] == ["#f7f7f7"]   # (0 − (−5)) / 20
+    # hillshade layer
+    page.check("#grid-hillshade")
+    page.wait_for_function("() => document.querySelector('#grid-plot').dataset.hillshade === '1'")
+    assert page.evaluate("() => document.querySelector('#grid-plot').data.some((t) => t.name === 'hillshade')")
+    shots(page, "grid-hillshade.png")
+    # δg and σ side by side
+    page.select_option("#grid-var", "both")
+    page.wait_for_function("() => document.querySelector('#grid-plot').dataset.variable === 'both'")
+    assert page.locator("#grid-plot .colorbar").count() == 2 and page.locator("#grid-plot .xy2").count() + \
+        page.locator("#grid-plot .x2y2").count() >= 1
+    shots(page, "grid-side-by-side.png")
+    # a click on line L2 in the σ map opens its profile
+    _click_line_on_map(page, "#grid-plot", "L2", axis="x2")
+    page.wait_for_function("() => document.querySelector('#profile-plot') && document.querySelector('#profile-plot').dataset.line === 'L2'",
+                           timeout=20000)
+    assert page.locator("#tabs button.active").inner_text() == "Line profiles"
+    # the profile shows adaptive − FIR and σ in their own panel
+    names = page.evaluate("() => document.querySelector('#profile-plot').data.map((t) => t.name)")
+    assert "adaptive − FIR" in names and "± σ (adaptive)" in names
+    text = page.text_content("#profile-plot")
+    assert "adaptive − FIR, σ (mGal)" in text
+    assert "adaptive − FIR: RMS" in page.inner_text("#profile-status")
+    shots(page, "profile-L2.png")
+
+    # recognition map: a click on a point opens its line's profile
+    page.click("#tabs button[data-tab=recognition]")
+    page.wait_for_selector("#rec-map[data-signature]", timeout=20000)
+    legend = page.text_content("#rec-map .legend")
+    assert "state 0 (Q0, R0)" in legend and "state 1 (Q1, R0)" in legend
+    xy = page.evaluate("""() => {
+        const gd = document.querySelector('#rec-map'), t = gd.data[0];
+        const i = t.customdata.indexOf('T1');
+        const fl = gd._fullLayout, box = gd.querySelector('.main-svg').getBoundingClientRect();
+        return [box.left + fl.xaxis._offset + fl.xaxis.l2p(t.x[i]), box.top + fl.yaxis._offset + fl.yaxis.l2p(t.y[i])];
+    }""")
+    page.mouse.move(*xy)
+    page.mouse.click(*xy)
+    page.wait_for_function("() => document.querySelector('#profile-plot').dataset.line === 'T1'", timeout=20000)
+
+    # the QC line map too
+    page.click("#tabs button[data-tab=qc]")
+    page.wait_for_selector("#line-map .main-svg", timeout=20000)
+    _click_line_on_map(page, "#line-map", "L1")
+    page.wait_for_function("() => document.querySelector('#profile-plot').dataset.line === 'L1'", timeout=20000)
+
+    # EM table: states counted from 0 with their (Q, R), the full transition matrix of the final iteration
+    page.click("#tabs button[data-tab=process]")
+    page.wait_for_selector("#em-detail", timeout=20000)
+    head = page.inner_text("#em-table thead")
+    assert "Q0 (mGal²)" in head and "R0 ((cm/s)²)" in head and "stay s1 (Q1, R0)" in head and "Q2" not in head
+    assert page.get_attribute("#em-detail", "data-iteration") == "2" and "Final iteration 2" in page.inner_text("#em-detail")
+    assert page.locator("#em-transition tbody tr").count() == 2 and page.locator("#em-transition tbody td").count() == 6
+    assert page.locator("#em-states tbody tr").count() == 2
+    assert [c.strip() for c in page.inner_text("#em-transition tbody tr:first-child").split("\t")] == ["s0 (Q0, R0)", "0.98", "0.02"]
+    page.click(".em-row[data-index='0']")
+    page.wait_for_function("() => document.querySelector('#em-detail').dataset.iteration === '0'")
+    shots(page, "em-table.png")
+
+    # exports from the page: netCDF and the XYZ line data, read back
+    page.click("#tabs button[data-tab=export]")
+    page.wait_for_selector("#export-xyz")
+    got = {}
+    for fmt in ("netcdf", "xyz", "geotiff"):
+        with page.expect_download() as dl:
+            page.click(f"#export-{fmt}")
+        got[fmt] = tmp_path / dl.value.suggested_filename
+        dl.value.save_as(got[fmt])
+    import rasterio
+    import xarray as xr
+
+    from app.io.xyz import scan_xyz
+    with xr.open_dataset(got["netcdf"]) as ds, rasterio.open(got["geotiff"]) as t:
+        assert ds.x.attrs["units"] == "m"
+        assert float(ds.x.min()) - t.res[0] / 2 == pytest.approx(t.bounds.left)
+        assert float(ds.y.max()) + t.res[1] / 2 == pytest.approx(t.bounds.top)
+    scan = scan_xyz(got["xyz"])
+    assert [b.line_id for b in scan.blocks] == ["L1", "L2", "T1"]
+    x = np.array([float(r.split()[0]) for r in scan.data_lines])
+    assert 30_000 < x.max() - x.min() < 50_000   # the ~38 km of the test lines in metres, not km
+    assert not page.errors, page.errors

@@ -100,6 +100,7 @@ def test_report_with_warnings_decisions_and_adaptive_minus_fir(client, tiny_zip)
     assert l1["rms_mgal"] == pytest.approx(float(np.sqrt(np.mean(d ** 2))))
     assert l1["mean_mgal"] == pytest.approx(float(d.mean())) and l1["std_mgal"] == pytest.approx(float(d.std(ddof=0)))
     assert [x["line"] for x in rep["adaptive_minus_fir"]] == ["L1", "L2", "T1"]
+    assert rep["crossovers"][0]["line_a"] == "L1" and rep["crossovers"][0]["diff_before_mgal"] == 1.2
     assert "/api/surveys/{survey_id}/report" in client.get("/openapi.json").json()["paths"]
 
 

@@ -83,7 +83,7 @@ def remove_survey(s: Survey = Depends(get_survey_or_404), db: Session = Depends(
     """Delete a survey with its flights, jobs, results and files (409 while a job is active)."""
     try:
         ids = set(delete_survey(db, store, s))
-    except JobConflict as e:
+    except (JobConflict, SurveyConflict) as e:
         raise HTTPException(409, str(e))
     cache.discard(lambda k: isinstance(k, tuple) and len(k) == 2 and k[1] in ids)
     return Response(status_code=204)

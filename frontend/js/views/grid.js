@@ -98,12 +98,12 @@ export async function render(sec, ctx) {
     let traces, layout;
     if (v === "both") {
       const a1 = {}, a2 = { xaxis: "x2", yaxis: "y2" };
-      traces = [fieldTrace(false, a1, 0.45), ...overlays(false, a1, true), fieldTrace(true, a2, 1.0), ...overlays(true, a2, false)];
+      traces = [fieldTrace(false, a1, 0.41), ...overlays(false, a1, true), fieldTrace(true, a2, 0.99), ...overlays(true, a2, false)];
       layout = mapLayout(title, {
-        xaxis: { title: { text: "Easting (km)" }, domain: [0, 0.43], zeroline: false },
+        xaxis: { title: { text: "Easting (km)" }, domain: [0, 0.39], zeroline: false },
         yaxis: { title: { text: "Northing (km)" }, scaleanchor: "x", scaleratio: 1, zeroline: false },
-        xaxis2: { title: { text: "Easting (km)" }, domain: [0.55, 0.98], matches: "x", zeroline: false },
-        yaxis2: { anchor: "x2", scaleanchor: "x2", scaleratio: 1, matches: "y", zeroline: false },
+        xaxis2: { title: { text: "Easting (km)" }, domain: [0.55, 0.94], matches: "x", zeroline: false },
+        yaxis2: { anchor: "x2", scaleanchor: "x2", scaleratio: 1, matches: "y", zeroline: false, showticklabels: false },
       });
       plot.classList.add("wide");
     } else {
