@@ -109,14 +109,15 @@ const RENDER = {
     if (v.components) out.push(el("h4", {}, "Components"), genericView(v.components));
     if (v.candidates && v.candidates.length) {
       const c = [...v.candidates].sort((a, b) => (a.bic ?? Infinity) - (b.bic ?? Infinity));
-      out.push(el("h4", {}, "Candidates (lowest BIC chosen)"), table(["Family", "−log L", "Parameters", "BIC", ""],
-        c.map((x) => ({ attrs: { class: x.family === v.family ? "chosen" : "" }, cells: [x.family, fmt(x.nll, 6), String(x.n_params ?? "—"), fmt(x.bic, 6), x.family === v.family ? "chosen" : ""] })),
+      out.push(el("h4", {}, "Candidates by BIC (the family used is marked)"), table(["Family", "−log L", "Parameters", "BIC", "ΔBIC", ""],
+        c.map((x) => ({ attrs: { class: x.family === v.family ? "chosen" : "" }, cells: [x.family, fmt(x.nll, 1), String(x.n_params ?? "—"), fmt(x.bic, 1),
+          fmt(x.bic - c[0].bic, 3), x.family === v.family ? "chosen" : ""] })),
         { id: "report-noise-candidates" }));
     }
     return out;
   },
   model_order: (v) => [el("p", {}, `Order of the anomaly model m = ${v.m} (largest full-rate likelihood).`),
-    table(["m", "log L", "Q stationary (mGal²)"], Object.keys(v.loglik || {}).map((m) => [m, fmt(v.loglik[m], 8), fmt((v.Q_stationary_mgal2 || {})[m], 4)]))],
+    table(["m", "log L", "Q stationary (mGal²)"], Object.keys(v.loglik || {}).map((m) => [m, fmt(v.loglik[m], 1), fmt((v.Q_stationary_mgal2 || {})[m], 4)]))],
 };
 
 const TITLES = {
@@ -134,10 +135,10 @@ function identificationCard(r) {
   const out = [];
   const sel = em.selection;
   if (sel && Array.isArray(sel.candidates)) {
-    out.push(el("p", {}, `Model selection (${sel.criterion ?? "—"}): chosen ${sel.chosen ?? "—"}; EM ${em.converged === false ? "did NOT converge" : "converged"} after ${em.n_iterations} iterations, log L ${fmt(em.loglik, 8)}.`),
+    out.push(el("p", {}, `Model selection (${sel.criterion ?? "—"}): chosen ${sel.chosen ?? "—"}; EM ${em.converged === false ? "did NOT converge" : "converged"} after ${em.n_iterations} iterations, log L ${fmt(em.loglik, 2)}.`),
       table(["Model", "N1 (Q levels)", "N2 (R levels)", "log L", "Parameters", "BIC", "Iterations", ""],
         sel.candidates.map((c) => ({ attrs: { class: c.model === sel.chosen ? "chosen" : "" }, cells: [String(c.model), String(c.n_q ?? "—"), String(c.n_r ?? "—"),
-          fmt(c.loglik, 8), String(c.n_params ?? "—"), fmt(c.bic, 8), String(c.iterations ?? "—"), c.model === sel.chosen ? "chosen" : ""] })),
+          fmt(c.loglik, 2), String(c.n_params ?? "—"), fmt(c.bic, 2), String(c.iterations ?? "—"), c.model === sel.chosen ? "chosen" : ""] })),
         { id: "report-em-selection" }));
   }
   if (id.states && id.states.length) {
