@@ -1,9 +1,16 @@
 """Exports of grids and tables (SPEC §5): netCDF, GeoTIFF, Surfer, CSV, Parquet, JSON.
 
-Grid layout everywhere: ``easting_km`` shape (nx,), ``northing_km`` shape (ny,),
-both increasing and uniformly spaced for raster formats, values shape (ny, nx)
-with row 0 at the southernmost northing; the coordinates are the node (cell
-centre) positions in km of the projected CRS; masked nodes are NaN.
+Grid layout of the writers' arguments: ``easting_km`` shape (nx,), ``northing_km``
+shape (ny,), both increasing and uniformly spaced for raster formats, values shape
+(ny, nx) with row 0 at the southernmost northing; the coordinates are the node (cell
+centre) positions of the projected CRS in thousands of its unit (km for the metre CRSs
+of the pipeline, ``app.core.geodesy.project_km``); masked nodes are NaN.
+
+The files carry coordinates in the CRS's own unit (metres for UTM), so GIS software
+puts the map where it is: netCDF ``x``/``y`` (CF ``projection_x/y_coordinate``, with
+``easting_km``/``northing_km`` kept beside them as auxiliary coordinates), Surfer's
+header, the GeoTIFF transform and the XYZ line data's ``X``/``Y``.  The unit comes from
+the CRS's axis information (:func:`crs_unit`).
 
 Every writer is atomic: it writes to a temporary file in the destination
 directory and renames it over the destination with :func:`os.replace`, so a
@@ -98,20 +105,46 @@ def _crs(crs):
         raise ValueError(f"unknown CRS {crs!r}: {exc}") from exc
 
 
-def write_grid_netcdf(path, easting_km, northing_km, dg, dg_std, crs, attrs: dict | None = None) -> Path:
-    """CF-1.8 netCDF grid: variables ``dg``, ``dg_std`` (mGal) on ``northing_km``, ``easting_km``.
+#: CF/UDUNITS names of the linear units pyproj reports
+_UNIT_NAMES = {"metre": "m", "meter": "m", "kilometre": "km", "foot": "ft", "US survey foot": "US_survey_foot",
+               "foot_us": "US_survey_foot"}
 
-    Coordinates carry ``units = "km"`` and ``standard_name =
-    projection_x_coordinate / projection_y_coordinate``; a scalar ``crs``
-    grid-mapping variable carries the CF projection attributes from pyproj
-    plus ``crs_wkt`` and ``spatial_ref`` (the WKT); the data variables name it
-    in ``grid_mapping``.  Missing nodes are NaN (``_FillValue`` NaN).
+
+def crs_unit(crs) -> tuple[str, float]:
+    """(unit name for files, the unit's size in metres, or radians for angles) of the CRS's first
+    axis: ``("m", 1.0)`` for UTM.  Grids and lines are laid out in a projected CRS (the web
+    application refuses others); whatever the CRS, coordinates are written in its own unit."""
+    c = _crs(crs)
+    ax = c.axis_info[0] if c.axis_info else None
+    if ax is None:
+        return "m", 1.0
+    name = ax.unit_name or "metre"
+    return _UNIT_NAMES.get(name, name.replace(" ", "_")), float(ax.unit_conversion_factor or 1.0)
+
+
+def to_crs_units(km):
+    """Coordinates from the pipeline's km (thousands of the CRS unit, ``project_km``) to the CRS's
+    unit."""
+    return np.asarray(km, dtype=float) * 1000.0
+
+
+def write_grid_netcdf(path, easting_km, northing_km, dg, dg_std, crs, attrs: dict | None = None) -> Path:
+    """CF-1.8 netCDF grid: variables ``dg``, ``dg_std`` (mGal) on ``y``, ``x``.
+
+    ``x``/``y`` are the node coordinates in the CRS's unit (metres for UTM), ``units`` from the
+    CRS's axis information, ``standard_name = projection_x_coordinate /
+    projection_y_coordinate``; ``easting_km``/``northing_km`` stay beside them as auxiliary
+    coordinates (km) for readers of the pipeline's convention.  A scalar ``crs`` grid-mapping
+    variable carries the CF projection attributes from pyproj plus ``crs_wkt`` and
+    ``spatial_ref`` (the WKT); the data variables name it in ``grid_mapping``.  Missing nodes are
+    NaN (``_FillValue`` NaN).  GDAL and QGIS read it in place (``NETCDF:"grid.nc":dg``).
 
     Parameters
     ----------
     path : str or Path
     easting_km : ndarray, shape (nx,)
     northing_km : ndarray, shape (ny,)
+        Node coordinates in thousands of the CRS unit (km for a metre CRS).
     dg, dg_std : ndarray, shape (ny, nx)
         Anomaly and its std (mGal); ``dg_std`` may be None.
     crs : str or pyproj.CRS
@@ -123,42 +156,53 @@ def write_grid_netcdf(path, easting_km, northing_km, dg, dg_std, crs, attrs: dic
 
     e, n, g, s = _check_grid(easting_km, northing_km, dg, dg_std)
     c = _crs(crs)
+    unit, _ = crs_unit(c)
     wkt = c.to_wkt()
     crs_attrs = {k: v for k, v in c.to_cf().items() if v is not None}
     crs_attrs.update(crs_wkt=wkt, spatial_ref=wkt)
     crs_attrs = {k: (json.dumps(v) if isinstance(v, (dict, list)) else v) for k, v in crs_attrs.items()}
     data_vars = {
-        "dg": (("northing_km", "easting_km"), g, {
+        "dg": (("y", "x"), g, {
             "units": "mGal", "long_name": "gravity anomaly (free-air disturbance) at flight height",
             "grid_mapping": "crs"}),
         "crs": ((), np.int32(0), crs_attrs),
     }
     if s is not None:
-        data_vars["dg_std"] = (("northing_km", "easting_km"), s, {
+        data_vars["dg_std"] = (("y", "x"), s, {
             "units": "mGal", "long_name": "standard deviation of dg", "grid_mapping": "crs"})
     ds = xr.Dataset(
         data_vars,
         coords={
-            "easting_km": ("easting_km", e, {"units": "km", "standard_name": "projection_x_coordinate",
-                                              "long_name": "easting", "axis": "X"}),
-            "northing_km": ("northing_km", n, {"units": "km", "standard_name": "projection_y_coordinate",
-                                                "long_name": "northing", "axis": "Y"}),
+            "x": ("x", to_crs_units(e), {"units": unit, "standard_name": "projection_x_coordinate",
+                                             "long_name": "easting", "axis": "X"}),
+            "y": ("y", to_crs_units(n), {"units": unit, "standard_name": "projection_y_coordinate",
+                                             "long_name": "northing", "axis": "Y"}),
+            "easting_km": ("x", e, {"units": "km" if unit == "m" else f"1000 {unit}",
+                                    "long_name": "easting (x / 1000)"}),
+            "northing_km": ("y", n, {"units": "km" if unit == "m" else f"1000 {unit}",
+                                     "long_name": "northing (y / 1000)"}),
         },
         attrs={"Conventions": "CF-1.8", "title": "Aerograv anomaly grid", "crs": c.to_string(),
                **(attrs or {})},
     )
     enc = {v: {"_FillValue": np.nan, "dtype": "float64"} for v in ("dg", "dg_std") if v in ds}
-    enc["easting_km"] = {"_FillValue": None}
-    enc["northing_km"] = {"_FillValue": None}
+    for v in ("x", "y", "easting_km", "northing_km"):
+        enc[v] = {"_FillValue": None}
     return atomic_write(path, lambda tmp: ds.to_netcdf(tmp, engine="netcdf4", encoding=enc))
+
+
+#: GeoTIFF bands: (description, long name)
+GEOTIFF_BANDS = (("dg", "gravity anomaly (free-air disturbance) at flight height"),
+                 ("dg_std", "standard deviation of dg"))
 
 
 def write_grid_geotiff(path, easting_km, northing_km, dg, dg_std, crs) -> Path:
     """GeoTIFF with 2 float32 bands (1: dg, 2: dg_std, mGal), nodata NaN.
 
-    North-up: row 0 is the northernmost row; the affine transform is in metres
-    of ``crs`` with the node coordinates at pixel centres.  ``dg_std`` None
-    writes a band of NaN.
+    North-up: row 0 is the northernmost row; the affine transform is in the CRS's unit
+    (metres for UTM) with the node coordinates at pixel centres.  ``dg_std`` None
+    writes a band of NaN.  Band descriptions ``dg`` and ``dg_std``, band unit ``mGal``
+    (GDAL's unit type) and band tags ``units``, ``long_name``.
     """
     import rasterio
     from rasterio.crs import CRS as RioCRS
@@ -168,9 +212,10 @@ def write_grid_geotiff(path, easting_km, northing_km, dg, dg_std, crs) -> Path:
     if s is None:
         s = np.full_like(g, np.nan)
     c = _crs(crs)
-    dx_m = (e[-1] - e[0]) / (e.size - 1) * 1000.0
-    dy_m = (n[-1] - n[0]) / (n.size - 1) * 1000.0
-    transform = Affine(dx_m, 0.0, e[0] * 1000.0 - dx_m / 2, 0.0, -dy_m, n[-1] * 1000.0 + dy_m / 2)
+    x, y = to_crs_units(e), to_crs_units(n)
+    dx_m = (x[-1] - x[0]) / (x.size - 1)
+    dy_m = (y[-1] - y[0]) / (y.size - 1)
+    transform = Affine(dx_m, 0.0, x[0] - dx_m / 2, 0.0, -dy_m, y[-1] + dy_m / 2)
     profile = dict(driver="GTiff", width=e.size, height=n.size, count=2, dtype="float32",
                    crs=RioCRS.from_wkt(c.to_wkt()), transform=transform, nodata=np.nan)
 
@@ -178,16 +223,19 @@ def write_grid_geotiff(path, easting_km, northing_km, dg, dg_std, crs) -> Path:
         with rasterio.open(tmp, "w", **profile) as dst:
             dst.write(g[::-1].astype(np.float32), 1)
             dst.write(s[::-1].astype(np.float32), 2)
-            dst.set_band_description(1, "dg_mgal")
-            dst.set_band_description(2, "dg_std_mgal")
-            dst.update_tags(units="mGal")
+            for band, (name, long_name) in enumerate(GEOTIFF_BANDS, start=1):
+                dst.set_band_description(band, name)
+                dst.set_band_unit(band, "mGal")
+                dst.update_tags(band, units="mGal", long_name=long_name)
+            dst.update_tags(units="mGal", TIFFTAG_SOFTWARE="aerograv")
 
     return atomic_write(path, _write)
 
 
-def surfer_text(easting_km, northing_km, values) -> str:
-    """Surfer 6 ASCII grid text ("DSAA"), blanks 1.70141e38, rows south to north."""
-    e, n, g, _ = _check_grid(easting_km, northing_km, values)
+def surfer_text(x, y, values) -> str:
+    """Surfer 6 ASCII grid text ("DSAA"), blanks 1.70141e38, rows south to north; the node
+    coordinates ``x``, ``y`` written as given."""
+    e, n, g, _ = _check_grid(x, y, values)
     ok = np.isfinite(g)
     if not np.any(ok):
         raise ValueError("grid has no finite value to write")
@@ -209,18 +257,21 @@ def _write_text(path, text: str) -> Path:
 
 
 def write_grid_surfer(path, easting_km, northing_km, dg, dg_std=None, crs=None) -> Path:
-    """Surfer 6 ASCII grid ("DSAA") of ``dg`` (mGal), coordinates in km.
+    """Surfer 6 ASCII grid ("DSAA") of ``dg`` (mGal), coordinates in the CRS's unit (metres).
 
     Header ``DSAA / nx ny / xlo xhi / ylo yhi / zlo zhi``, then ny rows of nx
     values from south to north; blanks (NaN) as 1.70141e38.  A Surfer file
     holds one variable: if ``dg_std`` is given it goes to ``<stem>_std<suffix>``
-    beside ``path``.  ``crs`` is not stored (the format has no place for it).
+    beside ``path``.  The format has no place for the CRS, so the node coordinates are
+    written in the unit of the projected CRS the pipeline uses (``easting_km`` × 1000: metres
+    for UTM), which is how Surfer, QGIS and GDAL expect them; ``crs`` is not stored.
     """
     path = Path(path)
-    text = surfer_text(easting_km, northing_km, dg)
+    e, n = to_crs_units(easting_km), to_crs_units(northing_km)
+    text = surfer_text(e, n, dg)
     text_std = None
     if dg_std is not None and np.any(np.isfinite(dg_std)):
-        text_std = surfer_text(easting_km, northing_km, dg_std)
+        text_std = surfer_text(e, n, dg_std)
     _write_text(path, text)
     if text_std is not None:
         _write_text(path.with_name(f"{path.stem}_std{path.suffix}"), text_std)
@@ -243,6 +294,49 @@ def write_grid_csv(path, easting_km, northing_km, dg, dg_std=None, crs=None) -> 
     Masked nodes are written with empty values.  ``crs`` is not stored.
     """
     return write_csv(grid_to_frame(easting_km, northing_km, dg, dg_std), path)
+
+
+# --------------------------------------------------------------------------- line data
+
+#: lines.parquet columns → Geosoft XYZ channel names (Oasis montaj style), in file order
+XYZ_LINE_CHANNELS = {"x": "X", "y": "Y", "time": "TIME", "lat": "LAT", "lon": "LON", "h": "HGT",
+                     "z_mgal": "Z_MGAL", "dg_mgal": "DG", "dg_std_mgal": "DG_STD",
+                     "dg_unleveled_mgal": "DG_UNLEV", "dg_stationary_mgal": "DG_STAT", "dg_fir_mgal": "DG_FIR",
+                     "state": "STATE", "Q_mgal2": "Q_MGAL2", "R_cm2s2": "R_CM2S2"}
+
+
+def write_lines_xyz(path, lines, crs=None, comments: tuple[str, ...] = ()) -> Path:
+    """Line data (a ``lines.parquet`` frame) as a Geosoft XYZ file, atomically.
+
+    One block per survey line in time order, headed ``Line <id>`` (main and repeat lines) or
+    ``Tie <id>``; channels ``X``, ``Y`` (the projected coordinates in the CRS's unit: metres for
+    UTM), ``TIME``, ``LAT``, ``LON``, ``HGT``, then the anomalies in mGal (``DG`` is the final
+    estimate), ``STATE``, ``Q_MGAL2``, ``R_CM2S2`` (those present in ``lines``); missing values
+    ``*``.  ``app.io.xyz.scan_xyz`` reads it back (the survey readers do not take it as a
+    flight: it holds no gravimeter record).
+    """
+    from app.io.xyz import write_xyz
+
+    df = lines.copy()
+    df["line"] = df["line"].astype(str)
+    df["x"] = to_crs_units(df["easting_km"])
+    df["y"] = to_crs_units(df["northing_km"])
+    order = df.groupby("line", sort=False)["time"].transform("min")
+    df = df.assign(_t0=order).sort_values(["_t0", "line", "time"], kind="stable").reset_index(drop=True)
+    names = {c: XYZ_LINE_CHANNELS[c] for c in XYZ_LINE_CHANNELS if c in df.columns}
+    segments = []
+    start = 0
+    ids = df["line"].to_numpy()
+    kinds = df["kind"].astype(str).to_numpy() if "kind" in df else np.full(len(df), "main")
+    for i in range(1, len(df) + 1):
+        if i == len(df) or ids[i] != ids[start]:
+            segments.append(("tie" if kinds[start] == "tie" else "line", ids[start], start, i))
+            start = i
+    head = list(comments)
+    if crs is not None:
+        unit, _ = crs_unit(crs)
+        head.append(f"X, Y: {_crs(crs).to_string()} ({unit}); anomalies mGal; TIME s; HGT m")
+    return atomic_write(path, lambda tmp: write_xyz(tmp, df, names, segments, comments=tuple(head)))
 
 
 # --------------------------------------------------------------------------- tables

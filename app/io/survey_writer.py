@@ -45,15 +45,27 @@ def _toml_value(v) -> str:
 
 
 def dumps_toml(doc: dict) -> str:
-    """Minimal TOML writer for ``{table: {key: scalar | list}}`` documents."""
-    out = []
-    for table, body in doc.items():
-        out.append(f"[{table}]")
+    """Minimal TOML writer for ``{table: {key: scalar | list | {subtable}}}`` documents (a nested
+    dict is written as ``[table.sub]`` after the table's own keys); None values are left out."""
+    out: list[str] = []
+
+    def key(k: str) -> str:
+        k = str(k)
+        return k if k.replace("_", "").replace("-", "").isalnum() and k.isascii() else json.dumps(k)
+
+    def table(path: list[str], body: dict) -> None:
+        out.append("[" + ".".join(key(p) for p in path) + "]")
         for k, v in body.items():
-            if v is None:
+            if v is None or isinstance(v, dict):
                 continue
-            out.append(f"{k} = {_toml_value(v)}")
+            out.append(f"{key(k)} = {_toml_value(v)}")
         out.append("")
+        for k, v in body.items():
+            if isinstance(v, dict):
+                table(path + [k], v)
+
+    for name, body in doc.items():
+        table([name], body)
     return "\n".join(out)
 
 

@@ -1,8 +1,10 @@
 """FastAPI application factory: ``create_app(settings=None)``.
 
-REST API under ``/api`` (OpenAPI at ``/docs``), the static browser frontend at ``/``
-(``frontend/``, no build step) and Plotly's JavaScript served from the installed
-``plotly`` package at ``/vendor/plotly.min.js``.
+REST API under ``/api`` (OpenAPI at ``/docs`` and ``/redoc``), the static browser frontend at
+``/`` (``frontend/``, no build step), Plotly's JavaScript served from the installed ``plotly``
+package at ``/vendor/plotly.min.js``, and Swagger UI / ReDoc from the installed
+``fastapi-offline`` package under ``/docs-static/`` (no CDN: the API pages work offline, under
+the same CSP as the application).
 
 Every request passes :class:`GuardMiddleware`: the Host header must be allowed (DNS
 rebinding), mutating ``/api`` requests need the token when one is set and, when none is set,
@@ -49,12 +51,39 @@ MUTATING = {"POST", "PUT", "PATCH", "DELETE"}
 CSP = ("default-src 'self'; script-src 'self'; style-src 'self' 'unsafe-inline'; img-src 'self' data: blob:; "
        "font-src 'self' data:; connect-src 'self'; worker-src 'self' blob:; object-src 'none'; base-uri 'none'; "
        "form-action 'self'; frame-ancestors 'none'")
-# the OpenAPI pages (/docs, /redoc) load Swagger UI / ReDoc from a CDN with an inline bootstrap script
-CSP_DOCS = ("default-src 'self'; script-src 'self' 'unsafe-inline' https://cdn.jsdelivr.net; "
-            "style-src 'self' 'unsafe-inline' https://cdn.jsdelivr.net https://fonts.googleapis.com; "
-            "img-src 'self' data: https://fastapi.tiangolo.com https://cdn.redoc.ly; font-src 'self' data: "
-            "https://fonts.gstatic.com; worker-src 'self' blob:; connect-src 'self'; object-src 'none'; "
-            "frame-ancestors 'none'")
+# Swagger UI and ReDoc (/docs, /redoc) come from the installed fastapi-offline package and start from
+# a script file of our own: the API pages live under the application's CSP, no external host
+DOCS_ASSETS = {"swagger-ui-bundle.js": "application/javascript", "swagger-ui.css": "text/css",
+               "redoc.standalone.js": "application/javascript", "favicon.png": "image/png"}
+SWAGGER_INIT_JS = """window.ui = SwaggerUIBundle({
+  url: "/openapi.json", dom_id: "#swagger-ui", layout: "BaseLayout", deepLinking: true,
+  showExtensions: true, showCommonExtensions: true, validatorUrl: null,
+  presets: [SwaggerUIBundle.presets.apis, SwaggerUIBundle.SwaggerUIStandalonePreset],
+});
+"""
+DOCS_HTML = """<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>Aerograv API — Swagger UI</title>
+<link rel="icon" href="/docs-static/favicon.png"><link rel="stylesheet" href="/docs-static/swagger-ui.css">
+</head><body><div id="swagger-ui"></div>
+<script src="/docs-static/swagger-ui-bundle.js"></script><script src="/docs-static/swagger-init.js"></script>
+</body></html>
+"""
+REDOC_HTML = """<!doctype html>
+<html lang="en"><head><meta charset="utf-8"><title>Aerograv API — ReDoc</title>
+<meta name="viewport" content="width=device-width, initial-scale=1"><link rel="icon" href="/docs-static/favicon.png">
+</head><body><redoc spec-url="/openapi.json"></redoc><script src="/docs-static/redoc.standalone.js"></script>
+</body></html>
+"""
+
+
+def docs_assets_dir() -> Path | None:
+    """The Swagger UI / ReDoc files of the installed ``fastapi-offline`` package."""
+    import importlib.util
+    spec = importlib.util.find_spec("fastapi_offline")
+    if spec is None or not spec.submodule_search_locations:
+        return None
+    d = Path(list(spec.submodule_search_locations)[0]) / "static"
+    return d if d.is_dir() else None
 SECURITY_HEADERS = [(b"x-frame-options", b"DENY"), (b"x-content-type-options", b"nosniff"),
                     (b"referrer-policy", b"no-referrer"), (b"cross-origin-opener-policy", b"same-origin")]
 
@@ -126,7 +155,7 @@ class GuardMiddleware:
         if scope["type"] != "http":
             return await self.app(scope, receive, send)
         path = scope.get("path", "")
-        csp = (CSP_DOCS if path.startswith(("/docs", "/redoc")) else CSP).encode()
+        csp = CSP.encode()
 
         async def send_secure(msg):
             if msg["type"] == "http.response.start":
@@ -201,7 +230,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             jobs.shutdown()
 
-    app = FastAPI(title="Aerograv", version="0.1.0", lifespan=lifespan,
+    app = FastAPI(title="Aerograv", version="0.1.0", lifespan=lifespan, docs_url=None, redoc_url=None,
                   description="Airborne gravimetry processing: surveys, jobs, recognition, profiles, grids, exports.")
     app.state.settings = settings
     app.state.store = store
@@ -306,6 +335,28 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 "max_uncompressed_mb": round(settings.max_uncompressed_bytes / 2**20, 3),
                 "allowed_hosts": sorted(hosts) if hosts is not None else ["*"],
                 "storage": storage_report()}
+
+    from fastapi.responses import HTMLResponse, Response
+
+    @app.get("/docs", include_in_schema=False)
+    def swagger_ui() -> HTMLResponse:
+        return HTMLResponse(DOCS_HTML)
+
+    @app.get("/redoc", include_in_schema=False)
+    def redoc() -> HTMLResponse:
+        return HTMLResponse(REDOC_HTML)
+
+    @app.get("/docs-static/swagger-init.js", include_in_schema=False)
+    def swagger_init() -> Response:
+        return Response(SWAGGER_INIT_JS, media_type="application/javascript")
+
+    @app.get("/docs-static/{name}", include_in_schema=False)
+    def docs_asset(name: str):
+        d = docs_assets_dir()
+        if name not in DOCS_ASSETS or d is None or not (d / name).is_file():
+            raise HTTPException(404, f"{name[:100]} is not among the API documentation assets "
+                                     "(the fastapi-offline package provides them)")
+        return FileResponse(d / name, media_type=DOCS_ASSETS[name], headers={"Cache-Control": "public, max-age=86400"})
 
     @app.get("/vendor/plotly.min.js", include_in_schema=False)
     def plotly_js():

@@ -26,6 +26,40 @@ class FlightOut(BaseModel):
     qc: dict[str, Any] = {}
 
 
+class SurveySectionPatch(BaseModel):
+    """``[survey]`` of survey.toml: the fields given are set (null removes an optional one)."""
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    name: str | None = Field(None, description="Survey name (also the name in the survey list)")
+    crs: str | None = Field(None, description="Projected CRS, e.g. 'EPSG:32657' (null: the UTM zone of the data)")
+    normal_gravity: str | None = Field(None, description="'WGS84' or 'Helmert1901'")
+
+
+class GravimeterSectionPatch(BaseModel):
+    """``[gravimeter]`` of survey.toml: the fields given are set (null removes an optional one)."""
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    model: str | None = Field(None, description="Gravimeter model, e.g. 'GT-1A'")
+    tau_s: float | None = Field(None, description="First-order lag time constant (s); 0 if already de-lagged")
+    scale: float | None = Field(None, description="Scale k of the gravimeter model")
+    rate_hz: float | None = Field(None, description="Declared sampling rate (Hz); null: inferred from the time stamps")
+    base_gravity_mgal: float | None = Field(None, description="Absolute gravity at the parking place (mGal); "
+                                            "null: no absolute base tie (the level of dg is relative)")
+
+
+class SurveyPatch(BaseModel):
+    """Changes to a survey's ``survey.toml`` (validated by app.config.SurveyConfig; a 422 names the
+    field as ``section.key``).  Fields left out keep their value."""
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+    survey: SurveySectionPatch | None = None
+    gravimeter: GravimeterSectionPatch | None = None
+
+
+class SurveySettings(BaseModel):
+    """The editable fields of the current ``survey.toml`` (after defaults)."""
+    survey: dict[str, Any] = Field(default_factory=dict, description="name, crs, normal_gravity")
+    gravimeter: dict[str, Any] = Field(default_factory=dict,
+                                       description="model, tau_s, scale, rate_hz, base_gravity_mgal")
+
+
 class SurveyOut(BaseModel):
     id: int
     name: str
@@ -35,6 +69,9 @@ class SurveyOut(BaseModel):
     n_lines: int = 0
     has_input: bool = False
     current_result_id: int | None = None
+    result_outdated: bool = Field(False, description="The survey's input (data or survey.toml) changed after the "
+                                  "current result was computed: run processing again")
+    settings: SurveySettings | None = Field(None, description="survey.toml fields of the current input")
     last_job: "JobOut | None" = None
 
 
@@ -135,6 +172,36 @@ class GridOut(BaseModel):
     lines: list[dict[str, Any]] = Field(default_factory=list, description="{line, kind, easting_km[], northing_km[]}")
     crossovers: list[dict[str, Any]] = []
     report: dict[str, Any] = {}
+
+
+class LineDifference(BaseModel):
+    line: str
+    flight: str
+    kind: str
+    n: int
+    rms_mgal: float | None = Field(None, description="RMS of adaptive − FIR (both before leveling), mGal")
+    mean_mgal: float | None = Field(None, description="Mean of adaptive − FIR, mGal")
+    std_mgal: float | None = Field(None, description="Standard deviation of adaptive − FIR, mGal")
+
+
+class ReportOut(BaseModel):
+    """The current result's report.json with what the browser needs beside it."""
+    survey_id: int
+    result_id: int
+    job_id: int
+    warnings: list[str] = Field(default_factory=list, description="report.json 'warnings'")
+    leveled: bool = Field(False, description="crossovers.status == 'leveled' (leveling applied)")
+    leveling_status: str | None = Field(None, description="report.json crossovers.status")
+    absolute_base_tie: bool = Field(True, description="False when a warning says 'no absolute base tie': "
+                                    "the level of dg is relative")
+    adaptive_minus_fir: list[LineDifference] = Field(default_factory=list,
+                                                     description="Per line, from lines.parquet")
+    crossovers: list[dict[str, Any]] = Field(default_factory=list, description="crossovers.csv rows: line_a, line_b, "
+                                             "easting_km, northing_km, diff_before_mgal, diff_after_mgal")
+    identification: dict[str, Any] = Field(default_factory=dict, description="From identification.json: states "
+                                           "{index, Q, R}, transition, em {selection, converged, loglik, "
+                                           "n_iterations, final}, lines_skipped")
+    report: dict[str, Any] = Field(default_factory=dict, description="report.json as written by the pipeline")
 
 
 SurveyOut.model_rebuild()

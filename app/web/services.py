@@ -11,6 +11,7 @@ never both start.
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import os
@@ -29,7 +30,7 @@ from app.io.errors import InputError
 
 from .db import ACTIVE_STATES, Flight, Job, Line, Result, Survey, utcnow
 from .jobs import JobManager
-from .store import Store, link_tree, relativize, release_memory, survey_qc
+from .store import SAFE_NAME, Store, link_tree, relativize, release_memory, survey_qc
 
 
 class SurveyConflict(Exception):
@@ -38,6 +39,16 @@ class SurveyConflict(Exception):
 
 class StorageBudgetExceeded(Exception):
     """The survey would use more disk than its budget; nothing was stored."""
+
+
+def refresh_survey(db: Session, s: Survey) -> None:
+    """Reload the survey under its lock; :class:`SurveyConflict` when it was deleted meanwhile."""
+    from sqlalchemy.exc import InvalidRequestError
+    try:
+        db.refresh(s)
+    except InvalidRequestError:
+        db.rollback()
+        raise SurveyConflict(f"survey {s.id} was deleted meanwhile") from None
 
 
 def validate(reader: Callable, root: Path):
@@ -151,14 +162,32 @@ def toml_string(s: str) -> str:
     return json.dumps(s, ensure_ascii=False)
 
 
+def flight_from_lines(lines_raw: bytes | None) -> str | None:
+    """The flight id an uploaded lines.csv names, when it names exactly one (and it is usable as a
+    folder name); None otherwise."""
+    if not lines_raw:
+        return None
+    try:
+        df = pd.read_csv(io.BytesIO(lines_raw), dtype=str, keep_default_na=False, usecols=["flight"])
+    except Exception:  # no flight column, unreadable: the reader says what is wrong later
+        return None
+    ids = {v.strip() for v in df["flight"] if v.strip()}
+    if len(ids) != 1:
+        return None
+    name = ids.pop()
+    return name if SAFE_NAME.match(name) else None
+
+
 def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str | None, write_files: Callable,
                lines_raw: bytes | None, budget_bytes: int | None = None) -> Survey:
     """Build the next snapshot (hard links to the current one + this flight's files), validate it and
-    switch to it, under the survey's lock; ``write_files(flight_dir)`` writes gravimeter.csv and gnss.csv."""
+    switch to it, under the survey's lock; ``write_files(flight_dir)`` writes gravimeter.csv and gnss.csv.
+    Without a name the flight is called as the uploaded lines.csv calls it (when it names one flight),
+    else ``flight<k>``."""
     with store.survey_lock(s.id):
-        db.refresh(s)
+        refresh_survey(db, s)
         base = s.input_dir
-        name = name or f"flight{len(s.flights) + 1}"
+        name = name or flight_from_lines(lines_raw) or f"flight{len(s.flights) + 1}"
         staging = store.staging_dir()
         try:
             root = staging / "survey"
@@ -178,6 +207,8 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
                     raise InputError("lines.csv", None, None, f"cannot read the uploaded lines file: {e}")
                 if "flight" not in new.columns:
                     new.insert(1 if len(new.columns) else 0, "flight", name)
+                elif len({v.strip() for v in new["flight"] if v.strip()}) <= 1:
+                    new["flight"] = name  # the rows of this one flight, under the name it is uploaded as
                 else:
                     new["flight"] = new["flight"].replace("", name)
                 lp = root / "lines.csv"
@@ -203,6 +234,189 @@ class JobConflict(Exception):
     pass
 
 
+# ---------------------------------------------------------------- survey.toml fields (PATCH)
+class SettingsRejected(Exception):
+    """The survey.toml change is invalid; ``detail`` is a list of ``{loc, msg, type, input}``."""
+
+    def __init__(self, detail: list[dict]):
+        super().__init__(detail[0]["msg"] if detail else "invalid settings")
+        self.detail = detail
+
+
+class NoInput(Exception):
+    """The survey has no input snapshot (no survey.toml) yet."""
+
+
+SETTINGS_FIELDS = {"survey": ("name", "crs", "normal_gravity"),
+                   "gravimeter": ("model", "tau_s", "scale", "rate_hz", "base_gravity_mgal")}
+
+
+@functools.lru_cache(maxsize=256)
+def _settings_of(toml_path: str, mtime_ns: int) -> dict | None:
+    from app.io.survey import read_config
+    try:
+        cfg = read_config(Path(toml_path))
+    except InputError:
+        return None
+    return {sec: {k: getattr(getattr(cfg, sec), k) for k in keys} for sec, keys in SETTINGS_FIELDS.items()}
+
+
+def survey_settings(s: Survey) -> dict | None:
+    """The editable survey.toml fields of the current input snapshot (snapshots are immutable, so
+    the result is cached by path)."""
+    if not s.input_dir:
+        return None
+    p = Path(s.input_dir) / "survey.toml"
+    try:
+        st = p.stat()
+    except OSError:
+        return None
+    return _settings_of(str(p), st.st_mtime_ns)
+
+
+def check_crs(crs: str) -> None:
+    """A CRS the pipeline can lay a grid out in: known to PROJ and projected."""
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+    try:
+        c = CRS.from_user_input(crs)
+    except CRSError as e:
+        raise SettingsRejected([{"loc": ["survey", "crs"], "msg": f"unknown CRS: {str(e)[:200]}",
+                                 "type": "value_error", "input": crs[:100]}]) from None
+    if not c.is_projected:
+        raise SettingsRejected([{"loc": ["survey", "crs"], "msg": f"{c.name} is not a projected CRS: distances and "
+                                 "the grid need one in linear units (e.g. a UTM zone, EPSG:326xx)",
+                                 "type": "value_error", "input": crs[:100]}])
+
+
+def merged_config(current: dict, patch) -> dict:
+    """survey.toml data with the PATCH applied (fields given are set; null removes the key)."""
+    data = {k: (dict(v) if isinstance(v, dict) else v) for k, v in current.items()}
+    for sec in SETTINGS_FIELDS:
+        part = getattr(patch, sec)
+        if part is None:
+            continue
+        table = data.setdefault(sec, {})
+        if not isinstance(table, dict):
+            raise SettingsRejected([{"loc": [sec], "msg": f"[{sec}] of survey.toml is not a table",
+                                     "type": "value_error"}])
+        for k in part.model_fields_set:
+            v = getattr(part, k)
+            if v is None:
+                if sec == "survey" and k == "name":
+                    raise SettingsRejected([{"loc": ["survey", "name"], "msg": "the name cannot be removed",
+                                             "type": "value_error", "input": None}])
+                table.pop(k, None)
+            else:
+                table[k] = v
+    return data
+
+
+def validate_config(data: dict) -> None:
+    """SurveyConfig validation; errors as 422 details naming ``section.key``."""
+    from pydantic import ValidationError
+
+    from app.config import SurveyConfig
+    from .errors import validation_detail
+    try:
+        cfg = SurveyConfig.model_validate(data)
+    except ValidationError as e:
+        raise SettingsRejected(validation_detail(e.errors())) from None
+    if cfg.survey.crs:
+        check_crs(cfg.survey.crs)
+
+
+def patch_survey(db: Session, store: Store, reader: Callable, s: Survey, patch, budget_bytes: int | None = None) -> Survey:
+    """Apply a :class:`~app.web.schemas.SurveyPatch`: a new input snapshot whose survey.toml carries the
+    changes (hard links to the current files, survey.toml replaced), validated with the survey reader and
+    switched to under the survey's lock like a flight upload.  A survey without data takes a new name
+    only (:class:`NoInput` otherwise)."""
+    import tomllib
+
+    from app.io.survey_writer import dumps_toml
+
+    given = {sec: getattr(patch, sec).model_fields_set for sec in SETTINGS_FIELDS if getattr(patch, sec) is not None}
+    with store.survey_lock(s.id):
+        refresh_survey(db, s)
+        base = s.input_dir
+        if not base or not (Path(base) / "survey.toml").is_file():
+            if any(keys - ({"name"} if sec == "survey" else set()) for sec, keys in given.items()):
+                raise NoInput("the survey has no data yet: upload a flight (or import a survey) first, then set "
+                              "its survey.toml fields")
+            if "name" in given.get("survey", set()):
+                data = merged_config({"survey": {"name": s.name}}, patch)
+                validate_config(data)
+                s.name = data["survey"]["name"]
+                db.commit()
+            return s
+        toml_path = Path(base) / "survey.toml"
+        try:
+            current = tomllib.loads(toml_path.read_text(encoding="utf-8"))
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:  # pragma: no cover - validated at upload
+            raise SettingsRejected([{"loc": ["survey.toml"], "msg": f"the stored survey.toml is unreadable: {e}",
+                                     "type": "value_error"}]) from None
+        data = merged_config(current, patch)
+        validate_config(data)
+        if data == current:
+            return s
+        staging = store.staging_dir()
+        try:
+            root = staging / "survey"
+            link_tree(Path(base), root)
+            tmp = root / "survey.toml.new"
+            tmp.write_text(dumps_toml(data), encoding="utf-8")
+            os.replace(tmp, root / "survey.toml")  # a new file: the linked one of the current snapshot is untouched
+            survey = validate(reader, root)
+            check_budget(store, s.id, root, budget_bytes)
+            s.name = data["survey"].get("name", s.name)
+            install_snapshot(db, store, s, root, survey, expect_input_dir=base, check_expected=True)
+        except Exception:
+            db.rollback()
+            raise
+        finally:
+            shutil.rmtree(staging, ignore_errors=True)
+            release_memory()
+        prune_survey(db, store, s.id)
+    return s
+
+
+def result_outdated(db: Session, s: Survey) -> bool:
+    """The current result was computed from another input snapshot than the current one."""
+    if s.current_result_id is None or not s.input_dir:
+        return False
+    r = db.get(Result, s.current_result_id)
+    j = db.get(Job, r.job_id) if r is not None else None
+    return j is not None and j.input_dir != s.input_dir
+
+
+# ---------------------------------------------------------------- delete
+def delete_survey(db: Session, store: Store, s: Survey) -> list[int]:
+    """Remove a survey: its rows (flights, lines, jobs, results) and then its files.  Refused
+    (:class:`JobConflict`) while a job is queued or running.  Returns the removed result ids (for
+    the caller to drop cached views)."""
+    from sqlalchemy import delete
+
+    with store.survey_lock(s.id):
+        refresh_survey(db, s)
+        active = db.scalars(select(Job).where(Job.survey_id == s.id, Job.status.in_(ACTIVE_STATES))).first()
+        if active is not None:
+            raise JobConflict(f"job {active.id} is {active.status} on this survey: cancel it or wait, then delete")
+        sid = s.id
+        result_ids = list(db.scalars(select(Result.id).where(Result.survey_id == sid)))
+        db.execute(delete(Result).where(Result.survey_id == sid))
+        db.execute(delete(Job).where(Job.survey_id == sid))
+        db.delete(s)
+        db.commit()
+        # the rows are gone: the files follow (moved aside in one rename first, so a half-removed
+        # folder is never under surveys/)
+        d = store.survey_dir(sid)
+        if d.exists():
+            trash = store.staging_dir() / "deleted"
+            os.replace(d, trash)
+            shutil.rmtree(trash.parent, ignore_errors=True)
+    return result_ids
+
+
 def check_grid_size(s: Survey, params: dict[str, Any]) -> None:
     """Before a job starts: the overrides merged over the survey's ``survey.toml`` are valid, and the
     grid over the stored line tracks stays within ``MAX_GRID_CELLS`` (InputError, HTTP 422)."""
@@ -223,7 +437,7 @@ def check_grid_size(s: Survey, params: dict[str, Any]) -> None:
 
 def start_job(db: Session, store: Store, jobs: JobManager, s: Survey, kind: str, params: dict[str, Any]) -> Job:
     with store.survey_lock(s.id):  # the input snapshot cannot be pruned between reading and using it
-        db.refresh(s)
+        refresh_survey(db, s)
         if not s.input_dir:
             raise JobConflict("the survey has no data yet: import a survey or upload a flight first")
         active = db.scalars(select(Job).where(Job.survey_id == s.id, Job.status.in_(ACTIVE_STATES))).first()

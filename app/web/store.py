@@ -403,3 +403,12 @@ class ResultCache:
                     self._d.popitem(last=False)
                 self._key_locks.pop(key, None)
             return val
+
+    def discard(self, predicate: Callable[[Any], bool]) -> int:
+        """Drop the entries whose key matches (e.g. the results of a deleted survey: database ids
+        may be reused)."""
+        with self._lock:
+            keys = [k for k in self._d if predicate(k)]
+            for k in keys:
+                del self._d[k]
+            return len(keys)

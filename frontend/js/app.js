@@ -7,9 +7,11 @@ import * as recognition from "./views/recognition.js";
 import * as profile from "./views/profile.js";
 import * as grid from "./views/grid.js";
 import * as exportsView from "./views/exports.js";
+import * as settings from "./views/settings.js";
+import * as report from "./views/report.js";
 
-const VIEWS = { qc, process: processView, recognition, profile, grid, export: exportsView };
-const state = { surveys: [], surveyId: null, tab: "qc", rendered: {} };
+const VIEWS = { qc, settings, process: processView, report, recognition, profile, grid, export: exportsView };
+const state = { surveys: [], surveyId: null, tab: "qc", rendered: {}, profileLine: null };
 
 const ctx = {
   get survey() { return state.surveys.find((s) => s.id === state.surveyId) || null; },
@@ -19,6 +21,20 @@ const ctx = {
   },
   // after a job succeeded: views that show results must reload
   resultsChanged() { state.rendered = { process: state.rendered.process }; },
+  // a click on a line in any map: the line's profile
+  openProfile(line) {
+    if (!ctx.survey || !ctx.survey.current_result_id) return;
+    state.profileLine = String(line);
+    showTab("profile");
+  },
+  consumeLine() { const l = state.profileLine; state.profileLine = null; return l; },
+  async surveyDeleted(id) {
+    if (state.surveyId === id) state.surveyId = null;
+    state.rendered = {};
+    await loadSurveys();
+    if (state.surveys.length) selectSurvey(state.surveys[0].id);
+    else { history.replaceState(null, "", "#"); document.getElementById("flight-upload").hidden = true; showTab(state.tab); }
+  },
 };
 window.aerograv = { state, ctx };
 

@@ -70,3 +70,112 @@ export function fmt(v, nd = 3) {
   if (v !== 0 && (Math.abs(v) < 1e-3 || Math.abs(v) >= 1e6)) return v.toExponential(nd - 1);
   return Number(v.toFixed(nd)).toString();
 }
+
+// ---- maps: a diverging colour scale white at 0, robust symmetric limits, hillshade
+
+const DIVERGING = ["#2166ac", "#67a9cf", "#d1e5f0", "#f7f7f7", "#fddbc7", "#ef8a62", "#b2182b"];  // ColorBrewer RdBu, blue low
+
+// Plotly colorscale for [zmin, zmax] whose white stop sits at 0 (limits need not be symmetric).
+export function divergingScale(zmin, zmax) {
+  let m = zmax > zmin ? (0 - zmin) / (zmax - zmin) : 0.5;
+  m = Math.min(1, Math.max(0, m));
+  const lo = DIVERGING.slice(0, 4), hi = DIVERGING.slice(3);
+  const stops = [];
+  lo.forEach((c, i) => stops.push([m * i / 3, c]));
+  hi.forEach((c, i) => { if (i) stops.push([m + (1 - m) * i / 3, c]); });
+  // Plotly needs strictly increasing positions from 0 to 1
+  const out = [];
+  for (const [p, c] of stops) if (!out.length || p > out[out.length - 1][0]) out.push([p, c]); else out[out.length - 1] = [p, c];
+  out[0][0] = 0; out[out.length - 1][0] = 1;
+  if (out.length < 2) return [[0, DIVERGING[0]], [1, DIVERGING[6]]];
+  return out;
+}
+
+// The p-quantile of the finite values (p in 0…1).
+export function quantile(values, p) {
+  const v = values.filter((x) => x !== null && Number.isFinite(x)).sort((a, b) => a - b);
+  if (!v.length) return null;
+  return v[Math.min(v.length - 1, Math.max(0, Math.round(p * (v.length - 1))))];
+}
+
+// Symmetric limits ±L around 0 with L the p-quantile of |z| (a few edge cells do not set the scale).
+export function symmetricLimit(z, p = 0.98) {
+  const L = quantile(z.flat().map((x) => (x === null ? null : Math.abs(x))), p);
+  return L && L > 0 ? L : 1;
+}
+
+// Hillshade (0…1) of a grid z[ny][nx] with node spacings dx, dy (same unit as x, y): light from
+// azimuth 315°, altitude 45°; the vertical exaggeration makes the median slope ~30°.
+export function hillshade(z, dx, dy, azimuthDeg = 315, altitudeDeg = 45) {
+  const ny = z.length, nx = ny ? z[0].length : 0;
+  const at = (j, i) => { const v = z[Math.min(ny - 1, Math.max(0, j))][Math.min(nx - 1, Math.max(0, i))]; return v === null ? NaN : v; };
+  const gx = [], gy = [], mags = [];
+  for (let j = 0; j < ny; j++) {
+    gx.push([]); gy.push([]);
+    for (let i = 0; i < nx; i++) {
+      const a = (at(j, i + 1) - at(j, i - 1)) / ((Math.min(nx - 1, i + 1) - Math.max(0, i - 1)) * dx || 1);
+      const b = (at(j + 1, i) - at(j - 1, i)) / ((Math.min(ny - 1, j + 1) - Math.max(0, j - 1)) * dy || 1);
+      gx[j].push(a); gy[j].push(b);
+      if (Number.isFinite(a) && Number.isFinite(b)) mags.push(Math.hypot(a, b));
+    }
+  }
+  const med = quantile(mags, 0.5) || 1;
+  const k = Math.tan(Math.PI / 6) / med;
+  const az = (360 - azimuthDeg + 90) * Math.PI / 180, zen = (90 - altitudeDeg) * Math.PI / 180;
+  return gx.map((row, j) => row.map((a, i) => {
+    const b = gy[j][i];
+    if (!Number.isFinite(a) || !Number.isFinite(b) || z[j][i] === null) return null;
+    const slope = Math.atan(k * Math.hypot(a, b));
+    const aspect = Math.atan2(b, -a);
+    return Math.max(0, Math.cos(zen) * Math.cos(slope) + Math.sin(zen) * Math.sin(slope) * Math.cos(az - aspect));
+  }));
+}
+
+// Text labels of lines at their first point (a scatter "text" trace), names as text.
+export function lineLabels(lines, axes = {}) {
+  const ok = lines.filter((l) => l.easting_km.length);
+  return { x: ok.map((l) => l.easting_km[0]), y: ok.map((l) => l.northing_km[0]), text: ok.map((l) => esc(l.line)),
+    customdata: ok.map((l) => l.line), type: "scatter", mode: "text", textposition: "middle left",
+    textfont: { size: 10, color: "rgba(20,20,20,0.85)" }, name: "line labels", showlegend: false,
+    hovertemplate: "line %{text} — click for its profile<extra></extra>", ...axes };
+}
+
+// ---- tables for the report panel (every cell is text)
+
+export function table(headers, rows, attrs = {}) {
+  return el("table", attrs, el("thead", {}, el("tr", {}, headers.map((h, i) => el("th", { class: i ? "" : "l" }, h)))),
+    el("tbody", {}, rows.map((r) => el("tr", r.attrs || {}, (r.cells || r).map((c, i) => el("td", { class: i ? "" : "l" }, c))))));
+}
+
+// Any JSON value as readable elements: scalars as text, arrays of objects as tables, objects as
+// key/value tables (nested to a few levels, then JSON text).
+export function genericView(v, depth = 0) {
+  if (v === null || v === undefined) return "—";
+  if (typeof v === "number") return fmt(v, 4);
+  if (typeof v !== "object") return String(v);
+  if (depth > 3) return el("code", {}, JSON.stringify(v).slice(0, 500));
+  if (Array.isArray(v)) {
+    if (!v.length) return "[]";
+    if (v.every((x) => x && typeof x === "object" && !Array.isArray(x))) {
+      const keys = [...new Set(v.flatMap((x) => Object.keys(x)))];
+      return table(keys, v.map((x) => keys.map((k) => genericView(x[k], depth + 1))), { class: "generic" });
+    }
+    if (v.every((x) => x === null || typeof x !== "object")) return v.map((x) => (typeof x === "number" ? fmt(x, 4) : String(x ?? "—"))).join(", ");
+    return el("div", {}, v.map((x) => el("div", {}, genericView(x, depth + 1))));
+  }
+  return table(["", ""], Object.entries(v).map(([k, x]) => [k, genericView(x, depth + 1)]), { class: "generic kv" });
+}
+
+export function jsonDetails(name, v) {
+  return el("details", { class: "json" }, el("summary", {}, `${name} (JSON)`), el("pre", {}, JSON.stringify(v, null, 2)));
+}
+
+// WebGL as Plotly's scattergl needs it (regl with two extensions); without it (no GPU, WebGL
+// blocked) the maps fall back to SVG scatter instead of showing a blank plot.
+function webglOk() {
+  try {
+    const gl = document.createElement("canvas").getContext("webgl");
+    return !!(gl && gl.getExtension("ANGLE_instanced_arrays") && gl.getExtension("OES_element_index_uint"));
+  } catch { return false; }
+}
+export const SCATTER_GL = webglOk() ? "scattergl" : "scatter";

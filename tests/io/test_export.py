@@ -33,14 +33,18 @@ def test_netcdf_roundtrip(tmp_path, grid):
     e, n, dg, std = grid
     p = write_grid_netcdf(tmp_path / "grid.nc", e, n, dg, std, CRS)
     with xr.open_dataset(p, engine="netcdf4") as ds:
+        np.testing.assert_array_equal(ds.x.values, e * 1000.0)   # metres of the UTM CRS
+        np.testing.assert_array_equal(ds.y.values, n * 1000.0)
+        # the pipeline's km stay readable (app.pipeline.evaluate.grid_accuracy reads them)
         np.testing.assert_array_equal(ds.easting_km.values, e)
         np.testing.assert_array_equal(ds.northing_km.values, n)
         np.testing.assert_allclose(ds.dg.values, dg, equal_nan=True)
         np.testing.assert_allclose(ds.dg_std.values, std, equal_nan=True)
-        assert ds.dg.dims == ("northing_km", "easting_km")
-        assert ds.easting_km.attrs["standard_name"] == "projection_x_coordinate"
-        assert ds.northing_km.attrs["standard_name"] == "projection_y_coordinate"
-        assert ds.easting_km.attrs["units"] == "km" and ds.dg.attrs["units"] == "mGal"
+        assert ds.dg.dims == ("y", "x")
+        assert ds.x.attrs["standard_name"] == "projection_x_coordinate"
+        assert ds.y.attrs["standard_name"] == "projection_y_coordinate"
+        assert ds.x.attrs["units"] == "m" and ds.y.attrs["units"] == "m" and ds.dg.attrs["units"] == "mGal"
+        assert ds.easting_km.attrs["units"] == "km" and "standard_name" not in ds.easting_km.attrs
         assert ds.dg.attrs["grid_mapping"] == "crs"
         assert PCRS.from_wkt(ds.crs.attrs["crs_wkt"]).to_epsg() == 32657
         assert PCRS.from_wkt(ds.crs.attrs["spatial_ref"]).to_epsg() == 32657
@@ -66,7 +70,10 @@ def test_geotiff_roundtrip(tmp_path, grid):
         np.testing.assert_allclose(b1, dg[::-1].astype(np.float32), equal_nan=True)
         np.testing.assert_allclose(b2, std[::-1].astype(np.float32), equal_nan=True)
         assert np.isnan(src.nodata)
-        assert src.descriptions == ("dg_mgal", "dg_std_mgal")
+        assert src.descriptions == ("dg", "dg_std")
+        assert src.units == ("mGal", "mGal")
+        assert src.tags(1)["units"] == "mGal" and src.tags(2)["units"] == "mGal"
+        assert "standard deviation" in src.tags(2)["long_name"]
 
 
 def _read_dsaa(path):
@@ -87,8 +94,8 @@ def test_surfer_roundtrip(tmp_path, grid):
     e, n, dg, std = grid
     p = write_grid_surfer(tmp_path / "grid.grd", e, n, dg, std)
     x, y, z, (zlo, zhi) = _read_dsaa(p)
-    np.testing.assert_allclose(x, e)
-    np.testing.assert_allclose(y, n)
+    np.testing.assert_allclose(x, e * 1000.0)   # metres of the projected CRS
+    np.testing.assert_allclose(y, n * 1000.0)
     np.testing.assert_allclose(z, dg, equal_nan=True)
     assert (zlo, zhi) == pytest.approx((np.nanmin(dg), np.nanmax(dg)))
     assert f"{SURFER_BLANK:g}" in open(p).read()
@@ -165,3 +172,74 @@ def test_grid_validation(tmp_path, grid):
     with pytest.raises(ValueError, match="no finite"):
         write_grid_surfer(tmp_path / "g.grd", e, n, np.full_like(dg, np.nan))
     assert not any(p.name.startswith("g.") for p in tmp_path.iterdir())
+
+
+def test_grid_files_agree_in_gdal_and_xarray_with_lines_in_metres(tmp_path):
+    """The three grid files of one map, read back by GDAL (rasterio) and xarray, cover the same
+    place in metres of the CRS, and that place is where the lines are (UTM 57N, ~515–576 km E)."""
+    import rasterio
+    import xarray as xr
+    from pyproj import Transformer
+
+    from app.core.geodesy import project_km
+
+    lon = np.linspace(159.2, 160.3, 200)
+    lat = np.linspace(64.05, 64.25, 200)
+    le, ln = project_km(lon, lat, CRS)                       # the lines, km (pipeline convention)
+    lx, ly = Transformer.from_crs("EPSG:4326", CRS, always_xy=True).transform(lon, lat)   # metres
+    e = np.arange(np.floor(le.min()), np.ceil(le.max()) + 0.5, 1.0)
+    n = np.arange(np.floor(ln.min()), np.ceil(ln.max()) + 0.5, 1.0)
+    E, N = np.meshgrid(e, n)
+    dg = np.sin(E / 7.0) + N / 1000.0
+    std = np.full_like(dg, 0.5)
+    write_grid_netcdf(tmp_path / "grid.nc", e, n, dg, std, CRS)
+    write_grid_geotiff(tmp_path / "grid.tif", e, n, dg, std, CRS)
+    write_grid_surfer(tmp_path / "grid.grd", e, n, dg, std)
+    half = 500.0   # half a 1 km cell, m
+
+    with rasterio.open(tmp_path / "grid.tif") as t:
+        tif = t.bounds
+        assert t.crs.to_epsg() == 32657
+    with rasterio.open(f'NETCDF:"{tmp_path / "grid.nc"}":dg') as c:   # GDAL's netCDF driver
+        nc_gdal = c.bounds
+        assert c.crs is not None and c.crs.to_epsg() == 32657
+        assert c.width == e.size and c.height == n.size
+        np.testing.assert_allclose(c.read(1)[::-1] if c.transform.e < 0 else c.read(1), dg, rtol=1e-6)
+    with xr.open_dataset(tmp_path / "grid.nc") as ds:
+        nc_xr = (float(ds.x.min()) - half, float(ds.y.min()) - half, float(ds.x.max()) + half, float(ds.y.max()) + half)
+    x, y, _, _ = _read_dsaa(tmp_path / "grid.grd")
+    grd = (x[0] - half, y[0] - half, x[-1] + half, y[-1] + half)
+    for b in (nc_gdal, nc_xr, grd):
+        np.testing.assert_allclose(tuple(b), tuple(tif), atol=1e-3)
+    # the map is where the lines are, in metres (not at 515–576 m)
+    assert tif[0] <= lx.min() and lx.max() <= tif[2] and tif[1] <= ly.min() and ly.max() <= tif[3]
+    assert lx.min() - tif[0] <= 1500.0 and tif[2] - lx.max() <= 1500.0   # floor/ceil to whole km + half a cell
+    assert 500_000 < tif[0] < 600_000 and 7_000_000 < tif[1] < 7_200_000
+
+
+def test_crs_unit():
+    assert export.crs_unit("EPSG:32657") == ("m", 1.0)
+    name, factor = export.crs_unit("EPSG:2227")   # California zone 3, US survey feet
+    assert name == "US_survey_foot" and factor == pytest.approx(0.3048006096)
+
+
+def test_lines_xyz_roundtrip(tmp_path):
+    from app.io.xyz import scan_xyz
+
+    t = np.arange(0.0, 5.0, 1.0)
+    df = pd.concat([pd.DataFrame({"line": name, "flight": "F01", "kind": kind, "time": t0 + t,
+                                  "lat": 64.0, "lon": 160.0, "h": 1000.0,
+                                  "easting_km": 520.0 + t, "northing_km": 7100.0 + k,
+                                  "z_mgal": 1.0, "dg_mgal": 2.5 + t, "dg_std_mgal": 0.4,
+                                  "dg_unleveled_mgal": 2.5, "dg_stationary_mgal": np.nan, "dg_fir_mgal": 2.0,
+                                  "state": 1, "Q_mgal2": 0.3, "R_cm2s2": 1.5})
+                    for k, (name, kind, t0) in enumerate([("T1", "tie", 100.0), ("L1", "main", 0.0)])])
+    p = export.write_lines_xyz(tmp_path / "lines.xyz", df, CRS, comments=("Aerograv line data",))
+    scan = scan_xyz(p)
+    assert scan.names[:3] == ["X", "Y", "TIME"] and "DG" in scan.names and "DG_FIR" in scan.names
+    assert [(b.keyword, b.line_id) for b in scan.blocks] == [("line", "L1"), ("tie", "T1")]   # in time order
+    first = scan.data_lines[0].split()
+    assert float(first[0]) == 520_000.0 and float(first[1]) == 7_101_000.0    # metres
+    assert scan.data_lines[0].split()[scan.names.index("DG_STAT")] == "*"
+    text = p.read_text()
+    assert "EPSG:32657" in text and "(m)" in text

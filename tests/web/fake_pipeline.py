@@ -20,7 +20,61 @@ import pandas as pd
 N_STATES = 2
 
 
-def write_outputs(out: Path, lines_df: pd.DataFrame, crs: str = "EPSG:32657", seed: int = 0) -> dict:
+def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: str = "EPSG:32657") -> dict:
+    """A report.json shaped like the real pipeline's (app.pipeline.process._report and what
+    process_survey adds), with the decisions an analyst must see: no absolute base tie (unless
+    ``base_gravity_mgal``), leveling rejected by the F-test, repeat-line accuracy where the adaptive
+    estimate is the least repeatable, plus a ``model_choice`` and a section the browser does not
+    know (shown generically)."""
+    flights = sorted(df["flight"].astype(str).unique())
+    warnings = [f"flight {flights[0]}: 3 epochs of z (0.019 %) repaired as spikes (> 6 local robust std from "
+                "the neighbours' mean)"]
+    if base_gravity_mgal is None:
+        warnings.append("no absolute base tie (no base_gravity_mgal in survey.toml): the level of dg carries the "
+                        "gravimeter's reading error (scale × g, easily 100+ mGal); differences along and between "
+                        "lines are reliable, absolute values are not")
+    return {
+        "survey": "fake", "crs": crs, "fake": True,
+        "counts": {"flights": len(flights), "lines": int(df["line"].nunique()), "epochs": int(len(df)),
+                   "decimated_points": int(len(df) // 10), "crossovers": 1},
+        "time_offsets": {f: {"offset_s": -0.0503, "correlation": 0.9957, "applied": i == 0, "estimated": True,
+                             "se_s": 0.0003, "residual_reduction": 0.70 if i == 0 else 0.004,
+                             "reason": "significant and improves the fit" if i == 0 else
+                             "improves the fit by less than 1 %"} for i, f in enumerate(flights)},
+        "spike_repair": {f: {"threshold": 6.0, "flagged": 3, "epochs": int((df["flight"] == f).sum()),
+                             "applied": True, "fraction": 0.00019} for f in flights},
+        "crossovers": {"degree": 1, "per_flight": True, "n_crossovers": 1, "rms_before_mgal": 1.2,
+                       "n_drift_parameters": 4, "p_value": 0.269,
+                       "status": "not leveled: the drift model is not significant at the crossovers "
+                                 "(F-test p = 0.269 > 0.01)",
+                       "rms_after_mgal": 1.2, "rms_after_if_leveled_mgal": 0.1,
+                       "std_check": {"n": 1, "rms_ratio": 0.57, "factor": 1.0}},
+        "identification": {"Q_mgal2": [0.041, 0.353], "R_cm2s2": [1.679], "transition": [[0.98, 0.02], [0.03, 0.97]]},
+        "timings_s": {"ingest": 0.1, "learning": 0.2},
+        "warnings": warnings,
+        "repeat_lines": {"R1": {"repeats": 3, "internal_accuracy_mgal": {
+            "dg_mgal": 3.73, "dg_fir_mgal": 2.10, "dg_stationary_mgal": 1.17}}},
+        "grid": {"nx": 10, "ny": 5, "valid_cells": 49},
+        "base_ties": {f: {"static_periods": [], "applied": base_gravity_mgal is not None,
+                          "absolute": base_gravity_mgal is not None,
+                          **({"drift_mgal_per_h": -1.36} if base_gravity_mgal is not None else {})} for f in flights},
+        "model_order": {"m": 1, "loglik": {"1": -758411.8, "2": -758515.9}, "Q_stationary_mgal2": {"1": 0.82, "2": 1.6e-5}},
+        "noise_model": {"family": "white velocity", "dt_s": 0.1,
+                        "components": [{"order": 1, "phi": 0.0, "weight_mgal2": 1e8, "label": "velocity white"}],
+                        "fit": "Whittle, prewhitened multitaper", "level_band_hz": [0.1, 0.5], "level_scale": 1.0,
+                        "candidates": [{"family": "white velocity", "nll": 12512.1, "n_params": 2, "bic": 25038.0},
+                                       {"family": "Gauss-Markov velocity", "nll": 12511.9, "n_params": 4,
+                                        "bic": 25052.4}],
+                        "n_bins": 1198, "fit_fmax_hz": 0.2},
+        "lag_check": {"declared_tau_s": 2.0, "estimated_tau_s": [1.9995, 1.9990, 1.9992], "applied": False},
+        "model_choice": {"chosen": "adaptive", "reason": "fake: the adaptive model is kept",
+                         "candidates": [{"model": "adaptive", "score": 1.0}, {"model": "stationary", "score": 0.9}]},
+        "future_section": {"note": "<b>not markup</b>", "value": 1},
+    }
+
+
+def write_outputs(out: Path, lines_df: pd.DataFrame, crs: str = "EPSG:32657", seed: int = 0,
+                  base_gravity_mgal: float | None = None) -> dict:
     """Write lines.parquet, recognition.parquet, identification.json, crossovers.csv, grid.* and
     report.json from a frame with ``line, flight, kind, time, lat, lon, h, easting_km, northing_km``."""
     rng = np.random.default_rng(seed)
@@ -52,8 +106,14 @@ def write_outputs(out: Path, lines_df: pd.DataFrame, crs: str = "EPSG:32657", se
                           "p_0": 1 - p1, "p_1": p1})
     recog.to_parquet(out / "recognition.parquet", index=False)
 
-    ident = {"em": {"iterations": [{"iteration": i, "Q": [0.1, 1.0], "R": [10.0], "objective": -100.0 + i}
-                                   for i in range(3)]},
+    ident = {"em": {"iterations": [{"iteration": i, "Q": [0.1, 1.0], "R": [10.0], "objective": -100.0 + i,
+                                    "transition": [[0.98, 0.02], [0.03, 0.97]]} for i in range(3)],
+                    "converged": True, "loglik": -98.0, "model": "2x1",
+                    "selection": {"criterion": "bic", "chosen": "2x1", "candidates": [
+                        {"model": "2x1", "n_q": 2, "n_r": 1, "loglik": -98.0, "n_params": 8, "bic": 240.5,
+                         "iterations": 3},
+                        {"model": "2x2", "n_q": 2, "n_r": 2, "loglik": -97.0, "n_params": 20, "bic": 262.1,
+                         "iterations": 3}]}},
              "transition": [[0.98, 0.02], [0.03, 0.97]], "initial": {},
              "states": [{"index": 0, "Q": 0.041, "R": 1.679}, {"index": 1, "Q": 0.353, "R": 1.679}]}
     (out / "identification.json").write_text(json.dumps(ident))
@@ -68,25 +128,13 @@ def write_outputs(out: Path, lines_df: pd.DataFrame, crs: str = "EPSG:32657", se
     G = 20 * np.sin(X / 7.0) * np.cos(Y / 9.0) + 0.5 * X
     S = 0.5 + 0.1 * np.abs(Y - Y.mean())
     G[0, 0] = np.nan
-    import xarray as xr
-    ds = xr.Dataset({"dg": (("northing_km", "easting_km"), G, {"units": "mGal"}),
-                     "dg_std": (("northing_km", "easting_km"), S, {"units": "mGal"})},
-                    coords={"easting_km": xs, "northing_km": ys}, attrs={"crs": crs})
-    ds.to_netcdf(out / "grid.nc")
-    import rasterio
-    from rasterio.transform import from_origin
-    with rasterio.open(out / "grid.tif", "w", driver="GTiff", height=len(ys), width=len(xs), count=1,
-                       dtype="float32", crs=crs, nodata=np.nan,
-                       transform=from_origin((xs[0] - 0.5) * 1000, (ys[-1] + 0.5) * 1000, 1000, 1000)) as dst:
-        dst.write(G[::-1].astype("float32"), 1)
-    with open(out / "grid.grd", "w") as fh:
-        fh.write(f"DSAA\n{len(xs)} {len(ys)}\n{xs[0]} {xs[-1]}\n{ys[0]} {ys[-1]}\n{np.nanmin(G)} {np.nanmax(G)}\n")
-        for row in np.where(np.isnan(G), 1.70141e38, G):
-            fh.write(" ".join(f"{v:.4f}" for v in row) + "\n")
-    pd.DataFrame({"easting_km": X.ravel(), "northing_km": Y.ravel(), "dg_mgal": G.ravel(),
-                  "dg_std_mgal": S.ravel()}).to_csv(out / "grid.csv", index=False)
-    report = {"crossover_rms_before_mgal": 1.2, "crossover_rms_after_mgal": 0.1, "n_lines": int(df["line"].nunique()),
-              "fake": True}
+    # the grid files through the real writers (the export conventions are part of what the web tests check)
+    from app.io import export
+    export.write_grid_netcdf(out / "grid.nc", xs, ys, G, S, crs)
+    export.write_grid_geotiff(out / "grid.tif", xs, ys, G, S, crs)
+    export.write_grid_surfer(out / "grid.grd", xs, ys, G, S)
+    export.write_grid_csv(out / "grid.csv", xs, ys, G, S)
+    report = fake_report(df, base_gravity_mgal, crs)
     (out / "report.json").write_text(json.dumps(report))
     return report
 
@@ -120,4 +168,5 @@ def process_survey(survey_dir, out_dir, overrides=None, progress=None) -> dict:
         time.sleep(delay)
         cb("filtering", 0.7 + 0.02 * k, None)
     cb("outputs", 0.95, None)
-    return write_outputs(out_dir, df, crs=survey.config.survey.crs or "EPSG:32657")
+    return write_outputs(out_dir, df, crs=survey.config.survey.crs or "EPSG:32657",
+                         base_gravity_mgal=survey.config.gravimeter.base_gravity_mgal)

@@ -239,7 +239,18 @@ def test_frontend_and_docs_served(client):
     assert r.status_code == 200 and "<script type=\"module\"" in r.text
     assert client.get("/vendor/plotly.min.js").status_code == 200
     assert client.get("/js/api.js").status_code == 200
-    assert client.get("/docs").status_code == 200
+    docs = client.get("/docs")
+    assert docs.status_code == 200 and "/docs-static/swagger-ui-bundle.js" in docs.text
+    assert "http" not in docs.text and "<script>" not in docs.text   # no CDN, no inline script
+    csp = docs.headers["content-security-policy"]
+    assert "script-src 'self';" in csp and "unsafe-inline" not in csp.split("script-src")[1].split(";")[0]
+    assert "cdn" not in csp and "https:" not in csp
+    for asset in ("swagger-ui-bundle.js", "swagger-ui.css", "redoc.standalone.js", "swagger-init.js"):
+        r = client.get(f"/docs-static/{asset}")
+        assert r.status_code == 200 and len(r.content) > 100, asset
+    assert client.get("/docs-static/..%2Fcore.py").status_code == 404
+    redoc = client.get("/redoc")
+    assert redoc.status_code == 200 and "/docs-static/redoc.standalone.js" in redoc.text and "googleapis" not in redoc.text
     assert "/api/surveys/{survey_id}/recognition" in client.get("/openapi.json").json()["paths"]
 
 

@@ -13,7 +13,7 @@ from ..db import ACTIVE_STATES, Job, Survey
 from ..deps import JobId, get_db, get_jobs, get_store, get_survey_or_404
 from ..jobs import JobManager
 from ..schemas import JobCreate, JobOut
-from ..services import JobConflict, check_grid_size, start_job
+from ..services import JobConflict, SurveyConflict, check_grid_size, start_job
 from ..store import Store
 from ..errors import validation_detail
 from .surveys import job_out
@@ -32,7 +32,7 @@ def create_job(body: JobCreate, s: Survey = Depends(get_survey_or_404), db: Sess
     check_grid_size(s, params)
     try:
         job = start_job(db, store, jobs, s, body.kind, params)
-    except JobConflict as e:
+    except (JobConflict, SurveyConflict) as e:
         raise HTTPException(409, str(e))
     return job_out(job)
 

@@ -17,7 +17,7 @@ from sqlalchemy.orm import Session
 
 from ..db import Result, Survey
 from ..deps import get_cache, get_db, get_survey_or_404
-from ..schemas import GridOut, LineOut, ProfileOut, RecognitionOut
+from ..schemas import GridOut, LineOut, ProfileOut, RecognitionOut, ReportOut
 from ..store import ResultCache
 
 router = APIRouter(prefix="/api/surveys", tags=["results"])
@@ -28,6 +28,7 @@ EXPORTS = {
     "surfer": ("grid.grd", "text/plain"),
     "csv": ("grid.csv", "text/csv"),
     "parquet": ("lines.parquet", "application/vnd.apache.parquet"),
+    "xyz": ("lines.xyz", "text/plain"),
     "crossovers": ("crossovers.csv", "text/csv"),
     "report": ("report.json", "application/json"),
 }
@@ -217,13 +218,86 @@ def recognition(h: float = Query(0.5, ge=0, le=100, description="NL-means weight
     return _json(body)
 
 
+def _finite(v) -> float | None:
+    return float(v) if v is not None and math.isfinite(float(v)) else None
+
+
+def _load_report(r: Result) -> dict[str, Any]:
+    """report.json (the database copy when the file is missing), identification.json's summary and
+    the per-line adaptive − FIR differences."""
+    p = Path(r.dir) / "report.json"
+    try:
+        rep = json.loads(p.read_text(encoding="utf-8")) if p.exists() else (r.report or {})
+    except (OSError, ValueError):
+        rep = r.report or {}
+    if not isinstance(rep, dict):
+        rep = {"report": rep}
+    ident = _load_identification(r)
+    em = ident.get("em") or {}
+    iters = em.get("iterations") or []
+    identification = {k: ident[k] for k in ("states", "transition", "lines_skipped", "lines_learned", "m", "units")
+                      if k in ident}
+    identification["em"] = {"selection": em.get("selection"), "model": em.get("model"),
+                            "converged": em.get("converged"), "loglik": em.get("loglik"),
+                            "n_iterations": len(iters), "final": iters[-1] if iters else None}
+    diffs = []
+    lp = Path(r.dir) / "lines.parquet"
+    if lp.exists():
+        import pyarrow.parquet as pq
+        have = set(pq.read_schema(lp).names)
+        # both estimates before leveling: the difference is then filtering alone
+        a = "dg_unleveled_mgal" if "dg_unleveled_mgal" in have else "dg_mgal"
+        cols = [c for c in ("line", "flight", "kind", "time", a, "dg_fir_mgal") if c in have]
+        if "dg_fir_mgal" in have and a in have:
+            df = pd.read_parquet(lp, columns=cols)
+            df["line"] = df["line"].astype(str)
+            df["_d"] = df[a].to_numpy(float) - df["dg_fir_mgal"].to_numpy(float)
+            for line, g in df.groupby("line", sort=False):
+                d = g["_d"].to_numpy()
+                d = d[np.isfinite(d)]
+                diffs.append({"line": str(line), "flight": str(g["flight"].iloc[0]) if "flight" in g else "",
+                              "kind": str(g["kind"].iloc[0]) if "kind" in g else "", "n": int(d.size),
+                              "rms_mgal": _finite(np.sqrt(np.mean(d ** 2))) if d.size else None,
+                              "mean_mgal": _finite(np.mean(d)) if d.size else None,
+                              "std_mgal": _finite(np.std(d)) if d.size else None})
+    crossovers = []
+    cx = Path(r.dir) / "crossovers.csv"
+    if cx.exists():
+        c = pd.read_csv(cx, dtype={"line_a": str, "line_b": str})
+        for col in c.columns:
+            if c[col].dtype.kind == "f":
+                c[col] = c[col].round(4)
+        crossovers = c.astype(object).where(pd.notna(c), None).to_dict(orient="records")
+    warnings = [str(w) for w in rep.get("warnings") or []] if isinstance(rep.get("warnings"), list) else []
+    xo = rep.get("crossovers") if isinstance(rep.get("crossovers"), dict) else {}
+    return {"warnings": warnings, "leveled": xo.get("status") == "leveled", "leveling_status": xo.get("status"),
+            "absolute_base_tie": not any(w.startswith("no absolute base tie") for w in warnings),
+            "adaptive_minus_fir": diffs, "crossovers": crossovers, "identification": identification, "report": rep}
+
+
+@router.get("/{survey_id}/report", response_model=ReportOut,
+            responses={404: {"description": "no such survey, or no result yet"}})
+def report(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+           cache: ResultCache = Depends(get_cache)):
+    """The current result's report: every warning and automatic decision (base ties, time offsets, lag
+    check, spike repair, leveling F-test, crossovers, noise model, model order, identification, repeat
+    lines), with the per-line RMS of adaptive − FIR computed from lines.parquet."""
+    r = current_result(s, db)
+    body = cache.get(("report", r.id), lambda: _load_report(r))
+    out = ReportOut(survey_id=s.id, result_id=r.id, job_id=r.job_id, **body)
+    return _json(out.model_dump())
+
+
 def _load_grid(r: Result) -> dict[str, Any]:
     import xarray as xr
     with xr.open_dataset(Path(r.dir) / "grid.nc") as ds:
         ds = ds.load()
     dg = ds["dg"]
     ydim, xdim = dg.dims[-2], dg.dims[-1]
-    out = {"easting_km": _clean(ds[xdim].values, 4), "northing_km": _clean(ds[ydim].values, 4),
+    # grid.nc: x/y in the CRS's unit with easting_km/northing_km beside them (older results: km only)
+    e = ds["easting_km"].values if "easting_km" in ds.coords else ds[xdim].values / 1000.0
+    n = ds["northing_km"].values if "northing_km" in ds.coords else ds[ydim].values / 1000.0
+    out = {"easting_km": _clean(e, 4), "northing_km": _clean(n, 4),
            "dg": [_clean(row, 3) for row in dg.values],
            "dg_std": [_clean(row, 3) for row in ds["dg_std"].values] if "dg_std" in ds else None,
            "crs": ds.attrs.get("crs") or (ds["crs"].attrs.get("crs_wkt") if "crs" in ds else None)}
@@ -257,13 +331,28 @@ def grid(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
     return _json({"survey_id": s.id, "result_id": r.id, **g, "report": r.report or {}})
 
 
+def _lines_xyz(s: Survey, r: Result) -> Path:
+    """``lines.xyz`` of a result (Geosoft XYZ line data), written beside lines.parquet on first use."""
+    from app.io.export import write_lines_xyz
+
+    p = Path(r.dir) / "lines.xyz"
+    src = Path(r.dir) / "lines.parquet"
+    if not p.exists() and src.exists():
+        crs = (r.report or {}).get("crs") or s.crs
+        write_lines_xyz(p, pd.read_parquet(src), crs,
+                        comments=(f"Aerograv line data: survey {s.name[:100]!r}, result {r.id}",))
+    return p
+
+
 @router.get("/{survey_id}/export")
-def export(format: Literal["geotiff", "netcdf", "surfer", "csv", "parquet", "crossovers", "report"] = Query(...),
+def export(format: Literal["geotiff", "netcdf", "surfer", "csv", "parquet", "xyz", "crossovers", "report"] = Query(
+               ..., description="geotiff, netcdf, surfer (grids: x/y in metres of the CRS), csv (grid), "
+               "parquet or xyz (line data; xyz = Geosoft XYZ with X/Y in metres), crossovers, report"),
            s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db)):
     """Download a stored output of the current result."""
     r = current_result(s, db)
     fname, media = EXPORTS[format]
-    p = Path(r.dir) / fname
+    p = _lines_xyz(s, r) if format == "xyz" else Path(r.dir) / fname
     if not p.exists():
         raise HTTPException(404, f"{fname} is not among the stored results")
     safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in s.name)

@@ -6,16 +6,17 @@ import shutil
 from pathlib import Path
 from typing import Callable
 
-from fastapi import APIRouter, Depends, File, Form, HTTPException, UploadFile
+from fastapi import APIRouter, Depends, File, Form, HTTPException, Response, UploadFile
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from ..db import Job, Survey
-from ..deps import get_db, get_settings, get_store, get_survey_or_404, get_survey_reader
+from ..deps import get_cache, get_db, get_settings, get_store, get_survey_or_404, get_survey_reader
 from ..settings import Settings
-from ..schemas import FlightOut, JobOut, LineOut, QCOut, SurveyCreate, SurveyOut
-from ..services import StorageBudgetExceeded, SurveyConflict, add_flight, import_survey_tree
-from ..store import SAFE_NAME, Store, extract_survey_zip
+from ..schemas import FlightOut, JobOut, LineOut, QCOut, SurveyCreate, SurveyOut, SurveyPatch
+from ..services import (JobConflict, NoInput, SettingsRejected, StorageBudgetExceeded, SurveyConflict, add_flight,
+                        delete_survey, import_survey_tree, patch_survey, result_outdated, survey_settings)
+from ..store import SAFE_NAME, ResultCache, Store, extract_survey_zip
 
 router = APIRouter(prefix="/api/surveys", tags=["surveys"])
 
@@ -30,7 +31,8 @@ def survey_out(db: Session, s: Survey) -> SurveyOut:
     last = db.scalars(select(Job).where(Job.survey_id == s.id).order_by(Job.id.desc()).limit(1)).first()
     return SurveyOut(id=s.id, name=s.name, created_at=s.created_at, crs=s.crs,
                      flights=[f.name for f in s.flights], n_lines=len(s.lines), has_input=bool(s.input_dir),
-                     current_result_id=s.current_result_id, last_job=job_out(last) if last else None)
+                     current_result_id=s.current_result_id, result_outdated=result_outdated(db, s),
+                     settings=survey_settings(s), last_job=job_out(last) if last else None)
 
 
 @router.post("", response_model=SurveyOut, status_code=201)
@@ -50,6 +52,41 @@ def list_surveys(db: Session = Depends(get_db)) -> list[SurveyOut]:
 @router.get("/{survey_id}", response_model=SurveyOut)
 def get_survey(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db)) -> SurveyOut:
     return survey_out(db, s)
+
+
+@router.patch("/{survey_id}", response_model=SurveyOut,
+              responses={401: {"description": "token missing or wrong"}, 404: {"description": "no such survey"},
+                         409: {"description": "no data yet (only the name can be set), or changed meanwhile"},
+                         422: {"description": "invalid value: the detail names the field (section.key)"}})
+def update_survey(body: SurveyPatch, s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+                  store: Store = Depends(get_store), reader: Callable = Depends(get_survey_reader),
+                  settings: Settings = Depends(get_settings)) -> SurveyOut:
+    """Change survey.toml fields (name, CRS, normal gravity, gravimeter model, τ, scale, rate, base
+    gravity): validated like survey.toml, stored as a new input snapshot (the current result stays
+    until the survey is processed again; ``result_outdated`` says so)."""
+    try:
+        patch_survey(db, store, reader, s, body, budget_bytes=settings.survey_storage_bytes)
+    except SettingsRejected as e:
+        raise HTTPException(422, e.detail)
+    except (NoInput, SurveyConflict) as e:
+        raise HTTPException(409, str(e))
+    except StorageBudgetExceeded as e:
+        raise HTTPException(413, str(e))
+    return survey_out(db, s)
+
+
+@router.delete("/{survey_id}", status_code=204,
+               responses={401: {"description": "token missing or wrong"}, 404: {"description": "no such survey"},
+                          409: {"description": "a job is queued or running on the survey"}})
+def remove_survey(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+                  store: Store = Depends(get_store), cache: ResultCache = Depends(get_cache)) -> Response:
+    """Delete a survey with its flights, jobs, results and files (409 while a job is active)."""
+    try:
+        ids = set(delete_survey(db, store, s))
+    except (JobConflict, SurveyConflict) as e:
+        raise HTTPException(409, str(e))
+    cache.discard(lambda k: isinstance(k, tuple) and len(k) == 2 and k[1] in ids)
+    return Response(status_code=204)
 
 
 @router.post("/import", response_model=SurveyOut, status_code=201)

@@ -1,6 +1,11 @@
-// Anomaly grid: heatmap or contours of δg (or its σ) with lines and crossovers overlaid, equal aspect in km.
+// Anomaly grid: δg on a diverging scale white at 0 (symmetric robust limits or the analyst's), its σ,
+// or both side by side; optional hillshade; lines (click one for its profile), labels and crossovers.
 import { endpoints } from "../api.js";
-import { el, esc, fmt, mapLayout, plotConfig, pngButton } from "../plots.js";
+import { divergingScale, el, esc, fmt, hillshade, lineLabels, mapLayout, plotConfig, pngButton, symmetricLimit } from "../plots.js";
+
+export function baseTieMissing(report) {
+  return ((report && report.warnings) || []).some((w) => String(w).startsWith("no absolute base tie"));
+}
 
 export async function render(sec, ctx) {
   const s = ctx.survey;
@@ -9,52 +14,115 @@ export async function render(sec, ctx) {
     return;
   }
   const g = await endpoints.grid(s.id);
-  const varIn = el("select", { id: "grid-var" }, el("option", { value: "dg" }, "anomaly δg"), el("option", { value: "dg_std", disabled: !g.dg_std }, "posterior σ"));
+  const relative = baseTieMissing(g.report);
+  const varIn = el("select", { id: "grid-var" }, el("option", { value: "dg" }, "anomaly δg"),
+    el("option", { value: "dg_std", disabled: !g.dg_std }, "posterior σ"),
+    el("option", { value: "both", disabled: !g.dg_std }, "δg and σ side by side"));
   const styleIn = el("select", { id: "grid-style" }, el("option", { value: "heatmap" }, "heatmap"), el("option", { value: "contour" }, "filled contours"));
+  const zminIn = el("input", { type: "number", id: "grid-zmin", step: "any", placeholder: "auto", style: "width:6rem" });
+  const zmaxIn = el("input", { type: "number", id: "grid-zmax", step: "any", placeholder: "auto", style: "width:6rem" });
+  const shadeIn = el("input", { type: "checkbox", id: "grid-hillshade" });
   const linesIn = el("input", { type: "checkbox", id: "grid-lines", checked: true });
+  const labelsIn = el("input", { type: "checkbox", id: "grid-labels", checked: true });
   const xoIn = el("input", { type: "checkbox", id: "grid-xo", checked: true });
   const plot = el("div", { class: "plot square", id: "grid-plot" });
   const rep = g.report || {};
   const summary = [];
   for (const [k, v] of Object.entries(rep)) if (typeof v === "number") summary.push(`${k.replaceAll("_", " ")}: ${fmt(v, 4)}`);
+  const xo = (rep.crossovers && typeof rep.crossovers === "object") ? rep.crossovers : null;
+  if (xo && xo.rms_before_mgal !== undefined) summary.push(`crossover RMS ${fmt(xo.rms_before_mgal, 3)} → ${fmt(xo.rms_after_mgal, 3)} mGal (${xo.status})`);
+  const limits = el("span", { class: "note", id: "grid-limits" });
   sec.replaceChildren(el("div", { class: "card" }, el("h3", {}, `Anomaly grid (${g.crs || "projected CRS"})`),
+    relative ? el("p", { class: "warnline", id: "grid-relative" }, "No absolute base tie was made: the grid's level is relative (it may be off by 100+ mGal); differences are reliable. Set the base gravity in Survey settings.") : null,
     el("div", { class: "controls" }, el("label", {}, "show", varIn), el("label", {}, "style", styleIn),
-      el("label", {}, linesIn, "survey lines"), el("label", {}, xoIn, "crossovers")),
+      el("label", {}, "δg from", zminIn, "to", zmaxIn, "mGal"), limits),
+    el("div", { class: "controls" }, el("label", {}, shadeIn, "hillshade"), el("label", {}, linesIn, "survey lines"),
+      el("label", {}, labelsIn, "line labels"), el("label", {}, xoIn, "crossovers"),
+      el("span", { class: "note" }, "click a line for its profile")),
     el("p", { class: "note", id: "grid-summary" }, summary.slice(0, 8).join(" · ")), plot));
 
-  const draw = async () => {
-    const isStd = varIn.value === "dg_std";
+  const dx = g.easting_km.length > 1 ? g.easting_km[1] - g.easting_km[0] : 1;
+  const dy = g.northing_km.length > 1 ? g.northing_km[1] - g.northing_km[0] : 1;
+  const shade = () => (g._shade = g._shade || hillshade(g.dg, dx, dy));
+  const kind = Object.fromEntries(g.lines.map((l) => [l.line, l.kind]));
+  const crossings = g.crossovers.filter((c) => !(kind[c.line_a] === "repeat" && kind[c.line_b] === "repeat"));
+
+  const fieldTrace = (isStd, axes, colorbarX) => {
     const z = isStd ? g.dg_std : g.dg;
-    // robust colour range (1st–99th percentile) so a few edge cells do not wash out the anomalies
-    const flat = z.flat().filter((v) => v !== null).sort((a, b) => a - b);
-    const q = (p) => flat[Math.min(flat.length - 1, Math.max(0, Math.round(p * (flat.length - 1))))];
-    const zmin = q(0.01), zmax = q(0.99);
-    const field = {
-      x: g.easting_km, y: g.northing_km, z, type: styleIn.value, name: isStd ? "σ" : "δg",
-      colorscale: isStd ? "Viridis" : "RdBu", reversescale: false, zmin, zmax,  // high anomalies red
-      colorbar: { title: { text: isStd ? "σ (mGal)" : "δg (mGal)" } },
+    let zmin, zmax, colorscale;
+    if (isStd) {
+      zmin = 0; zmax = symmetricLimit(z, 0.98); colorscale = "Viridis";
+    } else {
+      const L = symmetricLimit(z, 0.98);
+      const a = zminIn.value === "" ? -L : +zminIn.value, b = zmaxIn.value === "" ? L : +zmaxIn.value;
+      [zmin, zmax] = a < b ? [a, b] : [-L, L];
+      colorscale = divergingScale(zmin, zmax);
+      plot.dataset.zmin = zmin; plot.dataset.zmax = zmax;
+      limits.textContent = `colour scale ${fmt(zmin, 3)} … ${fmt(zmax, 3)} mGal, white at 0` + (zminIn.value === "" && zmaxIn.value === "" ? " (±98th percentile of |δg|)" : "");
+    }
+    return {
+      x: g.easting_km, y: g.northing_km, z, type: styleIn.value, name: isStd ? "σ" : "δg", colorscale, zmin, zmax, zauto: false,
+      colorbar: { title: { text: isStd ? "σ (mGal)" : "δg (mGal)" }, ...(colorbarX !== undefined ? { x: colorbarX, len: 0.9 } : {}) },
       hovertemplate: `E %{x:.2f} km, N %{y:.2f} km<br>${isStd ? "σ" : "δg"} %{z:.2f} mGal<extra></extra>`,
-      ...(styleIn.value === "contour" ? { contours: { coloring: "fill", showlines: true }, line: { width: 0.5, color: "rgba(0,0,0,0.3)" }, ncontours: 24 } : {}),
+      ...(styleIn.value === "contour" ? { contours: { coloring: "fill", showlines: true, start: zmin, end: zmax, size: (zmax - zmin) / 20 }, line: { width: 0.5, color: "rgba(0,0,0,0.3)" } } : {}),
+      ...axes,
     };
-    const traces = [field];
-    if (linesIn.checked) {
-      g.lines.forEach((l, i) => traces.push({ x: l.easting_km, y: l.northing_km, type: "scatter", mode: "lines",
-        line: { color: isStd ? "rgba(255,255,255,0.75)" : (l.kind === "tie" ? "rgba(60,60,60,0.8)" : "rgba(0,0,0,0.55)"), width: 1, dash: l.kind === "tie" ? "dash" : "solid" },
-        name: "lines", legendgroup: "lines", showlegend: i === 0, hovertemplate: `line ${esc(l.line)}<extra></extra>` }));
-    }
-    // overlapping repeat passes are not crossings: show main/tie intersections only
-    const kind = Object.fromEntries(g.lines.map((l) => [l.line, l.kind]));
-    const xo = g.crossovers.filter((c) => !(kind[c.line_a] === "repeat" && kind[c.line_b] === "repeat"));
-    if (xoIn.checked && xo.length) {
-      traces.push({ x: xo.map((c) => c.easting_km), y: xo.map((c) => c.northing_km), type: "scatter", mode: "markers",
-        name: "crossovers", marker: { symbol: "x-thin", size: 7, color: "rgba(0,0,0,0.7)", line: { width: 1.5, color: "rgba(0,0,0,0.7)" } },
-        text: xo.map((c) => `${esc(c.line_a)} × ${esc(c.line_b)}: before ${fmt(c.diff_before_mgal, 2)}, after ${fmt(c.diff_after_mgal, 2)} mGal`),
-        hovertemplate: "%{text}<extra></extra>" });
-    }
-    await Plotly.react(plot, traces, mapLayout(`${s.name}: ${isStd ? "posterior σ of δg" : "free-air anomaly δg at flight height"}`), plotConfig(`${s.name}-grid`));
-    plot.dataset.variable = varIn.value;
   };
-  for (const c of [varIn, styleIn, linesIn, xoIn]) c.addEventListener("change", draw);
+
+  const overlays = (isStd, axes, first) => {
+    const t = [];
+    if (shadeIn.checked && !isStd) {
+      t.push({ x: g.easting_km, y: g.northing_km, z: shade(), type: "heatmap", colorscale: [[0, "rgb(0,0,0)"], [1, "rgb(255,255,255)"]],
+        zmin: 0, zmax: 1, opacity: 0.35, showscale: false, hoverinfo: "skip", name: "hillshade", ...axes });
+    }
+    if (linesIn.checked) {
+      g.lines.forEach((l, i) => t.push({ x: l.easting_km, y: l.northing_km, type: "scatter", mode: "lines",
+        line: { color: isStd ? "rgba(255,255,255,0.75)" : (l.kind === "tie" ? "rgba(60,60,60,0.8)" : "rgba(0,0,0,0.55)"), width: 1.5, dash: l.kind === "tie" ? "dash" : "solid" },
+        name: "lines", legendgroup: "lines", showlegend: first && i === 0, customdata: l.easting_km.map(() => l.line),
+        hovertemplate: `line ${esc(l.line)} (${esc(l.kind)}) — click for its profile<extra></extra>`, ...axes }));
+    }
+    if (labelsIn.checked) t.push(lineLabels(g.lines, axes));
+    if (xoIn.checked && crossings.length) {
+      t.push({ x: crossings.map((c) => c.easting_km), y: crossings.map((c) => c.northing_km), type: "scatter", mode: "markers",
+        name: "crossovers", legendgroup: "xo", showlegend: first, marker: { symbol: "x-thin", size: 7, color: "rgba(0,0,0,0.7)", line: { width: 1.5, color: "rgba(0,0,0,0.7)" } },
+        text: crossings.map((c) => `${esc(c.line_a)} × ${esc(c.line_b)}: before ${fmt(c.diff_before_mgal, 2)}, after ${fmt(c.diff_after_mgal, 2)} mGal`),
+        hovertemplate: "%{text}<extra></extra>", ...axes });
+    }
+    return t;
+  };
+
+  const draw = async () => {
+    const v = varIn.value;
+    const title = `${s.name}: ` + (v === "dg_std" ? "posterior σ of δg"
+      : `free-air anomaly δg at flight height${relative ? " — relative level (no absolute base tie)" : ""}` + (v === "both" ? " and its σ" : ""));
+    let traces, layout;
+    if (v === "both") {
+      const a1 = {}, a2 = { xaxis: "x2", yaxis: "y2" };
+      traces = [fieldTrace(false, a1, 0.41), ...overlays(false, a1, true), fieldTrace(true, a2, 0.99), ...overlays(true, a2, false)];
+      layout = mapLayout(title, {
+        xaxis: { title: { text: "Easting (km)" }, domain: [0, 0.39], zeroline: false },
+        yaxis: { title: { text: "Northing (km)" }, scaleanchor: "x", scaleratio: 1, zeroline: false },
+        xaxis2: { title: { text: "Easting (km)" }, domain: [0.55, 0.94], matches: "x", zeroline: false },
+        yaxis2: { anchor: "x2", scaleanchor: "x2", scaleratio: 1, matches: "y", zeroline: false, showticklabels: false },
+      });
+      plot.classList.add("wide");
+    } else {
+      const isStd = v === "dg_std";
+      traces = [fieldTrace(isStd, {}), ...overlays(isStd, {}, true)];
+      layout = mapLayout(title);
+      plot.classList.remove("wide");
+    }
+    await Plotly.react(plot, traces, layout, plotConfig(`${s.name}-grid`));
+    plot.dataset.variable = v;
+    plot.dataset.hillshade = shadeIn.checked ? "1" : "0";
+    plot.dataset.relative = relative ? "1" : "0";
+    plot.dataset.title = title;
+  };
+  for (const c of [varIn, styleIn, shadeIn, linesIn, labelsIn, xoIn, zminIn, zmaxIn]) c.addEventListener("change", draw);
   await draw();
+  plot.on("plotly_click", (ev) => {
+    const p = ev && ev.points && ev.points.find((q) => q.customdata !== undefined && q.data.name !== "crossovers");
+    if (p) ctx.openProfile(p.customdata);
+  });
   plot.after(pngButton(plot, `${s.name}-grid`));
 }

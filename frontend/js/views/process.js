@@ -57,23 +57,52 @@ function collectParams(form) {
   return out;
 }
 
-function emTable(rows) {
+// States are numbered from 0 as on the recognition map: state k = (Q level k div N2, R level k mod N2).
+function stateName(k, nr) { return `s${k} (Q${Math.floor(k / nr)}, R${k % nr})`; }
+
+function emTable(rows, selected) {
   if (!rows.length) return el("p", { class: "note", id: "em-empty" }, "EM iterations appear here while the identification runs.");
   const nq = rows[0].Q.length, nr = rows[0].R.length;
-  const hasA = rows.some((r) => r.transition);
-  const head = ["Iteration", ...Array.from({ length: nq }, (_, i) => `Q${i + 1} (mGal²)`),
-    ...Array.from({ length: nr }, (_, j) => `R${j + 1} ((cm/s)²)`), "Objective"];
-  const nstates = hasA ? rows.find((r) => r.transition).transition.length : 0;
-  for (let i = 0; i < nstates; i++) head.push(`a${i + 1}${i + 1}`);
+  const hasA = rows.some((r) => r.transition && r.transition.length);
+  const head = ["Iteration", ...Array.from({ length: nq }, (_, i) => `Q${i} (mGal²)`),
+    ...Array.from({ length: nr }, (_, j) => `R${j} ((cm/s)²)`), "Objective"];
+  const nstates = hasA ? rows.find((r) => r.transition && r.transition.length).transition.length : 0;
+  for (let i = 0; i < nstates; i++) head.push(`stay ${stateName(i, nr)}`);
   return el("table", { id: "em-table" }, el("thead", {}, el("tr", {}, head.map((h) => el("th", {}, h)))),
-    el("tbody", {}, rows.map((r) => el("tr", { class: "em-row" },
+    el("tbody", {}, rows.map((r, k) => el("tr", { class: `em-row${k === selected ? " selected" : ""}${k === rows.length - 1 ? " final" : ""}`, "data-index": k },
       el("td", {}, r.iteration), r.Q.map((q) => el("td", {}, fmt(q, 4))), r.R.map((x) => el("td", {}, fmt(x, 4))),
       el("td", {}, fmt(r.objective, 6)),
-      Array.from({ length: nstates }, (_, i) => el("td", {}, r.transition ? fmt(r.transition[i][i], 4) : "—"))))));
+      Array.from({ length: nstates }, (_, i) => el("td", {}, r.transition && r.transition.length ? fmt(r.transition[i][i], 4) : "—"))))));
 }
+
+// One iteration in full: each state's (Q, R) levels and the whole transition matrix a_ij.
+function emDetail(rows, k, live) {
+  const r = rows[k];
+  if (!r) return el("div", { id: "em-detail" });
+  const nr = r.R.length, n = r.Q.length * nr;
+  const states = Array.from({ length: n }, (_, s) => ({ name: stateName(s, nr), Q: r.Q[Math.floor(s / nr)], R: r.R[s % nr] }));
+  const a = r.transition && r.transition.length === n ? r.transition : null;
+  const caption = `${k === rows.length - 1 ? (live ? "Latest" : "Final") : "Selected"} iteration ${r.iteration}` +
+    (k === rows.length - 1 ? "" : ` (of ${rows[rows.length - 1].iteration})`) + " — click a row above to see another";
+  return el("div", { id: "em-detail", "data-iteration": r.iteration },
+    el("h4", {}, caption),
+    el("div", { class: "row" },
+      el("table", { id: "em-states" }, el("thead", {}, el("tr", {}, ["State", "Q (mGal² per step)", "R ((cm/s)²)"].map((h, i) => el("th", { class: i ? "" : "l" }, h)))),
+        el("tbody", {}, states.map((s) => el("tr", {}, el("td", { class: "l" }, s.name), el("td", {}, fmt(s.Q, 4)), el("td", {}, fmt(s.R, 4)))))),
+      a ? el("table", { id: "em-transition" },
+        el("thead", {}, el("tr", {}, el("th", { class: "l" }, "from ↓ / to →"), states.map((s) => el("th", {}, s.name)))),
+        el("tbody", {}, a.map((row, i) => el("tr", {}, el("td", { class: "l" }, states[i].name),
+          row.map((v, j) => el("td", { class: i === j ? "diag" : "" }, fmt(v, 4)))))))
+        : el("p", { class: "note" }, "No transition matrix recorded for this iteration.")));
+}
+
+let emSelected = null;  // row index the analyst clicked (null: follow the newest)
 
 function renderJob(box, job) {
   const pct = Math.round(100 * (job.progress || 0));
+  const rows = job.em_iterations || [];
+  const live = ["queued", "running"].includes(job.status);
+  const sel = emSelected !== null && emSelected < rows.length ? emSelected : rows.length - 1;
   box.replaceChildren(...[
     el("div", { class: "row" },
       el("div", {}, el("strong", {}, `Job ${job.id}`), ` (${job.kind}, ${job.backend}) — `,
@@ -82,9 +111,14 @@ function renderJob(box, job) {
     el("progress", { id: "job-progress", max: 1, value: job.progress || 0 }),
     job.error ? el("div", { class: "error", id: "job-error" }, job.error) : null,
     el("h3", {}, "EM iterations (identification of Q, R and the transition matrix)"),
-    el("div", { class: "scroll" }, emTable(job.em_iterations || []))].filter(Boolean));
+    el("p", { class: "note" }, "States are numbered from 0 as on the recognition map: state k has Q level k div N2 and R level k mod N2 (N2 = number of R levels)."),
+    el("div", { class: "scroll" }, emTable(rows, sel)),
+    rows.length ? emDetail(rows, sel, live) : null].filter(Boolean));
   const sc = box.querySelector(".scroll");
-  if (sc && ["queued", "running"].includes(job.status)) sc.scrollTop = sc.scrollHeight;  // follow the newest iteration
+  if (sc && emSelected === null) sc.scrollTop = sc.scrollHeight;  // the newest (final) iteration in view
+  for (const tr of box.querySelectorAll(".em-row")) {
+    tr.addEventListener("click", () => { emSelected = +tr.dataset.index; renderJob(box, job); });
+  }
   const cancel = el("button", { id: "job-cancel", disabled: !["queued", "running"].includes(job.status) }, "Cancel job");
   cancel.addEventListener("click", async () => {
     try { renderJob(box, await endpoints.cancelJob(job.id)); } catch (e) { showError(box, e); }
@@ -115,6 +149,7 @@ function watch(box, jobId, ctx, onDone) {
 
 export async function render(sec, ctx) {
   const s = ctx.survey;
+  emSelected = null;
   schemaCache = schemaCache || await endpoints.paramsSchema();
   const form = el("form", { id: "params-form" });
   const kind = el("select", { name: "kind", id: "job-kind" },
@@ -139,7 +174,7 @@ export async function render(sec, ctx) {
           el("td", { class: "l" }, el("span", { class: `badge ${j.status}` }, j.status)), el("td", {}, `${Math.round(100 * j.progress)}%`),
           el("td", { class: "l" }, j.created_at.replace("T", " ").slice(0, 19)), el("td", { class: "l" }, (j.finished_at || "").replace("T", " ").slice(0, 19)),
           el("td", { class: "l" }, j.error || ""));
-        tr.addEventListener("click", () => renderJob(jobBox, j));
+        tr.addEventListener("click", () => { emSelected = null; renderJob(jobBox, j); });
         return tr;
       }))) : el("p", { class: "note" }, "none"));
   };
@@ -150,6 +185,7 @@ export async function render(sec, ctx) {
     showError(jobBox, null);
     try {
       const job = await endpoints.submitJob(s.id, kind.value, collectParams(form));
+      emSelected = null;
       renderJob(jobBox, job);
       watch(jobBox, job.id, ctx, loadHistory);
       loadHistory();

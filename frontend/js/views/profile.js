@@ -17,21 +17,34 @@ function stateShapes(x, state) {
   return shapes;
 }
 
+let drawLine = null;  // (line) => select and draw it, set by render
+
+// a click on a line in a map brought us here: show that line
+export function shown(sec, ctx) {
+  const line = ctx.consumeLine();
+  if (line !== null && drawLine) drawLine(line);
+}
+
 export async function render(sec, ctx) {
   const s = ctx.survey;
+  drawLine = null;
   if (!s.current_result_id) {
     sec.replaceChildren(el("div", { class: "empty" }, "No results yet: run a processing job first."));
     return;
   }
-  const lines = await endpoints.lines(s.id);
+  const [lines, report] = await Promise.all([endpoints.lines(s.id), endpoints.report(s.id).catch(() => null)]);
+  const leveled = !!(report && report.leveled);
+  const levStatus = report ? report.leveling_status : null;
+  const diffs = Object.fromEntries(((report && report.adaptive_minus_fir) || []).map((d) => [d.line, d]));
   const withData = lines.filter((l) => l.stats);
   const sel = el("select", { id: "profile-line" }, withData.map((l) => el("option", { value: l.line },
     `${l.line} (${l.kind}, flight ${l.flight}, ${fmt(l.qc.length_km, 1)} km, σ̄ ${fmt(l.stats.sigma_mean_mgal, 2)} mGal)`)));
   const lp = el("input", { type: "number", id: "profile-lp", min: 0, max: 600, step: 5, value: 30, style: "width:5rem" });
   const status = el("div", { class: "note", id: "profile-status" });
-  const plot = el("div", { class: "plot", id: "profile-plot", style: "height:520px" });
+  const plot = el("div", { class: "plot", id: "profile-plot", style: "height:680px" });
   sec.replaceChildren(el("div", { class: "card" }, el("h3", {}, "Line profile"),
     el("div", { class: "controls" }, el("label", {}, "Line", sel), el("label", {}, "z low-pass FWHM (s)", lp)),
+    leveled || !levStatus ? null : el("p", { class: "warnline", id: "profile-not-leveled" }, `Leveling was not applied (${levStatus}): δg is the unleveled estimate.`),
     status, plot));
   let pngAdded = false;
 
@@ -42,13 +55,22 @@ export async function render(sec, ctx) {
     const hi = p.dg.map((v, i) => (v === null || p.dg_std[i] === null ? null : v + 2 * p.dg_std[i]));
     const cd = p.time;
     const ht = (name) => `${name}: %{y:.2f} mGal<br>%{x:.2f} km, t=%{customdata:.1f} s<extra></extra>`;
+    // adaptive − FIR, both before leveling (the filters' difference alone), beside σ
+    const ad = p.dg_unleveled || p.dg;
+    const diff = ad.map((v, i) => (v === null || p.dg_fir[i] === null ? null : v - p.dg_fir[i]));
+    const neg = p.dg_std.map((v) => (v === null ? null : -v));
+    const a2 = { xaxis: "x", yaxis: "y2" };
+    const dgName = leveled ? "adaptive δg (final, leveled)" : "adaptive δg (final, not leveled)";
     const traces = [
       { x, y: p.z_lowpassed, name: `z, low-passed (${p.z_lowpass_s} s)`, mode: "lines", line: { color: "#9e9e9e", width: 1 }, customdata: cd, hovertemplate: ht("z") },
       { x, y: lo, mode: "lines", line: { width: 0 }, showlegend: false, hoverinfo: "skip" },
       { x, y: hi, mode: "lines", line: { width: 0 }, fill: "tonexty", fillcolor: "rgba(31,111,235,0.18)", name: "adaptive ± 2σ", hoverinfo: "skip" },
-      { x, y: p.dg, name: "adaptive δg (final, leveled)", mode: "lines", line: { color: "#1f6feb", width: 2 }, customdata: cd, hovertemplate: ht("δg") },
+      { x, y: p.dg, name: dgName, mode: "lines", line: { color: "#1f6feb", width: 2 }, customdata: cd, hovertemplate: ht("δg") },
       { x, y: p.dg_stationary, name: "stationary smoother", mode: "lines", line: { color: "#e6550d", width: 1.5, dash: "dash" }, customdata: cd, hovertemplate: ht("stationary") },
       { x, y: p.dg_fir, name: "FIR 100 s", mode: "lines", line: { color: "#31a354", width: 1.5, dash: "dot" }, customdata: cd, hovertemplate: ht("FIR") },
+      { x, y: diff, name: "adaptive − FIR", mode: "lines", line: { color: "#6a3d9a", width: 1.5 }, customdata: cd, hovertemplate: ht("adaptive − FIR"), ...a2 },
+      { x, y: p.dg_std, name: "± σ (adaptive)", legendgroup: "sigma", mode: "lines", line: { color: "#1f6feb", width: 1, dash: "dot" }, customdata: cd, hovertemplate: ht("σ"), ...a2 },
+      { x, y: neg, name: "− σ", legendgroup: "sigma", showlegend: false, mode: "lines", line: { color: "#1f6feb", width: 1, dash: "dot" }, hoverinfo: "skip", ...a2 },
     ];
     // y range from the filtered series (z can carry large transients at the line ends)
     const vals = [...lo, ...hi, ...p.dg_stationary, ...p.dg_fir].filter((v) => v !== null && Number.isFinite(v));
@@ -56,19 +78,30 @@ export async function render(sec, ctx) {
     const layout = {
       title: { text: `Line ${esc(p.line)} (${esc(p.kind)}, flight ${esc(p.flight)})`, font: { size: 15 } },
       margin: { l: 70, r: 20, t: 40, b: 55 },
-      xaxis: { title: { text: "Distance along line (km)" } },
-      yaxis: { title: { text: "Gravity anomaly δg (mGal)" }, range: vals.length ? [ymin - pad, ymax + pad] : undefined },
-      legend: { orientation: "h", y: -0.16 },
+      xaxis: { title: { text: "Distance along line (km)" }, anchor: "y2" },
+      yaxis: { title: { text: "Gravity anomaly δg (mGal)" }, range: vals.length ? [ymin - pad, ymax + pad] : undefined, domain: [0.36, 1] },
+      yaxis2: { title: { text: "adaptive − FIR, σ (mGal)" }, domain: [0, 0.27], zeroline: true },
+      legend: { orientation: "h", y: -0.12 },
       shapes: stateShapes(x, p.state),
       hovermode: "x unified",
     };
     await Plotly.react(plot, traces, layout, plotConfig(`${s.name}-line-${p.line}`));
     if (!pngAdded) { plot.after(pngButton(plot, `${s.name}-line-profile`)); pngAdded = true; }
     const sigma = p.dg_std.filter((v) => v !== null);
-    status.textContent = `${p.n_total} epochs (${p.step === 1 ? "all" : `1 in ${p.step}`} shown) · shaded bands: states > 0 (rougher anomaly) · mean σ ${fmt(sigma.reduce((a, b) => a + b, 0) / Math.max(1, sigma.length), 3)} mGal`;
+    const d = diffs[p.line];
+    status.textContent = `${p.n_total} epochs (${p.step === 1 ? "all" : `1 in ${p.step}`} shown) · shaded bands: states > 0 (rougher anomaly) · mean σ ${fmt(sigma.reduce((a, b) => a + b, 0) / Math.max(1, sigma.length), 3)} mGal` +
+      (d ? ` · adaptive − FIR: RMS ${fmt(d.rms_mgal, 3)} mGal (std ${fmt(d.std_mgal, 3)})` : "");
     plot.dataset.line = p.line;
+    plot.dataset.leveled = leveled ? "1" : "0";
+  };
+  drawLine = (line) => {
+    if (![...sel.options].some((o) => o.value === line)) return;
+    sel.value = line;
+    draw();
   };
   sel.addEventListener("change", draw);
   lp.addEventListener("change", draw);
+  const wanted = ctx.consumeLine();
+  if (wanted !== null && withData.some((l) => l.line === wanted)) sel.value = wanted;
   if (withData.length) await draw(); else status.textContent = "No line has results.";
 }

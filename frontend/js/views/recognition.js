@@ -1,10 +1,14 @@
 // Recognition state map: decimated points coloured by state; h and ρ re-smooth on the server (NL-means).
 import { endpoints } from "../api.js";
-import { el, esc, fmt, mapLayout, plotConfig, pngButton, stateColor } from "../plots.js";
+import { SCATTER_GL, el, esc, fmt, mapLayout, plotConfig, pngButton, stateColor } from "../plots.js";
 
-function stateLabel(states, i) {
+// "state 2 (Q1, R0): Q=…, R=…": states numbered from 0 as in identification.json, with their levels
+export function stateLabel(states, i) {
   const st = states.find((x) => x.index === i);
-  return st ? `state ${i}: Q=${fmt(st.Q, 3)} mGal², R=${fmt(st.R, 3)} (cm/s)²` : `state ${i}`;
+  if (!st) return `state ${i}`;
+  const qs = [...new Set(states.map((x) => x.Q))].sort((a, b) => a - b);
+  const rs = [...new Set(states.map((x) => x.R))].sort((a, b) => a - b);
+  return `state ${i} (Q${qs.indexOf(st.Q)}, R${rs.indexOf(st.R)}): Q=${fmt(st.Q, 3)} mGal², R=${fmt(st.R, 3)} (cm/s)²`;
 }
 
 function signature(arr) {
@@ -39,15 +43,26 @@ export async function render(sec, ctx) {
   const base = await endpoints.recognition(s.id, { h: 0.5, rho: 10, mode: "soft" });
   let current = base.state;
   const legend = Array.from({ length: base.n_states }, (_, i) => ({
-    x: [null], y: [null], type: "scattergl", mode: "markers", name: stateLabel(base.states, i),
+    x: [null], y: [null], type: SCATTER_GL, mode: "markers", name: stateLabel(base.states, i),
     marker: { color: stateColor(i), size: 9 }, hoverinfo: "skip" }));
   const colors = (arr) => arr.map((v) => stateColor(v));
   const text = base.line.map((l) => `line ${esc(l)}`);
-  const trace = { x: base.easting_km, y: base.northing_km, type: "scattergl", mode: "markers", showlegend: false,
-    marker: { color: colors(current), size: 7 }, text,
-    hovertemplate: "%{text}<br>E %{x:.2f} km, N %{y:.2f} km<extra></extra>" };
-  await Plotly.newPlot(plot, [trace, ...legend], mapLayout(`${s.name}: recognised states`), plotConfig(`${s.name}-recognition`));
+  const trace = { x: base.easting_km, y: base.northing_km, type: SCATTER_GL, mode: "markers", showlegend: false,
+    marker: { color: colors(current), size: 7 }, text, customdata: base.line,
+    hovertemplate: "%{text} — click for its profile<br>E %{x:.2f} km, N %{y:.2f} km<extra></extra>" };
+  const layout = mapLayout(`${s.name}: recognised states`);
+  await Plotly.newPlot(plot, [trace, ...legend], layout, plotConfig(`${s.name}-recognition`));
+  if (plot.querySelector(".no-webgl")) {  // Plotly could not start WebGL here: SVG markers instead of a blank map
+    Plotly.purge(plot);
+    for (const t of [trace, ...legend]) t.type = "scatter";
+    await Plotly.newPlot(plot, [trace, ...legend], layout, plotConfig(`${s.name}-recognition`));
+  }
+  plot.dataset.renderer = trace.type;
   plot.after(pngButton(plot, `${s.name}-recognition`));
+  plot.on("plotly_click", (ev) => {
+    const p = ev && ev.points && ev.points.find((q) => q.customdata !== undefined && q.customdata !== null);
+    if (p) ctx.openProfile(p.customdata);
+  });
 
   const update = (r, rtt) => {
     current = r.state;

@@ -1,0 +1,193 @@
+// Report panel: every warning and automatic decision of the current result with its evidence
+// (report.json), known sections drawn as tables, any other section shown generically with its JSON.
+import { endpoints } from "../api.js";
+import { el, fmt, genericView, jsonDetails, table } from "../plots.js";
+
+const yes = (b) => (b === true ? "yes" : b === false ? "no" : "—");
+const pct = (f) => (f === null || f === undefined ? "—" : `${fmt(100 * f, 3)} %`);
+const ESTIMATES = [["dg_mgal", "adaptive (final)"], ["dg_stationary_mgal", "stationary"], ["dg_fir_mgal", "FIR 100 s"]];
+
+function card(key, title, ...body) {
+  return el("details", { class: "card report-section", id: `report-sec-${key}`, open: true },
+    el("summary", {}, el("h3", {}, title)), ...body);
+}
+
+function perFlight(obj, headers, row) {
+  return table(["Flight", ...headers], Object.entries(obj || {}).map(([f, v]) => [f, ...row(v || {})]));
+}
+
+function repeatRows(rep) {
+  return Object.entries(rep || {}).map(([track, v]) => {
+    const acc = v.internal_accuracy_mgal || {};
+    const nums = ESTIMATES.map(([k]) => (typeof acc[k] === "number" ? acc[k] : null));
+    const finite = nums.filter((x) => x !== null);
+    const worst = finite.length > 1 ? Math.max(...finite) : null;
+    const best = finite.length > 1 ? Math.min(...finite) : null;
+    return { track, repeats: v.repeats, nums, acc, worst, best,
+      worstName: worst === null ? null : ESTIMATES[nums.indexOf(worst)][1], bestName: best === null ? null : ESTIMATES[nums.indexOf(best)][1] };
+  });
+}
+
+// one line per decision, in words, for the top of the panel
+function summary(r) {
+  const rep = r.report || {};
+  const items = [];
+  items.push(r.absolute_base_tie
+    ? { cls: "ok", text: "Base level: absolute (flights tied to the base gravity at the parking place)." }
+    : { cls: "bad", text: "Base level: RELATIVE — no absolute base tie was made; the level of δg may be off by 100+ mGal (set base_gravity_mgal in the survey settings)." });
+  const xo = rep.crossovers || {};
+  if (xo.status !== undefined) {
+    items.push(r.leveled
+      ? { cls: "ok", text: `Leveling applied (F-test p = ${fmt(xo.p_value, 3)}); crossover RMS ${fmt(xo.rms_before_mgal, 3)} → ${fmt(xo.rms_after_mgal, 3)} mGal.` }
+      : { cls: "warn", text: `Leveling NOT applied — ${String(xo.status).replace(/^not leveled:\s*/, "")}; crossover RMS ${fmt(xo.rms_before_mgal, 3)} mGal` +
+        (xo.rms_after_if_leveled_mgal !== undefined ? ` (${fmt(xo.rms_after_if_leveled_mgal, 3)} if leveled).` : ".") });
+  }
+  const em = (r.identification || {}).em || {};
+  const unreliable = r.warnings.filter((w) => /unreliable|not identified|learning on tie/i.test(w));
+  if (em.n_iterations || unreliable.length) {
+    items.push({ cls: unreliable.length || em.converged === false ? "warn" : "ok",
+      text: `Identification: ${em.model ? `model ${em.model}` : "EM"}${em.selection && em.selection.criterion ? ` (chosen: ${em.selection.criterion})` : ""}, ` +
+        `${em.n_iterations || 0} iterations, ${em.converged === false ? "NOT converged" : "converged"}` +
+        (unreliable.length ? ` — ${unreliable.join("; ")}` : ".") });
+  }
+  for (const t of repeatRows(rep.repeat_lines)) {
+    if (t.worstName) {
+      items.push({ cls: t.worstName.startsWith("adaptive") ? "bad" : "ok",
+        text: `Repeat track ${t.track} (${t.repeats} passes): the ${t.worstName} estimate is the least repeatable (${fmt(t.worst, 3)} mGal), ` +
+          `the ${t.bestName} the most (${fmt(t.best, 3)} mGal).` });
+    }
+  }
+  if (rep.lag_check) {
+    const lc = rep.lag_check;
+    items.push({ cls: lc.applied ? "warn" : "ok", text: lc.applied
+      ? `Gravimeter lag: survey.toml says τ = ${fmt(lc.declared_tau_s, 3)} s, the flights say ${(lc.estimated_tau_s || []).map((v) => fmt(v, 3)).join(", ")} s: the flights' value was used.`
+      : `Gravimeter lag τ = ${fmt(lc.declared_tau_s, 3)} s confirmed in flight (${(lc.estimated_tau_s || []).map((v) => fmt(v, 3)).join(", ")} s).` });
+  }
+  if (rep.model_choice !== undefined) {
+    const mc = rep.model_choice;
+    items.push({ cls: "ok", text: `Model choice: ${typeof mc === "object" && mc ? (mc.chosen ?? mc.model ?? JSON.stringify(mc).slice(0, 120)) : String(mc)}` +
+      (mc && mc.reason ? ` — ${mc.reason}` : "") });
+  }
+  return el("ul", { id: "report-summary", class: "decisions" }, items.map((i) => el("li", { class: i.cls }, i.text)));
+}
+
+const RENDER = {
+  base_ties: (v) => [perFlight(v, ["Tie applied", "Absolute", "Drift (mGal/h)", "Static periods", "Reading error (mGal)"], (b) => [
+    yes(b.applied), yes(b.absolute), fmt(b.drift_mgal_per_h, 3), String((b.static_periods || []).length),
+    (b.static_periods || []).map((p) => fmt(p.reading_error_mgal, 2)).join(", ") || "—"])],
+  time_offsets: (v) => [perFlight(v, ["Offset (s)", "Std. error (s)", "Correlation", "Residual reduction", "Applied", "Reason"], (o) => [
+    fmt(o.offset_s, 4), fmt(o.se_s, 2), fmt(o.correlation, 4), pct(o.residual_reduction), yes(o.applied), o.reason || "—"])],
+  lag_check: (v) => [table(["Declared τ (s)", "Estimated τ per flight (s)", "Applied"],
+    [[fmt(v.declared_tau_s, 4), (v.estimated_tau_s || []).map((x) => fmt(x, 4)).join(", "), yes(v.applied)]])],
+  spike_repair: (v) => [perFlight(v, ["Flagged epochs", "Fraction", "Epochs", "Threshold (robust σ)", "Outcome"], (d) => [
+    String(d.flagged ?? "—"), pct(d.fraction), String(d.epochs ?? "—"), fmt(d.threshold, 3),
+    d.applied ? "repaired" : d.flagged ? "stood down: z left as measured" : "none found"])],
+  crossovers: (v, r) => {
+    const out = [table(["Status", "F-test p", "Crossovers", "Drift parameters", "RMS before (mGal)", "RMS after (mGal)", "RMS if leveled (mGal)"],
+      [[v.status ?? "—", fmt(v.p_value, 3), String(v.n_crossovers ?? "—"), String(v.n_drift_parameters ?? "—"),
+        fmt(v.rms_before_mgal, 4), fmt(v.rms_after_mgal, 4), fmt(v.rms_after_if_leveled_mgal, 4)]], { id: "report-leveling" })];
+    if (v.std_check) out.push(el("p", { class: "note" }, `σ check at the crossovers: `), genericView(v.std_check));
+    if (r.crossovers && r.crossovers.length) {
+      out.push(el("h4", {}, `Crossovers (${r.crossovers.length})`), el("div", { class: "scroll" }, table(["Line a", "Line b", "E (km)", "N (km)", "before (mGal)", "after (mGal)"],
+        r.crossovers.map((c) => [String(c.line_a), String(c.line_b), fmt(c.easting_km, 2), fmt(c.northing_km, 2), fmt(c.diff_before_mgal, 3), fmt(c.diff_after_mgal, 3)]),
+        { id: "report-crossover-table" })));
+    }
+    return out;
+  },
+  repeat_lines: (v) => {
+    const rows = repeatRows(v);
+    if (!rows.length) return [el("p", { class: "note" }, "No repeat track with two or more passes.")];
+    return [table(["Track", "Passes", ...ESTIMATES.map(([, n]) => `${n} (mGal)`), "Least repeatable"],
+      rows.map((t) => ({ attrs: { "data-track": t.track }, cells: [t.track, String(t.repeats),
+        ...t.nums.map((x, i) => (x === null ? String(t.acc[ESTIMATES[i][0]] ?? "—") : el("span", { class: x === t.worst ? "worst" : "" }, fmt(x, 3)))),
+        t.worstName || "—"] })), { id: "report-repeat-table" }),
+    el("p", { class: "note" }, "Internal accuracy ε = sqrt(Σ(g − ḡ)² / (n (K−1))) over the K passes of a track (SPEC §3).")];
+  },
+  noise_model: (v) => {
+    const out = [table(["Family", "Fit", "Level band (Hz)", "Level scale", "Fitted up to (Hz)"],
+      [[v.family ?? "—", v.fit ?? "—", (v.level_band_hz || []).join("–"), fmt(v.level_scale, 3), fmt(v.fit_fmax_hz ?? v.fmax_hz, 3)]])];
+    if (v.components) out.push(el("h4", {}, "Components"), genericView(v.components));
+    if (v.candidates && v.candidates.length) {
+      const c = [...v.candidates].sort((a, b) => (a.bic ?? Infinity) - (b.bic ?? Infinity));
+      out.push(el("h4", {}, "Candidates by BIC (the family used is marked)"), table(["Family", "−log L", "Parameters", "BIC", "ΔBIC", ""],
+        c.map((x) => ({ attrs: { class: x.family === v.family ? "chosen" : "" }, cells: [x.family, fmt(x.nll, 1), String(x.n_params ?? "—"), fmt(x.bic, 1),
+          fmt(x.bic - c[0].bic, 3), x.family === v.family ? "chosen" : ""] })),
+        { id: "report-noise-candidates" }));
+    }
+    return out;
+  },
+  model_order: (v) => [el("p", {}, `Order of the anomaly model m = ${v.m} (largest full-rate likelihood).`),
+    table(["m", "log L", "Q stationary (mGal²)"], Object.keys(v.loglik || {}).map((m) => [m, fmt(v.loglik[m], 1), fmt((v.Q_stationary_mgal2 || {})[m], 4)]))],
+};
+
+const TITLES = {
+  base_ties: "Base ties", time_offsets: "Gravimeter–GNSS time offsets", lag_check: "Lag check (τ in flight)",
+  spike_repair: "GNSS velocity spike repair", crossovers: "Leveling at crossovers", repeat_lines: "Repeat-line internal accuracy",
+  noise_model: "Noise model", model_order: "Model order", model_choice: "Model choice", identification: "Identification (EM)",
+  counts: "Counts", timings_s: "Stage timings (s)", grid: "Grid", level_refinement: "Level refinement",
+  calibration: "In-flight calibration", grid_std_cross_validation: "Grid σ cross-validation",
+};
+const SKIP = new Set(["warnings", "survey", "crs"]);
+
+function identificationCard(r) {
+  const id = r.identification || {};
+  const em = id.em || {};
+  const out = [];
+  const sel = em.selection;
+  if (sel && Array.isArray(sel.candidates)) {
+    out.push(el("p", {}, `Model selection (${sel.criterion ?? "—"}): chosen ${sel.chosen ?? "—"}; EM ${em.converged === false ? "did NOT converge" : "converged"} after ${em.n_iterations} iterations, log L ${fmt(em.loglik, 2)}.`),
+      table(["Model", "N1 (Q levels)", "N2 (R levels)", "log L", "Parameters", "BIC", "Iterations", ""],
+        sel.candidates.map((c) => ({ attrs: { class: c.model === sel.chosen ? "chosen" : "" }, cells: [String(c.model), String(c.n_q ?? "—"), String(c.n_r ?? "—"),
+          fmt(c.loglik, 2), String(c.n_params ?? "—"), fmt(c.bic, 2), String(c.iterations ?? "—"), c.model === sel.chosen ? "chosen" : ""] })),
+        { id: "report-em-selection" }));
+  }
+  if (id.states && id.states.length) {
+    out.push(el("h4", {}, "States (numbered from 0, as on the recognition map)"),
+      table(["State", "Q (mGal² per step)", "R ((cm/s)²)", "Stay probability"], id.states.map((s) => [`state ${s.index}`, fmt(s.Q, 4), fmt(s.R, 4),
+        id.transition && id.transition[s.index] ? fmt(id.transition[s.index][s.index], 4) : "—"])));
+  }
+  if (id.lines_skipped && Object.keys(id.lines_skipped).length) out.push(el("h4", {}, "Lines not identified"), genericView(id.lines_skipped));
+  return out;
+}
+
+export async function render(sec, ctx) {
+  const s = ctx.survey;
+  if (!s.current_result_id) {
+    sec.replaceChildren(el("div", { class: "empty" }, "No results yet: run a processing job first."));
+    return;
+  }
+  const r = await endpoints.report(s.id);
+  const rep = r.report || {};
+  const parts = [];
+  parts.push(el("div", { class: "card" }, el("h3", {}, `Report of result ${r.result_id} (job ${r.job_id})`),
+    s.result_outdated ? el("p", { class: "warnline", id: "report-outdated" }, "The survey's data or settings changed after this result: run processing again.") : null,
+    summary(r),
+    el("h4", {}, `Warnings (${r.warnings.length})`),
+    r.warnings.length ? el("ul", { id: "report-warnings", class: "warnings" }, r.warnings.map((w) => el("li", {}, w)))
+      : el("p", { class: "note", id: "report-warnings" }, "none")));
+  for (const key of ["base_ties", "time_offsets", "lag_check", "spike_repair", "crossovers", "repeat_lines"]) {
+    if (rep[key] !== undefined && rep[key] !== null) parts.push(card(key, TITLES[key], ...RENDER[key](rep[key], r), jsonDetails(key, rep[key])));
+  }
+  if (r.adaptive_minus_fir.length) {
+    parts.push(card("adaptive_minus_fir", "Adaptive − FIR 100 s per line (before leveling)",
+      el("p", { class: "note" }, "Where the adaptive estimate departs from the industry FIR baseline; a large RMS on a smooth line deserves a look at its profile."),
+      el("div", { class: "scroll" }, table(["Line", "Flight", "Kind", "Epochs", "RMS (mGal)", "Mean (mGal)", "Std (mGal)"],
+        r.adaptive_minus_fir.map((d) => ({ attrs: { "data-line": d.line }, cells: [d.line, d.flight, d.kind, String(d.n), fmt(d.rms_mgal, 3), fmt(d.mean_mgal, 3), fmt(d.std_mgal, 3)] })),
+        { id: "report-diff-table" }))));
+  }
+  for (const key of ["noise_model", "model_order"]) {
+    if (rep[key] !== undefined && rep[key] !== null) parts.push(card(key, TITLES[key], ...RENDER[key](rep[key], r), jsonDetails(key, rep[key])));
+  }
+  parts.push(card("identification", TITLES.identification, ...identificationCard(r),
+    rep.identification ? jsonDetails("identification", rep.identification) : null));
+  if (rep.model_choice !== undefined) parts.push(card("model_choice", TITLES.model_choice, genericView(rep.model_choice), jsonDetails("model_choice", rep.model_choice)));
+  const shown = new Set(["base_ties", "time_offsets", "lag_check", "spike_repair", "crossovers", "repeat_lines", "noise_model", "model_order",
+    "identification", "model_choice"]);
+  for (const [key, v] of Object.entries(rep)) {
+    if (shown.has(key) || SKIP.has(key)) continue;
+    // sections this page has no drawing for (model_choice, counts, new keys): shown as they are
+    parts.push(card(key, TITLES[key] || key, genericView(v), jsonDetails(key, v)));
+  }
+  sec.replaceChildren(...parts);
+  sec.dataset.resultId = r.result_id;
+}

@@ -1,0 +1,299 @@
+"""The analyst's workflow in Chromium (issue items 2–6) on a survey processed by the test
+pipeline (``tests.web.fake_pipeline``, which writes a report shaped like the real one): the report
+panel, the survey metadata editor and deleting a survey, maps and profiles, exports, and the API
+pages working offline.  Screenshots go to the test's tmp_path (``screenshots/``)."""
+
+from __future__ import annotations
+
+from urllib.parse import urlsplit
+
+import pytest
+
+pytestmark = [pytest.mark.browser]
+
+
+@pytest.fixture
+def shots(tmp_path):
+    d = tmp_path / "screenshots"
+    d.mkdir()
+    return lambda page, name: page.screenshot(path=str(d / name), full_page=True)
+
+
+def test_api_docs_work_offline_under_the_csp(live_server, browser_page, shots):
+    page = browser_page
+    requests, finished, failed = [], [], []
+    page.on("request", lambda r: requests.append(r.url))
+    page.on("requestfinished", lambda r: finished.append(r.url))
+    page.on("requestfailed", lambda r: failed.append((r.url, r.failure)))
+    page.goto(live_server.url + "/docs")
+    page.wait_for_selector(".swagger-ui .info .title:has-text('Aerograv')", timeout=20000)
+    page.wait_for_selector(".opblock-tag-section", timeout=20000)
+    shots(page, "docs-swagger.png")
+    hosts = {urlsplit(u).hostname for u in requests if u.startswith("http")}
+    assert hosts == {"127.0.0.1"}, hosts   # Swagger UI asks nothing of another host
+    assert not page.errors, page.errors   # no CSP violation, no failed request
+    page.goto(live_server.url + "/redoc")
+    page.wait_for_selector("h1:has-text('Aerograv')", timeout=20000)
+    page.wait_for_selector(".menu-content label", timeout=20000)
+    shots(page, "docs-redoc.png")
+    # ReDoc's footer logo points at its CDN: the CSP keeps it from loading (the logo hides itself)
+    assert {urlsplit(u).hostname for u in finished if u.startswith("http")} == {"127.0.0.1"}, finished
+    assert all(f == "csp" for u, f in failed if urlsplit(u).hostname != "127.0.0.1"), failed
+    assert all("logo-mini.svg" in e for e in page.errors), page.errors
+
+
+# ---------------------------------------------------------------- a processed survey (test pipeline)
+@pytest.fixture
+def fake_server(tmp_path, monkeypatch):
+    from app.web.main import create_app
+    from app.web.settings import Settings
+    from tests.web.conftest import FAKE_ENTRY
+
+    from .conftest import LiveServer
+    monkeypatch.setenv("AEROGRAV_FAKE_DELAY_S", "0.01")
+    app = create_app(Settings(data_dir=tmp_path / "data", poll_interval_s=0.1, pipeline_entry=FAKE_ENTRY))
+    with LiveServer(app) as srv:
+        yield srv
+
+
+def _processed_survey(url: str, tmp_path, name="tiny") -> int:
+    import httpx
+
+    from tests.web.conftest import make_tiny_survey, zip_dir
+    z = zip_dir(make_tiny_survey(tmp_path / name, name=name))
+    with httpx.Client(base_url=url, timeout=30) as c:
+        sid = c.post("/api/surveys/import", files={"file": (f"{name}.zip", z, "application/zip")}).json()["id"]
+        _run(c, sid)
+    return sid
+
+
+def _run(c, sid):
+    import time
+    job = c.post(f"/api/surveys/{sid}/jobs", json={"kind": "process"}).json()
+    t_end = time.monotonic() + 30
+    while c.get(f"/api/jobs/{job['id']}").json()["status"] in ("queued", "running"):
+        assert time.monotonic() < t_end
+        time.sleep(0.1)
+    assert c.get(f"/api/jobs/{job['id']}").json()["status"] == "succeeded"
+
+
+def _tab(page, name):
+    page.click(f"#tabs button[data-tab={name}]")
+
+
+def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, shots):
+    import httpx
+
+    page = browser_page
+    sid = _processed_survey(fake_server.url, tmp_path)
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=report")
+    page.wait_for_selector("#report-summary li", timeout=20000)
+    summary = page.inner_text("#report-summary")
+    assert "RELATIVE — no absolute base tie" in summary
+    assert "Leveling NOT applied" in summary and "F-test p = 0.269" in summary
+    assert "adaptive (final) estimate is the least repeatable (3.73 mGal)" in summary
+    assert "Model choice: adaptive" in summary
+    assert page.locator("#report-warnings li").count() == 2
+    assert page.locator("#report-repeat-table span.worst").inner_text() == "3.73"
+    assert page.locator("#report-diff-table tbody tr").count() == 3
+    assert page.locator("#report-crossover-table tbody tr").count() == 1
+    assert page.locator("#report-em-selection tr.chosen").inner_text().startswith("2x1")
+    assert page.locator("#report-noise-candidates tbody tr").count() == 2
+    for key in ("base_ties", "time_offsets", "lag_check", "spike_repair", "crossovers", "noise_model", "model_order",
+                "model_choice", "future_section", "counts"):
+        assert page.locator(f"#report-sec-{key}").count() == 1, key
+    assert "stood down" not in page.inner_text("#report-sec-spike_repair") and "repaired" in page.inner_text("#report-sec-spike_repair")
+    # a section the page does not know: shown generically, its JSON one click away, markup as text
+    sec = page.locator("#report-sec-future_section")
+    assert "<b>not markup</b>" in sec.inner_text() and sec.locator("b").count() == 0
+    sec.locator("details.json summary").click()
+    assert '"value": 1' in sec.locator("details.json pre").inner_text()
+    shots(page, "report.png")
+
+    # the profile legend does not claim leveling that was not applied
+    _tab(page, "profile")
+    page.wait_for_selector("#profile-plot[data-line] .main-svg", timeout=20000)
+    legend = page.text_content("#profile-plot .legend")
+    assert "not leveled" in legend and "(final, leveled)" not in legend
+    assert page.locator("#profile-not-leveled").count() == 1
+    # the grid title says the level is relative
+    _tab(page, "grid")
+    page.wait_for_selector("#grid-plot .main-svg .gtitle", timeout=20000)
+    assert "relative level (no absolute base tie)" in page.text_content("#grid-plot .gtitle")
+
+    # settings: a bad value is refused in place (field named, marked); good values are saved
+    _tab(page, "settings")
+    page.wait_for_selector("#settings-form")
+    assert page.input_value("[name='gravimeter.tau_s']") == "0"
+    page.fill("[name='gravimeter.tau_s']", "-1")
+    page.click("#settings-save")
+    page.wait_for_selector("#view-settings .error:visible")
+    assert "gravimeter.tau_s" in page.inner_text("#view-settings .error")
+    assert page.locator("[name='gravimeter.tau_s'].invalid").count() == 1
+    page.errors.clear()   # the 422 above is expected
+    page.fill("[name='gravimeter.tau_s']", "2")
+    page.fill("[name='gravimeter.base_gravity_mgal']", "982316.4")
+    page.fill("[name='survey.name']", "Block A")
+    page.click("#settings-save")
+    page.wait_for_function("() => document.querySelector('#settings-status') && document.querySelector('#settings-status').dataset.saved")
+    assert "run processing again" in page.inner_text("#settings-status")
+    page.wait_for_selector("#survey-list li.active:has-text('Block A')")
+    assert page.input_value("[name='gravimeter.base_gravity_mgal']") == "982316.4"
+    shots(page, "settings.png")
+    with httpx.Client(base_url=fake_server.url) as c:
+        s = c.get(f"/api/surveys/{sid}").json()
+        assert s["settings"]["gravimeter"]["tau_s"] == 2.0 and s["result_outdated"]
+        _run(c, sid)   # the job reads the new survey.toml: now the base tie is absolute
+    page.reload()
+    _tab(page, "grid")
+    page.wait_for_selector("#grid-plot .main-svg .gtitle", timeout=20000)
+    assert "relative level" not in page.text_content("#grid-plot .gtitle") and page.locator("#grid-relative").count() == 0
+    _tab(page, "report")
+    page.wait_for_selector("#report-summary li", timeout=20000)
+    assert "Base level: absolute" in page.inner_text("#report-summary")
+
+    # a survey built from a flight upload: the flight is named as lines.csv names it
+    from tests.web.conftest import make_tiny_survey
+    tiny = make_tiny_survey(tmp_path / "upload")
+    page.fill("#new-survey input[name=name]", "Block B")
+    page.click("#new-survey button")
+    page.wait_for_selector("#survey-list li.active:has-text('Block B')")
+    page.wait_for_selector("#flight-upload:not([hidden])")
+    page.set_input_files("#flight-form input[name=gravimeter]", str(tiny / "flights" / "f1" / "gravimeter.csv"))
+    page.set_input_files("#flight-form input[name=gnss]", str(tiny / "flights" / "f1" / "gnss.csv"))
+    lines = tmp_path / "lines-f01.csv"
+    lines.write_text("line,flight,t_start,t_end,kind\nB1,F01,1010,1140,main\nB2,F01,1150,1280,main\n")
+    page.set_input_files("#flight-form input[name=lines]", str(lines))
+    page.click("#flight-form button[type=submit]")
+    _tab(page, "qc")
+    page.wait_for_selector("#qc-flights td:has-text('F01')", timeout=20000)
+
+    # delete it from the settings tab (after the confirmation)
+    n = page.locator("#survey-list li").count()
+    _tab(page, "settings")
+    page.wait_for_selector("#survey-delete")
+    page.once("dialog", lambda d: d.accept())
+    page.click("#survey-delete")
+    page.wait_for_function(f"() => document.querySelectorAll('#survey-list li').length === {n - 1}")
+    assert page.locator("#survey-list li:has-text('Block B')").count() == 0
+    assert page.locator("#survey-list li.active:has-text('Block A')").count() == 1
+    assert not page.errors, page.errors
+
+
+def _click_line_on_map(page, plot_sel, line, axis="x"):
+    """Click, with the mouse, the pixel where the plot draws the first point of ``line``'s track."""
+    xy = page.evaluate("""([sel, line, ax]) => {
+        const gd = document.querySelector(sel);
+        const tr = gd.data.find((t) => t.mode === 'lines' && t.customdata && t.customdata[0] === line
+                                        && (t.xaxis || 'x') === ax);
+        const i = Math.floor(tr.x.length / 2);
+        const fl = gd._fullLayout, xa = fl[ax === 'x' ? 'xaxis' : 'xaxis2'], ya = fl[ax === 'x' ? 'yaxis' : 'yaxis2'];
+        const box = gd.querySelector('.main-svg').getBoundingClientRect();
+        return [box.left + xa._offset + xa.l2p(tr.x[i]), box.top + ya._offset + ya.l2p(tr.y[i])];
+    }""", [plot_sel, line, axis])
+    page.mouse.move(xy[0], xy[1])
+    page.mouse.click(xy[0], xy[1])
+
+
+def test_maps_profiles_em_and_exports(fake_server, browser_page, tmp_path, shots):
+    import numpy as np
+
+    page = browser_page
+    sid = _processed_survey(fake_server.url, tmp_path)
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=grid")
+    page.wait_for_selector("#grid-plot[data-variable] .main-svg", timeout=20000)
+    # diverging scale, white at 0, symmetric robust limits
+    zmin, zmax = float(page.get_attribute("#grid-plot", "data-zmin")), float(page.get_attribute("#grid-plot", "data-zmax"))
+    assert zmin == pytest.approx(-zmax) and zmax > 0
+    cs = page.evaluate("() => document.querySelector('#grid-plot').data[0].colorscale")
+    mid = next(c for p, c in cs if abs(p - 0.5) < 1e-9)
+    assert mid == "#f7f7f7"
+    assert page.locator("#grid-plot .textpoint").count() == 3           # line labels L1, L2, T1
+    shots(page, "grid-default.png")
+    # own limits: white stays at 0
+    page.fill("#grid-zmin", "-5")
+    page.fill("#grid-zmax", "15")
+    page.dispatch_event("#grid-zmax", "change")
+    page.wait_for_function("() => document.querySelector('#grid-plot').dataset.zmax === '15'")
+    cs = page.evaluate("() => document.querySelector('#grid-plot').data[0].colorscale")
+    assert [c for p, c in cs if abs(p - 0.25) < 1e-9] == ["#f7f7f7"]   # (0 − (−5)) / 20
+    # hillshade layer
+    page.check("#grid-hillshade")
+    page.wait_for_function("() => document.querySelector('#grid-plot').dataset.hillshade === '1'")
+    assert page.evaluate("() => document.querySelector('#grid-plot').data.some((t) => t.name === 'hillshade')")
+    shots(page, "grid-hillshade.png")
+    # δg and σ side by side
+    page.select_option("#grid-var", "both")
+    page.wait_for_function("() => document.querySelector('#grid-plot').dataset.variable === 'both'")
+    assert page.locator("#grid-plot .colorbar").count() == 2 and page.locator("#grid-plot .xy2").count() + \
+        page.locator("#grid-plot .x2y2").count() >= 1
+    shots(page, "grid-side-by-side.png")
+    # a click on line L2 in the σ map opens its profile
+    _click_line_on_map(page, "#grid-plot", "L2", axis="x2")
+    page.wait_for_function("() => document.querySelector('#profile-plot') && document.querySelector('#profile-plot').dataset.line === 'L2'",
+                           timeout=20000)
+    assert page.locator("#tabs button.active").inner_text() == "Line profiles"
+    # the profile shows adaptive − FIR and σ in their own panel
+    names = page.evaluate("() => document.querySelector('#profile-plot').data.map((t) => t.name)")
+    assert "adaptive − FIR" in names and "± σ (adaptive)" in names
+    text = page.text_content("#profile-plot")
+    assert "adaptive − FIR, σ (mGal)" in text
+    assert "adaptive − FIR: RMS" in page.inner_text("#profile-status")
+    shots(page, "profile-L2.png")
+
+    # recognition map: a click on a point opens its line's profile
+    page.click("#tabs button[data-tab=recognition]")
+    page.wait_for_selector("#rec-map[data-signature]", timeout=20000)
+    legend = page.text_content("#rec-map .legend")
+    assert "state 0 (Q0, R0)" in legend and "state 1 (Q1, R0)" in legend
+    xy = page.evaluate("""() => {
+        const gd = document.querySelector('#rec-map'), t = gd.data[0];
+        const i = t.customdata.indexOf('T1');
+        const fl = gd._fullLayout, box = gd.querySelector('.main-svg').getBoundingClientRect();
+        return [box.left + fl.xaxis._offset + fl.xaxis.l2p(t.x[i]), box.top + fl.yaxis._offset + fl.yaxis.l2p(t.y[i])];
+    }""")
+    page.mouse.move(*xy)
+    page.mouse.click(*xy)
+    page.wait_for_function("() => document.querySelector('#profile-plot').dataset.line === 'T1'", timeout=20000)
+
+    # the QC line map too
+    page.click("#tabs button[data-tab=qc]")
+    page.wait_for_selector("#line-map .main-svg", timeout=20000)
+    _click_line_on_map(page, "#line-map", "L1")
+    page.wait_for_function("() => document.querySelector('#profile-plot').dataset.line === 'L1'", timeout=20000)
+
+    # EM table: states counted from 0 with their (Q, R), the full transition matrix of the final iteration
+    page.click("#tabs button[data-tab=process]")
+    page.wait_for_selector("#em-detail", timeout=20000)
+    head = page.inner_text("#em-table thead")
+    assert "Q0 (mGal²)" in head and "R0 ((cm/s)²)" in head and "stay s1 (Q1, R0)" in head and "Q2" not in head
+    assert page.get_attribute("#em-detail", "data-iteration") == "2" and "Final iteration 2" in page.inner_text("#em-detail")
+    assert page.locator("#em-transition tbody tr").count() == 2 and page.locator("#em-transition tbody td").count() == 6
+    assert page.locator("#em-states tbody tr").count() == 2
+    assert [c.strip() for c in page.inner_text("#em-transition tbody tr:first-child").split("\t")] == ["s0 (Q0, R0)", "0.98", "0.02"]
+    page.click(".em-row[data-index='0']")
+    page.wait_for_function("() => document.querySelector('#em-detail').dataset.iteration === '0'")
+    shots(page, "em-table.png")
+
+    # exports from the page: netCDF and the XYZ line data, read back
+    page.click("#tabs button[data-tab=export]")
+    page.wait_for_selector("#export-xyz")
+    got = {}
+    for fmt in ("netcdf", "xyz", "geotiff"):
+        with page.expect_download() as dl:
+            page.click(f"#export-{fmt}")
+        got[fmt] = tmp_path / dl.value.suggested_filename
+        dl.value.save_as(got[fmt])
+    import rasterio
+    import xarray as xr
+
+    from app.io.xyz import scan_xyz
+    with xr.open_dataset(got["netcdf"]) as ds, rasterio.open(got["geotiff"]) as t:
+        assert ds.x.attrs["units"] == "m"
+        assert float(ds.x.min()) - t.res[0] / 2 == pytest.approx(t.bounds.left)
+        assert float(ds.y.max()) + t.res[1] / 2 == pytest.approx(t.bounds.top)
+    scan = scan_xyz(got["xyz"])
+    assert [b.line_id for b in scan.blocks] == ["L1", "L2", "T1"]
+    x = np.array([float(r.split()[0]) for r in scan.data_lines])
+    assert 30_000 < x.max() - x.min() < 50_000   # the ~38 km of the test lines in metres, not km
+    assert not page.errors, page.errors
