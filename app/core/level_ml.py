@@ -71,7 +71,8 @@ def select_subset(lengths, states_per_line, n_states: int, max_epochs: int, seed
 
 def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
                   max_epochs: int = 300_000, max_evaluations: int | None = None,
-                  log_bounds: float = 6.0, r_base_lines=None, fit_r: bool = True, noise=None) -> LevelFit:
+                  log_bounds: float = 6.0, r_base_lines=None, fit_r: bool = True, noise=None,
+                  simplex_step: float = 1.0) -> LevelFit:
     """Maximise the full-rate Kalman likelihood over the level values.
 
     Parameters
@@ -102,6 +103,9 @@ def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
         the regularized band, which is robust to coloured GNSS noise).
     noise : app.core.noise_model.NoiseModel, optional
         Shape of the error of z (the levels R multiply it); None: white velocity noise.
+    simplex_step : float
+        Size (in log units) of the initial Nelder–Mead simplex: 1 from EM's levels, smaller
+        when the start values are already a refinement's (a filter run with new h, ρ).
 
     Returns
     -------
@@ -156,7 +160,7 @@ def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
 
     f0 = nll(th0)
     cap = max_evaluations or 40 * th0.size
-    simplex = np.vstack([th0] + [th0 + np.eye(th0.size)[k] * 1.0 for k in range(th0.size)])
+    simplex = np.vstack([th0] + [th0 + np.eye(th0.size)[k] * simplex_step for k in range(th0.size)])
     res = minimize(nll, th0, method="Nelder-Mead",
                    options={"maxfev": cap, "xatol": 0.02, "fatol": 0.5, "initial_simplex": simplex})
     th = res.x if res.fun <= f0 else th0

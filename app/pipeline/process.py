@@ -52,3 +52,132 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None, progress:
     report = run_filter(identified, out, tr)
     export.write_json(report, out / "report.json")
     return report
+
+
+def _write_recognition_raw(out: Path, ident) -> None:
+    """The raw posteriors (before NL-means) of the state map the filter uses, with its levels:
+    the web's recognition endpoint smooths these with the analyst's (h, ρ) through the same
+    function as the filter (:func:`app.pipeline.stages.recognition.state_map`)."""
+    rec = ident.recognition
+    t = rec.table.copy()
+    t.attrs = {}
+    export.write_parquet(t.assign(n_q=rec.n_q, n_r=rec.n_r), out / "recognition_raw.parquet")
+
+
+def identify_survey(survey_dir, out_dir, overrides: dict | None = None, progress: Progress | None = None) -> dict:
+    """The ``identify`` job: measurement → noise model → regularization → learning →
+    recognition, stored in ``<out>/identified/`` for later ``filter`` runs, with
+    ``identification.json`` (EM table of every order), ``recognition_raw.parquet`` and a
+    ``report.json`` of what was measured and decided so far.  Returns that report."""
+    from app.pipeline.runs import recognition_order_ident
+    from app.pipeline.stages.outputs import identification_json
+    from app.pipeline.stages.recognition import state_map
+
+    tr = Tracker(progress)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tr.start("ingest")
+    survey = read_survey(survey_dir, overrides)
+    idf = run_identify(survey, tr)
+    save_identified(idf, out)
+    p = idf.cfg.processing
+    m = p.m if p.m is not None else max(idf.identifications)
+    ident = recognition_order_ident(idf, m)
+    smap = state_map(ident.recognition, p.nlmeans_h_per_km, p.nlmeans_rho_km, p.nlmeans_mode)
+    export.write_parquet(smap.table(ident.recognition), out / "recognition.parquet")
+    _write_recognition_raw(out, ident)
+    ident_json = identification_json(idf.identifications[m], idf.noise.model, smap, idf.dt_s)
+    ident_json["orders"] = {str(k): {"em": {"iterations": v.learned.em.iterations, "selection": v.learned.selection}}
+                            for k, v in idf.identifications.items()}
+    export.write_json(ident_json, out / "identification.json")
+    tr.close()
+    report = {"survey": idf.cfg.survey.name, "stage": "identified", "crs": idf.crs, "warnings": idf.warnings,
+              "noise_model": idf.noise.describe(), **idf.measurement_report, "timings_s": tr.timings,
+              "counts": {"lines": len(idf.lines), "crossovers": idf.n_crossovers,
+                         "decimated_points": {str(k): v.n_points for k, v in idf.identifications.items()}}}
+    export.write_json(report, out / "report.json")
+    return report
+
+
+def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress: Progress | None = None) -> dict:
+    """The ``filter`` job: start from the identification stored in ``identified_dir``
+    (:func:`identify_survey` or ``process`` in the web application) and run NL-means (h, ρ
+    from ``overrides`` ``nlmeans_h_per_km``/``nlmeans_rho_km``) → filtering → model choice →
+    leveling → gridding → the files of SPEC §5.  The EM is not recomputed.  Filter-stage
+    settings in ``overrides`` apply; settings of earlier stages are kept as identified."""
+    import shutil
+
+    from app.config import SurveyConfig
+    from app.pipeline.runs import IDENTIFIED_DIR, load_identified
+
+    tr = Tracker(progress)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tr.start("ingest")
+    idf = load_identified(identified_dir)
+    if overrides:
+        cfg = idf.config
+        cfg["processing"] = {**cfg.get("processing", {}), **overrides}
+        idf.config = SurveyConfig.model_validate(cfg).model_dump(mode="json")
+    src = Path(identified_dir) / IDENTIFIED_DIR
+    if src.resolve() != (out / IDENTIFIED_DIR).resolve():  # the next filter starts from here too
+        shutil.copytree(src, out / IDENTIFIED_DIR, copy_function=_link_or_copy, dirs_exist_ok=True)
+    identification_timings = dict(idf.timings)
+    idf.timings = {}
+    # the anomaly order chosen by the run this one starts from (its crossovers do not depend on h, ρ)
+    orders = q_start = None
+    prev_report = Path(identified_dir) / "report.json"
+    if idf.cfg.processing.m is None and prev_report.exists():
+        import json
+
+        prev = json.loads(prev_report.read_text())
+        prev_m = prev.get("model_choice", {}).get("m")
+        if prev_m in idf.identifications:
+            orders = [int(prev_m)]
+            q_start = prev.get("level_refinement", {}).get("Q_mgal2")
+    report = run_filter(idf, out, tr, orders=orders, q_start=q_start if orders else None)
+    if orders:
+        report["model_choice"]["order"] = {"criterion": "as chosen by the run this filter starts from", "m": orders[0]}
+    report["reused_identification"] = {"from": str(identified_dir), "timings_s": identification_timings,
+                                       "note": "EM not recomputed: the stored identification was filtered with "
+                                               f"h = {idf.cfg.processing.nlmeans_h_per_km:g} /km, "
+                                               f"ρ = {idf.cfg.processing.nlmeans_rho_km:g} km"}
+    _write_recognition_raw(out, _used_ident(idf, report))
+    export.write_json(report, out / "report.json")
+    return report
+
+
+def _used_ident(idf, report: dict):
+    from app.pipeline.runs import recognition_order_ident
+
+    return recognition_order_ident(idf, int(report["model_choice"]["m"]))
+
+
+def _link_or_copy(src, dst):
+    import os
+    import shutil
+
+    try:
+        os.link(src, dst)
+    except OSError:
+        shutil.copy2(src, dst)
+
+
+def run_job(input_dir, out_dir, overrides: dict | None = None, progress: Progress | None = None,
+            kind: str = "process", previous_dir=None) -> dict:
+    """The web application's job entry: ``process`` (everything, the identification kept for
+    later filters), ``identify`` (:func:`identify_survey`) or ``filter`` (:func:`filter_from`
+    the previous result ``previous_dir``)."""
+    if kind == "process":
+        report = process_survey(input_dir, out_dir, overrides, progress, keep_identification=True)
+        from app.pipeline.runs import load_identified
+
+        _write_recognition_raw(Path(out_dir), _used_ident(load_identified(out_dir), report))
+        return report
+    if kind == "identify":
+        return identify_survey(input_dir, out_dir, overrides, progress)
+    if kind == "filter":
+        if previous_dir is None:
+            raise ValueError("a filter job needs a stored identification: run identify or process first")
+        return filter_from(previous_dir, out_dir, overrides, progress)
+    raise ValueError(f"unknown job kind {kind!r}")

@@ -149,6 +149,12 @@ def run_identify(survey, tr: Tracker) -> Identified:
                       mrep, warnings, dict(tr.timings))
 
 
+def recognition_order_ident(idf: Identified, m: int):
+    """The identification order m filters with (its Q levels, the state map of
+    ``recognition_order`` when identified: :func:`_recognised_by`)."""
+    return _recognised_by(idf.identifications, m, idf.cfg.processing)
+
+
 def filter_orders(idf: Identified, p) -> list[int]:
     """The identified orders that are filtered: ``processing.m`` when set; m = 2 alone when
     the crossovers are too few to choose (m = 1 then only lends its state map); else all."""
@@ -175,7 +181,7 @@ def _recognised_by(idents: dict, m: int, p):
 
 
 def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = None, rho_km: float | None = None,
-               survey_name: str | None = None) -> dict:
+               survey_name: str | None = None, orders: list[int] | None = None, q_start=None) -> dict:
     """NL-means (h, ρ; default the survey's) → filtering of every identified order → model choice
     → leveling → gridding → the files of SPEC §5.  Returns the report."""
     cfg = idf.cfg
@@ -184,13 +190,15 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     rho = p.nlmeans_rho_km if rho_km is None else float(rho_km)
     warnings = list(idf.warnings)
     cands = {}
-    for m in filter_orders(idf, p):
+    orders = orders or filter_orders(idf, p)
+    for m in orders:
         tr.start("nlmeans")
         ident = _recognised_by(idf.identifications, m, p)
         smap = state_map(ident.recognition, h, rho, p.nlmeans_mode)
         tr.start("filtering")
         filt = filter_survey(idf.lines, idf.flights, idf.fir, ident, smap, idf.noise.r_local, idf.noise.model,
-                             idf.dt_s, p, warnings, progress=tr.emit, stationary=len(filter_orders(idf, p)) == 1)
+                             idf.dt_s, p, warnings, progress=tr.emit, stationary=len(orders) == 1,
+                             q_start=q_start if len(orders) == 1 else None)
         cands[m] = Candidate(ident, smap, filt)
     tr.start("choice")
     m_best, order_rep = choose_order(cands, p)

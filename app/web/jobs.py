@@ -22,6 +22,8 @@ process is gone is failed.
 from __future__ import annotations
 
 import importlib
+import inspect
+import json
 import logging
 import multiprocessing
 import os
@@ -109,7 +111,16 @@ def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: s
     partial.mkdir(parents=True)
     try:
         fn = load_entry(entry)
-        report = fn(input_dir, str(partial), overrides=params or None, progress=progress)
+        kw: dict[str, Any] = {}
+        if "kind" in inspect.signature(fn).parameters:
+            kw["kind"] = kind
+            if kind == "filter":
+                kw["previous_dir"] = _previous_result_dir(Session, job_id)
+                em_rows.extend(_stored_em_table(kw["previous_dir"]))
+                write({"stage": "reusing identification", "em_iterations": list(em_rows)})
+        elif kind != "process":
+            raise ValueError(f"the pipeline entry {entry} runs 'process' jobs only")
+        report = fn(input_dir, str(partial), overrides=params or None, progress=progress, **kw)
         if out.exists():
             shutil.rmtree(out)
         os.replace(partial, out)
@@ -144,6 +155,26 @@ def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: s
         if isinstance(exc, (KeyboardInterrupt, SystemExit)):
             raise
         return "failed"
+
+
+def _previous_result_dir(Session, job_id: int) -> str:
+    """The directory of the survey's current result (a filter job starts from its identification)."""
+    with Session() as s:
+        job = s.get(Job, job_id)
+        survey = s.get(Survey, job.survey_id)
+        res = s.get(Result, survey.current_result_id) if survey.current_result_id is not None else None
+        if res is None or not (Path(res.dir) / "identified").is_dir():
+            raise ValueError("a filter job needs a stored identification: run an identify or process job first")
+        return res.dir
+
+
+def _stored_em_table(result_dir: str) -> list[dict[str, Any]]:
+    """The EM iteration table of the identification a filter job reuses (not recomputed)."""
+    p = Path(result_dir) / "identification.json"
+    if not p.exists():
+        return []
+    rows = json.loads(p.read_text()).get("em", {}).get("iterations", [])
+    return [_jsonable({**r, "model": "stored"}) for r in rows]
 
 
 def _death_reason(exitcode: int | None) -> str:

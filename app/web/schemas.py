@@ -139,6 +139,8 @@ class RecognitionOut(BaseModel):
     state_raw: list[int] | None = None
     state: list[int] = Field(..., description="Smoothed state per point")
     p_max: list[float] = Field(..., description="Smoothed probability of the chosen state")
+    smoother: str = Field("", description="The function that made the map")
+    time: list[float] | None = None
     elapsed_ms: float
 
 

@@ -440,6 +440,11 @@ def start_job(db: Session, store: Store, jobs: JobManager, s: Survey, kind: str,
         refresh_survey(db, s)
         if not s.input_dir:
             raise JobConflict("the survey has no data yet: import a survey or upload a flight first")
+        if kind == "filter":
+            cur = db.get(Result, s.current_result_id) if s.current_result_id is not None else None
+            if cur is None or not (Path(cur.dir) / "identified").is_dir():
+                raise JobConflict("a filter job starts from a stored identification: run an identify or process "
+                                  "job first")
         active = db.scalars(select(Job).where(Job.survey_id == s.id, Job.status.in_(ACTIVE_STATES))).first()
         if active is not None:
             raise JobConflict(f"job {active.id} is still {active.status} on this survey; cancel it or wait")

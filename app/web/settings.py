@@ -32,8 +32,9 @@ class Settings(BaseSettings):
     token: str | None = Field(None, description="Bearer token required on mutating requests when set")
     max_upload_mb: float = Field(500.0, gt=0, description="Largest accepted request body (MB)")
     pipeline_entry: str = Field(
-        "app.pipeline.process:process_survey",
-        description="'module:function' run by jobs; same signature as process_survey (tests swap it)")
+        "app.pipeline.process:run_job",
+        description="'module:function' run by jobs: run_job(input_dir, out_dir, overrides, progress, kind, "
+        "previous_dir), or a function with process_survey's signature that runs 'process' jobs only (tests swap it)")
     poll_interval_s: float = Field(0.5, gt=0, description="How often the job monitor checks worker processes")
     reconcile_interval_s: float = Field(10.0, gt=0, description="How often active jobs in the store are checked "
                                         "against live workers")

@@ -297,3 +297,32 @@ def test_maps_profiles_em_and_exports(fake_server, browser_page, tmp_path, shots
     x = np.array([float(r.split()[0]) for r in scan.data_lines])
     assert 30_000 < x.max() - x.min() < 50_000   # the ~38 km of the test lines in metres, not km
     assert not page.errors, page.errors
+
+
+def test_apply_h_rho_starts_a_filter_job(fake_server, browser_page, tmp_path, shots):
+    """The recognition map opens on the result's own (h, ρ); "Apply h, ρ" starts a filter job
+    with the values on the sliders."""
+    import time
+
+    import httpx
+
+    page = browser_page
+    sid = _processed_survey(fake_server.url, tmp_path)
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=recognition")
+    page.wait_for_selector("#rec-map .main-svg", timeout=20000)
+    page.eval_on_selector("#rec-h", "(e) => { e.value = 1.2; e.dispatchEvent(new Event('input', {bubbles: true})); }")
+    page.eval_on_selector("#rec-rho", "(e) => { e.value = 6; e.dispatchEvent(new Event('input', {bubbles: true})); }")
+    page.wait_for_function("document.querySelector('#rec-map').dataset.h === '1.2'", timeout=10000)
+    page.click("#rec-apply")
+    page.wait_for_selector("#rec-apply-note[data-job]", timeout=10000)
+    shots(page, "recognition-apply.png")
+    jid = int(page.get_attribute("#rec-apply-note", "data-job"))
+    with httpx.Client(base_url=fake_server.url, timeout=30) as c:
+        job = c.get(f"/api/jobs/{jid}").json()
+        assert job["kind"] == "filter" and job["params"]["nlmeans_h_per_km"] == 1.2
+        assert job["params"]["nlmeans_rho_km"] == 6
+        t_end = time.monotonic() + 30
+        while c.get(f"/api/jobs/{jid}").json()["status"] in ("queued", "running"):
+            assert time.monotonic() < t_end
+            time.sleep(0.1)
+        assert c.get(f"/api/jobs/{jid}").json()["status"] == "succeeded"

@@ -139,7 +139,8 @@ def write_outputs(out: Path, lines_df: pd.DataFrame, crs: str = "EPSG:32657", se
     return report
 
 
-def process_survey(survey_dir, out_dir, overrides=None, progress=None) -> dict:
+def process_survey(survey_dir, out_dir, overrides=None, progress=None, kind="process", previous_dir=None) -> dict:
+    """A stand-in pipeline for the web tests: every job kind runs like "process"."""
     from app.io.survey import read_survey
 
     delay = float(os.environ.get("AEROGRAV_FAKE_DELAY_S", "0.05"))
@@ -168,5 +169,6 @@ def process_survey(survey_dir, out_dir, overrides=None, progress=None) -> dict:
         time.sleep(delay)
         cb("filtering", 0.7 + 0.02 * k, None)
     cb("outputs", 0.95, None)
+    (Path(out_dir) / "identified").mkdir(parents=True, exist_ok=True)  # a later filter job may start from here
     return write_outputs(out_dir, df, crs=survey.config.survey.crs or "EPSG:32657",
                          base_gravity_mgal=survey.config.gravimeter.base_gravity_mgal)

@@ -15,7 +15,7 @@ import pytest
 from .conftest import import_zip, wait_job, zip_dir
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_surveys" / "omolon-mini"
-REAL = "app.pipeline.process:process_survey"
+REAL = "app.pipeline.process:run_job"
 
 pytestmark = [pytest.mark.slow,
               pytest.mark.skipif(not (SAMPLE / "survey.toml").exists(), reason="sample_surveys/omolon-mini is absent")]
@@ -53,7 +53,7 @@ def test_real_pipeline_local_and_dask_agree(make_client, sample_zip, tmp_path):
     prof = local.get(f"/api/surveys/{sid}/lines/{lines[0]['line']}").json()
     assert len(prof["dg"]) <= 2000 and all(v is not None for v in prof["dg"])
     rec = local.get(f"/api/surveys/{sid}/recognition").json()
-    assert rec["smoother"] == "app.core.nlmeans" and rec["n_points"] == len(rec["state"]) > 100
+    assert rec["smoother"] == "app.pipeline.stages.recognition.state_map" and rec["n_points"] == len(rec["state"]) > 100
     # the stored smoothed states are reproduced at the pipeline's own (h, ρ)
     r_df = pd.read_parquet(io.BytesIO(local.get(f"/api/surveys/{sid}/export", params={"format": "parquet"}).content))
     assert {"dg_mgal", "dg_std_mgal", "state"} <= set(r_df.columns)
@@ -99,3 +99,38 @@ def test_real_pipeline_local_and_dask_agree(make_client, sample_zip, tmp_path):
         # with or without Dask), so the grid is compared to within a fraction of a mGal.
         assert ga.shape == gb.shape and np.array_equal(np.isnan(ga), np.isnan(gb))
         np.testing.assert_allclose(ga, gb, atol=0.5, equal_nan=True)
+
+
+def test_filter_job_reuses_the_identification_and_uses_the_served_map(make_client, tmp_path):
+    """identify → the map served at (h, ρ) → a filter job with those values: the EM is not
+    recomputed (the job carries the stored table and says so), the filter's states are the
+    served map's, and without h, ρ the endpoint serves the current result's map."""
+    from app.simulate import simulate_survey
+
+    src = simulate_survey("tiny", tmp_path / "tiny", seed=4)
+    import shutil
+    shutil.rmtree(src / "truth")
+    c = make_client(data_dir=tmp_path / "data", pipeline_entry=REAL)
+    sid = import_zip(c, zip_dir(src), "tiny.zip").json()["id"]
+    assert c.post(f"/api/surveys/{sid}/jobs", json={"kind": "filter"}).status_code == 409  # nothing to reuse yet
+    ident = wait_job(c, c.post(f"/api/surveys/{sid}/jobs", json={"kind": "identify"}).json()["id"], timeout=300)
+    assert ident["status"] == "succeeded", ident
+    em_ident = ident["em_iterations"]
+    served = c.get(f"/api/surveys/{sid}/recognition", params={"h": 1.0, "rho": 4.0}).json()
+    job = c.post(f"/api/surveys/{sid}/jobs", json={"kind": "filter", "params": {"nlmeans_h_per_km": 1.0,
+                                                                                "nlmeans_rho_km": 4.0}}).json()
+    job = wait_job(c, job["id"], timeout=300)
+    assert job["status"] == "succeeded", job
+    assert len(job["em_iterations"]) >= 2 and all(r.get("model") == "stored" for r in job["em_iterations"])
+    # the stored table is the identify job's own (the same objectives, in order)
+    stored_obj = [r["objective"] for r in job["em_iterations"]]
+    ident_obj = [r["objective"] for r in em_ident]
+    assert any(ident_obj[i:i + len(stored_obj)] == stored_obj for i in range(len(ident_obj)))
+    rep = c.get(f"/api/surveys/{sid}/report").json()["report"]
+    assert "EM not recomputed" in rep["reused_identification"]["note"]
+    assert "learning" not in rep["timings_s"] and "learning" in rep["reused_identification"]["timings_s"]
+    stored = c.get(f"/api/surveys/{sid}/recognition").json()   # the current (filter) result's own map
+    assert (stored["h"], stored["rho"]) == (1.0, 4.0)
+    assert stored["state"] == served["state"]
+    again = c.get(f"/api/surveys/{sid}/recognition", params={"h": 1.0, "rho": 4.0}).json()
+    assert again["state"] == served["state"]

@@ -167,9 +167,10 @@ class Filtered:
 
 def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], fir: dict, ident, smap,
                   r_local: dict, noise, dt_s: float, p, warnings: list, progress=None,
-                  stationary: bool = True) -> Filtered:
+                  stationary: bool = True, q_start=None) -> Filtered:
     """Stage 8 for one identification (order ``ident.m``) and one smoothed map; without
-    ``stationary`` the baseline column is left NaN (:meth:`Filtered.add_stationary`)."""
+    ``stationary`` the baseline column is left NaN (:meth:`Filtered.add_stationary`).  ``q_start``:
+    the Q levels an earlier refinement found (a filter run with other h, ρ starts from them)."""
     em = ident.learned.em
     Qs, Rs = np.asarray(em.Q, float), np.asarray(em.R, float)
     n_r = len(Rs)
@@ -178,10 +179,13 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
     level_fit = None
     if p.refine_levels:
         try:
-            level_fit = refine_levels([pr.z_ext for pr in prepared], [pr.s_ext for pr in prepared], Qs, Rs, dt_s,
+            warm = q_start is not None and len(q_start) == len(Qs)
+            level_fit = refine_levels([pr.z_ext for pr in prepared], [pr.s_ext for pr in prepared],
+                                      np.asarray(q_start, float) if warm else Qs, Rs, dt_s,
                                       ident.m, max_epochs=p.refine_max_epochs,
                                       r_base_lines=[r_scale * pr.r_ext for pr in prepared] if r_local else None,
-                                      fit_r=False, noise=noise)
+                                      fit_r=False, noise=noise, simplex_step=0.3 if warm else 1.0,
+                                      max_evaluations=8 * len(Qs) if warm else None)
             Qs = level_fit.Q_mgal2
         except (ValueError, FloatingPointError) as exc:
             warnings.append(f"level refinement skipped: {exc}")

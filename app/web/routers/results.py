@@ -15,6 +15,9 @@ from fastapi import APIRouter, Depends, HTTPException, Query
 from fastapi.responses import FileResponse, Response
 from sqlalchemy.orm import Session
 
+from app.core.nlmeans import RecognitionMap
+from app.pipeline.stages.recognition import Recognition, state_map
+
 from ..db import Result, Survey
 from ..deps import get_cache, get_db, get_survey_or_404
 from ..schemas import GridOut, LineOut, ProfileOut, RecognitionOut, ReportOut
@@ -70,8 +73,20 @@ def current_result(s: Survey, db: Session) -> Result:
 
 
 # ---------------------------------------------------------------- loaders (cached)
+def _result_file(r: Result, name: str) -> Path:
+    """A file of a result, or 404 naming what is missing (an ``identify`` result has no line
+    estimates or grid until a ``filter`` job runs)."""
+    p = Path(r.dir) / name
+    if not p.exists():
+        if (Path(r.dir) / "identified").is_dir():
+            raise HTTPException(404, f"the current result is an identification: {name} comes with a filter "
+                                     "(apply h, ρ) or process job")
+        raise HTTPException(404, f"{name} is not among the stored results")
+    return p
+
+
 def _load_lines(r: Result) -> dict[str, Any]:
-    df = pd.read_parquet(Path(r.dir) / "lines.parquet")
+    df = pd.read_parquet(_result_file(r, "lines.parquet"))
     df["line"] = df["line"].astype(str)
     groups = {k: g.sort_values("time").reset_index(drop=True) for k, g in df.groupby("line", sort=False)}
     return {"groups": groups}
@@ -82,49 +97,34 @@ def _load_identification(r: Result) -> dict:
     return json.loads(p.read_text()) if p.exists() else {}
 
 
-class _FallbackRecognitionMap:  # used only if app.core.nlmeans is unavailable
-    def __init__(self, easting_km, northing_km, max_rho_km: float = 15.0):
-        from scipy.spatial import cKDTree
-        xy = np.column_stack([easting_km, northing_km])
-        self.n = len(xy)
-        self.D = cKDTree(xy).sparse_distance_matrix(cKDTree(xy), max_rho_km, output_type="coo_matrix")
-
-    def smooth(self, labels_or_probs, h_per_km, rho_km, mode="soft", n_states=None):
-        import scipy.sparse as sp
-        x = np.asarray(labels_or_probs)
-        if x.ndim == 1:
-            x = np.eye(n_states or int(x.max()) + 1)[x.astype(int)]
-        if mode == "hard":
-            x = np.eye(x.shape[1])[np.argmax(x, axis=1)]
-        D = self.D
-        keep = (D.data <= rho_km) & (D.row != D.col)
-        W = sp.coo_matrix((np.exp(-h_per_km * D.data[keep]), (D.row[keep], D.col[keep])), shape=D.shape).tocsr()
-        W = W + sp.identity(self.n, format="csr")  # each point weighs itself with d = 0
-        num = W @ x
-        probs = num / np.maximum(num.sum(axis=1, keepdims=True), 1e-300)
-        return probs, np.argmax(probs, axis=1)
-
-
 def _load_recognition(r: Result) -> dict[str, Any]:
-    df = pd.read_parquet(Path(r.dir) / "recognition.parquet")
-    pcols = sorted([c for c in df.columns if c.startswith("p_")], key=lambda c: int(c[2:]))
-    e = df["easting_km"].to_numpy(float)
-    n = df["northing_km"].to_numpy(float)
-    try:
-        from app.core.nlmeans import RecognitionMap
-        impl = "app.core.nlmeans"
-    except ImportError:
-        RecognitionMap, impl = _FallbackRecognitionMap, "fallback"
-    rmap = RecognitionMap(e, n, max_rho_km=15)
-    probs = df[pcols].to_numpy(float) if pcols else None
-    raw = df["state_raw"].to_numpy(int)
+    """The state map's raw posteriors (``recognition_raw.parquet``, before NL-means) as the
+    pipeline's :class:`~app.pipeline.stages.recognition.Recognition`, the stored smoothed map
+    and its (h, ρ), and the neighbour structure (built once per result)."""
+    out = Path(r.dir)
     ident = _load_identification(r)
+    stored = pd.read_parquet(out / "recognition.parquet")
+    pcols = sorted([c for c in stored.columns if c.startswith("p_")], key=lambda c: int(c[2:]))
     states = ident.get("states") or []
-    n_states = len(pcols) or len(states) or int(raw.max()) + 1
-    coords = {"easting_km": _clean(e, 3), "northing_km": _clean(n, 3), "line": df["line"].astype(str).tolist(),
-              "state_raw": raw.tolist(), "time": _clean(df["time"], 2) if "time" in df else None}
-    return {"map": rmap, "impl": impl, "probs": probs, "raw": raw, "n_states": n_states,
-            "states": states, "coords": coords, "n": len(df)}
+    raw_path = out / "recognition_raw.parquet"
+    if raw_path.exists():
+        raw = pd.read_parquet(raw_path)
+        n_q, n_r = int(raw["n_q"].iloc[0]), int(raw["n_r"].iloc[0])
+        rec = Recognition(raw.drop(columns=["n_q", "n_r"]), n_q, n_r)
+    else:  # a result without raw posteriors (older runs): its smoothed map stands in for them
+        n_r = max(1, len({s_["R"] for s_ in states})) if states else 1
+        n_q = max(1, len(pcols) // n_r)
+        rec = Recognition(stored, n_q, n_r)
+    t = rec.table
+    rmap = RecognitionMap(t["easting_km"].to_numpy(float), t["northing_km"].to_numpy(float), max_rho_km=15.0)
+    nl = ident.get("nlmeans", {})
+    coords = {"easting_km": _clean(t["easting_km"], 3), "northing_km": _clean(t["northing_km"], 3),
+              "line": t["line"].astype(str).tolist(), "state_raw": t["state_raw"].astype(int).tolist(),
+              "time": _clean(t["time"], 2) if "time" in t else None}
+    return {"recognition": rec, "map": rmap, "stored_state": stored["state_smoothed"].to_numpy(int),
+            "stored_pmax": stored[pcols].to_numpy(float).max(axis=1) if pcols else np.ones(len(stored)),
+            "h": nl.get("h_per_km"), "rho": nl.get("rho_km"), "mode": nl.get("mode", "soft"),
+            "states": states, "coords": coords, "n": len(t), "n_states": rec.n_states}
 
 
 # ---------------------------------------------------------------- endpoints
@@ -194,28 +194,37 @@ def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, descr
     ).model_dump())
 
 
-@router.get("/{survey_id}/recognition", response_model=RecognitionOut)
-def recognition(h: float = Query(0.5, ge=0, le=100, description="NL-means weight decay h (1/km)"),
-                rho: float = Query(10.0, ge=0, le=15, description="NL-means radius ρ (km), at most 15"),
-                mode: Literal["hard", "soft"] = Query("soft", description="smooth hard labels or probabilities"),
+@router.get("/{survey_id}/recognition", response_model=RecognitionOut, response_model_exclude_none=True)
+def recognition(h: float | None = Query(None, ge=0, le=100, description="NL-means weight decay h (1/km); "
+                                        "without h and ρ: the current result's stored map"),
+                rho: float | None = Query(None, ge=0, le=15, description="NL-means radius ρ (km), at most 15"),
+                mode: Literal["hard", "soft"] | None = Query(None, description="smooth hard labels or probabilities"),
                 coords: bool = Query(True, description="include positions, lines and raw states"),
                 s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
-                cache: ResultCache = Depends(get_cache)):
-    """Recognition states re-smoothed with NL-means at (h, ρ), computed synchronously."""
+                cache: ResultCache = Depends(get_cache)) -> RecognitionOut:
+    """The recognition state map at (h, ρ): the raw posteriors smoothed by NL-means and the
+    state chosen at every point by the pipeline's own function
+    (:func:`app.pipeline.stages.recognition.state_map`) — the map a ``filter`` job with these
+    values uses.  Without h and ρ: the current result's map, with the (h, ρ) it was made with."""
     t0 = time.perf_counter()
     r = current_result(s, db)
     rec = cache.get(("recognition", r.id), lambda: _load_recognition(r))
-    src = rec["probs"] if (mode == "soft" and rec["probs"] is not None) else rec["raw"]
-    probs, labels = rec["map"].smooth(src, h, rho, mode, n_states=rec["n_states"])
-    probs = np.asarray(probs, float)
-    pmax = probs.max(axis=1) if probs.ndim == 2 else np.ones(len(labels))
+    if h is None and rho is None and mode is None and rec["h"] is not None:
+        h, rho, mode = float(rec["h"]), float(rec["rho"]), rec["mode"]
+        state, pmax = rec["stored_state"], rec["stored_pmax"]
+    else:
+        h = 0.5 if h is None else h
+        rho = 10.0 if rho is None else rho
+        mode = mode or "soft"
+        smap = state_map(rec["recognition"], h, rho, mode, rmap=rec["map"])
+        state, pmax = smap.states, smap.probs.max(axis=1)
     body = {"survey_id": s.id, "result_id": r.id, "h": h, "rho": rho, "mode": mode, "n_states": rec["n_states"],
-            "states": rec["states"], "n_points": rec["n"], "smoother": rec["impl"],
-            "state": np.asarray(labels).astype(int).tolist(), "p_max": _clean(pmax, 3)}
+            "states": rec["states"], "n_points": rec["n"], "smoother": "app.pipeline.stages.recognition.state_map",
+            "state": np.asarray(state).astype(int).tolist(), "p_max": _clean(pmax, 3)}
     if coords:
         body.update(rec["coords"])
     body["elapsed_ms"] = round(1000 * (time.perf_counter() - t0), 2)
-    return _json(body)
+    return RecognitionOut(**body)
 
 
 def _finite(v) -> float | None:
@@ -290,7 +299,7 @@ def report(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db)
 
 def _load_grid(r: Result) -> dict[str, Any]:
     import xarray as xr
-    with xr.open_dataset(Path(r.dir) / "grid.nc") as ds:
+    with xr.open_dataset(_result_file(r, "grid.nc")) as ds:
         ds = ds.load()
     dg = ds["dg"]
     ydim, xdim = dg.dims[-2], dg.dims[-1]
@@ -352,8 +361,6 @@ def export(format: Literal["geotiff", "netcdf", "surfer", "csv", "parquet", "xyz
     """Download a stored output of the current result."""
     r = current_result(s, db)
     fname, media = EXPORTS[format]
-    p = _lines_xyz(s, r) if format == "xyz" else Path(r.dir) / fname
-    if not p.exists():
-        raise HTTPException(404, f"{fname} is not among the stored results")
+    p = _lines_xyz(s, r) if format == "xyz" else _result_file(r, fname)
     safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in s.name)
     return FileResponse(p, media_type=media, filename=f"{safe}_{fname}")

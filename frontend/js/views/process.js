@@ -154,8 +154,8 @@ export async function render(sec, ctx) {
   const form = el("form", { id: "params-form" });
   const kind = el("select", { name: "kind", id: "job-kind" },
     el("option", { value: "process" }, "process — identification, recognition, filtering, leveling, grid"),
-    el("option", { value: "identify" }, "identify — as process (EM learning is the core)"),
-    el("option", { value: "filter" }, "filter — as process"));
+    el("option", { value: "identify" }, "identify — measurement, noise model, EM learning, recognition (stored)"),
+    el("option", { value: "filter" }, "filter — from the stored identification: NL-means (h, ρ), filtering, leveling, grid"));
   const run = el("button", { type: "submit", class: "primary", id: "run-job", disabled: !s.has_input }, "Run processing");
   const reset = el("button", { type: "button" }, "Reset to defaults");
   form.append(el("div", { class: "controls" }, el("label", {}, "Job ", kind), run, reset),

@@ -30,6 +30,8 @@ export async function render(sec, ctx) {
   const modeIn = el("select", { id: "rec-mode" }, el("option", { value: "soft" }, "soft (probabilities)"), el("option", { value: "hard" }, "hard (labels)"));
   const showIn = el("select", { id: "rec-show" }, el("option", { value: "smoothed" }, "smoothed states"), el("option", { value: "raw" }, "raw (Viterbi) states"));
   const status = el("div", { class: "note", id: "rec-status" }, "loading…");
+  const apply = el("button", { id: "rec-apply", type: "button", title: "Start a filter job with these h, ρ: NL-means → filtering → leveling → grid, reusing the stored identification (no EM)" }, "Apply h, ρ");
+  const applyNote = el("span", { class: "note", id: "rec-apply-note" }, "");
   const plot = el("div", { class: "plot square", id: "rec-map" });
   sec.replaceChildren(el("div", { class: "card" },
     el("h3", {}, "Recognition map — NL-means smoothing of the Markov states"),
@@ -37,10 +39,13 @@ export async function render(sec, ctx) {
       "Larger ρ or smaller h → smoother map."),
     el("div", { class: "controls" },
       el("label", {}, "h (km⁻¹)", hIn, hOut), el("label", {}, "ρ (km)", rhoIn, rhoOut),
-      el("label", {}, "mode", modeIn), el("label", {}, "show", showIn)),
+      el("label", {}, "mode", modeIn), el("label", {}, "show", showIn), apply, applyNote),
     status, plot));
 
-  const base = await endpoints.recognition(s.id, { h: 0.5, rho: 10, mode: "soft" });
+  // the current result's own map first (the h, ρ it was made with), then the analyst's values
+  const base = await endpoints.recognition(s.id, {});
+  hIn.value = base.h; rhoIn.value = base.rho; modeIn.value = base.mode;
+  hOut.textContent = (+base.h).toFixed(1); rhoOut.textContent = (+base.rho).toFixed(1);
   let current = base.state;
   const legend = Array.from({ length: base.n_states }, (_, i) => ({
     x: [null], y: [null], type: SCATTER_GL, mode: "markers", name: stateLabel(base.states, i),
@@ -94,4 +99,13 @@ export async function render(sec, ctx) {
   rhoIn.addEventListener("input", () => { rhoOut.textContent = (+rhoIn.value).toFixed(1); request(); });
   modeIn.addEventListener("change", request);
   showIn.addEventListener("change", () => update({ state: current, h: +hIn.value, rho: +rhoIn.value, mode: modeIn.value, elapsed_ms: 0 }, 0));
+  apply.addEventListener("click", async () => {
+    apply.disabled = true;
+    try {
+      const job = await endpoints.submitJob(s.id, "filter", { nlmeans_h_per_km: +hIn.value, nlmeans_rho_km: +rhoIn.value, nlmeans_mode: modeIn.value });
+      applyNote.textContent = `filter job ${job.id} started (h=${hIn.value} km⁻¹, ρ=${rhoIn.value} km; the identification is reused) — see Process`;
+      applyNote.dataset.job = job.id;
+    } catch (e) { applyNote.textContent = `Error: ${e.message}`; applyNote.classList.add("error"); }
+    finally { apply.disabled = false; }
+  });
 }
