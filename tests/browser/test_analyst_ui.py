@@ -312,7 +312,7 @@ def test_apply_h_rho_starts_a_filter_job(fake_server, browser_page, tmp_path, sh
     page.wait_for_selector("#rec-map .main-svg", timeout=20000)
     page.eval_on_selector("#rec-h", "(e) => { e.value = 1.2; e.dispatchEvent(new Event('input', {bubbles: true})); }")
     page.eval_on_selector("#rec-rho", "(e) => { e.value = 6; e.dispatchEvent(new Event('input', {bubbles: true})); }")
-    page.wait_for_function("document.querySelector('#rec-map').dataset.h === '1.2'", timeout=10000)
+    page.wait_for_function("() => document.querySelector('#rec-map').dataset.h === '1.2'", timeout=10000)
     page.click("#rec-apply")
     page.wait_for_selector("#rec-apply-note[data-job]", timeout=10000)
     shots(page, "recognition-apply.png")
