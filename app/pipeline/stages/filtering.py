@@ -144,17 +144,7 @@ class Filtered:
     r_scale: float
     r_stationary: float = float("nan")
     prepared: list | None = None
-
-    def add_stationary(self, dt_s: float, m: int, method: str, noise) -> None:
-        """Fill the ``dg_stationary_mgal`` column (when :func:`filter_survey` skipped it): the
-        seed-000 baseline with one (Q₁, R) pair — the smooth state's Q and the survey's typical
-        noise level (Fig. 8)."""
-        col = []
-        for pr in self.prepared:
-            q = np.full(pr.z_ext.size, self.Q_levels[0])
-            dgs, _ = filter_line(pr.z_ext, q, np.full_like(q, self.r_stationary), dt_s, m, method, noise)
-            col.append(dgs[pr.inner])
-        self.table["dg_stationary_mgal"] = np.concatenate(col)
+    Q_stationary: float = float("nan")
 
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
@@ -162,7 +152,37 @@ class Filtered:
         if f is None:
             return None
         return {"Q_mgal2": np.asarray(f.Q_mgal2).tolist(), "R_local_scale": self.r_scale, "noise_model": p.noise_model,
-                "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations}
+                "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations,
+                "Q_stationary_mgal2": self.Q_stationary}
+
+    def add_stationary(self, dt_s: float, m: int, method: str, noise, p=None) -> None:
+        """Fill the ``dg_stationary_mgal`` column (when :func:`filter_survey` skipped it): the
+        stationary model — one Q for the whole survey by the full-rate likelihood, the survey's
+        typical noise level R (:func:`stationary_level`)."""
+        if not np.isfinite(self.Q_stationary):
+            self.Q_stationary = stationary_level(self.prepared, self.Q_levels, self.r_stationary, dt_s, m, noise, p)
+        col = []
+        for pr in self.prepared:
+            q = np.full(pr.z_ext.size, self.Q_stationary)
+            dgs, _ = filter_line(pr.z_ext, q, np.full_like(q, self.r_stationary), dt_s, m, method, noise)
+            col.append(dgs[pr.inner])
+        self.table["dg_stationary_mgal"] = np.concatenate(col)
+
+
+def stationary_level(prepared: list, Q_levels, r_stationary: float, dt_s: float, m: int, noise, p=None) -> float:
+    """The one anomaly level Q of the stationary model, by the full-rate likelihood of the lines
+    at the survey's typical noise level (the seed-000 baseline took the smooth state's level,
+    which over-smooths every rough stretch)."""
+    Qs = np.asarray(Q_levels, float)
+    start = float(np.exp(np.mean(np.log(Qs))))
+    try:
+        fit = refine_levels([pr.z_ext for pr in prepared], [np.zeros(pr.z_ext.size, int) for pr in prepared],
+                            np.array([start]), np.array([r_stationary]), dt_s, m,
+                            max_epochs=p.refine_max_epochs if p is not None else 300_000, fit_r=False, noise=noise)
+        return float(fit.Q_mgal2[0])
+    except (ValueError, FloatingPointError):
+        return float(Qs[0])
+
 
 
 def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], fir: dict, ident, smap,
@@ -201,11 +221,7 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
         dg, std = filter_line(pr.z_ext, q, r, dt_s, ident.m, p.smoother, noise)
         # stationary baseline (seed 000 Fig. 8): one (Q₁, R₁) pair — the smooth state's Q
         # and the survey's typical noise level
-        if stationary:
-            dgs, _ = filter_line(pr.z_ext, np.full_like(q, Qs[0]), np.full_like(q, r_stationary), dt_s, ident.m,
-                                 p.smoother, noise)
-        else:
-            dgs = np.full(pr.z_ext.size, np.nan)
+        dgs = np.full(pr.z_ext.size, np.nan)
         frames.append(pd.DataFrame({
             "line": ln.line, "flight": ln.flight, "kind": ln.kind, "time": ln.t_s,
             "lat": ln.lat_deg, "lon": ln.lon_deg, "h": ln.h_m,
@@ -218,5 +234,8 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
         }))
         if progress is not None:
             progress((i + 1) / len(prepared))
-    return Filtered(pd.concat(frames, ignore_index=True), np.asarray(Qs, float), level_fit, r_scale, r_stationary,
-                    prepared)
+    out = Filtered(pd.concat(frames, ignore_index=True), np.asarray(Qs, float), level_fit, r_scale, r_stationary,
+                   prepared)
+    if stationary:
+        out.add_stationary(dt_s, ident.m, p.smoother, noise, p)
+    return out
