@@ -339,6 +339,24 @@ class ProcessingParams(_Strict):
     grid_std_cross_validate: bool = Field(False, description="Scale the grid std up by the RMS of leave-line-out "
                                           "normalised residuals when the collocation model under-states it")
     grid_error_corr_km: float = Field(1.0, ge=0, le=1000, description="Along-line error correlation length for thinning in collocation")
+    # --- geophysical products (app.pipeline.stages.products)
+    atmospheric_correction: bool = Field(True, description="Add the IAG atmospheric correction δg_atm(h) (US "
+                                         "Standard Atmosphere 1976: 0.84 mGal at 330 m) to every estimate")
+    datum: Literal["flight", "constant", "draped"] = Field(
+        "flight", description="Surface the anomaly is given on: 'flight' (the flight height, no continuation), "
+        "'constant' (datum_height_m) or 'draped' (a smooth surface through the flight heights); the others "
+        "continue the line estimates by equivalent sources, and leveling and gridding use the continued values")
+    datum_height_m: float | None = Field(None, ge=-1000, le=20000, description="Height of the constant datum (m, "
+                                         "ellipsoidal); None: the mean flight height")
+    datum_smoothing_m: float = Field(2000.0, gt=0, le=100_000, description="Smoothing length of the draped datum (m)")
+    bouguer_density_kgm3: float = Field(2670.0, gt=0, le=5000, description="Density of the terrain correction (kg/m³)")
+    terrain_radius_m: float = Field(20_000.0, gt=0, le=200_000, description="Radius of the DEM prisms summed (m)")
+    terrain_near_radius_m: float | None = Field(5000.0, gt=0, le=200_000, description="Exact prisms within this "
+                                                "radius, 4×4 blocks beyond (None: every prism exact)")
+    dem_spacing_m: float | None = Field(None, gt=0, le=10_000, description="Cell size the DEM is resampled to (m); "
+                                        "None: its own")
+    dem_height_offset_m: float = Field(0.0, ge=-1000, le=1000, description="Added to the DEM's heights to reach the "
+                                       "GNSS's ellipsoidal heights (a geoid height, m)")
     grid_spacing_km: float = Field(1.0, ge=0.01, le=100, description="Grid node spacing (km); the grid "
                                    f"over the lines' extent may have at most {MAX_GRID_CELLS:,} nodes")
     gridding: Literal["collocation", "spline"] = "collocation"

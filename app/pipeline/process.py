@@ -99,7 +99,8 @@ def identify_survey(survey_dir, out_dir, overrides: dict | None = None, progress
     return report
 
 
-def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress: Progress | None = None) -> dict:
+def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress: Progress | None = None,
+                survey_dir=None) -> dict:
     """The ``filter`` job: start from the identification stored in ``identified_dir``
     (:func:`identify_survey` or ``process`` in the web application) and run NL-means (h, ρ
     from ``overrides`` ``nlmeans_h_per_km``/``nlmeans_rho_km``) → filtering → model choice →
@@ -115,6 +116,8 @@ def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress
     out.mkdir(parents=True, exist_ok=True)
     tr.start("ingest")
     idf = load_identified(identified_dir)
+    if survey_dir is not None:
+        idf.survey_dir = str(survey_dir)   # the job's input (a DEM uploaded since is used)
     if overrides:
         cfg = idf.config
         cfg["processing"] = {**cfg.get("processing", {}), **overrides}
@@ -179,5 +182,5 @@ def run_job(input_dir, out_dir, overrides: dict | None = None, progress: Progres
     if kind == "filter":
         if previous_dir is None:
             raise ValueError("a filter job needs a stored identification: run identify or process first")
-        return filter_from(previous_dir, out_dir, overrides, progress)
+        return filter_from(previous_dir, out_dir, overrides, progress, survey_dir=input_dir)
     raise ValueError(f"unknown job kind {kind!r}")

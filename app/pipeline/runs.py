@@ -27,6 +27,7 @@ from app.pipeline.stages.measurement import measure
 from app.pipeline.stages.model_order import candidate_orders, choose_model_order
 from app.pipeline.stages.noise import model_noise
 from app.pipeline.stages.outputs import build_report, identification_json, write_outputs
+from app.pipeline.stages.products import apply_products, refresh_bouguer
 from app.pipeline.stages.recognition import state_map
 
 Progress = Callable[[str, float, dict | None], None]
@@ -104,6 +105,7 @@ class Identified:
     measurement_report: dict
     warnings: list
     timings: dict
+    survey_dir: str | None = None
 
     @property
     def cfg(self) -> SurveyConfig:
@@ -146,7 +148,7 @@ def run_identify(survey, tr: Tracker) -> Identified:
     mrep = {"base_ties": meas.base_ties, "lag_check": meas.lag_check, "calibration": meas.calibration,
             "model_order_candidates": orders, **({"model_order_likelihood": extra["likelihood"]} if extra else {})}
     return Identified(cfg.model_dump(mode="json"), sl.crs, meas.dt_s, sl.lines, flights, fir, noise, idents, n_cx,
-                      mrep, warnings, dict(tr.timings))
+                      mrep, warnings, dict(tr.timings), str(survey.root))
 
 
 def recognition_order_ident(idf: Identified, m: int):
@@ -203,26 +205,34 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     tr.start("choice")
     m_best, order_rep = choose_order(cands, p)
     if len(cands) > 1:  # the baseline only for the order that is used
-        cands[m_best].filtered.add_stationary(idf.dt_s, m_best, p.smoother, idf.noise.model)
+        cands[m_best].filtered.add_stationary(idf.dt_s, m_best, p.smoother, idf.noise.model, p)
     choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings, order=(m_best, order_rep))
     best = cands[choice.m]
     table = choice.table
+    products = apply_products(table, idf.survey_dir, idf.crs, p, warnings)
     tr.start("leveling")
     leveled = level_survey(table, p, warnings)
+    refresh_bouguer(table)
     tr.start("gridding")
     grid = grid_survey(table, p, warnings, leveled.report.get("rms_after_mgal"))
+    grid_bouguer = None
+    if "dg_bouguer_mgal" in table:
+        grid_bouguer = grid_survey(table.assign(dg_mgal=table["dg_bouguer_mgal"]), p, warnings,
+                                   leveled.report.get("rms_after_mgal"))
     tr.start("writing")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ident_json = identification_json(idf.identifications[choice.m], idf.noise.model, best.smap, idf.dt_s)
     ident_json["state_map_from_m"] = best.ident.recognition_m if hasattr(best.ident, "recognition_m") else choice.m
-    write_outputs(out, table, best.smap.table(best.ident.recognition), leveled.crossovers, ident_json, grid, idf.crs)
+    write_outputs(out, table, best.smap.table(best.ident.recognition), leveled.crossovers, ident_json, grid, idf.crs,
+                  grid_bouguer=grid_bouguer)
     tr.close()
     report = build_report(survey_name or cfg.survey.name, idf.crs, table, idf.flights, leveled, best.ident, grid,
                           warnings)
     report.update(idf.measurement_report)
     report["noise_model"] = idf.noise.describe()
     report["model_choice"] = choice.report
+    report["products"] = products.report
     level_rep = best.filtered.report(p)
     if level_rep is not None:
         report["level_refinement"] = level_rep

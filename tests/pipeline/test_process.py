@@ -19,7 +19,10 @@ def test_outputs_follow_spec(tiny_processed):
                  "grid.tif", "grid.grd", "grid.csv", "report.json"):
         assert (out / name).exists(), name
     lines = pd.read_parquet(out / "lines.parquet")
-    assert list(lines.columns) == LINES_COLUMNS
+    # SPEC §5 columns first, in order; then only the documented product columns
+    from app.pipeline.stages.outputs import PRODUCT_COLUMNS
+    assert list(lines.columns[:len(LINES_COLUMNS)]) == LINES_COLUMNS
+    assert set(lines.columns[len(LINES_COLUMNS):]) <= set(PRODUCT_COLUMNS)
     ident = json.loads((out / "identification.json").read_text())
     n = len(ident["states"])
     rec = pd.read_parquet(out / "recognition.parquet")

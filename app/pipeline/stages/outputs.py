@@ -112,21 +112,28 @@ LINE_COLUMNS = ["line", "flight", "kind", "time", "lat", "lon", "h", "easting_km
                 "Q_mgal2", "R_cm2s2"]
 
 
+#: product columns written after SPEC §5's when present (app.pipeline.stages.products)
+PRODUCT_COLUMNS = ["atm_corr_mgal", "dg_flight_mgal", "dg_datum_mgal", "dg_datum_std_mgal", "datum_height_m",
+                   "terrain_mgal", "terrain_height_m", "dg_bouguer_mgal"]
+
+
 def write_outputs(out, table: pd.DataFrame, recognition: pd.DataFrame, crossovers: pd.DataFrame,
-                  identification: dict, grid, crs: str) -> None:
-    """The files of SPEC §5 except ``report.json`` (each written atomically)."""
+                  identification: dict, grid, crs: str, grid_bouguer=None) -> None:
+    """The files of SPEC §5 except ``report.json`` (each written atomically); with a Bouguer grid
+    also ``grid_bouguer.{nc,tif,grd,csv}``."""
     from pathlib import Path
 
     from app.io import export
 
     out = Path(out)
-    export.write_parquet(table[LINE_COLUMNS], out / "lines.parquet")
+    export.write_parquet(table[LINE_COLUMNS + [c for c in PRODUCT_COLUMNS if c in table]], out / "lines.parquet")
     export.write_parquet(recognition, out / "recognition.parquet")
     export.write_csv(crossovers, out / "crossovers.csv")
     export.write_json(identification, out / "identification.json")
-    if grid is not None:
-        e, n, g, gs = grid.easting_km, grid.northing_km, grid.dg_mgal, grid.dg_std_mgal
-        export.write_grid_netcdf(out / "grid.nc", e, n, g, gs, crs)
-        export.write_grid_geotiff(out / "grid.tif", e, n, g, gs, crs)
-        export.write_grid_surfer(out / "grid.grd", e, n, g, gs)
-        export.write_grid_csv(out / "grid.csv", e, n, g, gs)
+    for name, gr in (("grid", grid), ("grid_bouguer", grid_bouguer)):
+        if gr is not None:
+            e, n, g, gs = gr.easting_km, gr.northing_km, gr.dg_mgal, gr.dg_std_mgal
+            export.write_grid_netcdf(out / f"{name}.nc", e, n, g, gs, crs)
+            export.write_grid_geotiff(out / f"{name}.tif", e, n, g, gs, crs)
+            export.write_grid_surfer(out / f"{name}.grd", e, n, g, gs)
+            export.write_grid_csv(out / f"{name}.csv", e, n, g, gs)
