@@ -481,10 +481,10 @@ def _deviation_regression(rec: _CalibrationRecord, names: tuple, tau0_s: float, 
     y = (rec.z + tau0_s * rec.fdot + (k0 - 1.0) * fc + (rec.a1 + d1_0_rad) * rec.fy
          - (rec.a2 + d2_0_rad) * rec.fx)
     cols = {"tau": -rec.fdot, "k": -fc, "d1": -rec.fy, "d2": rec.fx}
-    A = [cols[p] for p in names]
+    A = [cols[name] for name in names]
     u = (t - 0.5 * (t[0] + t[-1])) / (t[-1] - t[0])
-    for p in range(1, drift_degree + 1):
-        A.append(u ** p)
+    for power in range(1, drift_degree + 1):
+        A.append(u ** power)
     n_imp = 1 if gnss == "doppler" else 2
     for i in range(n_imp):
         e = np.zeros(n)

@@ -48,6 +48,7 @@ saturated line (column ``saturation``).
 
 from __future__ import annotations
 
+import gzip
 import warnings
 from pathlib import Path
 
@@ -81,8 +82,6 @@ def is_gfile_name(name: str) -> bool:
 
 
 def _first_data_line(path: Path, display: str) -> str:
-    import gzip
-
     opener = gzip.open if path.suffix == ".gz" else open
     try:
         with opener(path, "rt", errors="replace") as fh:

@@ -51,7 +51,7 @@ import pandas as pd
 from pydantic import ValidationError
 
 from app.config import SurveyConfig, check_name
-from app.core.geodesy import radii_of_curvature_m
+from app.core.geodesy import radii_of_curvature_m, vertical_velocity_from_heights_ms
 from app.io.errors import InputError
 from app.io.dgs import read_dgs, sniff_dat
 from app.io.gfile import is_gfile_name, read_gfile
@@ -409,8 +409,6 @@ def derive_vu_from_h(df: pd.DataFrame, rows: np.ndarray, display: str, max_gap_s
     InputError
         A run shorter than 4 samples (names its rows, column ``h``).
     """
-    from app.core.geodesy import vertical_velocity_from_heights_ms
-
     t = df["time"].to_numpy(dtype=float)
     h = df["h"].to_numpy(dtype=float)
     vu = np.empty_like(t)

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.fft import next_fast_len
 from scipy.interpolate import CubicSpline, PPoly
 
 
@@ -320,7 +321,6 @@ def vertical_motion(t0: float, t1: float, cfg, rng):
     """
     fs = cfg.fine_rate_hz
     pad = 20.0
-    from scipy.fft import next_fast_len
     n = next_fast_len(int(np.ceil((t1 - t0 + 2 * pad) * fs)) + 1, real=True)   # fast FFT size
     tf = t0 - pad + np.arange(n) / fs
     f_lo, f_hi = cfg.turbulence_band_hz
