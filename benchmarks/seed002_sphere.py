@@ -34,7 +34,8 @@ import time
 
 import numpy as np
 
-from app.core.smoother import kalman_filter, rts_smooth, two_filter_smooth
+from app.core.smoother import kalman_filter, rts_smooth
+from app.research.two_filter import two_filter_smooth
 
 G_SI = 6.674e-11
 PAPER = {"TFS": 0.006, "RTS": 0.005}

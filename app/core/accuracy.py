@@ -3,8 +3,10 @@
 - crossover RMS of the differences at line intersections;
 - repeat-line internal accuracy ``ε = sqrt(Σ_i Σ_j (g_ij − ḡ_j)² / (n (K−1)))``
   over K repeats of one track at n common points;
-- RMS against a reference, std calibration (fraction of errors within k σ);
-- grid RMS against a true grid inside the convex hull of the lines.
+- RMS (optionally with each line's mean removed) and mean error against a reference,
+  std calibration (fraction of errors within k σ);
+- grid RMS (and demeaned RMS, std calibration) against a true grid inside the convex
+  hull of the lines.
 
 All values in mGal, coordinates in km.  Pure functions on numpy arrays.
 """
@@ -14,6 +16,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import ConvexHull, Delaunay
 
 
 def crossover_rms(diff_mgal) -> float:
@@ -153,16 +156,105 @@ def repeat_line_accuracy(easting_km, northing_km=None, dg_mgal=None, step_km: fl
     return RepeatAccuracy(internal_accuracy(vals), pos - lo, vals, vals.mean(axis=0))
 
 
-def rms_vs_reference(estimate_mgal, reference_mgal) -> float:
-    """RMS of ``estimate − reference`` over the points where both are finite (mGal)."""
+def _error_vs_reference(estimate_mgal, reference_mgal) -> np.ndarray:
+    """``estimate − reference`` (NaN where either is not finite), shapes checked."""
     a = np.asarray(estimate_mgal, dtype=float)
     b = np.asarray(reference_mgal, dtype=float)
     if a.shape != b.shape:
         raise ValueError(f"shapes differ: {a.shape} vs {b.shape}")
-    d = (a - b)[np.isfinite(a) & np.isfinite(b)]
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(a) & np.isfinite(b), a - b, np.nan)
+
+
+def _selected(values: np.ndarray, where) -> np.ndarray:
+    """``values[where]`` (all of them when ``where`` is None), shape checked."""
+    if where is None:
+        return values
+    w = np.asarray(where, dtype=bool)
+    if w.shape != values.shape:
+        raise ValueError(f"where has shape {w.shape}, the values {values.shape}")
+    return values[w]
+
+
+def line_demeaned(error_mgal, line) -> np.ndarray:
+    """``error`` with each line's mean removed (the mean over the line's finite values).
+
+    This is the part of an error that a constant per line (leveling, a base tie) cannot
+    remove.  Non-finite values stay NaN; a line without finite values stays NaN.
+
+    Parameters
+    ----------
+    error_mgal : array_like, shape (n,)
+    line : array_like, shape (n,)
+        Line id of every value (any hashable, sortable type: str, int).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    e = np.asarray(error_mgal, dtype=float)
+    ids = np.asarray(line)
+    if e.ndim != 1 or ids.shape != e.shape:
+        raise ValueError(f"error and line must be 1-D of the same length, got {e.shape} and {ids.shape}")
+    _, inv = np.unique(ids, return_inverse=True)
+    inv = inv.ravel()
+    ok = np.isfinite(e)
+    total = np.bincount(inv[ok], weights=e[ok], minlength=inv.max(initial=-1) + 1)
+    count = np.bincount(inv[ok], minlength=total.size)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = total / count
+    out = e - mean[inv]
+    out[~ok] = np.nan
+    return out
+
+
+def rms_vs_reference(estimate_mgal, reference_mgal, *, line=None, where=None) -> float:
+    """RMS of ``estimate − reference`` over the points where both are finite (mGal).
+
+    Parameters
+    ----------
+    estimate_mgal, reference_mgal : array_like, same shape
+    line : array_like, optional
+        Line id per point (1-D inputs): each line's mean error is removed first
+        (:func:`line_demeaned`; the mean over all the line's points given, before
+        ``where``), the RMS of what leveling and base ties cannot see.
+    where : array_like of bool, optional
+        Points counted in the RMS (e.g. one terrain class); default all.
+
+    Returns
+    -------
+    float
+
+    Raises
+    ------
+    ValueError
+        Shapes differ, or no selected point has both values finite.
+    """
+    d = _error_vs_reference(estimate_mgal, reference_mgal)
+    if line is not None:
+        d = line_demeaned(d, line)
+    d = _selected(d, where)
+    d = d[np.isfinite(d)]
     if d.size == 0:
         raise ValueError("no common finite values")
     return float(np.sqrt(np.mean(d ** 2)))
+
+
+def mean_error_vs_reference(estimate_mgal, reference_mgal, *, where=None) -> float:
+    """Mean of ``estimate − reference`` over the points where both are finite (mGal): the bias.
+
+    ``where`` selects the points as in :func:`rms_vs_reference`.
+
+    Raises
+    ------
+    ValueError
+        Shapes differ, or no selected point has both values finite.
+    """
+    d = _selected(_error_vs_reference(estimate_mgal, reference_mgal), where)
+    d = d[np.isfinite(d)]
+    if d.size == 0:
+        raise ValueError("no common finite values")
+    return float(np.mean(d))
 
 
 def std_calibration(error_mgal, std_mgal, k: float = 2.0) -> float:
@@ -227,10 +319,24 @@ def crossover_std_factor(diff_mgal, pred_var_mgal2, shared_fraction: float = 0.4
     return {"n": n, "rms_ratio": ratio, "factor": float(np.clip(factor, min_factor, max_factor))}
 
 
-def points_in_hull(point_e_km, point_n_km, hull_e_km, hull_n_km):
-    """Boolean mask of the points inside the convex hull of the hull points."""
-    from scipy.spatial import Delaunay
+def points_in_hull(point_e_km, point_n_km, hull_e_km, hull_n_km) -> np.ndarray:
+    """Boolean mask of the points inside the convex hull of the hull points.
 
+    The hull is triangulated from its vertices only (``ConvexHull`` first), so millions
+    of line points cost about as little as a few thousand; points on the hull's edges
+    count as inside.
+
+    Parameters
+    ----------
+    point_e_km, point_n_km : array_like, broadcastable
+        The points to test (km).
+    hull_e_km, hull_n_km : array_like
+        Points whose convex hull is the region (any shape, flattened; non-finite dropped).
+
+    Returns
+    -------
+    ndarray of bool, the broadcast shape of the points
+    """
     hull_pts = np.column_stack([np.asarray(hull_e_km, float).ravel(),
                                 np.asarray(hull_n_km, float).ravel()])
     hull_pts = hull_pts[np.all(np.isfinite(hull_pts), axis=1)]
@@ -239,8 +345,81 @@ def points_in_hull(point_e_km, point_n_km, hull_e_km, hull_n_km):
     pe = np.asarray(point_e_km, dtype=float)
     pn = np.asarray(point_n_km, dtype=float)
     pe, pn = np.broadcast_arrays(pe, pn)
-    tri = Delaunay(hull_pts)
+    tri = Delaunay(hull_pts[ConvexHull(hull_pts).vertices])
     return (tri.find_simplex(np.column_stack([pe.ravel(), pn.ravel()])) >= 0).reshape(pe.shape)
+
+
+@dataclass(frozen=True)
+class GridAccuracy:
+    """Result of :func:`grid_accuracy_in_hull` (mGal); the figures are None when ``cells`` is 0.
+
+    Attributes
+    ----------
+    cells : int
+        Grid nodes inside the lines' convex hull where both grids are finite.
+    rms_mgal : float or None
+        RMS of ``dg − true`` over those nodes.
+    rms_demeaned_mgal : float or None
+        The same with the mean error removed (the std of the error).
+    std_calibration : float or None
+        Fraction of those nodes with ``|dg − true| < k σ`` (:func:`std_calibration`),
+        when a std grid was given.
+    """
+
+    cells: int
+    rms_mgal: float | None
+    rms_demeaned_mgal: float | None
+    std_calibration: float | None = None
+
+
+def _grid_error_in_hull(easting_km, northing_km, dg_mgal, true_dg_mgal, line_easting_km, line_northing_km):
+    """``(dg − true)`` on the grid and the mask of nodes inside the hull with both finite."""
+    e = np.asarray(easting_km, dtype=float)
+    n = np.asarray(northing_km, dtype=float)
+    g = np.asarray(dg_mgal, dtype=float)
+    t = np.asarray(true_dg_mgal, dtype=float)
+    if g.shape != (n.size, e.size) or t.shape != g.shape:
+        raise ValueError(f"grids must have shape (ny, nx) = {(n.size, e.size)}; got {g.shape}, {t.shape}")
+    E, N = np.meshgrid(e, n)
+    inside = points_in_hull(E, N, line_easting_km, line_northing_km)
+    return g - t, inside & np.isfinite(g) & np.isfinite(t)
+
+
+def grid_accuracy_in_hull(easting_km, northing_km, dg_mgal, true_dg_mgal, line_easting_km,
+                          line_northing_km, std_mgal=None, k: float = 2.0) -> GridAccuracy:
+    """Accuracy of a grid against a true grid over the nodes inside the lines' convex hull.
+
+    Parameters
+    ----------
+    easting_km : ndarray, shape (nx,)
+    northing_km : ndarray, shape (ny,)
+    dg_mgal, true_dg_mgal : ndarray, shape (ny, nx)
+        The estimated and the true grid (the true one sampled at the same nodes).
+    line_easting_km, line_northing_km : array_like
+        Coordinates of the line points (any shape, flattened).
+    std_mgal : ndarray, shape (ny, nx), optional
+        Posterior std grid, for the calibration figure.
+    k : float
+        Calibration multiple of σ.
+
+    Returns
+    -------
+    GridAccuracy
+        ``cells = 0`` and None figures when no node qualifies (no error raised).
+    """
+    err, ok = _grid_error_in_hull(easting_km, northing_km, dg_mgal, true_dg_mgal, line_easting_km,
+                                  line_northing_km)
+    d = err[ok]
+    if d.size == 0:
+        return GridAccuracy(cells=0, rms_mgal=None, rms_demeaned_mgal=None, std_calibration=None)
+    cal = None
+    if std_mgal is not None:
+        s = np.asarray(std_mgal, dtype=float)
+        if s.shape != err.shape:
+            raise ValueError(f"std_mgal has shape {s.shape}, the grid {err.shape}")
+        cal = std_calibration(d, s[ok], k)
+    return GridAccuracy(cells=int(d.size), rms_mgal=float(np.sqrt(np.mean(d ** 2))),
+                        rms_demeaned_mgal=float(np.std(d)), std_calibration=cal)
 
 
 def grid_rms_in_hull(easting_km, northing_km, dg_mgal, true_dg_mgal, line_easting_km,
@@ -260,15 +439,9 @@ def grid_rms_in_hull(easting_km, northing_km, dg_mgal, true_dg_mgal, line_eastin
     float
         RMS (mGal) over nodes inside the hull where both grids are finite.
     """
-    e = np.asarray(easting_km, dtype=float)
-    n = np.asarray(northing_km, dtype=float)
-    g = np.asarray(dg_mgal, dtype=float)
-    t = np.asarray(true_dg_mgal, dtype=float)
-    if g.shape != (n.size, e.size) or t.shape != g.shape:
-        raise ValueError(f"grids must have shape (ny, nx) = {(n.size, e.size)}; got {g.shape}, {t.shape}")
-    E, N = np.meshgrid(e, n)
-    inside = points_in_hull(E, N, line_easting_km, line_northing_km)
-    d = (g - t)[inside & np.isfinite(g) & np.isfinite(t)]
+    err, ok = _grid_error_in_hull(easting_km, northing_km, dg_mgal, true_dg_mgal, line_easting_km,
+                                  line_northing_km)
+    d = err[ok]
     if d.size == 0:
         raise ValueError("no grid node inside the convex hull of the lines")
     return float(np.sqrt(np.mean(d ** 2)))

@@ -86,7 +86,7 @@ Units: time s, accelerations m/s², angles rad; spectra inputs as named.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Sequence
+from typing import Literal, NamedTuple, Sequence
 
 import numpy as np
 
@@ -382,6 +382,60 @@ def calibrate(t_s, z_ms2, f_raw_ms2, f_x_ms2=None, f_y_ms2=None, *, spectra: Cal
         singular normal matrix (a parameter not excited by the manoeuvres).
     """
     names = _check_params(params)
+    rec = _calibration_record(t_s, z_ms2, f_raw_ms2, f_x_ms2, f_y_ms2, fdot_raw_ms3, alpha1_rad, alpha2_rad,
+                              names=names, gnss=spectra.gnss, drift_degree=drift_degree, min_samples=min_samples,
+                              nominal=(tau0_s, k0, d1_0_rad, d2_0_rad))
+    y, A = _deviation_regression(rec, names, tau0_s, k0, d1_0_rad, d2_0_rad, drift_degree, spectra.gnss)
+    w = _weights(rec.n, rec.dt, spectra, fmax_hz)
+    Ah = np.fft.rfft(A, axis=1)
+    yh = np.fft.rfft(y)
+    M = np.real((Ah * w) @ Ah.conj().T)
+    b = np.real((Ah * w) @ yh.conj())
+    _check_excited(M, A, names)
+    covfull = _normal_inverse(M, names)
+    p = len(names)
+    theta = covfull @ b
+    resid = yh - theta @ Ah
+    dof = rec.n - 1 - A.shape[0]
+    chi2 = float(np.sum(w * np.abs(resid) ** 2)) / max(dof, 1)
+    cov = covfull[:p, :p]
+    cov = 0.5 * (cov + cov.T)
+    nominal = {"tau": float(tau0_s), "k": float(k0), "d1": float(d1_0_rad), "d2": float(d2_0_rad)}
+    full = dict(nominal)
+    for i, name in enumerate(names):
+        full[name] = nominal[name] + float(theta[i])
+    x = np.array([full[nm] for nm in names])
+    return CalibrationResult(names=names, x=x, std=np.sqrt(np.diag(cov)), cov=cov,
+                             tau_s=full["tau"], k=full["k"], d1_rad=full["d1"],
+                             d2_rad=full["d2"], drift_ms2=theta[p:p + drift_degree].copy(),
+                             chi2_per_dof=chi2, n_samples=rec.n)
+
+
+@dataclass
+class _CalibrationRecord:
+    """A checked calibration segment, trimmed by ``_HALF`` samples at each end (the stencil)."""
+
+    t: np.ndarray          # epochs (s)
+    z: np.ndarray          # anomaly measurement with the raw mean (m/s²)
+    f: np.ndarray          # raw interval means f̄' (m/s²)
+    fdot: np.ndarray       # interval means of ḟ' (m/s³)
+    fx: np.ndarray         # horizontal specific force (m/s²), zeros when not given
+    fy: np.ndarray
+    a1: np.ndarray         # INS levelling errors (rad), zeros when not given
+    a2: np.ndarray
+    dt: float              # GNSS step (s)
+
+    @property
+    def n(self) -> int:
+        return int(self.t.size)
+
+
+def _calibration_record(t_s, z_ms2, f_raw_ms2, f_x_ms2, f_y_ms2, fdot_raw_ms3, alpha1_rad, alpha2_rad, *,
+                        names: tuple, gnss: str, drift_degree: int, min_samples: int,
+                        nominal: tuple) -> _CalibrationRecord:
+    """The inputs of :func:`calibrate` checked (shapes, finite, uniform time, length, channels
+    the parameters need, finite ``nominal`` (τ0, k0, δ1₀, δ2₀)) and trimmed to where the
+    derivative of the interval means exists."""
     t = _as_1d("t_s", t_s)
     n_all = t.size
     z = _as_1d("z_ms2", z_ms2, n_all)
@@ -389,7 +443,7 @@ def calibrate(t_s, z_ms2, f_raw_ms2, f_x_ms2=None, f_y_ms2=None, *, spectra: Cal
     if not isinstance(drift_degree, (int, np.integer)) or drift_degree < 1:
         raise ValueError(f"drift_degree must be an integer >= 1 (the linear term absorbs the "
                          f"random-walk anomaly's end ramp), got {drift_degree!r}")
-    n_nuis_min = drift_degree + (1 if spectra.gnss == "doppler" else 2)
+    n_nuis_min = drift_degree + (1 if gnss == "doppler" else 2)
     need = max(int(min_samples), 2 * (len(names) + n_nuis_min)) + 2 * _HALF
     if n_all < need:
         raise ValueError(f"calibration segment too short: {n_all} samples, need at least {need} "
@@ -407,38 +461,42 @@ def calibrate(t_s, z_ms2, f_raw_ms2, f_x_ms2=None, f_y_ms2=None, *, spectra: Cal
         raise ValueError("estimating 'd2' needs f_x_ms2 (f_z1)")
     a1 = np.zeros(n_all) if alpha1_rad is None else _as_1d("alpha1_rad", alpha1_rad, n_all)
     a2 = np.zeros(n_all) if alpha2_rad is None else _as_1d("alpha2_rad", alpha2_rad, n_all)
-    if not all(np.isfinite(v) for v in (tau0_s, k0, d1_0_rad, d2_0_rad)):
+    if not all(np.isfinite(v) for v in nominal):
         raise ValueError("tau0_s, k0, d1_0_rad, d2_0_rad must be finite")
-
     sl = slice(_HALF, n_all - _HALF)
     if fdot_raw_ms3 is None:
         fdot = derivative_of_interval_means(f, dt)
     else:
         fdot = _as_1d("fdot_raw_ms3", fdot_raw_ms3, n_all)[sl]
-    f, z, fx, fy, a1, a2, t = f[sl], z[sl], fx[sl], fy[sl], a1[sl], a2[sl], t[sl]
-    n = t.size
-    fc = f - f.mean()                            # the mean goes to the (implicit) constant
-    # y = z − (nominal-model terms): deviation regression
-    y = z + tau0_s * fdot + (k0 - 1.0) * fc + (a1 + d1_0_rad) * fy - (a2 + d2_0_rad) * fx
-    cols = {"tau": -fdot, "k": -fc, "d1": -fy, "d2": fx}
-    A = [cols[p] for p in names]
+    return _CalibrationRecord(t[sl], z[sl], f[sl], fdot, fx[sl], fy[sl], a1[sl], a2[sl], dt)
+
+
+def _deviation_regression(rec: _CalibrationRecord, names: tuple, tau0_s: float, k0: float, d1_0_rad: float,
+                          d2_0_rad: float, drift_degree: int, gnss: str):
+    """``(y, A)``: ``y = z − (nominal-model terms)`` and the regressors, rows = the parameters'
+    columns ``(−ḟ', −f', −f_y, f_x)`` in ``names`` order, the drift ``u^1..u^degree`` in
+    normalised time, and one (Doppler) or two (phase) start impulses."""
+    t, n = rec.t, rec.n
+    fc = rec.f - rec.f.mean()                    # the mean goes to the (implicit) constant
+    y = (rec.z + tau0_s * rec.fdot + (k0 - 1.0) * fc + (rec.a1 + d1_0_rad) * rec.fy
+         - (rec.a2 + d2_0_rad) * rec.fx)
+    cols = {"tau": -rec.fdot, "k": -fc, "d1": -rec.fy, "d2": rec.fx}
+    A = [cols[name] for name in names]
     u = (t - 0.5 * (t[0] + t[-1])) / (t[-1] - t[0])
-    for p in range(1, drift_degree + 1):
-        A.append(u ** p)
-    n_imp = 1 if spectra.gnss == "doppler" else 2
+    for power in range(1, drift_degree + 1):
+        A.append(u ** power)
+    n_imp = 1 if gnss == "doppler" else 2
     for i in range(n_imp):
         e = np.zeros(n)
         e[i] = 1.0
         A.append(e)
-    A = np.array(A)                              # (m, n)
-    w = _weights(n, dt, spectra, fmax_hz)
-    Ah = np.fft.rfft(A, axis=1)
-    yh = np.fft.rfft(y)
-    M = np.real((Ah * w) @ Ah.conj().T)
-    b = np.real((Ah * w) @ yh.conj())
+    return y, np.array(A)                        # A: (m, n)
+
+
+def _check_excited(M: np.ndarray, A: np.ndarray, names: tuple) -> None:
+    """A parameter whose regressor has no variation (beyond rounding) carries no information."""
     p = len(names)
     diag = np.diag(M)[:p]
-    # a regressor with no variation (beyond rounding) carries no information
     spread = [float(np.std(A[i])) for i in range(p)]
     dead = [names[i] for i in range(p)
             if not diag[i] > 0 or not np.isfinite(diag[i]) or spread[i] <= 1e-10
@@ -446,6 +504,12 @@ def calibrate(t_s, z_ms2, f_raw_ms2, f_x_ms2=None, f_y_ms2=None, *, spectra: Cal
     if dead:
         raise ValueError(f"parameter(s) {dead} not excited: their regressor has no variation "
                          "in the segment (no manoeuvre on that channel)")
+
+
+def _normal_inverse(M: np.ndarray, names: tuple) -> np.ndarray:
+    """``M⁻¹`` through the correlation matrix, refused when a column has no weight or the
+    parameters cannot be separated (smallest eigenvalue of the correlation < 1e-10)."""
+    p = len(names)
     s = np.sqrt(np.diag(M))
     if not np.all(s > 0):
         raise ValueError("singular normal matrix: a drift/nuisance regressor has no weight "
@@ -460,22 +524,7 @@ def calibrate(t_s, z_ms2, f_raw_ms2, f_x_ms2=None, f_y_ms2=None, *, spectra: Cal
                          "use a segment with independent manoeuvres on each channel"
                          % (ev[-1] / max(ev[0], 1e-300), involved or list(names)))
     Ci = np.linalg.inv(C)
-    covfull = Ci / np.outer(s, s)
-    theta = covfull @ b
-    resid = yh - theta @ Ah
-    dof = n - 1 - A.shape[0]
-    chi2 = float(np.sum(w * np.abs(resid) ** 2)) / max(dof, 1)
-    cov = covfull[:p, :p]
-    cov = 0.5 * (cov + cov.T)
-    nominal = {"tau": float(tau0_s), "k": float(k0), "d1": float(d1_0_rad), "d2": float(d2_0_rad)}
-    full = dict(nominal)
-    for i, name in enumerate(names):
-        full[name] = nominal[name] + float(theta[i])
-    x = np.array([full[nm] for nm in names])
-    return CalibrationResult(names=names, x=x, std=np.sqrt(np.diag(cov)), cov=cov,
-                             tau_s=full["tau"], k=full["k"], d1_rad=full["d1"],
-                             d2_rad=full["d2"], drift_ms2=theta[p:p + drift_degree].copy(),
-                             chi2_per_dof=chi2, n_samples=n)
+    return Ci / np.outer(s, s)
 
 
 def corrected_specific_force_ms2(fbar_corrected_ms2, f_x_ms2, f_y_ms2, d1_rad: float,
@@ -600,6 +649,59 @@ def plan_calibration(duration_s: float, *, speed_ms: float | None = None,
         if speed_ms is None or not speed_ms > 0:
             raise ValueError("give d_dg_mgal2_s or a positive speed_ms for d = 6 V0 σ²/r_c")
         d_dg_mgal2_s = anomaly_level_mgal2_s(speed_ms, six_sigma2_over_rc_mgal2_km)
+    ch = _planned_channels(names, dt_s, omega_rad_s, omega_x_rad_s, omega_y_rad_s, power_z_ms2sq, power_x_ms2sq,
+                           power_y_ms2sq, power_z_is_input, tau_s, k)
+    spectra = CalibrationSpectra(d_f_mgal2_s=d_f_mgal2_s, d_dg_mgal2_s=d_dg_mgal2_s, gnss=gnss,
+                                 d_v_m2_s=d_v_m2_s, d_h_m2_s=d_h_m2_s, discrete=discrete)
+    M = _expected_information(names, ch, spectra, duration_s, dt_s)
+    cov = np.linalg.inv(M)
+    std_joint = np.sqrt(np.diag(cov))
+    std_single = 1.0 / np.sqrt(np.diag(M))
+
+    def gamma(om):
+        return 1.0 / spectra.density_ms2(np.array([om]), dt_s)[0]
+
+    std_asym = np.array([np.sqrt(2 * np.pi / (duration_s * ch.powers[nm] * gamma(ch.freqs[nm])))
+                         for nm in names])
+    std_printed = np.array([_printed_std(nm, ch, duration_s, gnss, d_v_m2_s, d_h_m2_s, d_f_mgal2_s, d_dg_mgal2_s,
+                                         power_x_ms2sq, power_y_ms2sq, tau_s) for nm in names])
+    shared = {}
+    for nm in names:
+        shared.setdefault(ch.freqs[nm], []).append(nm)
+    # per realisation, one frequency line carries 2 degrees of freedom (sin, cos)
+    degenerate = bool(joint and any(len(v) > 2 for v in shared.values()))
+    return {
+        "names": list(names),
+        "std": std_joint if joint else std_single,
+        "std_joint": std_joint,
+        "std_single": std_single,
+        "std_asymptotic_single": std_asym,
+        "std_paper_formula_single": std_printed,
+        "cov": cov,
+        "omega_rad_s": ch.wz,
+        "omega_x_rad_s": ch.wx,
+        "omega_y_rad_s": ch.wy,
+        "d_dg_mgal2_s": float(d_dg_mgal2_s),
+        "degenerate_joint": degenerate,
+    }
+
+
+class _PlannedChannels(NamedTuple):
+    """Manoeuvre line of each parameter's regressor in a planned segment."""
+
+    wz: float              # vertical channel frequency (rad/s)
+    wx: float              # f_x channel
+    wy: float              # f_y channel
+    pz: float              # power of the gravimeter output f' ((m/s²)²)
+    powers: dict           # parameter -> power of its regressor
+    freqs: dict            # parameter -> frequency of its regressor (rad/s)
+
+
+def _planned_channels(names: tuple, dt_s: float, omega_rad_s: float, omega_x_rad_s, omega_y_rad_s,
+                      power_z_ms2sq: float, power_x_ms2sq: float, power_y_ms2sq: float, power_z_is_input: bool,
+                      tau_s: float, k: float) -> _PlannedChannels:
+    """Frequencies (checked below Nyquist) and regressor powers: ``ḟ'`` has ``ω²`` times the power
+    of ``f'``; with ``power_z_is_input`` the output power is ``power_z/(k² + τ²ω²)``."""
     wz = float(omega_rad_s)
     wx = wz if omega_x_rad_s is None else float(omega_x_rad_s)
     wy = wz if omega_y_rad_s is None else float(omega_y_rad_s)
@@ -615,59 +717,40 @@ def plan_calibration(duration_s: float, *, speed_ms: float | None = None,
     for nm in names:
         if not powers[nm] > 0:
             raise ValueError(f"parameter {nm!r} has no manoeuvre power: the normal matrix is singular")
-    spectra = CalibrationSpectra(d_f_mgal2_s=d_f_mgal2_s, d_dg_mgal2_s=d_dg_mgal2_s, gnss=gnss,
-                                 d_v_m2_s=d_v_m2_s, d_h_m2_s=d_h_m2_s, discrete=discrete)
+    return _PlannedChannels(wz, wx, wy, pz, powers, freqs)
+
+
+def _expected_information(names: tuple, ch: _PlannedChannels, spectra: CalibrationSpectra, duration_s: float,
+                          dt_s: float) -> np.ndarray:
+    """Expected normal matrix of eq. (18) on the record's DFT grid (Fejér kernel).
+
+    The cross terms vanish in expectation: ``ḟ'`` and ``f'`` are in quadrature
+    (``Re E[ĉ_τ ĉ_k*] = 0``) and independent channels have zero cross-spectra, so it is diagonal.
+    """
     n = int(round(duration_s / dt_s))
     w = _weights(n, dt_s, spectra)
-    info_unit = {om: _line_info(n, dt_s, w, om) for om in set(freqs[nm] for nm in names)}
+    info_unit = {om: _line_info(n, dt_s, w, om) for om in set(ch.freqs[nm] for nm in names)}
     p = len(names)
     M = np.zeros((p, p))
     for i, nm in enumerate(names):
-        M[i, i] = powers[nm] * info_unit[freqs[nm]]
-    # Expected cross terms: ḟ' and f' are in quadrature (Re E[ĉ_τ ĉ_k*] = 0);
-    # independent channels have zero cross-spectra.  So E[M] is diagonal.
-    cov = np.linalg.inv(M)
-    std_joint = np.sqrt(np.diag(cov))
-    std_single = 1.0 / np.sqrt(np.diag(M))
+        M[i, i] = ch.powers[nm] * info_unit[ch.freqs[nm]]
+    return M
 
-    def gamma(om):
-        return 1.0 / spectra.density_ms2(np.array([om]), dt_s)[0]
 
-    std_asym = np.array([np.sqrt(2 * np.pi / (duration_s * powers[nm] * gamma(freqs[nm])))
-                         for nm in names])
-    # Tables 1–2 as printed (continuous ω, T = duration, A_c = power of each channel).
+def _printed_std(nm: str, ch: _PlannedChannels, duration_s: float, gnss: str, d_v_m2_s: float, d_h_m2_s: float,
+                 d_f_mgal2_s: float, d_dg_mgal2_s: float, power_x_ms2sq: float, power_y_ms2sq: float,
+                 tau_s: float) -> float:
+    """Seed 001 Tables 1–2 closed form as printed (continuous ω, T = duration, A_c = power of
+    each channel) for one parameter."""
     d = d_dg_mgal2_s * MGAL_MS2 ** 2
     d_f = d_f_mgal2_s * MGAL_MS2 ** 2
     T = duration_s
-
-    def printed(nm):
-        om = freqs[nm]
-        num = (om ** 4 * d_v_m2_s if gnss == "doppler" else om ** 6 * d_h_m2_s) + om ** 2 * d_f + d
-        a_c = {"tau": pz, "k": pz, "d1": power_y_ms2sq, "d2": power_x_ms2sq}[nm]
-        den = T * a_c * om ** 2
-        if nm == "tau":
-            den = T * a_c * om ** 4
-        elif nm == "k":
-            den = den * (1 + tau_s ** 2 * om ** 2)
-        return np.sqrt(2 * num / den)
-
-    std_printed = np.array([printed(nm) for nm in names])
-    shared = {}
-    for nm in names:
-        shared.setdefault(freqs[nm], []).append(nm)
-    # per realisation, one frequency line carries 2 degrees of freedom (sin, cos)
-    degenerate = bool(joint and any(len(v) > 2 for v in shared.values()))
-    return {
-        "names": list(names),
-        "std": std_joint if joint else std_single,
-        "std_joint": std_joint,
-        "std_single": std_single,
-        "std_asymptotic_single": std_asym,
-        "std_paper_formula_single": std_printed,
-        "cov": cov,
-        "omega_rad_s": wz,
-        "omega_x_rad_s": wx,
-        "omega_y_rad_s": wy,
-        "d_dg_mgal2_s": float(d_dg_mgal2_s),
-        "degenerate_joint": degenerate,
-    }
+    om = ch.freqs[nm]
+    num = (om ** 4 * d_v_m2_s if gnss == "doppler" else om ** 6 * d_h_m2_s) + om ** 2 * d_f + d
+    a_c = {"tau": ch.pz, "k": ch.pz, "d1": power_y_ms2sq, "d2": power_x_ms2sq}[nm]
+    den = T * a_c * om ** 2
+    if nm == "tau":
+        den = T * a_c * om ** 4
+    elif nm == "k":
+        den = den * (1 + tau_s ** 2 * om ** 2)
+    return np.sqrt(2 * num / den)

@@ -45,6 +45,11 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg import cho_factor, cho_solve, eigh
+from scipy.optimize import minimize, minimize_scalar
+from scipy.spatial import cKDTree
+
+from app.core.gridding import line_spacing_km, single_thread_blas
 
 #: above this many sources ``method="auto"`` switches from the exact global solve to "gb"
 MAX_EXACT_SOURCES = 4000
@@ -109,15 +114,13 @@ def block_average_lines(easting_m, northing_m, height_m, dg_mgal, std_mgal, line
 
 def line_spacing_m(easting_m, northing_m, line) -> float:
     """Median distance from a line point to the nearest point of another line (m)."""
-    from app.core.gridding import line_spacing_km
-
     return 1000.0 * line_spacing_km(np.asarray(easting_m) / 1000.0, np.asarray(northing_m) / 1000.0, line)
 
 
 def block_sources(easting_m, northing_m, height_m, spacing_m: float, depth_m: float):
     """Sources under the block medians of the data positions on ``spacing_m`` squares,
     ``depth_m`` below the median height (harmonica's block-averaged source layout)."""
-    import verde as vd
+    import verde as vd  # heavy (~1.3 s with xarray): only when a continuation is fitted
 
     red = vd.BlockReduce(np.median, spacing=spacing_m, drop_coords=False)
     (se, sn, su), _ = red.filter((np.asarray(easting_m), np.asarray(northing_m), np.asarray(height_m)),
@@ -129,7 +132,7 @@ def block_sources(easting_m, northing_m, height_m, spacing_m: float, depth_m: fl
 
 def _greens(e, n, u, src, parallel=True):
     """Jacobian (n_points, n_sources) of the 1/r point sources (harmonica's kernel)."""
-    import harmonica as hm
+    import harmonica as hm  # heavy (~1.4 s with verde/xarray): only when a continuation is fitted
 
     eqs = hm.EquivalentSources(parallel=parallel)
     return eqs.jacobian((np.asarray(e, float), np.asarray(n, float), np.asarray(u, float)), src)
@@ -167,8 +170,6 @@ class _Posterior:
 
 
 def _posterior(jac: np.ndarray, d: np.ndarray, sigma: np.ndarray) -> _Posterior:
-    from scipy.linalg import eigh
-
     scale = jac.std(axis=0)
     scale[scale <= 0] = 1.0
     jt = jac / scale
@@ -183,8 +184,6 @@ def _posterior(jac: np.ndarray, d: np.ndarray, sigma: np.ndarray) -> _Posterior:
 
 def _optimise(post: _Posterior, fit_noise_scale: bool):
     """Maximise the evidence over log α (and log ν): a coarse grid, then Nelder–Mead."""
-    from scipy.optimize import minimize
-
     grid_a = np.linspace(np.log(1e-8), np.log(1e4), 25)
     grid_n = np.linspace(np.log(0.3), np.log(3.0), 9) if fit_noise_scale else np.array([0.0])
     best = max(((post.log_evidence(a, v), a, v) for a in grid_a for v in grid_n))
@@ -220,7 +219,7 @@ class EquivalentSourceModel:
 
     def predict(self, easting_m, northing_m, height_m, chunk: int = 20000) -> np.ndarray:
         """Continued anomaly (mGal) at points and heights (any broadcastable shapes)."""
-        import harmonica as hm
+        import harmonica as hm  # heavy (~1.4 s with verde/xarray): only when a continuation is used
 
         e, n, h = np.broadcast_arrays(*(np.asarray(v, dtype=float) for v in (easting_m, northing_m, height_m)))
         shape = e.shape
@@ -246,7 +245,6 @@ class EquivalentSourceModel:
                 g = _greens(e[sl], n[sl], h[sl], self.sources)
                 var[sl] = self._post.var(g, self.damping, self.noise_scale)
         else:
-            from app.core.gridding import single_thread_blas
             with single_thread_blas():
                 var = _local_variance(self, e, n, h)
         return np.sqrt(var + self.mean_var).reshape(shape)
@@ -255,8 +253,6 @@ class EquivalentSourceModel:
 def _local_variance(model: EquivalentSourceModel, e, n, h) -> np.ndarray:
     """Posterior variance from local windows (method "gb"): tiles of ``tile_m``; each solved with
     the data and sources within ``std_window_m`` of the tile, the global α and ν."""
-    from scipy.spatial import cKDTree
-
     loc = model._local
     tile, win = loc["tile_m"], loc["window_m"]
     d = model.data
@@ -285,7 +281,6 @@ def _local_variance(model: EquivalentSourceModel, e, n, h) -> np.ndarray:
         jt = jac / scale
         w = 1.0 / ds[di] ** 2
         A = jt.T @ (jt * w[:, None]) + model.damping * np.eye(si.size)
-        from scipy.linalg import cho_factor, cho_solve
         cf = cho_factor(A, lower=True, check_finite=False)
         g = _greens(e[pts], n[pts], h[pts], (se[si], sn[si], su[si])) / scale
         var[pts] = np.sum(g * cho_solve(cf, g.T, check_finite=False).T, axis=1)
@@ -337,21 +332,10 @@ def fit_equivalent_sources(easting_m, northing_m, height_m, dg_mgal, std_mgal, l
     -------
     EquivalentSourceModel
     """
-    if line is not None:
-        d = block_average_lines(easting_m, northing_m, height_m, dg_mgal, std_mgal, line, block_m, error_corr_m)
-    else:
-        d = {"easting_m": np.asarray(easting_m, float), "northing_m": np.asarray(northing_m, float),
-             "height_m": np.asarray(height_m, float), "dg_mgal": np.asarray(dg_mgal, float),
-             "std_mgal": np.asarray(std_mgal, float), "count": np.ones(np.size(easting_m), int),
-             "line": np.zeros(np.size(easting_m), dtype=object)}
+    d = _continuation_data(easting_m, northing_m, height_m, dg_mgal, std_mgal, line, block_m, error_corr_m)
     e, n, h, v, s = d["easting_m"], d["northing_m"], d["height_m"], d["dg_mgal"], d["std_mgal"]
-    if e.size < 10:
-        raise ValueError(f"continuation needs at least 10 data blocks, got {e.size}")
-    if np.any(s <= 0):
-        raise ValueError("every std must be positive")
     spacing = line_spacing_m(e, n, d["line"]) if line is not None else np.nan
     if not np.isfinite(spacing):
-        from scipy.spatial import cKDTree
         dist, _ = cKDTree(np.column_stack([e, n])).query(np.column_stack([e, n]), k=2)
         spacing = float(np.median(dist[:, 1])) * 4.0
     depth = float(depth_m) if depth_m is not None else depth_factor * spacing
@@ -364,33 +348,74 @@ def fit_equivalent_sources(easting_m, northing_m, height_m, dg_mgal, std_mgal, l
         raise ValueError(f"unknown method {method!r}")
     w = 1.0 / s ** 2
     mu = float(np.sum(w * v) / np.sum(w))
-    r = v - mu
     info = {"n_data": int(e.size), "n_sources": int(m_src), "line_spacing_m": float(spacing),
             "source_spacing_m": src_sp, "block_m": block_m}
+    fit = _Fit(d, sources, v - mu, mu, float(np.sum(w)), depth, spacing, info)
     if method == "exact":
-        jac = _greens(e, n, h, sources)
-        post = _posterior(jac, r, s)
-        del jac
-        if damping is None:
-            a, nu, ev = _optimise(post, noise_scale is None)
-            if noise_scale is not None:
-                nu = float(noise_scale)
-                a, _, ev = _optimise_alpha_only(post, nu)
-        else:
-            a = float(damping)
-            nu = float(noise_scale) if noise_scale is not None else 1.0
-            ev = post.log_evidence(np.log(a), np.log(nu))
-        coefs = post.coefs(a, nu)
-        info.update(log_evidence=ev)
-        model = EquivalentSourceModel("exact", sources, coefs, mu, float(nu * nu / np.sum(w)), a, nu, depth, d,
-                                      info, _post=post)
-        return model
-    # ---- gradient boosted mean, local std
-    import harmonica as hm
+        return _fit_exact(fit, damping, noise_scale)
+    return _fit_gb(fit, damping, noise_scale, max_exact_sources, window_m, std_window_m, random_state)
 
+
+def _continuation_data(easting_m, northing_m, height_m, dg_mgal, std_mgal, line, block_m: float,
+                       error_corr_m: float | None) -> dict:
+    """The data of a fit: block means per line (:func:`block_average_lines`), or the points as
+    given when ``line`` is None; at least 10 of them, every std positive."""
+    if line is not None:
+        d = block_average_lines(easting_m, northing_m, height_m, dg_mgal, std_mgal, line, block_m, error_corr_m)
+    else:
+        d = {"easting_m": np.asarray(easting_m, float), "northing_m": np.asarray(northing_m, float),
+             "height_m": np.asarray(height_m, float), "dg_mgal": np.asarray(dg_mgal, float),
+             "std_mgal": np.asarray(std_mgal, float), "count": np.ones(np.size(easting_m), int),
+             "line": np.zeros(np.size(easting_m), dtype=object)}
+    if d["easting_m"].size < 10:
+        raise ValueError(f"continuation needs at least 10 data blocks, got {d['easting_m'].size}")
+    if np.any(d["std_mgal"] <= 0):
+        raise ValueError("every std must be positive")
+    return d
+
+
+@dataclass
+class _Fit:
+    """What both solvers share: the data, the sources and the weighted mean taken out."""
+
+    data: dict             # block-averaged data (easting_m, northing_m, height_m, dg_mgal, std_mgal, …)
+    sources: tuple         # (easting_m, northing_m, upward_m)
+    residual: np.ndarray   # dg − mean (mGal)
+    mean_mgal: float       # weighted mean μ
+    sum_weights: float     # Σ 1/σ² (the variance of μ is ν²/Σw)
+    depth_m: float
+    spacing_m: float       # line spacing (or its stand-in)
+    info: dict
+
+
+def _fit_exact(fit: _Fit, damping, noise_scale) -> EquivalentSourceModel:
+    """Global solve: the posterior in eigen-form, α (and ν) by maximum evidence unless given."""
+    d = fit.data
+    jac = _greens(d["easting_m"], d["northing_m"], d["height_m"], fit.sources)
+    post = _posterior(jac, fit.residual, d["std_mgal"])
+    del jac
+    if damping is None:
+        a, nu, ev = _optimise(post, noise_scale is None)
+        if noise_scale is not None:
+            nu = float(noise_scale)
+            a, _, ev = _optimise_alpha_only(post, nu)
+    else:
+        a = float(damping)
+        nu = float(noise_scale) if noise_scale is not None else 1.0
+        ev = post.log_evidence(np.log(a), np.log(nu))
+    coefs = post.coefs(a, nu)
+    fit.info.update(log_evidence=ev)
+    return EquivalentSourceModel("exact", fit.sources, coefs, fit.mean_mgal, float(nu * nu / fit.sum_weights), a, nu,
+                                 fit.depth_m, d, fit.info, _post=post)
+
+
+def _gb_hyperparameters(fit: _Fit, damping, noise_scale, max_exact_sources: int) -> tuple[float, float]:
+    """``(α, ν)`` for method "gb": the given ones, else from an exact fit on the sub-area around the
+    centre (≤ ``min(max_exact_sources, HYPER_SOURCES)`` sources), recorded in ``info``."""
     a, nu = damping, noise_scale
     if a is None or nu is None:
-        # hyperparameters from an exact fit on the sub-area around the centre (≤ max_exact_sources sources)
+        d, sources = fit.data, fit.sources
+        e, n, h, s, r = d["easting_m"], d["northing_m"], d["height_m"], d["std_mgal"], fit.residual
         ce, cn = np.median(e), np.median(n)
         order = np.argsort(np.hypot(sources[0] - ce, sources[1] - cn))
         keep_s = order[:min(max_exact_sources, HYPER_SOURCES)]
@@ -404,34 +429,49 @@ def fit_equivalent_sources(easting_m, northing_m, height_m, dg_mgal, std_mgal, l
             a_fit, nu_fit, _ = _optimise(post_sub, True)
             nu = nu_fit
         a = a_fit if a is None else a
-        info["hyper_subarea"] = {"n_sources": int(keep_s.size), "n_data": int(keep_d.sum()),
-                                 "radius_m": float(rad)}
-    a, nu = float(a), float(nu)
-    if window_m is None:
-        win = min(10.0 * spacing, 0.5 * min(np.ptp(e), np.ptp(n)))
-    else:
-        win = float(window_m)
-    gb = hm.EquivalentSourcesGB(damping=a, points=sources, window_size=win, random_state=random_state)
-    gb.fit((e, n, h), r, weights=1.0 / (nu * s) ** 2)
-    # column scales of the full Jacobian, computed in chunks of sources (memory: n_data × chunk)
+        fit.info["hyper_subarea"] = {"n_sources": int(keep_s.size), "n_data": int(keep_d.sum()),
+                                     "radius_m": float(rad)}
+    return float(a), float(nu)
+
+
+def _jacobian_column_scales(e, n, h, sources) -> np.ndarray:
+    """Std of every column of the full Jacobian, in chunks of sources (memory: n_data × chunk);
+    1 for a column without variation."""
+    m_src = sources[0].size
     scale = np.empty(m_src)
     step = max(1, int(2e7 // max(e.size, 1)))
     for i in range(0, m_src, step):
         sl = slice(i, i + step)
         scale[i:i + step] = _greens(e, n, h, tuple(x[sl] for x in sources)).std(axis=0)
     scale[scale <= 0] = 1.0
-    tile = max(2.0 * spacing, 2000.0)
-    std_win = float(std_window_m) if std_window_m is not None else 4.0 * depth + tile
-    info.update(window_m=win, std_tile_m=tile, std_window_m=std_win,
-                gb_rmse_first_last=[float(gb.rmse_per_iteration_[0]), float(gb.rmse_per_iteration_[-1])])
-    return EquivalentSourceModel("gb", sources, np.asarray(gb.coefs_, float), mu, float(nu * nu / np.sum(w)),
-                                 a, nu, depth, d, info,
+    return scale
+
+
+def _fit_gb(fit: _Fit, damping, noise_scale, max_exact_sources: int, window_m, std_window_m,
+            random_state: int) -> EquivalentSourceModel:
+    """Gradient-boosted mean (harmonica's ``EquivalentSourcesGB``), std from local windows."""
+    import harmonica as hm  # heavy (~1.4 s with verde/xarray): only when a continuation is fitted
+
+    d = fit.data
+    e, n, h, s = d["easting_m"], d["northing_m"], d["height_m"], d["std_mgal"]
+    a, nu = _gb_hyperparameters(fit, damping, noise_scale, max_exact_sources)
+    if window_m is None:
+        win = min(10.0 * fit.spacing_m, 0.5 * min(np.ptp(e), np.ptp(n)))
+    else:
+        win = float(window_m)
+    gb = hm.EquivalentSourcesGB(damping=a, points=fit.sources, window_size=win, random_state=random_state)
+    gb.fit((e, n, h), fit.residual, weights=1.0 / (nu * s) ** 2)
+    scale = _jacobian_column_scales(e, n, h, fit.sources)
+    tile = max(2.0 * fit.spacing_m, 2000.0)
+    std_win = float(std_window_m) if std_window_m is not None else 4.0 * fit.depth_m + tile
+    fit.info.update(window_m=win, std_tile_m=tile, std_window_m=std_win,
+                    gb_rmse_first_last=[float(gb.rmse_per_iteration_[0]), float(gb.rmse_per_iteration_[-1])])
+    return EquivalentSourceModel("gb", fit.sources, np.asarray(gb.coefs_, float), fit.mean_mgal,
+                                 float(nu * nu / fit.sum_weights), a, nu, fit.depth_m, d, fit.info,
                                  _local={"tile_m": tile, "window_m": std_win, "scale": scale})
 
 
 def _optimise_alpha_only(post: _Posterior, nu: float):
-    from scipy.optimize import minimize_scalar
-
     ln = np.log(nu)
     grid = np.linspace(np.log(1e-8), np.log(1e4), 25)
     vals = [post.log_evidence(x, ln) for x in grid]
@@ -448,8 +488,6 @@ def draped_datum_height_m(easting_m, northing_m, line_easting_m, line_northing_m
 
     Useful for ``datum = "draped"``: predict the anomaly at ``(e, n, draped_datum_height_m(e, n, …))``.
     """
-    from scipy.spatial import cKDTree
-
     le, ln, lh = (np.asarray(v, dtype=float).ravel() for v in (line_easting_m, line_northing_m, line_height_m))
     e, n = np.broadcast_arrays(np.asarray(easting_m, float), np.asarray(northing_m, float))
     tree = cKDTree(np.column_stack([le, ln]))

@@ -29,10 +29,13 @@ Units: coordinates km, times s, anomalies and drifts mGal.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 from scipy.spatial import cKDTree
+
+from app.core.gridding import single_thread_blas
 
 KINDS = ("main", "tie", "repeat")
 CROSSOVER_COLUMNS = ["line_a", "line_b", "easting_km", "northing_km", "time_a", "time_b",
@@ -132,6 +135,33 @@ def find_crossovers(lines: dict[str, LineTrack], *, include_repeat: bool = False
     if decimate_km <= 0:
         raise ValueError("decimate_km must be positive")
     names = [k for k, v in lines.items() if include_repeat or v.kind != "repeat"]
+    empty = pd.DataFrame({c: pd.Series(dtype=object if c.startswith("line") else float)
+                          for c in CROSSOVER_COLUMNS})
+    segs = _line_segments(lines, names, decimate_km)
+    if len(names) < 2 or segs.line.size == 0:
+        return empty
+    hits = _intersections(segs, _candidate_pairs(segs))
+    if hits is None:
+        return empty
+    return _crossover_frame(lines, names, segs, hits)
+
+
+class _Segments(NamedTuple):
+    """The decimated polylines of all lines as one set of segments (global arrays)."""
+
+    line: np.ndarray       # (S,) index into ``names`` of each segment's line
+    i0: np.ndarray         # (S,) full-rate index of the segment's start vertex
+    i1: np.ndarray         # (S,) and of its end vertex
+    p0: np.ndarray         # (S, 2) start point (km)
+    p1: np.ndarray         # (S, 2) end point (km)
+    time: list             # per line: full-rate time_s
+    dg: list               # per line: full-rate dg_mgal
+    std: list              # per line: full-rate dg_std_mgal
+
+
+def _line_segments(lines: dict[str, LineTrack], names: list[str], decimate_km: float) -> _Segments:
+    """Decimated segments of every named line, without the segments that bridge a data gap
+    (longer than ``max(3·decimate_km, 5×`` the line's median sample step``)``)."""
     seg_line, seg_i0, seg_i1 = [], [], []
     for li, name in enumerate(names):
         tr = lines[name]
@@ -146,36 +176,55 @@ def find_crossovers(lines: dict[str, LineTrack], *, include_repeat: bool = False
         seg_line.append(np.full(int(good.sum()), li))
         seg_i0.append(idx[:-1][good])
         seg_i1.append(idx[1:][good])
-    empty = pd.DataFrame({c: pd.Series(dtype=object if c.startswith("line") else float)
-                          for c in CROSSOVER_COLUMNS})
-    if len(names) < 2:
-        return empty
-    seg_line = np.concatenate(seg_line)
-    if seg_line.size == 0:
-        return empty
-    seg_i0 = np.concatenate(seg_i0)
-    seg_i1 = np.concatenate(seg_i1)
-    # segment end points (global arrays)
-    ex = [lines[n].easting_km for n in names]
-    ny = [lines[n].northing_km for n in names]
+    if names:
+        seg_line, seg_i0, seg_i1 = np.concatenate(seg_line), np.concatenate(seg_i0), np.concatenate(seg_i1)
+    else:
+        seg_line = seg_i0 = seg_i1 = np.zeros(0, dtype=np.int64)
     p0 = np.empty((seg_line.size, 2))
     p1 = np.empty((seg_line.size, 2))
-    for li in range(len(names)):
+    for li, name in enumerate(names):
         m = seg_line == li
-        p0[m, 0] = ex[li][seg_i0[m]]
-        p0[m, 1] = ny[li][seg_i0[m]]
-        p1[m, 0] = ex[li][seg_i1[m]]
-        p1[m, 1] = ny[li][seg_i1[m]]
-    length = np.hypot(*(p1 - p0).T)
-    mid = 0.5 * (p0 + p1)
+        p0[m, 0] = lines[name].easting_km[seg_i0[m]]
+        p0[m, 1] = lines[name].northing_km[seg_i0[m]]
+        p1[m, 0] = lines[name].easting_km[seg_i1[m]]
+        p1[m, 1] = lines[name].northing_km[seg_i1[m]]
+    return _Segments(seg_line, seg_i0, seg_i1, p0, p1, [lines[n].time_s for n in names],
+                     [lines[n].dg_mgal for n in names], [lines[n].dg_std_mgal for n in names])
+
+
+def _candidate_pairs(segs: _Segments) -> np.ndarray:
+    """Pairs ``(i, j)`` of segments of different lines whose midpoints are closer than the
+    longest segment (two segments of length ≤ L that intersect have midpoints closer than L)."""
+    length = np.hypot(*(segs.p1 - segs.p0).T)
+    mid = 0.5 * (segs.p0 + segs.p1)
     r = float(length.max()) * 1.0000001 + 1e-12
     pairs = cKDTree(mid).query_pairs(r, output_type="ndarray")
     if pairs.size == 0:
-        return empty
+        return np.zeros((0, 2), dtype=np.int64)
+    return pairs[segs.line[pairs[:, 0]] != segs.line[pairs[:, 1]]]
+
+
+class _Hits(NamedTuple):
+    """Segment pairs that intersect and where."""
+
+    i: np.ndarray          # segment of the first line
+    j: np.ndarray          # segment of the second line
+    u: np.ndarray          # crossing parameter along segment i, in [0, 1]
+    v: np.ndarray          # and along segment j
+    easting_km: np.ndarray
+    northing_km: np.ndarray
+
+
+def _intersections(segs: _Segments, pairs: np.ndarray) -> _Hits | None:
+    """Exact intersections ``p0i + u (p1i − p0i) = p0j + v (p1j − p0j)`` of the candidate pairs.
+
+    Parameter intervals are half-open so a crossing on a shared vertex counts once; the last
+    segment of a line is closed.  None when nothing intersects.
+    """
+    if pairs.size == 0:
+        return None
     i, j = pairs[:, 0], pairs[:, 1]
-    keep = seg_line[i] != seg_line[j]
-    i, j = i[keep], j[keep]
-    # exact intersection p0i + u (p1i - p0i) = p0j + v (p1j - p0j)
+    p0, p1 = segs.p0, segs.p1
     di = p1[i] - p0[i]
     dj = p1[j] - p0[j]
     w = p0[j] - p0[i]
@@ -183,37 +232,51 @@ def find_crossovers(lines: dict[str, LineTrack], *, include_repeat: bool = False
     with np.errstate(divide="ignore", invalid="ignore"):
         u = (w[:, 0] * dj[:, 1] - w[:, 1] * dj[:, 0]) / den
         v = (w[:, 0] * di[:, 1] - w[:, 1] * di[:, 0]) / den
-    # half-open parameter intervals so a crossing on a shared vertex counts once;
-    # the last segment of a line is closed.
-    last_i = (seg_i1[i] == np.array([lines[names[k]].time_s.size - 1 for k in seg_line[i]]))
-    last_j = (seg_i1[j] == np.array([lines[names[k]].time_s.size - 1 for k in seg_line[j]]))
+    last_i = (segs.i1[i] == np.array([segs.time[k].size - 1 for k in segs.line[i]]))
+    last_j = (segs.i1[j] == np.array([segs.time[k].size - 1 for k in segs.line[j]]))
     ok = (np.abs(den) > 1e-15) & (u >= 0) & (v >= 0) & ((u < 1) | (last_i & (u <= 1))) \
         & ((v < 1) | (last_j & (v <= 1)))
     i, j, u, v = i[ok], j[ok], u[ok], v[ok]
     if i.size == 0:
-        return empty
+        return None
     xe = p0[i, 0] + u * di[ok][:, 0]
     xn = p0[i, 1] + u * di[ok][:, 1]
+    return _Hits(i, j, u, v, xe, xn)
 
-    def _sample(seg, par):
-        t = np.empty(seg.size)
-        g = np.empty(seg.size)
-        s = np.empty(seg.size)
-        for k in np.unique(seg_line[seg]):
-            m = seg_line[seg] == k
-            tr = lines[names[k]]
-            t0 = tr.time_s[seg_i0[seg[m]]]
-            t1 = tr.time_s[seg_i1[seg[m]]]
-            tk = t0 + par[m] * (t1 - t0)
-            t[m] = tk
-            g[m] = np.interp(tk, tr.time_s, tr.dg_mgal)
-            s[m] = np.interp(tk, tr.time_s, tr.dg_std_mgal)
-        return t, g, s
 
-    ta, ga, sa = _sample(i, u)
-    tb, gb, sb = _sample(j, v)
-    la = np.array(names, dtype=object)[seg_line[i]]
-    lb = np.array(names, dtype=object)[seg_line[j]]
+class _LineValues(NamedTuple):
+    """A line's time, anomaly and std at crossings."""
+
+    time: np.ndarray
+    dg: np.ndarray
+    std: np.ndarray
+
+
+def _values_at(segs: _Segments, seg: np.ndarray, par: np.ndarray) -> _LineValues:
+    """Time interpolated linearly along each decimated segment at parameter ``par``, and the
+    full-rate ``dg`` and ``dg_std`` interpolated at that time."""
+    t = np.empty(seg.size)
+    g = np.empty(seg.size)
+    s = np.empty(seg.size)
+    for k in np.unique(segs.line[seg]):
+        m = segs.line[seg] == k
+        time_s = segs.time[k]
+        t0 = time_s[segs.i0[seg[m]]]
+        t1 = time_s[segs.i1[seg[m]]]
+        tk = t0 + par[m] * (t1 - t0)
+        t[m] = tk
+        g[m] = np.interp(tk, time_s, segs.dg[k])
+        s[m] = np.interp(tk, time_s, segs.std[k])
+    return _LineValues(t, g, s)
+
+
+def _crossover_frame(lines: dict[str, LineTrack], names: list[str], segs: _Segments, hits: _Hits) -> pd.DataFrame:
+    """The crossover table, ``line_a`` of the higher-priority kind (main < tie < repeat, ties
+    broken by id order), sorted by ``line_a, line_b, time_a``."""
+    ta, ga, sa = _values_at(segs, hits.i, hits.u)
+    tb, gb, sb = _values_at(segs, hits.j, hits.v)
+    la = np.array(names, dtype=object)[segs.line[hits.i]]
+    lb = np.array(names, dtype=object)[segs.line[hits.j]]
     prio = {k: n for n, k in enumerate(KINDS)}
     ka = np.array([prio[lines[n].kind] for n in la])
     kb = np.array([prio[lines[n].kind] for n in lb])
@@ -222,7 +285,7 @@ def find_crossovers(lines: dict[str, LineTrack], *, include_repeat: bool = False
     swap = (kb < ka) | ((kb == ka) & (order_b < order_a))
     df = pd.DataFrame({
         "line_a": np.where(swap, lb, la), "line_b": np.where(swap, la, lb),
-        "easting_km": xe, "northing_km": xn,
+        "easting_km": hits.easting_km, "northing_km": hits.northing_km,
         "time_a": np.where(swap, tb, ta), "time_b": np.where(swap, ta, tb),
         "dg_a": np.where(swap, gb, ga), "dg_b": np.where(swap, ga, gb),
         "std_a": np.where(swap, sb, sa), "std_b": np.where(swap, sa, sb),
@@ -383,6 +446,37 @@ def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 
         No crossovers, bad degree, unknown reference line, a crossover line
         missing from ``line_time_ranges``, or zero weights.
     """
+    _check_leveling_args(crossovers, degree, sigma0_mgal, slope_scale)
+    obs = _crossover_observations(crossovers, sigma0_mgal)
+    units = _drift_units(line_time_ranges, obs, groups)
+    involved = sorted(set(units.unit_a) | set(units.unit_b))
+    if reference is not None and reference != "min-norm" and str(reference) not in involved:
+        raise ValueError(f"reference line/group {reference!r} has no crossovers")
+    ref = None if reference in (None, "min-norm") else str(reference)
+    layout = _column_layout(units, involved, degree, ref)
+    A = _design_matrix(units, obs, layout)
+    x = _weighted_min_norm(A, obs, layout, slope_scale, rcond)
+    coefs = {}
+    for n in involved:
+        if n == ref:
+            coefs[n] = np.zeros(layout.degrees[n] + 1)
+        else:
+            o = layout.offsets[n]
+            coefs[n] = x[o:o + layout.degrees[n] + 1].copy()
+    nx = obs.diff.size
+    model = A.dot(x) if layout.ncol else np.zeros(nx)
+    diff_after = np.full(obs.diff_all.size, np.nan)
+    diff_after[obs.keep] = obs.diff - model
+    unleveled = sorted(ln for ln, u in units.unit_of.items() if u not in involved)
+    return LevelingResult(coefs=coefs, degrees=layout.degrees, time_ranges=units.ranges, unit_of=units.unit_of,
+                          rms_before=_rms(obs.diff), rms_after=_rms(diff_after),
+                          diff_before=obs.diff_all, diff_after=diff_after, reference=ref,
+                          sigma0_mgal=float(sigma0_mgal), n_crossovers=int(nx),
+                          unleveled_lines=unleveled)
+
+
+def _check_leveling_args(crossovers, degree: int, sigma0_mgal: float, slope_scale: float) -> None:
+    """The argument checks of :func:`level_lines` that need no computation."""
     if degree not in (0, 1, 2):
         raise ValueError(f"degree must be 0, 1 or 2, got {degree}")
     if crossovers is None or len(crossovers) == 0:
@@ -395,6 +489,23 @@ def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 
         raise ValueError("sigma0_mgal must be >= 0")
     if not slope_scale > 0:
         raise ValueError("slope_scale must be > 0")
+
+
+class _Observations(NamedTuple):
+    """The usable crossovers (finite difference, variance and times)."""
+
+    line_a: np.ndarray     # line ids
+    line_b: np.ndarray
+    time_a: np.ndarray     # s
+    time_b: np.ndarray
+    diff: np.ndarray       # dg_a − dg_b (mGal)
+    var: np.ndarray        # std_a² + std_b² + σ0² (mGal²)
+    keep: np.ndarray       # (len(crossovers),) bool: which rows these are
+    diff_all: np.ndarray   # dg_a − dg_b of every row (NaN kept)
+
+
+def _crossover_observations(crossovers: pd.DataFrame, sigma0_mgal: float) -> _Observations:
+    """Differences and their variances at the crossovers with finite values."""
     la = crossovers["line_a"].astype(str).to_numpy()
     lb = crossovers["line_b"].astype(str).to_numpy()
     ta = crossovers["time_a"].to_numpy(float)
@@ -409,8 +520,23 @@ def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 
     la, lb, ta, tb, diff, var = (a[keep] for a in (la, lb, ta, tb, diff, var))
     if np.any(var <= 0):
         raise ValueError("zero crossover variance: give sigma0_mgal > 0")
+    return _Observations(la, lb, ta, tb, diff, var, keep, diff_all)
+
+
+class _DriftUnits(NamedTuple):
+    """Drift units (a line, or a group of lines sharing one polynomial) and their time spans."""
+
+    unit_of: dict          # line -> unit
+    ranges: dict           # unit -> (t0, t1) (s)
+    unit_a: np.ndarray     # unit of each usable crossover's line_a
+    unit_b: np.ndarray     # and of its line_b
+
+
+def _drift_units(line_time_ranges: dict, obs: _Observations, groups: dict | None) -> _DriftUnits:
+    """Every line's drift unit (``groups`` maps a line to its group; others are their own unit)
+    and each unit's time span (the union of its lines'); the crossovers' lines must have one."""
     line_ranges = {str(k): (float(v[0]), float(v[1])) for k, v in line_time_ranges.items()}
-    for name in sorted(set(la) | set(lb)):
+    for name in sorted(set(obs.line_a) | set(obs.line_b)):
         if name not in line_ranges:
             raise ValueError(f"line {name!r} of the crossovers has no time range")
         if not line_ranges[name][1] > line_ranges[name][0]:
@@ -421,67 +547,66 @@ def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 
     for ln, u in unit_of.items():
         t0, t1 = line_ranges[ln]
         ranges[u] = (min(t0, ranges[u][0]), max(t1, ranges[u][1])) if u in ranges else (t0, t1)
-    la = np.array([unit_of[x] for x in la], dtype=object)
-    lb = np.array([unit_of[x] for x in lb], dtype=object)
-    involved = sorted(set(la) | set(lb))
-    if reference is not None and reference != "min-norm" and str(reference) not in involved:
-        raise ValueError(f"reference line/group {reference!r} has no crossovers")
-    ref = None if reference in (None, "min-norm") else str(reference)
+    return _DriftUnits(unit_of, ranges, np.array([unit_of[x] for x in obs.line_a], dtype=object),
+                       np.array([unit_of[x] for x in obs.line_b], dtype=object))
 
-    counts = pd.Series(np.concatenate([la, lb])).value_counts()
+
+class _ColumnLayout(NamedTuple):
+    """Columns of the design matrix: ``degrees[u] + 1`` per unit from ``offsets[u]``; the
+    reference unit has none (zero drift)."""
+
+    ref: str | None
+    degrees: dict          # unit -> degree used
+    offsets: dict          # unit -> first column
+    ncol: int
+
+
+def _column_layout(units: _DriftUnits, involved: list, degree: int, ref: str | None) -> _ColumnLayout:
+    """Degrees (reduced to ``n_crossings − 2``, never below 0) and column offsets per unit."""
+    counts = pd.Series(np.concatenate([units.unit_a, units.unit_b])).value_counts()
     degrees = {n: int(max(0, min(degree, counts[n] - 2))) for n in involved}
-    # column offsets; the reference line has no columns (zero drift)
     offsets, ncol = {}, 0
     for n in involved:
         if n == ref:
             continue
         offsets[n] = ncol
         ncol += degrees[n] + 1
-    nx = diff.size
-    A = np.zeros((nx, max(ncol, 1)))
-    rows = np.arange(nx)
+    return _ColumnLayout(ref, degrees, offsets, ncol)
 
-    def _fill(names, times, sign):
+
+def _design_matrix(units: _DriftUnits, obs: _Observations, layout: _ColumnLayout) -> np.ndarray:
+    """``A`` with ``A x = d_a(t_a) − d_b(t_b)`` at every usable crossover (power basis in each
+    unit's normalised time); at least one column."""
+    nx = obs.diff.size
+    A = np.zeros((nx, max(layout.ncol, 1)))
+    rows = np.arange(nx)
+    for names, times, sign in ((units.unit_a, obs.time_a, 1.0), (units.unit_b, obs.time_b, -1.0)):
         for n in np.unique(names):
-            if n == ref:
+            if n == layout.ref:
                 continue
             m = names == n
-            t0, t1 = ranges[n]
+            t0, t1 = units.ranges[n]
             tau = 2.0 * (times[m] - t0) / (t1 - t0) - 1.0
-            B = _basis(tau, degrees[n])
-            o = offsets[n]
+            B = _basis(tau, layout.degrees[n])
+            o = layout.offsets[n]
             A[rows[m], o:o + B.shape[1]] += sign * B
+    return A
 
-    _fill(la, ta, 1.0)
-    _fill(lb, tb, -1.0)
-    w = 1.0 / np.sqrt(var)
+
+def _weighted_min_norm(A: np.ndarray, obs: _Observations, layout: _ColumnLayout, slope_scale: float,
+                       rcond: float) -> np.ndarray:
+    """Weighted least squares, minimum norm with the τ^j (j ≥ 1) columns scaled by
+    ``slope_scale`` (truncated SVD, ``rcond``); zeros when there is no column."""
+    if not layout.ncol:
+        return np.zeros(1)
+    w = 1.0 / np.sqrt(obs.var)
     # column scales of the weighted minimum norm: 1 for constants, slope_scale for τ^j, j ≥ 1
-    scale = np.ones(max(ncol, 1))
-    for n, o in offsets.items():
-        scale[o + 1:o + degrees[n] + 1] = slope_scale
-    if ncol:
-        from app.core.gridding import single_thread_blas
-
-        with single_thread_blas():  # small dense problem: threads only contend
-            z, *_ = np.linalg.lstsq(A * w[:, None] * scale[None, :], diff * w, rcond=rcond)
-        x = scale * z
-    else:
-        x = np.zeros(1)
-    coefs = {}
-    for n in involved:
-        if n == ref:
-            coefs[n] = np.zeros(degrees[n] + 1)
-        else:
-            coefs[n] = x[offsets[n]:offsets[n] + degrees[n] + 1].copy()
-    model = A.dot(x) if ncol else np.zeros(nx)
-    diff_after = np.full(diff_all.size, np.nan)
-    diff_after[keep] = diff - model
-    unleveled = sorted(ln for ln, u in unit_of.items() if u not in involved)
-    return LevelingResult(coefs=coefs, degrees=degrees, time_ranges=ranges, unit_of=unit_of,
-                          rms_before=_rms(diff), rms_after=_rms(diff_after),
-                          diff_before=diff_all, diff_after=diff_after, reference=ref,
-                          sigma0_mgal=float(sigma0_mgal), n_crossovers=int(nx),
-                          unleveled_lines=unleveled)
+    scale = np.ones(max(layout.ncol, 1))
+    for n, o in layout.offsets.items():
+        scale[o + 1:o + layout.degrees[n] + 1] = slope_scale
+    with single_thread_blas():  # small dense problem: threads only contend
+        z, *_ = np.linalg.lstsq(A * w[:, None] * scale[None, :], obs.diff * w, rcond=rcond)
+    return scale * z
 
 
 def crossover_table(crossovers: pd.DataFrame, result: LevelingResult) -> pd.DataFrame:

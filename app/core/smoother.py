@@ -39,20 +39,20 @@ Two groups of functions:
   *before* the measurement ``z_0`` is used (no prediction step at k = 0).
 
 * Generic linear-Gaussian models ``x_k = A x_{k−1} + u_k + w_k``,
-  ``z_k = C x_k + v_k``: :func:`kalman_filter`, :func:`rts_smooth`,
-  :func:`two_filter_smooth` (plain numpy, meant for small problems such as the
-  seed-002 experiment).
+  ``z_k = C x_k + v_k``: :func:`kalman_filter`, :func:`rts_smooth` (plain numpy,
+  meant for small problems and as the reference the tests compare with; the seed-002
+  two-filter smoother built on them is in :mod:`app.research.two_filter`).
 
 References: Bierman, G. J. (1973), "Fixed interval smoothing with discrete
 measurements", Int. J. Control 18(1); Rauch, Tung & Striebel (1965), AIAA J.
-3(8); Fraser & Potter (1969), IEEE TAC 14(4).
+3(8).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from math import comb
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 from numba import njit
@@ -1025,7 +1025,43 @@ def _white_level(noise, dt_s) -> float | None:
 # ---------------------------------------------------------------------------
 
 
-def _generic_inputs(A, Qmat, C, Rmeas, z, x0, P0, u):
+class GenericModel(NamedTuple):
+    """Checked inputs of the generic smoothers (:func:`generic_model_inputs`).
+
+    Attributes
+    ----------
+    A : ndarray, shape (n, n)
+    Q : ndarray, shape (T, n, n)
+        Process noise covariance per step (broadcast when one was given).
+    C : ndarray, shape (p, n)
+    R : ndarray, shape (T, p, p)
+        Measurement noise covariance per epoch.
+    z : ndarray, shape (T, p)
+    x0 : ndarray, shape (n,)
+    P0 : ndarray, shape (n, n)
+    u : ndarray, shape (T, n)
+        Known input (zeros when none was given).
+    """
+
+    A: np.ndarray
+    Q: np.ndarray
+    C: np.ndarray
+    R: np.ndarray
+    z: np.ndarray
+    x0: np.ndarray
+    P0: np.ndarray
+    u: np.ndarray
+
+
+def generic_model_inputs(A, Qmat, C, Rmeas, z, x0, P0, u) -> GenericModel:
+    """Check and shape the arguments of :func:`kalman_filter` (see there).
+
+    Raises
+    ------
+    ValueError
+        Non-square ``A``, ``C`` with the wrong number of columns, ``z`` not (T, p),
+        fewer than 2 epochs, covariances or ``u`` of the wrong shape.
+    """
     A = np.atleast_2d(np.asarray(A, dtype=float))
     n = A.shape[0]
     if A.shape != (n, n):
@@ -1067,10 +1103,52 @@ def _generic_inputs(A, Qmat, C, Rmeas, z, x0, P0, u):
             u = u[:, None]
         if u.shape != (N, n):
             raise ValueError(f"u must have shape ({N}, {n}), got {u.shape}")
-    return A, Qm, C, Rm, z, x0, P0, u
+    return GenericModel(A, Qm, C, Rm, z, x0, P0, u)
 
 
-def kalman_filter(A, Qmat, C, Rmeas, z, x0, P0, u=None):
+class FilteredStates(NamedTuple):
+    """Result of :func:`kalman_filter` (unpacks as ``xf, Pf, xp, Pp, loglik``).
+
+    Attributes
+    ----------
+    xf : ndarray, shape (T, n)
+        Filtered means.
+    Pf : ndarray, shape (T, n, n)
+        Filtered covariances.
+    xp : ndarray, shape (T, n)
+        Predicted means (``xp[0] = x0``).
+    Pp : ndarray, shape (T, n, n)
+        Predicted covariances (``Pp[0] = P0``).
+    loglik : float
+        Innovations log-likelihood.
+    """
+
+    xf: np.ndarray
+    Pf: np.ndarray
+    xp: np.ndarray
+    Pp: np.ndarray
+    loglik: float
+
+
+class SmoothedStates(NamedTuple):
+    """Result of :func:`rts_smooth` (unpacks as ``xs, Ps, loglik``).
+
+    Attributes
+    ----------
+    xs : ndarray, shape (T, n)
+        Smoothed means.
+    Ps : ndarray, shape (T, n, n)
+        Smoothed covariances.
+    loglik : float
+        Innovations log-likelihood of the forward filter.
+    """
+
+    xs: np.ndarray
+    Ps: np.ndarray
+    loglik: float
+
+
+def kalman_filter(A, Qmat, C, Rmeas, z, x0, P0, u=None) -> FilteredStates:
     """Kalman filter for ``x_k = A x_{k−1} + u_k + w_k``, ``z_k = C x_k + v_k``.
 
     Parameters
@@ -1082,10 +1160,11 @@ def kalman_filter(A, Qmat, C, Rmeas, z, x0, P0, u=None):
 
     Returns
     -------
-    xf (T, n), Pf (T, n, n), xp (T, n), Pp (T, n, n), loglik (float).
-    The update uses the Joseph form.
+    FilteredStates
+        ``xf (T, n), Pf (T, n, n), xp (T, n), Pp (T, n, n), loglik (float)``.
+        The update uses the Joseph form.
     """
-    A, Qm, C, Rm, z, x0, P0, u = _generic_inputs(A, Qmat, C, Rmeas, z, x0, P0, u)
+    A, Qm, C, Rm, z, x0, P0, u = generic_model_inputs(A, Qmat, C, Rmeas, z, x0, P0, u)
     N, n = z.shape[0], A.shape[0]
     xf = np.empty((N, n)); Pf = np.empty((N, n, n))
     xp = np.empty((N, n)); Pp = np.empty((N, n, n))
@@ -1109,10 +1188,10 @@ def kalman_filter(A, Qmat, C, Rmeas, z, x0, P0, u=None):
             sign, logdet = np.linalg.slogdet(S)
             ll -= 0.5 * (len(nu) * _LOG_2PI + logdet + nu @ np.linalg.solve(S, nu))
         xf[k], Pf[k] = x, P
-    return xf, Pf, xp, Pp, float(ll)
+    return FilteredStates(xf, Pf, xp, Pp, float(ll))
 
 
-def rts_smooth(A, Qmat, C, Rmeas, z, x0, P0, u=None):
+def rts_smooth(A, Qmat, C, Rmeas, z, x0, P0, u=None) -> SmoothedStates:
     """Rauch–Tung–Striebel fixed-interval smoother for a generic linear-Gaussian model.
 
     Same arguments as :func:`kalman_filter`.  The gain ``G = P_k Aᵀ (P⁻_{k+1})⁻¹`` uses a
@@ -1120,7 +1199,8 @@ def rts_smooth(A, Qmat, C, Rmeas, z, x0, P0, u=None):
 
     Returns
     -------
-    xs (T, n), Ps (T, n, n), loglik (float).
+    SmoothedStates
+        ``xs (T, n), Ps (T, n, n), loglik (float)``.
     """
     A = np.atleast_2d(np.asarray(A, dtype=float))
     xf, Pf, xp, Pp, ll = kalman_filter(A, Qmat, C, Rmeas, z, x0, P0, u)
@@ -1132,60 +1212,4 @@ def rts_smooth(A, Qmat, C, Rmeas, z, x0, P0, u=None):
         xs[k] = xf[k] + G @ (xs[k + 1] - xp[k + 1])
         Pk = Pf[k] + G @ (Ps[k + 1] - Pp[k + 1]) @ G.T
         Ps[k] = 0.5 * (Pk + Pk.T)
-    return xs, Ps, ll
-
-
-def two_filter_smooth(A, Qmat, C, Rmeas, z, x0, P0, u=None):
-    """Two-filter (Fraser–Potter) fixed-interval smoother.
-
-    Forward: Kalman filter (:func:`kalman_filter`).  Backward: an information filter
-    run from k = T−1 down to 0 with no prior information at the end, carrying the
-    information matrix ``I_k`` and vector ``i_k`` of the measurements ``z_{k+1..T−1}``
-    about ``x_k``.  The backward prediction is written as
-    ``I_{k} = Aᵀ (I + M Q)⁻¹ M A``, ``i_k = Aᵀ (I + M Q)⁻¹ (j − M u_{k+1})`` with
-    ``M, j`` the information after using ``z_{k+1}``, which avoids the inverses of
-    ``A``, of ``Q`` and of the (possibly singular) information matrix; the fusion is
-    ``P_s = (I + P_f I_B)⁻¹ P_f``, ``x_s = (I + P_f I_B)⁻¹ (x_f + P_f i_B)``, which avoids
-    the inverse of the filtered covariance.  The classical form of seed 002 inverts
-    ``A`` in the backward model; this form gives the same numbers where that one
-    exists.
-
-    Same arguments as :func:`kalman_filter`; ``Rmeas`` must be positive definite (the
-    backward information update uses ``Cᵀ R⁻¹ C``), so the seed-000 model, which has no
-    measurement noise, is smoothed with :func:`kalman_smooth` instead.
-
-    Returns
-    -------
-    xs (T, n), Ps (T, n, n), loglik (float) of the forward filter.
-    """
-    A, Qm, C, Rm, zz, x0v, P0v, uu = _generic_inputs(A, Qmat, C, Rmeas, z, x0, P0, u)
-    if np.any(np.linalg.eigvalsh(np.asarray(Rm)) <= 0.0):
-        raise ValueError("two_filter_smooth needs a positive definite measurement covariance "
-                         "(the backward information filter uses R⁻¹); use the Bryson–Frazier "
-                         "or RTS smoother for models without measurement noise")
-    xf, Pf, _, _, ll = kalman_filter(A, Qmat, C, Rmeas, z, x0, P0, u)
-    N, n = xf.shape
-    I = np.eye(n)
-    IB = np.zeros((n, n))  # information about x_k from z_{k+1..}
-    iB = np.zeros(n)
-    xs = np.empty_like(xf); Ps = np.empty_like(Pf)
-    for k in range(N - 1, -1, -1):
-        # fuse
-        F = I + Pf[k] @ IB
-        Psk = np.linalg.solve(F, Pf[k])
-        Ps[k] = 0.5 * (Psk + Psk.T)
-        xs[k] = np.linalg.solve(F, xf[k] + Pf[k] @ iB)
-        if k == 0:
-            break
-        # add z_k
-        M = IB.copy(); j = iB.copy()
-        if np.all(np.isfinite(zz[k])):
-            CtRi = np.linalg.solve(Rm[k], C).T  # Cᵀ R⁻¹ (R symmetric)
-            M = M + CtRi @ C
-            j = j + CtRi @ zz[k]
-        # predict backwards to k−1 through x_k = A x_{k−1} + u_k + w_k
-        W = np.linalg.solve(I + M @ Qm[k], np.column_stack([M, j - M @ uu[k]]))
-        IB = A.T @ W[:, :n] @ A
-        IB = 0.5 * (IB + IB.T)
-        iB = A.T @ W[:, n]
-    return xs, Ps, ll
+    return SmoothedStates(xs, Ps, ll)

@@ -25,9 +25,17 @@ no bands, heights outside −12 000 … 9 000 m (the first offending pixel), a t
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
+import rasterio
+from pyproj import Transformer
+from rasterio.crs import CRS
+from rasterio.errors import RasterioIOError
+from rasterio.transform import from_origin
+from rasterio.warp import Resampling, calculate_default_transform, reproject, transform_bounds
 
 from app.core.terrain import Dem
 from app.io.errors import InputError
@@ -54,73 +62,19 @@ def read_dem(path, crs: str, bounds_m=None, spacing_m: float | None = None, marg
         ``info`` = source CRS, size and resolution, target spacing, resampling, offset,
         fraction of cells with data.
     """
-    import rasterio
-    from rasterio.crs import CRS
-    from rasterio.errors import RasterioIOError
-    from rasterio.transform import from_origin
-    from rasterio.warp import Resampling, reproject, transform_bounds
-
     name = _display(path, display)
     if resampling not in _RESAMPLING:
         raise InputError(name, None, "resampling", f"resampling must be one of {', '.join(_RESAMPLING)}, "
                                                    f"not {resampling!r}")
-    try:
-        dst_crs = CRS.from_user_input(crs)
-    except Exception as exc:  # noqa: BLE001 - pyproj/rasterio raise several types
-        raise InputError(name, None, "crs", f"unknown target CRS {crs!r}: {exc}") from None
-    if not dst_crs.is_projected:
-        raise InputError(name, None, "crs", f"the target CRS {crs!r} is not projected (metres needed)")
+    dst_crs = _target_crs(crs, name)
     try:
         src = rasterio.open(Path(path))
     except (RasterioIOError, OSError) as exc:
         raise InputError(name, None, None, f"not a raster GDAL can read (GeoTIFF expected): {exc}") from None
     with src:
-        if src.count < 1:
-            raise InputError(name, None, "band 1", "the raster has no bands")
-        if src.crs is None:
-            raise InputError(name, None, "crs", "the DEM has no coordinate reference system; "
-                                                "write one into the GeoTIFF (e.g. gdal_edit.py -a_srs)")
-        data = src.read(1, masked=True).astype(float).filled(np.nan)
-        data[~np.isfinite(data)] = np.nan
-        bad = np.isfinite(data) & ((data < HEIGHT_RANGE_M[0]) | (data > HEIGHT_RANGE_M[1]))
-        if bad.any():
-            r, c = (int(v) for v in np.argwhere(bad)[0])
-            raise InputError(name, r + 1, "band 1",
-                             f"height {data[r, c]:.6g} m at pixel row {r + 1}, column {c + 1} is outside "
-                             f"{HEIGHT_RANGE_M[0]:g} … {HEIGHT_RANGE_M[1]:g} m (heights must be metres)")
-        if not np.isfinite(data).any():
-            raise InputError(name, None, "band 1", "the DEM holds no data (every pixel is nodata)")
-        src_bounds = transform_bounds(src.crs, dst_crs, *src.bounds, densify_pts=21)  # (w, s, e, n)
-        if spacing_m is None:
-            from rasterio.warp import calculate_default_transform
-            tr, _, _ = calculate_default_transform(src.crs, dst_crs, src.width, src.height, *src.bounds)
-            spacing_m = float(np.sqrt(abs(tr.a * tr.e)))
-        spacing_m = float(spacing_m)
-        if not np.isfinite(spacing_m) or spacing_m <= 0:
-            raise InputError(name, None, "spacing_m", f"DEM spacing must be a positive number of metres, "
-                                                      f"not {spacing_m}")
-        if bounds_m is None:
-            # the footprint less half a cell: cell centres of an aligned raster stay where they are
-            w, s_, e, n = (src_bounds[0] + spacing_m / 2, src_bounds[1] + spacing_m / 2,
-                           src_bounds[2] - spacing_m / 2, src_bounds[3] - spacing_m / 2)
-        else:
-            w, e, s_, n = (float(v) for v in bounds_m)
-        w, e, s_, n = w - margin_m, e + margin_m, s_ - margin_m, n + margin_m
-        # overlap with the raster's footprint
-        if e <= src_bounds[0] or w >= src_bounds[2] or n <= src_bounds[1] or s_ >= src_bounds[3]:
-            raise InputError(name, None, None,
-                             f"the DEM (covering {src_bounds[0]:.0f}…{src_bounds[2]:.0f} E, "
-                             f"{src_bounds[1]:.0f}…{src_bounds[3]:.0f} N in {crs}) does not overlap the "
-                             f"survey area {w:.0f}…{e:.0f} E, {s_:.0f}…{n:.0f} N")
-        # cell centres on multiples of the spacing
-        x = np.arange(np.floor(w / spacing_m), np.ceil(e / spacing_m) + 1) * spacing_m
-        y = np.arange(np.floor(s_ / spacing_m), np.ceil(n / spacing_m) + 1) * spacing_m
-        if x.size * y.size > MAX_DEM_CELLS:
-            raise InputError(name, None, "spacing_m",
-                             f"the DEM grid would have {x.size} × {y.size} cells (> {MAX_DEM_CELLS:,}); "
-                             f"choose a coarser spacing than {spacing_m:g} m or a smaller area")
-        if x.size < 2 or y.size < 2:
-            raise InputError(name, None, "spacing_m", f"spacing {spacing_m:g} m leaves fewer than 2 × 2 cells")
+        data = _read_heights(src, name)
+        grid = _target_grid(src, dst_crs, crs, bounds_m, spacing_m, margin_m, name)
+        x, y, spacing_m = grid.x, grid.y, grid.spacing_m
         dst = np.full((y.size, x.size), np.nan)
         dst_tr = from_origin(x[0] - spacing_m / 2, y[-1] + spacing_m / 2, spacing_m, spacing_m)
         src_nan = np.where(np.isfinite(data), data, np.nan)
@@ -133,32 +87,111 @@ def read_dem(path, crs: str, bounds_m=None, spacing_m: float | None = None, marg
                 "spacing_m": spacing_m, "resampling": resampling, "height_offset_m": float(height_offset_m),
                 "valid_fraction": float(np.isfinite(heights).mean()), "file": name}
         if require_bounds_m is not None:
-            rw, re_, rs, rn = (float(v) for v in require_bounds_m)
-            X, Y = np.meshgrid(x, y)
-            inside = (X >= rw - spacing_m) & (X <= re_ + spacing_m) & (Y >= rs - spacing_m) & (Y <= rn + spacing_m)
-            hole = inside & ~np.isfinite(heights)
-            if hole.any():
-                j, i = (int(v) for v in np.argwhere(hole)[0])
-                from pyproj import Transformer
-                xs, ys = Transformer.from_crs(dst_crs, src.crs, always_xy=True).transform(x[i], y[j])
-                col, row = ~src.transform @ (xs, ys)
-                row_i, col_i = int(np.floor(row)), int(np.floor(col))
-                where = (f"pixel row {row_i + 1}, column {col_i + 1}"
-                         if 0 <= row_i < src.height and 0 <= col_i < src.width else "outside the raster")
-                raise InputError(name, row_i + 1 if 0 <= row_i < src.height else None, "band 1",
-                                 f"no terrain height under the survey at {x[i]:.0f} E, {y[j]:.0f} N "
-                                 f"({crs}; {where}); {int(hole.sum())} cells of the survey area lack data")
+            _check_coverage(src, dst_crs, crs, x, y, heights, spacing_m, require_bounds_m, name)
     return Dem(x, y, heights, crs=str(crs), info=info)
+
+
+def _target_crs(crs: str, name: str) -> CRS:
+    """The survey's CRS, which must be projected (metres)."""
+    try:
+        dst_crs = CRS.from_user_input(crs)
+    except Exception as exc:  # noqa: BLE001 - pyproj/rasterio raise several types
+        raise InputError(name, None, "crs", f"unknown target CRS {crs!r}: {exc}") from None
+    if not dst_crs.is_projected:
+        raise InputError(name, None, "crs", f"the target CRS {crs!r} is not projected (metres needed)")
+    return dst_crs
+
+
+def _read_heights(src, name: str) -> np.ndarray:
+    """Band 1 in metres, nodata and non-finite values as NaN; the raster must have a CRS, some
+    data and heights within ``HEIGHT_RANGE_M`` (the first offending pixel is named)."""
+    if src.count < 1:
+        raise InputError(name, None, "band 1", "the raster has no bands")
+    if src.crs is None:
+        raise InputError(name, None, "crs", "the DEM has no coordinate reference system; "
+                                            "write one into the GeoTIFF (e.g. gdal_edit.py -a_srs)")
+    data = src.read(1, masked=True).astype(float).filled(np.nan)
+    data[~np.isfinite(data)] = np.nan
+    bad = np.isfinite(data) & ((data < HEIGHT_RANGE_M[0]) | (data > HEIGHT_RANGE_M[1]))
+    if bad.any():
+        r, c = (int(v) for v in np.argwhere(bad)[0])
+        raise InputError(name, r + 1, "band 1",
+                         f"height {data[r, c]:.6g} m at pixel row {r + 1}, column {c + 1} is outside "
+                         f"{HEIGHT_RANGE_M[0]:g} … {HEIGHT_RANGE_M[1]:g} m (heights must be metres)")
+    if not np.isfinite(data).any():
+        raise InputError(name, None, "band 1", "the DEM holds no data (every pixel is nodata)")
+    return data
+
+
+class _TargetGrid(NamedTuple):
+    """Cell-centre axes of the target grid (m, on multiples of the spacing) and the spacing."""
+
+    x: np.ndarray
+    y: np.ndarray
+    spacing_m: float
+
+
+def _target_grid(src, dst_crs, crs: str, bounds_m, spacing_m: float | None, margin_m: float,
+                 name: str) -> _TargetGrid:
+    """The target grid: ``bounds_m`` (or the raster's footprint less half a cell) plus
+    ``margin_m``, ``spacing_m`` (or the raster's resolution at its centre); it must overlap the
+    raster and have between 2 × 2 and ``MAX_DEM_CELLS`` cells."""
+    src_bounds = transform_bounds(src.crs, dst_crs, *src.bounds, densify_pts=21)  # (w, s, e, n)
+    if spacing_m is None:
+        tr, _, _ = calculate_default_transform(src.crs, dst_crs, src.width, src.height, *src.bounds)
+        spacing_m = float(np.sqrt(abs(tr.a * tr.e)))
+    spacing_m = float(spacing_m)
+    if not np.isfinite(spacing_m) or spacing_m <= 0:
+        raise InputError(name, None, "spacing_m", f"DEM spacing must be a positive number of metres, "
+                                                  f"not {spacing_m}")
+    if bounds_m is None:
+        # the footprint less half a cell: cell centres of an aligned raster stay where they are
+        w, s_, e, n = (src_bounds[0] + spacing_m / 2, src_bounds[1] + spacing_m / 2,
+                       src_bounds[2] - spacing_m / 2, src_bounds[3] - spacing_m / 2)
+    else:
+        w, e, s_, n = (float(v) for v in bounds_m)
+    w, e, s_, n = w - margin_m, e + margin_m, s_ - margin_m, n + margin_m
+    # overlap with the raster's footprint
+    if e <= src_bounds[0] or w >= src_bounds[2] or n <= src_bounds[1] or s_ >= src_bounds[3]:
+        raise InputError(name, None, None,
+                         f"the DEM (covering {src_bounds[0]:.0f}…{src_bounds[2]:.0f} E, "
+                         f"{src_bounds[1]:.0f}…{src_bounds[3]:.0f} N in {crs}) does not overlap the "
+                         f"survey area {w:.0f}…{e:.0f} E, {s_:.0f}…{n:.0f} N")
+    # cell centres on multiples of the spacing
+    x = np.arange(np.floor(w / spacing_m), np.ceil(e / spacing_m) + 1) * spacing_m
+    y = np.arange(np.floor(s_ / spacing_m), np.ceil(n / spacing_m) + 1) * spacing_m
+    if x.size * y.size > MAX_DEM_CELLS:
+        raise InputError(name, None, "spacing_m",
+                         f"the DEM grid would have {x.size} × {y.size} cells (> {MAX_DEM_CELLS:,}); "
+                         f"choose a coarser spacing than {spacing_m:g} m or a smaller area")
+    if x.size < 2 or y.size < 2:
+        raise InputError(name, None, "spacing_m", f"spacing {spacing_m:g} m leaves fewer than 2 × 2 cells")
+    return _TargetGrid(x, y, spacing_m)
+
+
+def _check_coverage(src, dst_crs, crs: str, x, y, heights, spacing_m: float, require_bounds_m, name: str) -> None:
+    """Every cell within one spacing of ``require_bounds_m`` has a height; the first hole is
+    named by its raster pixel and target coordinates."""
+    rw, re_, rs, rn = (float(v) for v in require_bounds_m)
+    X, Y = np.meshgrid(x, y)
+    inside = (X >= rw - spacing_m) & (X <= re_ + spacing_m) & (Y >= rs - spacing_m) & (Y <= rn + spacing_m)
+    hole = inside & ~np.isfinite(heights)
+    if not hole.any():
+        return
+    j, i = (int(v) for v in np.argwhere(hole)[0])
+    xs, ys = Transformer.from_crs(dst_crs, src.crs, always_xy=True).transform(x[i], y[j])
+    col, row = ~src.transform @ (xs, ys)
+    row_i, col_i = int(np.floor(row)), int(np.floor(col))
+    where = (f"pixel row {row_i + 1}, column {col_i + 1}"
+             if 0 <= row_i < src.height and 0 <= col_i < src.width else "outside the raster")
+    raise InputError(name, row_i + 1 if 0 <= row_i < src.height else None, "band 1",
+                     f"no terrain height under the survey at {x[i]:.0f} E, {y[j]:.0f} N "
+                     f"({crs}; {where}); {int(hole.sum())} cells of the survey area lack data")
 
 
 def write_dem(path, dem: Dem, dtype: str = "float32", nodata: float = -32768.0) -> Path:
     """Write a :class:`~app.core.terrain.Dem` as a single-band GeoTIFF (north-up, its CRS,
     NaN → ``nodata``).  Written to a temporary name and renamed (atomic)."""
-    import os
-
-    import rasterio
-    from rasterio.transform import from_origin
-
     path = Path(path)
     dx, dy = dem.spacing_m
     w, _, _, n = dem.bounds_m

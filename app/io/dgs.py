@@ -72,6 +72,7 @@ import gzip
 import io
 import warnings
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -206,6 +207,64 @@ def _read_records(path: Path, display: str) -> tuple[pd.DataFrame, np.ndarray]:
     return df, rows
 
 
+def _status_words(df: pd.DataFrame, rows: np.ndarray, display: str) -> np.ndarray:
+    """The status words as int64 (each must be a non-negative integer)."""
+    status = df["status"].to_numpy()
+    if np.any(status != np.round(status)) or np.any(status < 0):
+        i = int(np.flatnonzero((status != np.round(status)) | (status < 0))[0])
+        raise InputError(display, int(rows[i]), "status", f"the status word must be a non-negative integer, "
+                                                           f"got {status[i]!r}")
+    return status.astype(np.int64)
+
+
+class _TimedRecords(NamedTuple):
+    """Records synchronised to GPS time, with their survey times."""
+
+    df: pd.DataFrame
+    rows: np.ndarray
+    status: np.ndarray
+    time: np.ndarray
+    n_unsynced: int        # records dropped (not synchronised)
+
+
+def _gps_timed_records(df: pd.DataFrame, rows: np.ndarray, status: np.ndarray, display: str,
+                       time_offset_s: float | None) -> _TimedRecords:
+    """Drop the records not synchronised to GPS time (status bit 2 clear or GPS week 0; a warning),
+    and time the others: GPS seconds since the first record's week + ``time_offset_s``."""
+    week = df["gps_week"].to_numpy()
+    synced = ((status >> GPS_SYNC_BIT) & 1).astype(bool) & (week > 0)
+    n_unsynced = int((~synced).sum())
+    if n_unsynced:
+        first = int(rows[np.flatnonzero(~synced)[0]])
+        if n_unsynced == len(df):
+            raise InputError(display, first, "status",
+                             "no record is synchronised to GPS time (status bit 2 clear or GPS week 0): the "
+                             "records have no valid time stamps")
+        warnings.warn(f"{display}: {n_unsynced} record(s) not synchronised to GPS time (status bit 2 clear or "
+                      f"GPS week 0) dropped (first at row {first})", stacklevel=3)
+        df = df.loc[synced].reset_index(drop=True)
+        rows = rows[synced]
+        status = status[synced]
+        week = week[synced]
+    off = 0.0 if time_offset_s is None else float(time_offset_s)
+    t = (week - week[0]) * SECONDS_PER_WEEK + df["gps_sow"].to_numpy() + off
+    check_time_increasing(t, rows, display, column="gps_sow")
+    return _TimedRecords(df, rows, status, t, n_unsynced)
+
+
+def _reading_offset(g: np.ndarray, reading_offset_mgal: float | None, display: str) -> tuple[float, str]:
+    """mGal added to the readings and why: declared, none for absolute readings, else the nominal
+    offset (with a warning)."""
+    if reading_offset_mgal is not None:
+        return float(reading_offset_mgal), "declared"
+    if ABSOLUTE_READING_MGAL[0] <= float(np.median(g)) <= ABSOLUTE_READING_MGAL[1]:
+        return 0.0, "absolute"
+    warnings.warn(f"{display}: relative DGS gravity readings (median {float(np.median(g)):.1f} mGal): the nominal "
+                  f"{NOMINAL_OFFSET_MGAL:.0f} mGal added (declare gravimeter.reading_offset_mgal, or tie the level "
+                  f"with base_gravity_mgal)", stacklevel=3)
+    return NOMINAL_OFFSET_MGAL, "nominal"
+
+
 def read_dgs(path, *, time_offset_s: float | None = 0.0, rate_hz: float | None = None,
              reading_offset_mgal: float | None = None, max_nan_run: int = 0,
              display: str | None = None) -> pd.DataFrame:
@@ -253,32 +312,11 @@ def read_dgs(path, *, time_offset_s: float | None = 0.0, rate_hz: float | None =
             raise InputError(display, int(rows[miss[0]]), col, f"missing {col} (it cannot be interpolated)")
     fill_short_nan_runs(df, [c for c in _PHYSICAL + ("gps_sow",) if c in df], rows, display, max_nan_run,
                         time_col=None)
-    status = df["status"].to_numpy()
-    if np.any(status != np.round(status)) or np.any(status < 0):
-        i = int(np.flatnonzero((status != np.round(status)) | (status < 0))[0])
-        raise InputError(display, int(rows[i]), "status", f"the status word must be a non-negative integer, "
-                                                           f"got {status[i]!r}")
-    status = status.astype(np.int64)
+    status = _status_words(df, rows, display)
     n_unsynced = 0
     if has_gps:
-        week = df["gps_week"].to_numpy()
-        synced = ((status >> GPS_SYNC_BIT) & 1).astype(bool) & (week > 0)
-        n_unsynced = int((~synced).sum())
-        if n_unsynced:
-            first = int(rows[np.flatnonzero(~synced)[0]])
-            if n_unsynced == len(df):
-                raise InputError(display, first, "status",
-                                 "no record is synchronised to GPS time (status bit 2 clear or GPS week 0): the "
-                                 "records have no valid time stamps")
-            warnings.warn(f"{display}: {n_unsynced} record(s) not synchronised to GPS time (status bit 2 clear or "
-                          f"GPS week 0) dropped (first at row {first})", stacklevel=2)
-            df = df.loc[synced].reset_index(drop=True)
-            rows = rows[synced]
-            status = status[synced]
-            week = week[synced]
-        off = 0.0 if time_offset_s is None else float(time_offset_s)
-        t = (week - week[0]) * SECONDS_PER_WEEK + df["gps_sow"].to_numpy() + off
-        check_time_increasing(t, rows, display, column="gps_sow")
+        timed = _gps_timed_records(df, rows, status, display, time_offset_s)
+        df, rows, status, t, n_unsynced = timed.df, timed.rows, timed.status, timed.time, timed.n_unsynced
     else:
         if rate_hz is None or time_offset_s is None:
             raise InputError(display, None, None,
@@ -286,15 +324,7 @@ def read_dgs(path, *, time_offset_s: float | None = 0.0, rate_hz: float | None =
                              "rate) and gravimeter.time_offset_s (the survey time of the first record) in survey.toml")
         t = float(time_offset_s) + np.arange(len(df)) / float(rate_hz)
     g = df["gravity"].to_numpy()
-    if reading_offset_mgal is not None:
-        offset, source = float(reading_offset_mgal), "declared"
-    elif ABSOLUTE_READING_MGAL[0] <= float(np.median(g)) <= ABSOLUTE_READING_MGAL[1]:
-        offset, source = 0.0, "absolute"
-    else:
-        offset, source = NOMINAL_OFFSET_MGAL, "nominal"
-        warnings.warn(f"{display}: relative DGS gravity readings (median {float(np.median(g)):.1f} mGal): the nominal "
-                      f"{NOMINAL_OFFSET_MGAL:.0f} mGal added (declare gravimeter.reading_offset_mgal, or tie the level "
-                      f"with base_gravity_mgal)", stacklevel=2)
+    offset, source = _reading_offset(g, reading_offset_mgal, display)
     out = {"time": t, "f_z": (g + offset) * 1e-5, "gravity_mgal": g}
     for c in ("long_accel", "cross_accel", "beam", "temp"):
         out[c] = df[c].to_numpy()

@@ -48,6 +48,7 @@ saturated line (column ``saturation``).
 
 from __future__ import annotations
 
+import gzip
 import warnings
 from pathlib import Path
 
@@ -81,8 +82,6 @@ def is_gfile_name(name: str) -> bool:
 
 
 def _first_data_line(path: Path, display: str) -> str:
-    import gzip
-
     opener = gzip.open if path.suffix == ".gz" else open
     try:
         with opener(path, "rt", errors="replace") as fh:
@@ -146,6 +145,71 @@ def _seconds_of_day(hhmmss: np.ndarray, rows: np.ndarray, display: str) -> np.nd
     return hh * 3600.0 + mm * 60.0 + ss
 
 
+def _message_times(df: pd.DataFrame, rows: np.ndarray, display: str, subsecond_scale: float,
+                   time_offset_s: float) -> np.ndarray:
+    """Message times on the survey scale (s): UTC seconds of day + sub-second field, carried over
+    UTC midnight, + ``time_offset_s``; checked strictly increasing."""
+    sod = _seconds_of_day(df["utc_hhmmss"].to_numpy(), rows, display)
+    t = sod + subsecond_scale * df["sub_second"].to_numpy()
+    back = np.diff(t) < -43200.0  # UTC midnight
+    if back.any():
+        t = t + 86400.0 * np.concatenate(([0.0], np.cumsum(back)))
+    t = t + float(time_offset_s)
+    check_time_increasing(t, rows, display, column="utc_hhmmss")
+    return t
+
+
+def _half_interval_centres(t: np.ndarray, stamp: str) -> tuple[np.ndarray, np.ndarray]:
+    """Centres of the two half-intervals of every message, ``(t1, t2)``, when the message time
+    marks the end (``stamp="end"``) or the start of its interval; the first (last) interval
+    takes the median step."""
+    dt = np.diff(t)
+    med = float(np.median(dt))
+    if stamp == "end":
+        span = np.concatenate(([med], dt))
+        return t - 0.75 * span, t - 0.25 * span
+    span = np.concatenate((dt, [med]))
+    return t + 0.25 * span, t + 0.75 * span
+
+
+def _half_sample_columns(df: pd.DataFrame, rows: np.ndarray, t1: np.ndarray, t2: np.ndarray, sat: np.ndarray,
+                         z_channel: str, scale_to_ms2: float) -> dict:
+    """Columns of the output: the two half-interval samples of every message interleaved, the
+    per-message fields repeated on both."""
+    n = len(df)
+    other = "coarse" if z_channel == "fine" else "fine"
+
+    def inter(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        out = np.empty(2 * n)
+        out[0::2] = a
+        out[1::2] = b
+        return out
+
+    def chan(prefix: str) -> np.ndarray:
+        return inter(df[f"{prefix}_1"].to_numpy(), df[f"{prefix}_2"].to_numpy()) * scale_to_ms2
+
+    def rep(a) -> np.ndarray:
+        return np.repeat(np.asarray(a), 2)
+
+    out = {
+        "time": inter(t1, t2),
+        "f_z": chan(f"{z_channel}_z"),
+        "f_x": chan("x"),
+        "f_y": chan("y"),
+        f"f_z_{other}": chan(f"{other}_z"),
+        "temperature": rep(df["temperature"].to_numpy()),
+    }
+    for c in df.columns:
+        if c.startswith("cc_"):
+            out[c] = rep(df[c].to_numpy())
+    out["proof_mass_displacement"] = rep(df["proof_mass_displacement"].to_numpy())
+    out["saturated"] = rep(sat)
+    out["message_id"] = rep(df["message_id"].to_numpy())
+    out["half"] = np.tile(np.array([1, 2], dtype=np.int8), n)
+    out["source_row"] = rep(rows)
+    return out
+
+
 def read_gfile(path, *, time_offset_s: float = 0.0, scale_to_ms2: float = 1.0,
                subsecond_scale: float = 1.0, stamp: str = "end", z_channel: str = "fine",
                on_saturation: str = "drop", max_nan_run: int = 0,
@@ -199,60 +263,14 @@ def read_gfile(path, *, time_offset_s: float = 0.0, scale_to_ms2: float = 1.0,
     check_finite(df, num_cols, rows, display)
     fill_short_nan_runs(df, num_cols, rows, display, max_nan_run, time_col=None)
 
-    sod = _seconds_of_day(df["utc_hhmmss"].to_numpy(), rows, display)
-    t = sod + subsecond_scale * df["sub_second"].to_numpy()
-    back = np.diff(t) < -43200.0  # UTC midnight
-    if back.any():
-        t = t + 86400.0 * np.concatenate(([0.0], np.cumsum(back)))
-    t = t + float(time_offset_s)
-    check_time_increasing(t, rows, display, column="utc_hhmmss")
-
-    dt = np.diff(t)
-    med = float(np.median(dt))
-    if stamp == "end":
-        span = np.concatenate(([med], dt))
-        t1, t2 = t - 0.75 * span, t - 0.25 * span
-    else:
-        span = np.concatenate((dt, [med]))
-        t1, t2 = t + 0.25 * span, t + 0.75 * span
-
+    t = _message_times(df, rows, display, subsecond_scale, time_offset_s)
+    t1, t2 = _half_interval_centres(t, stamp)
     sat = df["saturation"].to_numpy() != 0
     if sat.any() and on_saturation == "error":
         i = int(np.flatnonzero(sat)[0])
         raise InputError(display, int(rows[i]), "saturation",
                          "the gravimeter reports saturation in this message (use on_saturation='drop' to skip such messages)")
-
-    n = len(df)
-    other = "coarse" if z_channel == "fine" else "fine"
-
-    def inter(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        out = np.empty(2 * n)
-        out[0::2] = a
-        out[1::2] = b
-        return out
-
-    def chan(prefix: str) -> np.ndarray:
-        return inter(df[f"{prefix}_1"].to_numpy(), df[f"{prefix}_2"].to_numpy()) * scale_to_ms2
-
-    def rep(a) -> np.ndarray:
-        return np.repeat(np.asarray(a), 2)
-
-    out = {
-        "time": inter(t1, t2),
-        "f_z": chan(f"{z_channel}_z"),
-        "f_x": chan("x"),
-        "f_y": chan("y"),
-        f"f_z_{other}": chan(f"{other}_z"),
-        "temperature": rep(df["temperature"].to_numpy()),
-    }
-    for c in df.columns:
-        if c.startswith("cc_"):
-            out[c] = rep(df[c].to_numpy())
-    out["proof_mass_displacement"] = rep(df["proof_mass_displacement"].to_numpy())
-    out["saturated"] = rep(sat)
-    out["message_id"] = rep(df["message_id"].to_numpy())
-    out["half"] = np.tile(np.array([1, 2], dtype=np.int8), n)
-    out["source_row"] = rep(rows)
+    out = _half_sample_columns(df, rows, t1, t2, sat, z_channel, scale_to_ms2)
     res = pd.DataFrame(out)
     n_sat = int(sat.sum())
     res.attrs["saturated_messages"] = n_sat

@@ -44,13 +44,14 @@ import tomllib
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 from pydantic import ValidationError
 
 from app.config import SurveyConfig, check_name
-from app.core.geodesy import radii_of_curvature_m
+from app.core.geodesy import radii_of_curvature_m, vertical_velocity_from_heights_ms
 from app.io.errors import InputError
 from app.io.dgs import read_dgs, sniff_dat
 from app.io.gfile import is_gfile_name, read_gfile
@@ -408,8 +409,6 @@ def derive_vu_from_h(df: pd.DataFrame, rows: np.ndarray, display: str, max_gap_s
     InputError
         A run shorter than 4 samples (names its rows, column ``h``).
     """
-    from app.core.geodesy import vertical_velocity_from_heights_ms
-
     t = df["time"].to_numpy(dtype=float)
     h = df["h"].to_numpy(dtype=float)
     vu = np.empty_like(t)
@@ -644,14 +643,37 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
     if not root.is_dir():
         raise InputError(str(root), None, None, "survey directory not found")
     config = read_config(root / "survey.toml", overrides)
-    p = config.processing
-    have_lines_csv = (root / "lines.csv").is_file()
     lines = None
     origins: list[tuple[str, int | None]] = []
-    if have_lines_csv:
+    if (root / "lines.csv").is_file():
         lines, line_rows = read_lines(root / "lines.csv")
         origins = [("lines.csv", int(r)) for r in line_rows]
+    flight_dirs = _flight_dirs(root, lines, origins)
+    flights: dict[str, Flight] = {}
+    series: dict[str, _FlightSeries] = {}
+    block_sources: dict[str, dict[str, _BlockSource]] = {}
+    for name, d in flight_dirs.items():
+        fs = _read_flight_series(name, d, root, config, block_sources)
+        series[name] = fs
+        flights[name] = Flight(name=name, gravimeter=fs.grav, gnss=fs.gnss, gravimeter_path=fs.grav_path,
+                               gnss_path=fs.gnss_path,
+                               vu_derived_from_h=bool(fs.gnss.attrs.get("vu_derived_from_h", False)))
+    if lines is None:
+        lines, origins = lines_from_blocks(block_sources)
+        missing = [f for f in flights if f not in block_sources or not (lines["flight"] == f).any()]
+        if len(lines) == 0 or missing:
+            which = f" (flight {', '.join(missing)} has none)" if missing and len(lines) else ""
+            raise InputError("lines.csv", None, None,
+                             f"file not found, and the survey lines cannot be taken from the flights' XYZ Line/Tie "
+                             f"blocks{which}: add a lines.csv")
+    for name, fs in series.items():
+        _check_line_windows(name, fs, lines, origins, config.processing.max_gap_s)
+    return Survey(root=root, config=config, lines=lines, flights=flights)
 
+
+def _flight_dirs(root: Path, lines: pd.DataFrame | None, origins: list) -> dict[str, Path]:
+    """The flight directories under ``flights/`` (names checked); with a lines.csv, every line's
+    flight must be one of them."""
     fdir = root / "flights"
     if not fdir.is_dir():
         raise InputError("flights/", None, None, "the survey has no flights/ directory")
@@ -670,75 +692,83 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
             raise InputError("lines.csv", origins[i][1], "flight",
                              f"line {lines['line'].iloc[i]} refers to flight {lines['flight'].iloc[i]!r}, which has no "
                              f"directory under flights/ (flights found: {have})")
+    return flight_dirs
 
-    flights: dict[str, Flight] = {}
-    series: dict[str, tuple] = {}
-    block_sources: dict[str, dict[str, _BlockSource]] = {}
-    for name, d in flight_dirs.items():
-        src = flight_sources(d, root)
-        scans: dict = {}
-        gsrc, nsrc = src["gravimeter"], src["gnss"]
-        gnss_disp, grav_disp = _rel(root, nsrc.path), _rel(root, gsrc.path)
-        if nsrc.kind == "xyz":
-            tab = _xyz_role(nsrc, "gnss", root, config, scans)
-            gnss, derived = finish_gnss(tab.df, tab.rows, gnss_disp, config)
-            gnss.attrs["vu_derived_from_h"] = derived
-            gnss_rows = tab.rows
-            block_sources.setdefault(name, {})["gnss"] = _BlockSource(gnss_disp, tab, gnss["time"].to_numpy())
-        else:
-            gnss, gnss_rows = read_gnss(nsrc.path, gnss_disp, config)
-        tn = gnss["time"].to_numpy()
-        if gsrc.kind == "xyz":
-            tab = _xyz_role(gsrc, "gravimeter", root, config, scans)
-            grav = _finish_series(tab.df, tab.rows, grav_disp, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL)
-            grav = finish_gravimeter(grav.reset_index(drop=True), tab.rows, grav_disp, config)
-            grav_rows = tab.rows
-            block_sources.setdefault(name, {})["gravimeter"] = _BlockSource(grav_disp, tab, grav["time"].to_numpy())
-        else:
-            grav, grav_rows = read_gravimeter(gsrc.path, grav_disp, config,
-                                              time_offset_s=config.gravimeter.time_offset_s,
-                                              gnss_time_range=(float(tn[0]), float(tn[-1])), kind=gsrc.kind)
-        series[name] = (grav, grav_rows, grav_disp, gnss, gnss_rows, gnss_disp)
-        flights[name] = Flight(name=name, gravimeter=grav, gnss=gnss, gravimeter_path=gsrc.path, gnss_path=nsrc.path,
-                               vu_derived_from_h=bool(gnss.attrs.get("vu_derived_from_h", False)))
 
-    if lines is None:
-        lines, origins = lines_from_blocks(block_sources)
-        missing = [f for f in flights if f not in block_sources or not (lines["flight"] == f).any()]
-        if len(lines) == 0 or missing:
-            which = f" (flight {', '.join(missing)} has none)" if missing and len(lines) else ""
-            raise InputError("lines.csv", None, None,
-                             f"file not found, and the survey lines cannot be taken from the flights' XYZ Line/Tie "
-                             f"blocks{which}: add a lines.csv")
+class _FlightSeries(NamedTuple):
+    """One flight's validated tables with the file row of each record, the files' display names
+    (relative to the survey) and paths."""
 
-    for name, (grav, grav_rows, grav_disp, gnss, gnss_rows, gnss_disp) in series.items():
-        tg = grav["time"].to_numpy()
-        tn = gnss["time"].to_numpy()
-        sel = np.flatnonzero((lines["flight"] == name).to_numpy())
-        if not sel.size:
-            continue
-        ts = lines["t_start"].to_numpy()[sel]
-        te = lines["t_end"].to_numpy()[sel]
-        for k, i in enumerate(sel):
-            ofile, orow = origins[i]
-            for t, disp in ((tg, grav_disp), (tn, gnss_disp)):
-                if ts[k] < t[0] or te[k] > t[-1]:
-                    col, val = ("t_start", ts[k]) if ts[k] < t[0] else ("t_end", te[k])
-                    raise InputError(ofile, orow, col,
-                                     f"line {lines['line'].iloc[i]} window {ts[k]:.3f}–{te[k]:.3f} s is outside "
-                                     f"the data of {disp} ({t[0]:.3f}–{t[-1]:.3f} s): {col} = {val:.3f}")
-        for t, rows, disp in ((tg, grav_rows, grav_disp), (tn, gnss_rows, gnss_disp)):
-            g = gap_rows_in_windows(t, ts, te, p.max_gap_s)
-            hit = np.flatnonzero(g >= 0)
-            if hit.size:
-                k = int(hit[0])
-                j = int(g[k])
-                raise InputError(disp, int(rows[j]), "time",
-                                 f"gap of {t[j] - t[j - 1]:.3f} s before this row (from {t[j - 1]:.3f} to "
-                                 f"{t[j]:.3f} s) inside line {lines['line'].iloc[sel[k]]} "
-                                 f"({ts[k]:.3f}–{te[k]:.3f} s); at most {p.max_gap_s:g} s allowed "
-                                 f"(processing.max_gap_s)")
-    return Survey(root=root, config=config, lines=lines, flights=flights)
+    grav: pd.DataFrame
+    grav_rows: np.ndarray
+    grav_disp: str
+    gnss: pd.DataFrame
+    gnss_rows: np.ndarray
+    gnss_disp: str
+    grav_path: Path
+    gnss_path: Path
+
+
+def _read_flight_series(name: str, d: Path, root: Path, config: SurveyConfig,
+                        block_sources: dict[str, dict[str, _BlockSource]]) -> _FlightSeries:
+    """Read one flight's GNSS and gravimeter files (CSV, G file, DGS or XYZ); an XYZ file's
+    Line/Tie blocks are recorded in ``block_sources[name]`` (the lines when there is no lines.csv)."""
+    p = config.processing
+    src = flight_sources(d, root)
+    scans: dict = {}
+    gsrc, nsrc = src["gravimeter"], src["gnss"]
+    gnss_disp, grav_disp = _rel(root, nsrc.path), _rel(root, gsrc.path)
+    if nsrc.kind == "xyz":
+        tab = _xyz_role(nsrc, "gnss", root, config, scans)
+        gnss, derived = finish_gnss(tab.df, tab.rows, gnss_disp, config)
+        gnss.attrs["vu_derived_from_h"] = derived
+        gnss_rows = tab.rows
+        block_sources.setdefault(name, {})["gnss"] = _BlockSource(gnss_disp, tab, gnss["time"].to_numpy())
+    else:
+        gnss, gnss_rows = read_gnss(nsrc.path, gnss_disp, config)
+    tn = gnss["time"].to_numpy()
+    if gsrc.kind == "xyz":
+        tab = _xyz_role(gsrc, "gravimeter", root, config, scans)
+        grav = _finish_series(tab.df, tab.rows, grav_disp, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL)
+        grav = finish_gravimeter(grav.reset_index(drop=True), tab.rows, grav_disp, config)
+        grav_rows = tab.rows
+        block_sources.setdefault(name, {})["gravimeter"] = _BlockSource(grav_disp, tab, grav["time"].to_numpy())
+    else:
+        grav, grav_rows = read_gravimeter(gsrc.path, grav_disp, config,
+                                          time_offset_s=config.gravimeter.time_offset_s,
+                                          gnss_time_range=(float(tn[0]), float(tn[-1])), kind=gsrc.kind)
+    return _FlightSeries(grav, grav_rows, grav_disp, gnss, gnss_rows, gnss_disp, gsrc.path, nsrc.path)
+
+
+def _check_line_windows(name: str, fs: _FlightSeries, lines: pd.DataFrame, origins: list, max_gap_s: float) -> None:
+    """Every line window of flight ``name`` lies within both files' data and has no gap longer
+    than ``max_gap_s`` (processing.max_gap_s) inside it."""
+    tg = fs.grav["time"].to_numpy()
+    tn = fs.gnss["time"].to_numpy()
+    sel = np.flatnonzero((lines["flight"] == name).to_numpy())
+    if not sel.size:
+        return
+    ts = lines["t_start"].to_numpy()[sel]
+    te = lines["t_end"].to_numpy()[sel]
+    for k, i in enumerate(sel):
+        ofile, orow = origins[i]
+        for t, disp in ((tg, fs.grav_disp), (tn, fs.gnss_disp)):
+            if ts[k] < t[0] or te[k] > t[-1]:
+                col, val = ("t_start", ts[k]) if ts[k] < t[0] else ("t_end", te[k])
+                raise InputError(ofile, orow, col,
+                                 f"line {lines['line'].iloc[i]} window {ts[k]:.3f}–{te[k]:.3f} s is outside "
+                                 f"the data of {disp} ({t[0]:.3f}–{t[-1]:.3f} s): {col} = {val:.3f}")
+    for t, rows, disp in ((tg, fs.grav_rows, fs.grav_disp), (tn, fs.gnss_rows, fs.gnss_disp)):
+        g = gap_rows_in_windows(t, ts, te, max_gap_s)
+        hit = np.flatnonzero(g >= 0)
+        if hit.size:
+            k = int(hit[0])
+            j = int(g[k])
+            raise InputError(disp, int(rows[j]), "time",
+                             f"gap of {t[j] - t[j - 1]:.3f} s before this row (from {t[j - 1]:.3f} to "
+                             f"{t[j]:.3f} s) inside line {lines['line'].iloc[sel[k]]} "
+                             f"({ts[k]:.3f}–{te[k]:.3f} s); at most {max_gap_s:g} s allowed "
+                             f"(processing.max_gap_s)")
 
 
 # --------------------------------------------------------------------------- QC summary

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.fft import next_fast_len
 from scipy.interpolate import CubicSpline, PPoly
 
 
@@ -116,6 +117,125 @@ def _quantizer(cfg):
     return lambda v: round(round(v / q) * q, 6)
 
 
+class _PathBuilder:
+    """Horizontal trajectory built segment by segment: ``x(t)``, ``y(t)`` piecewise polynomials
+    (metres), every segment end quantised by ``rq`` (the plan's time quantum)."""
+
+    def __init__(self, t0: float, rq):
+        self.rq = rq
+        self.t = t0
+        self.breaks = [t0]
+        self.cx: list[np.ndarray] = []
+        self.cy: list[np.ndarray] = []
+
+    def _advance(self, T: float) -> None:
+        self.t = self.rq(self.t + T)
+        self.breaks.append(self.t)
+
+    def straight(self, p, v, T: float) -> None:
+        """Constant velocity ``v`` (m/s) from ``p`` (m) for ``T`` s."""
+        self.cx.append(np.array([0, 0, 0, 0, v[0], p[0]], dtype=float))
+        self.cy.append(np.array([0, 0, 0, 0, v[1], p[1]], dtype=float))
+        self._advance(T)
+
+    def quintic(self, a, va, b, vb, T: float) -> None:
+        """Quintic Hermite transition from (``a``, ``va``) to (``b``, ``vb``) in ``T`` s, zero
+        acceleration at both ends."""
+        self.cx.append(_quintic(a[0], va[0], b[0], vb[0], T))
+        self.cy.append(_quintic(a[1], va[1], b[1], vb[1], T))
+        self._advance(T)
+
+    def polys(self) -> tuple[PPoly, PPoly]:
+        """``(x_pp, y_pp)`` of the segments so far."""
+        return (PPoly(np.array(self.cx).T, np.array(self.breaks)),
+                PPoly(np.array(self.cy).T, np.array(self.breaks)))
+
+
+def _reversal(path: _PathBuilder, P, vp, s0, vv, T: float) -> None:
+    """Reverse onto the same track: straight on, a U-turn to the left (diameter 2r,
+    r = v·T/π) and an S-curve back onto the track over 7.5 r, ending at ``s0`` with ``vv``."""
+    rq = path.rq
+    up_ = vp / np.hypot(*vp)
+    sp = float(np.hypot(*vp))
+    r = sp * T / np.pi
+    nrm = np.array([-up_[1], up_[0]])
+    Ls = 7.5 * r
+    along = max(float(np.dot(s0 - P, up_)), 0.0)
+    T0 = rq((along + Ls) / sp)
+    A = P + vp * T0
+    B = A + nrm * 2.0 * r
+    Tsc = rq(float(np.dot(B - s0, up_)) / float(np.hypot(*vv)))
+    path.straight(P, vp, T0)
+    path.quintic(A, vp, B, vv, T)
+    path.quintic(B, vv, s0, vv, Tsc)
+
+
+def _transit(path: _PathBuilder, P, vp, s0, vv, T: float, v: float) -> None:
+    """Fly from ``P`` (velocity ``vp``) to a distant line start ``s0`` (velocity ``vv``).
+
+    A circular-like turn towards the target, straight at cruise speed ``v``, a turn onto the
+    line (reversals become racetrack turns of radius r = v·T/π); a target too close for
+    turn–straight–turn gets one smooth transition.
+    """
+    rq = path.rq
+    dist = float(np.hypot(*(s0 - P)))
+    r = v * T / np.pi
+    up = vp / np.hypot(*vp)
+    un = vv / np.hypot(*vv)
+    ut = (s0 - P) / dist
+    for _ in range(4):
+        D1, th1 = _turn(up, ut, r)
+        D2, th2 = _turn(ut, un, r)
+        W1, W2 = P + D1, s0 - D2
+        ut_new = (W2 - W1) / max(float(np.hypot(*(W2 - W1))), 1e-9)
+        if np.allclose(ut_new, ut, atol=1e-9):
+            break
+        ut = ut_new
+    Ls = float(np.dot(W2 - W1, ut))
+    if Ls < 500.0:
+        # target too close for a turn–straight–turn: one smooth transition
+        path.quintic(P, vp, s0, vv, rq(max(T, dist / v * 1.3 + 30.0)))
+        return
+    Ts = rq(Ls / v)
+    vt = (W2 - W1) / Ts
+    pieces = []
+    if th1 > 0.05:
+        pieces.append(("q", P, vp, W1, vt, rq(max(r * th1 / v, 5.0))))
+    else:
+        W1 = P
+        Ts = rq(float(np.hypot(*(W2 - W1))) / v)
+        vt = (W2 - W1) / Ts
+    pieces.append(("s", W1, vt, None, None, Ts))
+    if th2 > 0.05:
+        pieces.append(("q", W2, vt, s0, vv, rq(max(r * th2 / v, 5.0))))
+    else:   # no final turn: stretch the straight to s0
+        pieces[-1] = ("s", W1, (s0 - W1) / Ts, None, None, Ts)
+    for kind_, A, va, B, vb, TT in pieces:
+        if kind_ == "q":
+            path.quintic(A, va, B, vb, TT)
+        else:
+            path.straight(A, va, TT)
+
+
+def _transition(path: _PathBuilder, prev_end, s0, vv, T: float, cfg) -> None:
+    """From the end of the previous line ``prev_end = (x, y, vx, vy)`` to the next line's
+    straight segment start ``s0`` (velocity ``vv``) in nominal turn time ``T``: a reversal
+    onto the same track, a turn onto a neighbouring line, or a transit."""
+    px, py, pvx, pvy = prev_end
+    P = np.array([px, py])
+    vp = np.array([pvx, pvy])
+    dist = float(np.hypot(*(s0 - P)))
+    up_ = vp / np.hypot(*vp)
+    un_ = vv / np.hypot(*vv)
+    lateral = float(up_[0] * (s0 - P)[1] - up_[1] * (s0 - P)[0])
+    if float(np.dot(up_, un_)) < -0.99 and abs(lateral) < 100.0:
+        _reversal(path, P, vp, s0, vv, T)
+    elif dist <= 2.5 * cfg.main_spacing_km * 1000.0 + 1.0:
+        path.quintic(P, vp, s0, vv, T)     # turn onto a neighbouring line: one smooth transition
+    else:
+        _transit(path, P, vp, s0, vv, T, cfg.speed_ms)
+
+
 def plan_flight(name: str, lines: list[PlannedLine], t0: float, cfg, rng) -> FlightPath:
     """Build the horizontal trajectory of one flight flying ``lines`` in order.
 
@@ -125,14 +245,28 @@ def plan_flight(name: str, lines: list[PlannedLine], t0: float, cfg, rng) -> Fli
     heading)`` (a wind blowing towards the east).  A pass that reverses onto the same track
     (alternating repeat passes) is reached by a reversal: straight on, a U-turn to the left
     (diameter 2r, r = v·T/π) and an S-curve back onto the track over 7.5 r.
+
+    Parameters
+    ----------
+    name : str
+        Flight name.
+    lines : list of PlannedLine
+        The lines in flying order.
+    t0 : float
+        Start time (s).
+    cfg : SimConfig
+    rng : numpy.random.Generator
+        One turn time per transition between lines (``cfg.turn_s``).
+
+    Returns
+    -------
+    FlightPath
     """
     rq = _quantizer(cfg)
     v = cfg.speed_ms
     wind = float(getattr(cfg, "wind_ms", 0.0))
-    breaks = [t0]
-    cx, cy = [], []
+    path = _PathBuilder(t0, rq)
     windows = []
-    t = t0
     prev_end = None  # (x, y, vx, vy)
     for k, ln in enumerate(lines):
         a = np.array(ln.start_km) * 1000.0
@@ -146,102 +280,15 @@ def plan_flight(name: str, lines: list[PlannedLine], t0: float, cfg, rng) -> Fli
         pre = cfg.run_in_s + (cfg.lead_s if k == 0 else 0.0)
         post = cfg.run_out_s + (cfg.tail_s if k == len(lines) - 1 else 0.0)
         s0 = a - vv * pre                       # start of the straight segment
-        s1 = b + vv * post
         if prev_end is not None:
-            px, py, pvx, pvy = prev_end
-            P = np.array([px, py])
-            vp = np.array([pvx, pvy])
-            dist = float(np.hypot(*(s0 - P)))
             T = rq(float(rng.uniform(*cfg.turn_s)))
-            up_ = vp / np.hypot(*vp)
-            un_ = vv / np.hypot(*vv)
-            lateral = float(up_[0] * (s0 - P)[1] - up_[1] * (s0 - P)[0])
-            if float(np.dot(up_, un_)) < -0.99 and abs(lateral) < 100.0:
-                # reversal onto the same track: straight, U-turn (left), S-curve back onto the track
-                sp = float(np.hypot(*vp))
-                r = sp * T / np.pi
-                nrm = np.array([-up_[1], up_[0]])
-                Ls = 7.5 * r
-                along = max(float(np.dot(s0 - P, up_)), 0.0)
-                T0 = rq((along + Ls) / sp)
-                A = P + vp * T0
-                B = A + nrm * 2.0 * r
-                Tsc = rq(float(np.dot(B - s0, up_)) / float(np.hypot(*vv)))
-                cx.append(np.array([0, 0, 0, 0, vp[0], P[0]], dtype=float))
-                cy.append(np.array([0, 0, 0, 0, vp[1], P[1]], dtype=float))
-                t = rq(t + T0)
-                breaks.append(t)
-                cx.append(_quintic(A[0], vp[0], B[0], vv[0], T))
-                cy.append(_quintic(A[1], vp[1], B[1], vv[1], T))
-                t = rq(t + T)
-                breaks.append(t)
-                cx.append(_quintic(B[0], vv[0], s0[0], vv[0], Tsc))
-                cy.append(_quintic(B[1], vv[1], s0[1], vv[1], Tsc))
-                t = rq(t + Tsc)
-                breaks.append(t)
-            elif dist <= 2.5 * cfg.main_spacing_km * 1000.0 + 1.0:
-                # turn onto a neighbouring line: one smooth transition
-                cx.append(_quintic(P[0], vp[0], s0[0], vv[0], T))
-                cy.append(_quintic(P[1], vp[1], s0[1], vv[1], T))
-                t = rq(t + T)
-                breaks.append(t)
-            else:
-                # transit: circular-like turn towards the target, straight at cruise speed,
-                # turn onto the line (reversals become racetrack turns of radius r)
-                r = v * T / np.pi
-                up = vp / np.hypot(*vp)
-                un = vv / np.hypot(*vv)
-                ut = (s0 - P) / dist
-                for _ in range(4):
-                    D1, th1 = _turn(up, ut, r)
-                    D2, th2 = _turn(ut, un, r)
-                    W1, W2 = P + D1, s0 - D2
-                    ut_new = (W2 - W1) / max(float(np.hypot(*(W2 - W1))), 1e-9)
-                    if np.allclose(ut_new, ut, atol=1e-9):
-                        break
-                    ut = ut_new
-                Ls = float(np.dot(W2 - W1, ut))
-                if Ls < 500.0:
-                    # target too close for a turn–straight–turn: one smooth transition
-                    Tq = rq(max(T, dist / v * 1.3 + 30.0))
-                    cx.append(_quintic(P[0], vp[0], s0[0], vv[0], Tq))
-                    cy.append(_quintic(P[1], vp[1], s0[1], vv[1], Tq))
-                    t = rq(t + Tq)
-                    breaks.append(t)
-                else:
-                    Ts = rq(Ls / v)
-                    vt = (W2 - W1) / Ts
-                    pieces = []
-                    if th1 > 0.05:
-                        pieces.append(("q", P, vp, W1, vt, rq(max(r * th1 / v, 5.0))))
-                    else:
-                        W1 = P
-                        Ts = rq(float(np.hypot(*(W2 - W1))) / v)
-                        vt = (W2 - W1) / Ts
-                    pieces.append(("s", W1, vt, None, None, Ts))
-                    if th2 > 0.05:
-                        pieces.append(("q", W2, vt, s0, vv, rq(max(r * th2 / v, 5.0))))
-                    else:   # no final turn: stretch the straight to s0
-                        pieces[-1] = ("s", W1, (s0 - W1) / Ts, None, None, Ts)
-                    for kind_, A, va, B, vb, TT in pieces:
-                        if kind_ == "q":
-                            cx.append(_quintic(A[0], va[0], B[0], vb[0], TT))
-                            cy.append(_quintic(A[1], va[1], B[1], vb[1], TT))
-                        else:
-                            cx.append(np.array([0, 0, 0, 0, va[0], A[0]], dtype=float))
-                            cy.append(np.array([0, 0, 0, 0, va[1], A[1]], dtype=float))
-                        t = rq(t + TT)
-                        breaks.append(t)
+            _transition(path, prev_end, s0, vv, T, cfg)
         seg_T = rq(pre + dur + post)
-        cx.append(np.array([0, 0, 0, 0, vv[0], s0[0]], dtype=float))
-        cy.append(np.array([0, 0, 0, 0, vv[1], s0[1]], dtype=float))
-        windows.append((ln, rq(t + pre), rq(t + pre + dur)))
-        t = rq(t + seg_T)
-        breaks.append(t)
+        windows.append((ln, rq(path.t + pre), rq(path.t + pre + dur)))
+        path.straight(s0, vv, seg_T)
         prev_end = (s0[0] + vv[0] * seg_T, s0[1] + vv[1] * seg_T, vv[0], vv[1])
-    x_pp = PPoly(np.array(cx).T, np.array(breaks))
-    y_pp = PPoly(np.array(cy).T, np.array(breaks))
-    return FlightPath(name, t0, t, x_pp, y_pp, windows)
+    x_pp, y_pp = path.polys()
+    return FlightPath(name, t0, path.t, x_pp, y_pp, windows)
 
 
 def _band_noise(n: int, fs: float, gain_fn, rng) -> np.ndarray:
@@ -274,7 +321,6 @@ def vertical_motion(t0: float, t1: float, cfg, rng):
     """
     fs = cfg.fine_rate_hz
     pad = 20.0
-    from scipy.fft import next_fast_len
     n = next_fast_len(int(np.ceil((t1 - t0 + 2 * pad) * fs)) + 1, real=True)   # fast FFT size
     tf = t0 - pad + np.arange(n) / fs
     f_lo, f_hi = cfg.turbulence_band_hz

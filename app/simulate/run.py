@@ -44,20 +44,25 @@ from __future__ import annotations
 import dataclasses
 import time as _time
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
-from scipy.interpolate import CubicSpline, PPoly
+import xarray as xr
+from scipy.interpolate import CubicSpline, LinearNDInterpolator, PPoly, make_interp_spline
 
 from app.core.geodesy import (OMEGA_EARTH, eotvos_mgal, normal_gravity_mgal, project_km,
                               radii_of_curvature_m, unproject_km)
+from app.io.survey_writer import GNSS_HEIGHTS_ONLY_COLUMNS, write_survey
 from app.simulate.field import make_field
 from app.simulate.markov import empirical_transition, make_state_map, markov_line
 from app.simulate.motion import layout_lines, make_drape, plan_flight, vertical_motion
 from app.simulate.presets import PRESETS, SimConfig
-from app.simulate.sensors import (LaggedResponse, LaggedResponseN, fir_pp, gauss_markov, noise_episodes,
+from app.simulate.sensors import (LaggedResponse, LaggedResponseN, fir_gain, fir_pp, gauss_markov, noise_episodes,
                                   quadratic_from_means, sigma_factor)
+from app.simulate.topography import make_topography
 
 MGAL = 1e-5  # m/s² per mGal
 
@@ -192,7 +197,16 @@ def _apron_segments(path, cfg: SimConfig):
     return [("before", round(a1 - cfg.apron_s, 1), a1), ("after", b0, round(b0 + cfg.apron_s, 1))]
 
 
-def simulate_apron(seg, cfg: SimConfig, rng, airport: dict, drift_full: PPoly, g_start: float, h_rng=None):
+class ApronReadings(NamedTuple):
+    """Result of :func:`simulate_apron` (unpacks as ``gravimeter, gnss, info``)."""
+
+    gravimeter: pd.DataFrame   # static gravimeter rows
+    gnss: pd.DataFrame         # static GNSS rows
+    info: dict                 # truth of the segment (spans, true drift)
+
+
+def simulate_apron(seg, cfg: SimConfig, rng, airport: dict, drift_full: PPoly, g_start: float,
+                   h_rng=None) -> ApronReadings:
     """Static readings on the apron over the GNSS span ``seg = (name, a, b)``.
 
     The gravimeter reads the true specific force at rest ``f = g_base`` (+ drift + noise) through
@@ -256,7 +270,233 @@ def simulate_apron(seg, cfg: SimConfig, rng, airport: dict, drift_full: PPoly, g
             "drift_mean_mgal": float((D(edges[-1]) - D(edges[0])) / (edges[-1] - edges[0]) / MGAL),
             "drift_start_mgal": float(drift_full(edges[0]) / MGAL),
             "drift_end_mgal": float(drift_full(edges[-1]) / MGAL)}
-    return grav, gnss, info
+    return ApronReadings(grav, gnss, info)
+
+
+@dataclass
+class _TrueMotion:
+    """True state of the aircraft at the GNSS epochs of one flight (and the motion polynomials)."""
+
+    a_pp: PPoly            # vertical acceleration (m/s²) of the turbulence/phugoid motion
+    h_pp: PPoly            # its height (m)
+    d_pp: PPoly | None     # draped height above height_m (m), None without a drape
+    info: dict             # motion truth for truth.json
+    h: np.ndarray          # ellipsoidal height (m)
+    vu: np.ndarray         # vertical velocity (m/s)
+    x: np.ndarray          # easting (km, absolute)
+    y: np.ndarray          # northing (km)
+    lat: np.ndarray
+    lon: np.ndarray
+    ve: np.ndarray         # east and north velocity (m/s)
+    vn: np.ndarray
+    gamma: np.ndarray      # normal gravity (mGal)
+    eot: np.ndarray        # Eötvös (mGal)
+
+
+def _true_motion(path, cfg: SimConfig, rng, tg, e0_km, n0_km, drape) -> _TrueMotion:
+    """Vertical motion (exact piecewise cubic acceleration and its integrals), the optional drape,
+    and position, velocity, normal gravity and Eötvös at the GNSS epochs ``tg``."""
+    a_pp, v_pp, h_pp, motion_info = vertical_motion(path.t0, path.t1, cfg, rng)
+    d_pp = None
+    if drape is not None:
+        # draped height as an exact quintic spline in time through 1 s samples along the path;
+        # its first and second derivatives are the drape's vertical velocity and acceleration
+        ts = np.arange(path.t0 - 40.0, path.t1 + 40.0 + 0.5, 1.0)
+        d_pp = PPoly.from_spline(make_interp_spline(ts, drape(path.x_pp(ts), path.y_pp(ts)), k=5))
+        h = cfg.height_m + h_pp(tg) + d_pp(tg)
+        vu = v_pp(tg) + d_pp.derivative()(tg)
+    else:
+        h = cfg.height_m + h_pp(tg)
+        vu = v_pp(tg)
+    x, y, lat, lon, ve, vn = _geo_state(path, tg, h, cfg, e0_km, n0_km)
+    gamma = normal_gravity_mgal(lat, h, cfg.normal_gravity)
+    eot = eotvos_mgal(lat, h, ve, vn)
+    return _TrueMotion(a_pp, h_pp, d_pp, motion_info, h, vu, x, y, lat, lon, ve, vn, gamma, eot)
+
+
+def _anomaly_means(path, cfg: SimConfig, tg, e0_km, n0_km, motion: _TrueMotion, dg_means_fn):
+    """δg over each GNSS interval (t_{k−1}, t_k] from the positions (and, draped, the heights) at
+    the interval midpoints: ``(dg_mgal, extra truth columns)``."""
+    dt = 1.0 / cfg.gnss_rate_hz
+    tm = tg - 0.5 * dt
+    xm = path.x_pp(tm) / 1000.0 + e0_km
+    ym = path.y_pp(tm) / 1000.0 + n0_km
+    if motion.d_pp is not None:
+        return dg_means_fn(tg, xm, ym, cfg.height_m + motion.h_pp(tm) + motion.d_pp(tm))
+    return dg_means_fn(tg, xm, ym)
+
+
+@dataclass
+class _Drift:
+    """Gravimeter drift of one flight: offset + linear rate + random walk on a 10 s grid."""
+
+    rate_mgal_h: float
+    offset_mgal: float
+    td: np.ndarray         # random-walk nodes (s)
+    rw: np.ndarray         # random walk at the nodes (mGal)
+    pp: PPoly              # the drift as a cubic spline (m/s²)
+
+
+def _draw_drift(cfg: SimConfig, rng, t0: float, t1: float) -> _Drift:
+    """The flight's drift (mGal): random sign and rate, offset, random walk."""
+    rate = float(rng.uniform(*cfg.drift_rate_mgal_h)) * float(rng.choice([-1.0, 1.0]))
+    if cfg.drift_rate_mgal_h[1] == 0.0:
+        rate = 0.0
+    off = float(rng.normal(0.0, cfg.drift_offset_std_mgal)) if cfg.drift_offset_std_mgal > 0 else 0.0
+    td = np.arange(t0 - 30.0, t1 + 40.0, 10.0)
+    rw = np.cumsum(rng.standard_normal(td.size)) * cfg.drift_rw_mgal_rth * np.sqrt(10.0 / 3600.0)
+    drift_d = off + rate * (td - t0) / 3600.0 + rw
+    return _Drift(rate, off, td, rw, _cubic_pp(td, drift_d * MGAL))
+
+
+def _gravimeter_inputs(cfg: SimConfig, rng, motion: _TrueMotion, tg, dg, drift: _Drift, t0: float, t1: float):
+    """Inputs of the gravimeter ODE, each an exact piecewise polynomial (m/s²), and the constant
+    ``cref`` (m/s²) taken out of the slowly varying part: ``(components, cref)``."""
+    slow = (motion.gamma - motion.eot) * MGAL
+    cref = float(np.round(np.mean(slow), 3))
+    comps = [motion.a_pp, _cubic_pp(tg, slow - cref), quadratic_from_means(tg, dg * MGAL), drift.pp]
+    if motion.d_pp is not None:
+        comps.append(motion.d_pp.derivative(2))
+    fs = cfg.fine_rate_hz
+    noise_sd_mgal = cfg.grav_noise_mgal_rthz * np.sqrt(fs)
+    if cfg.grav_noise_mgal_rthz > 0:
+        tn = np.arange(t0 - 10.0, t1 + 10.0, 1.0 / fs)
+        comps.append(_cubic_pp(tn, rng.standard_normal(tn.size) * noise_sd_mgal * MGAL))
+    return comps, cref
+
+
+@dataclass
+class _GravimeterSamples:
+    """The gravimeter's vertical readings of one flight (true time)."""
+
+    centres: np.ndarray    # sample times (interval centres, or point-sample times)
+    edges: np.ndarray      # interval edges
+    f_z: np.ndarray        # readings (m/s²)
+    g_start: float         # origin of the sampling lattice (first interval start, free clock)
+
+
+def _sample_gravimeter(comps, cref: float, cfg: SimConfig, rng, t0: float, t1: float) -> _GravimeterSamples:
+    """The instrument's output sampled at its rate: a random clock phase, then either the original
+    GT-1A interval means or the new regimes (internal FIR, point or mean samples, free or aligned
+    clock: lattice origin ``g_start``, or −P/2 so that the samples sit on exact multiples of P)."""
+    rate_g = cfg.gravimeter_rate_hz
+    phase = float(rng.uniform(0.0, 1.0 / rate_g))
+    g_start = t0 + 20.0 + phase      # ≥ 10 τ after the ODE inputs start
+    if _legacy_gravimeter(cfg):
+        m = int(np.floor((t1 - 1.0 - g_start) * rate_g))
+        edges = g_start + np.arange(m + 1) / rate_g
+        fz = np.full(m, cref / cfg.scale_true)
+        for pp in comps:
+            fz += LaggedResponse(pp, cfg.tau_true_s, cfg.scale_true).interval_means(edges)
+        centres = 0.5 * (edges[:-1] + edges[1:])
+    else:
+        if cfg.gravimeter_clock == "aligned":
+            g_start = -0.5 / rate_g
+        centres, edges = _sample_lattice(cfg, g_start, t0 + 20.0 + _fir_half_s(cfg),
+                                         t1 - 1.0 - _fir_half_s(cfg))
+        fz = np.full(centres.size, cref / cfg.scale_true) + _instrument_output(comps, cfg, centres, edges)
+    return _GravimeterSamples(centres, edges, fz, g_start)
+
+
+def _gravimeter_table(path, cfg: SimConfig, rng, motion: _TrueMotion, tg, smp: _GravimeterSamples) -> pd.DataFrame:
+    """``gravimeter.csv`` rows: stamped vertical readings and the horizontal specific force
+    (east, north) at the sample centres, kinematic + Coriolis + noise."""
+    m = smp.centres.size
+    centres = smp.centres
+    ae = path.x_pp.derivative(2)(centres)
+    an = path.y_pp.derivative(2)(centres)
+    latc = np.interp(centres, tg, motion.lat)
+    vec = np.interp(centres, tg, motion.ve)
+    vnc = np.interp(centres, tg, motion.vn)
+    vuc = np.interp(centres, tg, motion.vu)
+    s_, c_ = np.sin(np.deg2rad(latc)), np.cos(np.deg2rad(latc))
+    fx = ae + 2 * OMEGA_EARTH * (c_ * vuc - s_ * vnc) + rng.standard_normal(m) * cfg.horizontal_noise_ms2
+    fy = an + 2 * OMEGA_EARTH * s_ * vec + rng.standard_normal(m) * cfg.horizontal_noise_ms2
+    return pd.DataFrame({"time": np.round(centres + cfg.time_offset_s, 3), "f_z": smp.f_z, "f_x": fx, "f_y": fy})
+
+
+@dataclass
+class _GnssRecord:
+    """``gnss.csv`` rows of one flight and the true vertical-velocity noise behind them."""
+
+    table: pd.DataFrame
+    sigma_vu_ms: np.ndarray    # true vu noise std per epoch (m/s)
+    episodes: list             # noisy episodes (t_start, t_end, sigma_factor)
+
+
+def _gnss_record(cfg: SimConfig, rng, motion: _TrueMotion, tg, t0: float, t1: float, aux_seed: int,
+                 flight_idx: int) -> _GnssRecord:
+    """True position and velocity + white noise (vu noise with noisy episodes), the optional
+    coloured errors from their own streams, heights only when ``cfg.gnss_velocity`` is False."""
+    n = tg.size
+    lat, lon, h = motion.lat, motion.lon, motion.h
+    episodes = noise_episodes(t0, t1, cfg.episode_rate_per_h, cfg.episode_len_s, cfg.episode_factor, rng)
+    sig_vu = cfg.sigma_vu_cms / 100.0 * sigma_factor(tg, episodes)       # m/s
+    r_m, r_n = radii_of_curvature_m(lat)
+    vu_extra = 0.0
+    if cfg.vu_colored_cms > 0:
+        vu_extra = vu_extra + _colored_noise(tg, cfg, _aux_rng(aux_seed, _TAG_VU_COLORED, flight_idx))
+    if cfg.vu_from_position_m > 0:
+        vu_extra = vu_extra + _position_derived_noise(tg, cfg, _aux_rng(aux_seed, _TAG_VU_POSITION, flight_idx))
+    gnss = pd.DataFrame({
+        "time": tg,
+        "lat": lat + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / (r_m + h)),
+        "lon": lon + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / ((r_n + h) * np.cos(np.deg2rad(lat)))),
+        "h": h + rng.standard_normal(n) * cfg.sigma_h_m,
+        "vu": motion.vu + rng.standard_normal(n) * sig_vu + vu_extra,
+        "ve": motion.ve + rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
+        "vn": motion.vn + rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
+        # receiver's formal sigma: follows the true level, imperfectly
+        "sigma_v": sig_vu * np.exp(rng.normal(0.0, 0.2, n)),
+    })
+    if cfg.h_colored_m > 0:
+        gnss["h"] += gauss_markov(tg, cfg.h_colored_m, cfg.h_colored_tau_s,
+                                  _aux_rng(aux_seed, _TAG_H_COLORED, flight_idx))
+    if not cfg.gnss_velocity:
+        gnss = gnss[["time", "lat", "lon", "h"]]
+    return _GnssRecord(gnss, sig_vu, episodes)
+
+
+def _add_aprons(path, cfg: SimConfig, apron_rng, airport: dict, drift: _Drift, g_start: float, aux_seed: int,
+                flight_idx: int, grav: pd.DataFrame, gnss: pd.DataFrame):
+    """Parking-place readings before and after the flight (their own random stream; the drift keeps
+    running): ``(gravimeter, gnss, apron truth list)`` with the static rows added."""
+    segs = _apron_segments(path, cfg)
+    if not segs:
+        return grav, gnss, []
+    if apron_rng is None:
+        raise ValueError("apron segments need apron_rng")
+    drift_full = _extend_drift(drift.pp, drift.td, drift.rw, drift.offset_mgal, drift.rate_mgal_h, path.t0,
+                               segs[0][1] - 60.0, segs[-1][2] + 60.0, cfg, apron_rng)
+    parts = [simulate_apron(sg, cfg, apron_rng, airport, drift_full, g_start,
+                            _aux_rng(aux_seed, _TAG_H_COLORED_APRON, 2 * flight_idx + j) if cfg.h_colored_m > 0
+                            else None)
+             for j, sg in enumerate(segs)]
+    grav = pd.concat([parts[0].gravimeter, grav, parts[1].gravimeter], ignore_index=True)
+    gnss = pd.concat([parts[0].gnss, gnss, parts[1].gnss], ignore_index=True)
+    return grav, gnss, [p.info for p in parts]
+
+
+def _truth_epochs(cfg: SimConfig, motion: _TrueMotion, tg, dg, extra: dict, sigma_vu_ms, drift_mgal) -> pd.DataFrame:
+    """Truth per GNSS epoch, rounded far below every noise level (keeps the committed sample small)."""
+    epochs = pd.DataFrame({
+        "time": np.round(tg, 3), "easting_km": np.round(motion.x, 6), "northing_km": np.round(motion.y, 6),
+        "dg_true_mgal": np.round(dg, 5), "R_true_cm2s2": (sigma_vu_ms * 100.0) ** 2,
+        "drift_mgal": np.round(drift_mgal, 4), "vu_true_ms": np.round(motion.vu, 5),
+    })
+    if not cfg.gnss_velocity:
+        epochs["R_true_cm2s2"] = np.nan      # no velocity in the file: no velocity noise level
+    for k, v in extra.items():
+        epochs[k] = v
+    epochs["state_true"] = epochs["state_true"].astype(np.int8)
+    cols = ["time", "easting_km", "northing_km", "dg_true_mgal", "terrain", "state_true",
+            "Q_true_mgal2", "R_true_cm2s2", "drift_mgal", "vu_true_ms"]
+    if "terrain_mgal" in epochs:
+        cols.append("terrain_mgal")
+    if _truth_has_height(cfg):
+        epochs["h_true_m"] = motion.h        # true (draped, moving) ellipsoidal height, full precision
+        cols.append("h_true_m")
+    return epochs[cols]
 
 
 def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight_idx: int = 0,
@@ -291,151 +531,28 @@ def simulate_flight(path, cfg: SimConfig, rng, e0_km, n0_km, dg_means_fn, flight
     t0, t1 = path.t0, path.t1
     n = int(round((t1 - t0) * cfg.gnss_rate_hz)) + 1
     tg = t0 + np.arange(n) / cfg.gnss_rate_hz
-    dt = 1.0 / cfg.gnss_rate_hz
     aux_seed = seed if seed is not None else zlib.crc32(repr((float(t0), path.name)).encode())
-    # --- vertical motion (exact piecewise cubic acceleration and its integrals)
-    a_pp, v_pp, h_pp, motion_info = vertical_motion(t0, t1, cfg, rng)
-    d_pp = None
-    if drape is not None:
-        # draped height as an exact quintic spline in time through 1 s samples along the path;
-        # its first and second derivatives are the drape's vertical velocity and acceleration
-        from scipy.interpolate import make_interp_spline
-        ts = np.arange(t0 - 40.0, t1 + 40.0 + 0.5, 1.0)
-        d_pp = PPoly.from_spline(make_interp_spline(ts, drape(path.x_pp(ts), path.y_pp(ts)), k=5))
-        h = cfg.height_m + h_pp(tg) + d_pp(tg)
-        vu = v_pp(tg) + d_pp.derivative()(tg)
-    else:
-        h = cfg.height_m + h_pp(tg)
-        vu = v_pp(tg)
-    x, y, lat, lon, ve, vn = _geo_state(path, tg, h, cfg, e0_km, n0_km)
-    gamma = normal_gravity_mgal(lat, h, cfg.normal_gravity)
-    eot = eotvos_mgal(lat, h, ve, vn)
-    # --- anomaly: interval means over (t_{k-1}, t_k] from positions (and heights) at the midpoints
-    tm = tg - 0.5 * dt
-    xm = path.x_pp(tm) / 1000.0 + e0_km
-    ym = path.y_pp(tm) / 1000.0 + n0_km
-    if d_pp is not None:
-        dg, extra = dg_means_fn(tg, xm, ym, cfg.height_m + h_pp(tm) + d_pp(tm))
-    else:
-        dg, extra = dg_means_fn(tg, xm, ym)
-    # --- drift (mGal): offset + linear + random walk on a 10 s grid
-    rate = float(rng.uniform(*cfg.drift_rate_mgal_h)) * float(rng.choice([-1.0, 1.0]))
-    if cfg.drift_rate_mgal_h[1] == 0.0:
-        rate = 0.0
-    off = float(rng.normal(0.0, cfg.drift_offset_std_mgal)) if cfg.drift_offset_std_mgal > 0 else 0.0
-    td = np.arange(t0 - 30.0, t1 + 40.0, 10.0)
-    rw = np.cumsum(rng.standard_normal(td.size)) * cfg.drift_rw_mgal_rth * np.sqrt(10.0 / 3600.0)
-    drift_d = off + rate * (td - t0) / 3600.0 + rw
-    drift_pp = _cubic_pp(td, drift_d * MGAL)
-    drift_at = drift_pp(tg) / MGAL
-    # --- inputs of the gravimeter ODE, each an exact piecewise polynomial (m/s²)
-    slow = (gamma - eot) * MGAL
-    cref = float(np.round(np.mean(slow), 3))
-    comps = [a_pp, _cubic_pp(tg, slow - cref), quadratic_from_means(tg, dg * MGAL), drift_pp]
-    if d_pp is not None:
-        comps.append(d_pp.derivative(2))
-    fs = cfg.fine_rate_hz
-    noise_sd_mgal = cfg.grav_noise_mgal_rthz * np.sqrt(fs)
-    if cfg.grav_noise_mgal_rthz > 0:
-        tn = np.arange(t0 - 10.0, t1 + 10.0, 1.0 / fs)
-        comps.append(_cubic_pp(tn, rng.standard_normal(tn.size) * noise_sd_mgal * MGAL))
-    # --- gravimeter sampling intervals (true time), 18.24 Hz
-    rate_g = cfg.gravimeter_rate_hz
-    phase = float(rng.uniform(0.0, 1.0 / rate_g))
-    g_start = t0 + 20.0 + phase      # ≥ 10 τ after the ODE inputs start
-    if _legacy_gravimeter(cfg):
-        m = int(np.floor((t1 - 1.0 - g_start) * rate_g))
-        edges = g_start + np.arange(m + 1) / rate_g
-        fz = np.full(m, cref / cfg.scale_true)
-        for pp in comps:
-            fz += LaggedResponse(pp, cfg.tau_true_s, cfg.scale_true).interval_means(edges)
-        centres = 0.5 * (edges[:-1] + edges[1:])
-    else:
-        # new regimes: internal FIR, point or mean samples, free or aligned clock (lattice origin
-        # g_start, or −P/2 so that the samples sit on exact multiples of the period P)
-        if cfg.gravimeter_clock == "aligned":
-            g_start = -0.5 / rate_g
-        centres, edges = _sample_lattice(cfg, g_start, t0 + 20.0 + _fir_half_s(cfg),
-                                         t1 - 1.0 - _fir_half_s(cfg))
-        m = centres.size
-        fz = np.full(m, cref / cfg.scale_true) + _instrument_output(comps, cfg, centres, edges)
-    # horizontal specific force (east, north) at the centres: kinematic + Coriolis
-    ae = path.x_pp.derivative(2)(centres)
-    an = path.y_pp.derivative(2)(centres)
-    latc = np.interp(centres, tg, lat)
-    vec = np.interp(centres, tg, ve)
-    vnc = np.interp(centres, tg, vn)
-    vuc = np.interp(centres, tg, vu)
-    s_, c_ = np.sin(np.deg2rad(latc)), np.cos(np.deg2rad(latc))
-    fx = ae + 2 * OMEGA_EARTH * (c_ * vuc - s_ * vnc) + rng.standard_normal(m) * cfg.horizontal_noise_ms2
-    fy = an + 2 * OMEGA_EARTH * s_ * vec + rng.standard_normal(m) * cfg.horizontal_noise_ms2
-    grav = pd.DataFrame({"time": np.round(centres + cfg.time_offset_s, 3), "f_z": fz, "f_x": fx, "f_y": fy})
-    # --- GNSS
-    episodes = noise_episodes(t0, t1, cfg.episode_rate_per_h, cfg.episode_len_s, cfg.episode_factor, rng)
-    sig_vu = cfg.sigma_vu_cms / 100.0 * sigma_factor(tg, episodes)       # m/s
-    r_m, r_n = radii_of_curvature_m(lat)
-    vu_extra = 0.0
-    if cfg.vu_colored_cms > 0:
-        vu_extra = vu_extra + _colored_noise(tg, cfg, _aux_rng(aux_seed, _TAG_VU_COLORED, flight_idx))
-    if cfg.vu_from_position_m > 0:
-        vu_extra = vu_extra + _position_derived_noise(tg, cfg, _aux_rng(aux_seed, _TAG_VU_POSITION, flight_idx))
-    gnss = pd.DataFrame({
-        "time": tg,
-        "lat": lat + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / (r_m + h)),
-        "lon": lon + np.rad2deg(rng.standard_normal(n) * cfg.sigma_pos_m / ((r_n + h) * np.cos(np.deg2rad(lat)))),
-        "h": h + rng.standard_normal(n) * cfg.sigma_h_m,
-        "vu": vu + rng.standard_normal(n) * sig_vu + vu_extra,
-        "ve": ve + rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
-        "vn": vn + rng.standard_normal(n) * cfg.sigma_vh_cms / 100.0,
-        # receiver's formal sigma: follows the true level, imperfectly
-        "sigma_v": sig_vu * np.exp(rng.normal(0.0, 0.2, n)),
-    })
-    if cfg.h_colored_m > 0:
-        gnss["h"] += gauss_markov(tg, cfg.h_colored_m, cfg.h_colored_tau_s,
-                                  _aux_rng(aux_seed, _TAG_H_COLORED, flight_idx))
-    if not cfg.gnss_velocity:
-        gnss = gnss[["time", "lat", "lon", "h"]]
-    # truth per epoch, rounded far below every noise level (keeps the committed sample small)
-    # --- parking-place readings before and after (separate random stream; drift keeps running)
-    segs = _apron_segments(path, cfg) if airport is not None else []
-    aprons = []
-    if segs:
-        if apron_rng is None:
-            raise ValueError("apron segments need apron_rng")
-        drift_full = _extend_drift(drift_pp, td, rw, off, rate, t0, segs[0][1] - 60.0, segs[-1][2] + 60.0,
-                                   cfg, apron_rng)
-        parts = [simulate_apron(sg, cfg, apron_rng, airport, drift_full, g_start,
-                                _aux_rng(aux_seed, _TAG_H_COLORED_APRON, 2 * flight_idx + j) if cfg.h_colored_m > 0
-                                else None)
-                 for j, sg in enumerate(segs)]
-        aprons = [p[2] for p in parts]
-        grav = pd.concat([parts[0][0], grav, parts[1][0]], ignore_index=True)
-        gnss = pd.concat([parts[0][1], gnss, parts[1][1]], ignore_index=True)
-    epochs = pd.DataFrame({
-        "time": np.round(tg, 3), "easting_km": np.round(x, 6), "northing_km": np.round(y, 6),
-        "dg_true_mgal": np.round(dg, 5), "R_true_cm2s2": (sig_vu * 100.0) ** 2,
-        "drift_mgal": np.round(drift_at, 4), "vu_true_ms": np.round(vu, 5),
-    })
-    if not cfg.gnss_velocity:
-        epochs["R_true_cm2s2"] = np.nan      # no velocity in the file: no velocity noise level
-    for k, v in extra.items():
-        epochs[k] = v
-    epochs["state_true"] = epochs["state_true"].astype(np.int8)
-    cols = ["time", "easting_km", "northing_km", "dg_true_mgal", "terrain", "state_true",
-            "Q_true_mgal2", "R_true_cm2s2", "drift_mgal", "vu_true_ms"]
-    if "terrain_mgal" in epochs:
-        cols.append("terrain_mgal")
-    if _truth_has_height(cfg):
-        epochs["h_true_m"] = h               # true (draped, moving) ellipsoidal height, full precision
-        cols.append("h_true_m")
-    epochs = epochs[cols]
-    info = {"t0": t0, "t1": t1, "drift_offset_mgal": off, "drift_rate_mgal_h": rate,
-            "drift_rw_mgal_rth": cfg.drift_rw_mgal_rth, "gravimeter_first_interval_start": g_start,
-            "gnss_noisy_episodes": [{"t_start": s, "t_end": e, "sigma_factor": f} for s, e, f in episodes],
+    # the main stream is drawn in this order: motion, anomaly (Markov), drift, sensor noise, clock
+    # phase, horizontal noise, GNSS
+    motion = _true_motion(path, cfg, rng, tg, e0_km, n0_km, drape)
+    dg, extra = _anomaly_means(path, cfg, tg, e0_km, n0_km, motion, dg_means_fn)
+    drift = _draw_drift(cfg, rng, t0, t1)
+    comps, cref = _gravimeter_inputs(cfg, rng, motion, tg, dg, drift, t0, t1)
+    smp = _sample_gravimeter(comps, cref, cfg, rng, t0, t1)
+    grav = _gravimeter_table(path, cfg, rng, motion, tg, smp)
+    rec = _gnss_record(cfg, rng, motion, tg, t0, t1, aux_seed, flight_idx)
+    gnss, aprons = rec.table, []
+    if airport is not None:
+        grav, gnss, aprons = _add_aprons(path, cfg, apron_rng, airport, drift, smp.g_start, aux_seed,
+                                         flight_idx, grav, gnss)
+    epochs = _truth_epochs(cfg, motion, tg, dg, extra, rec.sigma_vu_ms, drift.pp(tg) / MGAL)
+    info = {"t0": t0, "t1": t1, "drift_offset_mgal": drift.offset_mgal, "drift_rate_mgal_h": drift.rate_mgal_h,
+            "drift_rw_mgal_rth": cfg.drift_rw_mgal_rth, "gravimeter_first_interval_start": smp.g_start,
+            "gnss_noisy_episodes": [{"t_start": s, "t_end": e, "sigma_factor": f} for s, e, f in rec.episodes],
             "apron": aprons,
-            **motion_info}
+            **motion.info}
     if not _legacy_gravimeter(cfg):
-        info["gravimeter_first_sample_time"] = float(centres[0])
+        info["gravimeter_first_sample_time"] = float(smp.centres[0])
     return {"gravimeter": grav, "gnss": gnss, "epochs": epochs, "info": info}
 
 
@@ -450,72 +567,160 @@ def _extent(paths):
     return float(x.min()), float(x.max()), float(y.min()), float(y.max())
 
 
-def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overrides) -> Path:
-    """Simulate a survey and write it (SPEC §4) with its ``truth/`` folder.
-
-    Parameters
-    ----------
-    preset : str
-        A key of :data:`PRESETS` (``tiny``, ``omolon-mini``, ``omolon``, ``kalgoorlie``, ``markov``, and the
-        realistic regimes ``testline-2hz``, ``platform-*``, ``heights-only-*``, ``turbulent``, ``draped``;
-        docs/SIMULATOR.md).
-    out_dir : path
-        Destination directory (replaced atomically if it exists).
-    seed : int
-        Seed of the random generator; same seed, same survey.
-    progress : callable, optional
-        ``progress(stage: str, fraction: float, info: dict | None)``.
-    **overrides
-        Any :class:`SimConfig` field.
-
-    Returns
-    -------
-    pathlib.Path
-        The survey directory.
-    """
-    from app.io.survey_writer import write_survey
-
-    if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
-    cfg = PRESETS[preset].replace(**overrides)
-    _check_regime(cfg)
-    rng = np.random.default_rng(seed)
-    clock = _time.perf_counter()
-
-    def report(stage, frac, info=None):
-        if progress is not None:
-            progress(stage, float(frac), info)
-
-    report("plan", 0.0)
-    e0, n0 = (float(v) for v in project_km(cfg.lon0_deg, cfg.lat0_deg, cfg.crs))
-    planned = layout_lines(cfg)
+def _plan_flights(cfg: SimConfig, planned, rng) -> list:
+    """The lines split into ``cfg.n_flights`` consecutive flights, one :class:`FlightPath` each
+    (flights on successive days, a random start within the hour)."""
     chunks = np.array_split(np.arange(len(planned)), max(1, min(cfg.n_flights, len(planned))))
     paths = []
     for i, ch in enumerate(chunks):
         t0 = float(round(cfg.epoch_offset_s + i * cfg.flight_spacing_s + rng.uniform(0, 3600)))
         paths.append(plan_flight(f"F{i + 1:02d}", [planned[j] for j in ch], t0, cfg, rng))
-    ext = _extent(paths)
-    report("field", 0.05)
+    return paths
 
+
+def _line_points(planned) -> tuple[np.ndarray, np.ndarray]:
+    """Points every ~0.1 km along the planned line windows (km relative to the centre)."""
+    pts = []
+    for ln in planned:
+        a, b = np.array(ln.start_km), np.array(ln.end_km)
+        k = max(2, int(np.hypot(*(b - a)) / 0.1) + 1)
+        pts.append(a + np.linspace(0.0, 1.0, k)[:, None] * (b - a))
+    P = np.concatenate(pts)
+    return P[:, 0], P[:, 1]
+
+
+class _SourcesAnomaly:
+    """Point-source field (``field_kind = "sources"``), plus the topography's gravity when there is
+    one: δg along each flight, and the truth grid."""
+
+    def __init__(self, cfg: SimConfig, fld, topo):
+        self.cfg, self.fld, self.topo = cfg, fld, topo
+
+    def for_path(self, path):
+        """``dg_means_fn`` of :func:`simulate_flight` for one flight."""
+        cfg, fld, topo = self.cfg, self.fld, self.topo
+
+        def fn(tg, xm, ym, hm=None):
+            mnt = fld.terrain_mountain(xm, ym)
+            val = fld(xm, ym) if hm is None else fld.at(xm, ym, hm)
+            extra = {"terrain": np.where(mnt, "mountain", "plain"),
+                     "state_true": mnt.astype(np.int64),
+                     "Q_true_mgal2": np.full(tg.size, np.nan)}
+            if topo is not None:
+                tmg = topo.effect_along(tg, xm, ym, cfg.height_m if hm is None else hm,
+                                        int(round(cfg.gnss_rate_hz)))
+                val = val + tmg
+                extra["terrain_mgal"] = np.round(tmg, 5)
+            return val, extra
+        return fn
+
+    def truth_grid(self, truth_lines: pd.DataFrame) -> xr.Dataset:
+        """``truth/grid.nc``: the field at flight height and the mountain mask."""
+        cfg, fld = self.cfg, self.fld
+        return xr.Dataset({"dg": (("northing_km", "easting_km"), fld.dg_mgal,
+                                  {"units": "mGal", "long_name": "true gravity disturbance at flight height"}),
+                           "mountain": (("northing_km", "easting_km"),
+                                        fld.terrain_mountain(*np.meshgrid(fld.easting_km, fld.northing_km)).astype(np.int8))},
+                          coords={"northing_km": fld.northing_km, "easting_km": fld.easting_km},
+                          attrs={"crs": cfg.crs, "height_m": cfg.height_m})
+
+    def truth_json(self) -> dict:
+        """Nothing beyond ``field`` (already in the setup's ``truth_extra``)."""
+        return {}
+
+
+class _MarkovAnomaly:
+    """Markov-jump anomaly (``field_kind = "markov"``, seed 000): states held on blocks of GNSS
+    epochs following a state map; δg drawn per line window during the flights (main stream)."""
+
+    def __init__(self, cfg: SimConfig, smap, rng, e0: float, n0: float):
+        self.cfg, self.smap, self.rng, self.e0, self.n0 = cfg, smap, rng, e0, n0
+        self.block_paths: list[np.ndarray] = []     # block states of every main line, in flying order
+
+    def for_path(self, path):
+        """``dg_means_fn`` of :func:`simulate_flight` for one flight."""
+        cfg, smap, rng, e0, n0, block_paths = self.cfg, self.smap, self.rng, self.e0, self.n0, self.block_paths
+
+        def fn(tg, xm, ym, hm=None):
+            nq = tg.size
+            dg = np.full(nq, np.nan)
+            state = np.zeros(nq, np.int64)
+            Q = np.full(nq, np.nan)
+            for ln, ts, te in path.windows:
+                i0 = int(round((ts - tg[0]) * cfg.gnss_rate_hz))
+                i1 = int(round((te - tg[0]) * cfg.gnss_rate_hz))
+                ne = i1 - i0 + 1
+                nb = int(np.ceil(ne / cfg.markov_block_epochs))
+                bc = i0 + np.minimum(np.arange(nb) * cfg.markov_block_epochs + cfg.markov_block_epochs // 2, ne - 1)
+                sb = smap.state(xm[bc] - e0, ym[bc] - n0)
+                if ln.kind == "main":
+                    block_paths.append(sb)
+                d, s, q = markov_line(ne, sb, cfg.markov_block_epochs, cfg.markov_Q_mgal2,
+                                      float(rng.normal(0.0, cfg.markov_dg0_std_mgal)), rng)
+                dg[i0:i1 + 1], state[i0:i1 + 1], Q[i0:i1 + 1] = d, s, q
+            ok = np.isfinite(dg)
+            dg = np.interp(tg, tg[ok], dg[ok])     # linear ramps through turns
+            st = smap.state(xm - e0, ym - n0)
+            state = np.where(np.isfinite(Q), state, st)
+            return dg, {"terrain": np.where(state == 1, "mountain", "plain"),
+                        "state_true": state, "Q_true_mgal2": Q}
+        return fn
+
+    def truth_grid(self, truth_lines: pd.DataFrame) -> xr.Dataset:
+        """``truth/grid.nc``: the state map, and δg interpolated linearly between the lines (the
+        Markov anomaly exists on the lines only; NaN outside them)."""
+        cfg, smap, e0, n0 = self.cfg, self.smap, self.e0, self.n0
+        xg, yg = smap.x_km + e0, smap.y_km + n0
+        X, Y = np.meshgrid(smap.x_km, smap.y_km)
+        st = smap.state(X, Y).astype(np.int8)
+        sub = truth_lines.iloc[::50]
+        lin = LinearNDInterpolator(sub[["easting_km", "northing_km"]].to_numpy(), sub["dg_true_mgal"].to_numpy())
+        dgg = lin(X + e0, Y + n0)
+        return xr.Dataset({"dg": (("northing_km", "easting_km"), dgg, {"units": "mGal"}),
+                           "state": (("northing_km", "easting_km"), st)},
+                          coords={"northing_km": yg, "easting_km": xg},
+                          attrs={"crs": cfg.crs, "height_m": cfg.height_m,
+                                 "note": "Markov preset: dg interpolated linearly between lines"})
+
+    def truth_json(self) -> dict:
+        """truth.json ``markov``: the model and the empirical transitions of the flown block states."""
+        cfg, block_paths = self.cfg, self.block_paths
+        P = empirical_transition(block_paths)
+        pi = np.bincount(np.concatenate(block_paths), minlength=2) / sum(len(b) for b in block_paths)
+        return {"markov": {
+            "m": 1, "Q_mgal2": list(cfg.markov_Q_mgal2), "Q_step": "per GNSS step (0.1 s)",
+            "R_cm2s2": [cfg.sigma_vu_cms ** 2],
+            "transition_target": [[cfg.markov_a11, 1 - cfg.markov_a11], [1 - cfg.markov_a22, cfg.markov_a22]],
+            "transition_empirical": P.tolist(),
+            "transition_grid_km": cfg.markov_map_step_km,
+            "state_fraction": pi.tolist(),
+            "state_map_sigma_km": self.smap.sigma_km,
+            "initial_state_per_line": [int(b[0]) for b in block_paths],
+        }}
+
+
+@dataclass
+class _FieldSetup:
+    """The anomaly of a survey and what shapes the flight height."""
+
+    anomaly: _SourcesAnomaly | _MarkovAnomaly
+    drape: object | None           # app.simulate.motion.Drape (or the terrain-following drape)
+    topo: object | None            # app.simulate.topography.Topography
+    truth_extra: dict              # truth.json entries: "topography", "field"
+
+
+def _make_field(cfg: SimConfig, planned, ext, e0: float, n0: float, rng, seed) -> _FieldSetup:
+    """Drape and topography (auxiliary streams), then the anomaly field (main stream)."""
     truth_extra: dict = {}
     drape = make_drape(cfg, planned, _aux_rng(seed, _TAG_DRAPE)) if cfg.drape_amp_m > 0 else None
     topo = None
     if cfg.topo_amp_m > 0:
-        from app.simulate.topography import make_topography
         topo = make_topography(cfg, ext, e0, n0, planned, _aux_rng(seed, _TAG_TOPO))
         truth_extra["topography"] = topo.info
         if topo.drape is not None:
             drape = topo.drape
     if cfg.field_kind == "sources":
-        line_pts = None
-        if cfg.field_std_over == "lines":
-            pts = []
-            for ln in planned:
-                a, b = np.array(ln.start_km), np.array(ln.end_km)
-                k = max(2, int(np.hypot(*(b - a)) / 0.1) + 1)
-                pts.append(a + np.linspace(0.0, 1.0, k)[:, None] * (b - a))
-            P = np.concatenate(pts)
-            line_pts = (P[:, 0], P[:, 1])
+        line_pts = _line_points(planned) if cfg.field_std_over == "lines" else None
         fld = make_field(cfg, ext, e0, n0, rng, line_pts)
         truth_extra["field"] = fld.info
         if drape is not None:
@@ -526,76 +731,53 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
                          "z, height in metres) minus offset_mgal; truth/grid.nc stays at the nominal height_m"),
                 "x_m": src["x_m"], "y_m": src["y_m"], "z_m": src["z_m"], "mass_kg": src["mass_kg"],
                 "offset_mgal": src["offset_mgal"], "n_mountain": src["n_mountain"]}}
-
-        def dg_fn_for(path):
-            def fn(tg, xm, ym, hm=None):
-                mnt = fld.terrain_mountain(xm, ym)
-                val = fld(xm, ym) if hm is None else fld.at(xm, ym, hm)
-                extra = {"terrain": np.where(mnt, "mountain", "plain"),
-                         "state_true": mnt.astype(np.int64),
-                         "Q_true_mgal2": np.full(tg.size, np.nan)}
-                if topo is not None:
-                    tmg = topo.effect_along(tg, xm, ym, cfg.height_m if hm is None else hm,
-                                            int(round(cfg.gnss_rate_hz)))
-                    val = val + tmg
-                    extra["terrain_mgal"] = np.round(tmg, 5)
-                return val, extra
-            return fn
+        anomaly = _SourcesAnomaly(cfg, fld, topo)
     elif cfg.field_kind == "markov":
         rows = [ln.start_km[1] for ln in planned if ln.kind == "main"]
         half = cfg.main_length_km / 2.0
         smap = make_state_map(ext, cfg.markov_a11, cfg.markov_a22, rng, cfg.markov_map_step_km,
                               rows_y_km=rows, row_x_km=(-half, half))
-        block_paths = []
-
-        def dg_fn_for(path):
-            def fn(tg, xm, ym, hm=None):
-                nq = tg.size
-                dg = np.full(nq, np.nan)
-                state = np.zeros(nq, np.int64)
-                Q = np.full(nq, np.nan)
-                for ln, ts, te in path.windows:
-                    i0 = int(round((ts - tg[0]) * cfg.gnss_rate_hz))
-                    i1 = int(round((te - tg[0]) * cfg.gnss_rate_hz))
-                    ne = i1 - i0 + 1
-                    nb = int(np.ceil(ne / cfg.markov_block_epochs))
-                    bc = i0 + np.minimum(np.arange(nb) * cfg.markov_block_epochs + cfg.markov_block_epochs // 2, ne - 1)
-                    sb = smap.state(xm[bc] - e0, ym[bc] - n0)
-                    if ln.kind == "main":
-                        block_paths.append(sb)
-                    d, s, q = markov_line(ne, sb, cfg.markov_block_epochs, cfg.markov_Q_mgal2,
-                                          float(rng.normal(0.0, cfg.markov_dg0_std_mgal)), rng)
-                    dg[i0:i1 + 1], state[i0:i1 + 1], Q[i0:i1 + 1] = d, s, q
-                ok = np.isfinite(dg)
-                dg = np.interp(tg, tg[ok], dg[ok])     # linear ramps through turns
-                st = smap.state(xm - e0, ym - n0)
-                state = np.where(np.isfinite(Q), state, st)
-                return dg, {"terrain": np.where(state == 1, "mountain", "plain"),
-                            "state_true": state, "Q_true_mgal2": Q}
-            return fn
+        anomaly = _MarkovAnomaly(cfg, smap, rng, e0, n0)
     else:
         raise ValueError(f"unknown field_kind {cfg.field_kind!r}")
+    return _FieldSetup(anomaly, drape, topo, truth_extra)
 
-    airport = None
-    if cfg.apron_s > 0:
-        ax, ay = cfg.airport_km if cfg.airport_km is not None else (-cfg.main_length_km / 2.0 - 20.0, 0.0)
-        alon, alat = (float(v) for v in unproject_km(e0 + ax, n0 + ay, cfg.crs))
-        gamma_ap = float(normal_gravity_mgal(alat, cfg.airport_h_m, cfg.normal_gravity))
-        airport = {"lat_deg": round(alat, 7), "lon_deg": round(alon, 7), "h_m": cfg.airport_h_m,
-                   "easting_km": e0 + ax, "northing_km": n0 + ay,
-                   "normal_gravity_mgal": gamma_ap, "local_anomaly_mgal": cfg.airport_anomaly_mgal,
-                   "g_base_mgal": round(gamma_ap + cfg.airport_anomaly_mgal, 2)}
-    # the parking-place segments draw from their own stream: airborne data do not depend on them
+
+def _airport(cfg: SimConfig, e0: float, n0: float) -> dict | None:
+    """The parking place (``cfg.apron_s > 0``): position, height, normal gravity and base gravity."""
+    if cfg.apron_s <= 0:
+        return None
+    ax, ay = cfg.airport_km if cfg.airport_km is not None else (-cfg.main_length_km / 2.0 - 20.0, 0.0)
+    alon, alat = (float(v) for v in unproject_km(e0 + ax, n0 + ay, cfg.crs))
+    gamma_ap = float(normal_gravity_mgal(alat, cfg.airport_h_m, cfg.normal_gravity))
+    return {"lat_deg": round(alat, 7), "lon_deg": round(alon, 7), "h_m": cfg.airport_h_m,
+            "easting_km": e0 + ax, "northing_km": n0 + ay,
+            "normal_gravity_mgal": gamma_ap, "local_anomaly_mgal": cfg.airport_anomaly_mgal,
+            "g_base_mgal": round(gamma_ap + cfg.airport_anomaly_mgal, 2)}
+
+
+@dataclass
+class _FlownSurvey:
+    """Every flight simulated: the files' contents and the truth."""
+
+    flights: dict          # flight -> (gravimeter DataFrame, gnss DataFrame)
+    lines: pd.DataFrame    # lines.csv
+    truth_lines: pd.DataFrame
+    flight_info: dict      # flight -> truth.json "flights" entry
+
+
+def _fly(paths, cfg: SimConfig, rng, e0: float, n0: float, field: _FieldSetup, airport, seed, report) -> _FlownSurvey:
+    """Simulate every flight (main stream in flight order; the parking-place segments draw from
+    their own streams, so the airborne data do not depend on them) and cut the truth per line."""
     apron_rngs = [np.random.default_rng(ss) for ss in np.random.SeedSequence([seed, 0xA9]).spawn(len(paths))]
-
     flights = {}
     truth_rows = []
     lines_rows = []
     flight_info = {}
     for i, path in enumerate(paths):
         report(f"flight {path.name}", 0.1 + 0.75 * i / len(paths), {"flight": path.name})
-        res = simulate_flight(path, cfg, rng, e0, n0, dg_fn_for(path), i,
-                              apron_rng=apron_rngs[i], airport=airport, seed=seed, drape=drape)
+        res = simulate_flight(path, cfg, rng, e0, n0, field.anomaly.for_path(path), i,
+                              apron_rng=apron_rngs[i], airport=airport, seed=seed, drape=field.drape)
         flights[path.name] = (res["gravimeter"], res["gnss"])
         flight_info[path.name] = res["info"]
         ep = res["epochs"]
@@ -608,33 +790,13 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
             sel.insert(0, "line", ln.line)
             sel.insert(3, "track", ln.track)
             truth_rows.append(sel)
-    truth_lines = pd.concat(truth_rows, ignore_index=True)
-    lines = pd.DataFrame(lines_rows)
+    return _FlownSurvey(flights, pd.DataFrame(lines_rows), pd.concat(truth_rows, ignore_index=True), flight_info)
 
-    report("truth", 0.88)
-    import xarray as xr
-    if cfg.field_kind == "sources":
-        grid = xr.Dataset({"dg": (("northing_km", "easting_km"), fld.dg_mgal,
-                                  {"units": "mGal", "long_name": "true gravity disturbance at flight height"}),
-                           "mountain": (("northing_km", "easting_km"),
-                                        fld.terrain_mountain(*np.meshgrid(fld.easting_km, fld.northing_km)).astype(np.int8))},
-                          coords={"northing_km": fld.northing_km, "easting_km": fld.easting_km},
-                          attrs={"crs": cfg.crs, "height_m": cfg.height_m})
-    else:
-        xg, yg = smap.x_km + e0, smap.y_km + n0
-        X, Y = np.meshgrid(smap.x_km, smap.y_km)
-        st = smap.state(X, Y).astype(np.int8)
-        # the Markov anomaly exists on the lines only: grid it by linear interpolation (NaN outside)
-        from scipy.interpolate import LinearNDInterpolator
-        sub = truth_lines.iloc[::50]
-        lin = LinearNDInterpolator(sub[["easting_km", "northing_km"]].to_numpy(), sub["dg_true_mgal"].to_numpy())
-        dgg = lin(X + e0, Y + n0)
-        grid = xr.Dataset({"dg": (("northing_km", "easting_km"), dgg, {"units": "mGal"}),
-                           "state": (("northing_km", "easting_km"), st)},
-                          coords={"northing_km": yg, "easting_km": xg},
-                          attrs={"crs": cfg.crs, "height_m": cfg.height_m,
-                                 "note": "Markov preset: dg interpolated linearly between lines"})
 
+def _truth_json(preset: str, seed: int, cfg: SimConfig, e0: float, n0: float, airport, flight_info: dict,
+                field: _FieldSetup) -> dict:
+    """``truth/truth.json``: the configuration, every injected error and its convention, per-flight truth,
+    the field (and topography, regime, Markov model when present)."""
     truth_json = {
         "preset": preset, "seed": seed, "config": dataclasses.asdict(cfg),
         "tau_s": cfg.tau_true_s, "scale": cfg.scale_true,
@@ -663,34 +825,75 @@ def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overri
                        "continuous across the unrecorded gaps; flights[*].apron gives each segment's "
                        "GNSS span, gravimeter interval span and true drift (mean over the gravimeter span)"),
         "flights": flight_info,
-        **truth_extra,
+        **field.truth_extra,
     }
-    regime = _regime_notes(cfg, drape)
+    regime = _regime_notes(cfg, field.drape)
     if regime:
         truth_json["regime"] = regime
-    if cfg.field_kind == "markov":
-        P = empirical_transition(block_paths)
-        pi = np.bincount(np.concatenate(block_paths), minlength=2) / sum(len(b) for b in block_paths)
-        truth_json["markov"] = {
-            "m": 1, "Q_mgal2": list(cfg.markov_Q_mgal2), "Q_step": "per GNSS step (0.1 s)",
-            "R_cm2s2": [cfg.sigma_vu_cms ** 2],
-            "transition_target": [[cfg.markov_a11, 1 - cfg.markov_a11], [1 - cfg.markov_a22, cfg.markov_a22]],
-            "transition_empirical": P.tolist(),
-            "transition_grid_km": cfg.markov_map_step_km,
-            "state_fraction": pi.tolist(),
-            "state_map_sigma_km": smap.sigma_km,
-            "initial_state_per_line": [int(b[0]) for b in block_paths],
-        }
-    toml = {"survey": {"name": cfg.name, "crs": cfg.crs, "normal_gravity": cfg.normal_gravity},
+    truth_json.update(field.anomaly.truth_json())
+    return truth_json
+
+
+def _survey_toml(cfg: SimConfig, airport) -> dict:
+    """``survey.toml``: what the processing is told (declared τ and scale, not the true ones)."""
+    return {"survey": {"name": cfg.name, "crs": cfg.crs, "normal_gravity": cfg.normal_gravity},
             "gravimeter": {"model": cfg.gravimeter_model, "tau_s": cfg.tau_declared_s,
                            "scale": cfg.scale_declared, "rate_hz": cfg.gravimeter_rate_hz,
                            "base_gravity_mgal": airport["g_base_mgal"] if airport else None},
             "processing": dict(cfg.processing)}
+
+
+def simulate_survey(preset: str, out_dir, seed: int = 0, progress=None, **overrides) -> Path:
+    """Simulate a survey and write it (SPEC §4) with its ``truth/`` folder.
+
+    Parameters
+    ----------
+    preset : str
+        A key of :data:`PRESETS` (``tiny``, ``omolon-mini``, ``omolon``, ``kalgoorlie``, ``markov``, and the
+        realistic regimes ``testline-2hz``, ``platform-*``, ``heights-only-*``, ``turbulent``, ``draped``;
+        docs/SIMULATOR.md).
+    out_dir : path
+        Destination directory (replaced atomically if it exists).
+    seed : int
+        Seed of the random generator; same seed, same survey.
+    progress : callable, optional
+        ``progress(stage: str, fraction: float, info: dict | None)``.
+    **overrides
+        Any :class:`SimConfig` field.
+
+    Returns
+    -------
+    pathlib.Path
+        The survey directory.
+    """
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
+    cfg = PRESETS[preset].replace(**overrides)
+    _check_regime(cfg)
+    rng = np.random.default_rng(seed)
+    clock = _time.perf_counter()
+
+    def report(stage, frac, info=None):
+        if progress is not None:
+            progress(stage, float(frac), info)
+
+    report("plan", 0.0)
+    e0, n0 = (float(v) for v in project_km(cfg.lon0_deg, cfg.lat0_deg, cfg.crs))
+    planned = layout_lines(cfg)
+    paths = _plan_flights(cfg, planned, rng)
+    ext = _extent(paths)
+    report("field", 0.05)
+    field = _make_field(cfg, planned, ext, e0, n0, rng, seed)
+    airport = _airport(cfg, e0, n0)
+    flown = _fly(paths, cfg, rng, e0, n0, field, airport, seed, report)
+    report("truth", 0.88)
+    grid = field.anomaly.truth_grid(flown.truth_lines)
+    truth_json = _truth_json(preset, seed, cfg, e0, n0, airport, flown.flight_info, field)
     report("write", 0.9)
-    from app.io.survey_writer import GNSS_HEIGHTS_ONLY_COLUMNS
-    out = write_survey(out_dir, toml, lines, flights, truth_lines, grid, truth_json, compress=cfg.compress,
+    out = write_survey(out_dir, _survey_toml(cfg, airport), flown.lines, flown.flights, flown.truth_lines, grid,
+                       truth_json, compress=cfg.compress,
                        gnss_columns=None if cfg.gnss_velocity else GNSS_HEIGHTS_ONLY_COLUMNS,
-                       dem=topo.dem if topo is not None else None)
+                       dem=field.topo.dem if field.topo is not None else None)
     report("done", 1.0, {"seconds": _time.perf_counter() - clock})
     return out
 
@@ -699,7 +902,6 @@ def _regime_notes(cfg: SimConfig, drape) -> dict:
     """truth.json ``regime``: what the new (realistic) options injected; empty for the original presets."""
     out: dict = {}
     if not _legacy_gravimeter(cfg):
-        from app.simulate.sensors import fir_gain
         g = {"sampling": cfg.gravimeter_sampling, "clock": cfg.gravimeter_clock,
              "rate_hz": cfg.gravimeter_rate_hz,
              "sampling_note": ("point: f_z is the instrument's output (after its internal filter, lag and scale) "

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from app.core.accuracy import (crossover_rms, grid_rms_in_hull, internal_accuracy, points_in_hull,
-                               repeat_line_accuracy, rms_vs_reference, std_calibration)
+from app.core.accuracy import (GridAccuracy, crossover_rms, crossover_std_factor, grid_accuracy_in_hull,
+                               grid_rms_in_hull, internal_accuracy, line_demeaned, mean_error_vs_reference,
+                               points_in_hull, repeat_line_accuracy, rms_vs_reference, std_calibration)
 
 
 def test_internal_accuracy_by_hand():
@@ -96,8 +97,6 @@ def test_grid_rms_inside_hull_of_lines():
 def test_crossover_std_factor_recovers_a_misstated_std():
     """Two crossing lines' errors with true std σ and correlation ρ; the stated std is
     off by a known factor: the crossover factor must undo it (simulation, known truth)."""
-    from app.core.accuracy import crossover_std_factor
-
     rng = np.random.default_rng(7)
     n, rho = 4000, 0.25
     sigma = rng.uniform(1.0, 3.0, n)
@@ -117,3 +116,64 @@ def test_crossover_std_factor_recovers_a_misstated_std():
     assert crossover_std_factor(ea[:5] - eb[:5], np.ones(5)) == {"n": 5}
     with pytest.raises(ValueError):
         crossover_std_factor(ea, np.ones(3))
+
+
+def test_rms_vs_reference_per_line_mean_removed_by_hand():
+    # line A errors 1, 3 (mean 2 -> ±1), line B errors -2, -2, NaN (mean -2 -> 0, 0, NaN)
+    est = np.array([1.0, 3.0, 0.0, 0.0, np.nan])
+    ref = np.array([0.0, 0.0, 2.0, 2.0, 0.0])
+    line = np.array(["A", "A", "B", "B", "B"])
+    assert rms_vs_reference(est, ref) == pytest.approx(np.sqrt((1 + 9 + 4 + 4) / 4))
+    assert rms_vs_reference(est, ref, line=line) == pytest.approx(np.sqrt(2 / 4))
+    np.testing.assert_allclose(line_demeaned(est - ref, line), [-1.0, 1.0, 0.0, 0.0, np.nan])
+    # the line mean is taken over all the line's points, then `where` selects (first point of A, B)
+    sel = np.array([True, False, True, False, False])
+    assert rms_vs_reference(est, ref, where=sel) == pytest.approx(np.sqrt((1 + 4) / 2))
+    assert rms_vs_reference(est, ref, line=line, where=sel) == pytest.approx(np.sqrt(1 / 2))
+    assert mean_error_vs_reference(est, ref) == pytest.approx((1 + 3 - 2 - 2) / 4)
+    assert mean_error_vs_reference(est, ref, where=sel) == pytest.approx(-0.5)
+    # integer line ids work too; no selected finite pair is an error
+    assert rms_vs_reference(est, ref, line=np.array([0, 0, 1, 1, 1])) == pytest.approx(np.sqrt(0.5))
+    with pytest.raises(ValueError, match="common finite"):
+        rms_vs_reference(est, ref, where=np.array([False] * 4 + [True]))
+    with pytest.raises(ValueError, match="where"):
+        rms_vs_reference(est, ref, where=np.ones(3, bool))
+
+
+def test_std_calibration_by_hand():
+    # |e| < 2σ: 0.5 < 2 yes, 3 < 2 no, 1.9 < 2 yes, 2 < 2 no (strict); the NaN pair is ignored
+    assert std_calibration([0.5, -3.0, 1.9, 2.0, np.nan], [1.0, 1.0, 1.0, 1.0, 1.0]) == pytest.approx(0.5)
+    assert std_calibration([0.5, -3.0], 2.0, k=1.0) == pytest.approx(0.5)   # σ broadcast
+
+
+def test_grid_accuracy_in_hull_by_hand():
+    # lines on the border of the square [0, 2]²; grid nodes -1..3 -> the 9 nodes 0..2 are inside
+    t = np.linspace(0, 2, 21)
+    le = np.concatenate([t, t, np.zeros_like(t), np.full_like(t, 2.0)])
+    ln = np.concatenate([np.zeros_like(t), np.full_like(t, 2.0), t, t])
+    x = y = np.arange(-1.0, 3.5, 1.0)
+    X, Y = np.meshgrid(x, y)
+    inside = (X >= 0) & (X <= 2) & (Y >= 0) & (Y <= 2)
+    err = np.where(inside, 0.0, 50.0)
+    err[inside] = [1, 1, 1, 1, 1, 1, 1, 3, 3]           # row by row
+    err[1, 1] = np.nan                                  # one inside node lost: 8 cells left
+    kept = np.array([1, 1, 1, 1, 1, 1, 3, 3], float)
+    std = np.full(X.shape, 1.0)                         # |err| < 2: the six 1s
+    res = grid_accuracy_in_hull(x, y, err, np.zeros_like(err), le, ln, std_mgal=std)
+    assert res == GridAccuracy(cells=8, rms_mgal=pytest.approx(np.sqrt(np.mean(kept ** 2))),
+                               rms_demeaned_mgal=pytest.approx(np.std(kept)), std_calibration=0.75)
+    assert res.rms_mgal == pytest.approx(np.sqrt(24 / 8))
+    assert grid_rms_in_hull(x, y, err, np.zeros_like(err), le, ln) == pytest.approx(res.rms_mgal)
+    # no node inside: no error, None figures
+    none = grid_accuracy_in_hull(x + 100.0, y, err, np.zeros_like(err), le, ln)
+    assert none == GridAccuracy(cells=0, rms_mgal=None, rms_demeaned_mgal=None, std_calibration=None)
+
+
+def test_points_in_hull_of_many_points_and_edges():
+    rng = np.random.default_rng(4)
+    e, n = rng.uniform(0, 10, 200_000), rng.uniform(0, 10, 200_000)
+    e[:4], n[:4] = [0, 10, 10, 0], [0, 0, 10, 10]      # the square's corners are data points
+    probe_e = np.array([5.0, 0.0, 10.0, 5.0, -0.01, 10.01, 5.0])
+    probe_n = np.array([5.0, 5.0, 3.0, 10.0, 5.0, 5.0, -1.0])
+    np.testing.assert_array_equal(points_in_hull(probe_e, probe_n, e, n),
+                                  [True, True, True, True, False, False, False])

@@ -181,10 +181,15 @@ def test_leveling_with_noise_weighted_and_degree_reduction():
     sub = x[(x.line_b == "T0") | ((x.line_a == "M0") & (x.line_b.isin(["T1"])))]
     r2 = level_lines(sub, ranges, degree=1)
     assert r2.degrees["T1"] == 0 and r2.degrees["M0"] == 0 and r2.degrees["T0"] == 1
-    # lines without crossovers get zero correction
-    assert "M3" not in r2.coefs or True
-    assert np.all(r2.correction("T3", lines["T3"].time_s) == 0)
-    assert "T3" in r2.unleveled_lines
+    # every line with a crossover gets a drift; lines without crossovers (T2, T3) get none,
+    # are reported as unleveled and get zero correction
+    crossed = set(sub.line_a) | set(sub.line_b)
+    assert crossed == {f"M{k}" for k in range(8)} | {"T0", "T1"}
+    assert set(r2.coefs) == crossed
+    assert r2.unleveled_lines == ["T2", "T3"]
+    for ln in ("T2", "T3"):
+        assert np.all(r2.correction(ln, lines[ln].time_s) == 0)
+    assert np.any(r2.correction("M3", lines["M3"].time_s) != 0)
 
 
 def test_leveling_errors():

@@ -63,7 +63,7 @@ def test_header_case_blank_lines_and_parse_error(tmp_path):
     assert ei.value.row == 5
 
 
-def test_surplus_field_is_reported(tmp_path):
+def test_surplus_field_message_names_the_row(tmp_path):
     p = tmp_path / "a.csv"
     p.write_text("time,f_z,extra\n1,9.8,a\n2,9,81,b\n3,9.8,c\n")  # decimal comma on line 3
     with pytest.raises(InputError) as ei:
@@ -71,7 +71,7 @@ def test_surplus_field_is_reported(tmp_path):
     assert ei.value.row == 3 and "more fields" in str(ei.value)
 
 
-def test_surplus_field_is_reported(tmp_path):
+def test_surplus_field_row_is_reported(tmp_path):
     p = tmp_path / "a.csv"
     for text, row in (("time,f_z,extra\n1,9.8,a\n2,9,81,b\n3,9.8,c\n", 3),  # decimal comma on line 3
                       ("time,f_z\n1,9,8\n2,9.8\n", 2)):

@@ -54,7 +54,7 @@ def test_real_pipeline_local_and_dask_agree(make_client, sample_zip, tmp_path):
     assert len(prof["dg"]) <= 2000 and all(v is not None for v in prof["dg"])
     rec = local.get(f"/api/surveys/{sid}/recognition").json()
     assert rec["smoother"] == "app.pipeline.stages.recognition.state_map" and rec["n_points"] == len(rec["state"]) > 100
-    # the stored smoothed states are reproduced at the pipeline's own (h, ρ)
+    # (whether the endpoint reproduces the stored states: test_recognition_reproduces_stored_states)
     r_df = pd.read_parquet(io.BytesIO(local.get(f"/api/surveys/{sid}/export", params={"format": "parquet"}).content))
     assert {"dg_mgal", "dg_std_mgal", "state"} <= set(r_df.columns)
     g = local.get(f"/api/surveys/{sid}/grid").json()
@@ -134,3 +134,35 @@ def test_filter_job_reuses_the_identification_and_uses_the_served_map(make_clien
     assert stored["state"] == served["state"]
     again = c.get(f"/api/surveys/{sid}/recognition", params={"h": 1.0, "rho": 4.0}).json()
     assert again["state"] == served["state"]
+
+
+def _states_at_points(lines: pd.DataFrame, rec: dict) -> np.ndarray:
+    """The exported full-rate ``state`` at each recognition point (same line, nearest time).
+
+    The pipeline holds every decimated point's smoothed state on the full-rate grid
+    (each epoch takes the state of the nearest point), so at the point's own epoch the
+    exported ``state`` is the stored smoothed state of that point."""
+    pts = pd.DataFrame({"line": rec["line"], "time": np.asarray(rec["time"], float), "k": np.arange(rec["n_points"])})
+    lines = lines.assign(line=lines["line"].astype(str))
+    parts = [pd.merge_asof(g.sort_values("time"), lines.loc[lines["line"] == ln, ["time", "state"]].sort_values("time"),
+                           on="time", direction="nearest", tolerance=0.006)
+             for ln, g in pts.groupby("line", sort=False)]
+    m = pd.concat(parts).sort_values("k")
+    assert m["state"].notna().all(), "a recognition point has no exported epoch"
+    return m["state"].to_numpy(int)
+
+
+def test_recognition_reproduces_stored_states(make_client, sample_zip, tmp_path):
+    """``GET /recognition`` at the pipeline's own (h, ρ, mode) gives the stored smoothed states."""
+    from app.config import ProcessingParams
+
+    local = make_client(data_dir=tmp_path / "local", pipeline_entry=REAL)
+    sid, job = _process(local, sample_zip)
+    assert job["status"] == "succeeded", job
+    p = ProcessingParams()  # omolon-mini's survey.toml sets no [processing] value
+    rec = local.get(f"/api/surveys/{sid}/recognition",
+                    params={"h": p.nlmeans_h_per_km, "rho": p.nlmeans_rho_km, "mode": p.nlmeans_mode}).json()
+    lines = pd.read_parquet(io.BytesIO(local.get(f"/api/surveys/{sid}/export", params={"format": "parquet"}).content))
+    stored = _states_at_points(lines, rec)
+    assert rec["n_points"] == stored.size > 100
+    np.testing.assert_array_equal(np.asarray(rec["state"]), stored)
