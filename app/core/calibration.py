@@ -85,8 +85,9 @@ Units: time s, accelerations m/s², angles rad; spectra inputs as named.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Literal, NamedTuple, Sequence
+from typing import Literal, NamedTuple
 
 import numpy as np
 
@@ -149,7 +150,7 @@ class CalibrationSpectra:
     @classmethod
     def from_epoch_variances(cls, dt_s: float, *, f_var_mgal2: float, dg_step_var_mgal2: float,
                              gnss: str = "doppler", r_cm2s2: float = 0.0, h_var_m2: float = 0.0,
-                             discrete: bool = True) -> "CalibrationSpectra":
+                             discrete: bool = True) -> CalibrationSpectra:
         """Spectra from per-GNSS-epoch variances (the pipeline's units).
 
         Parameters

@@ -186,7 +186,7 @@ def _optimise(post: _Posterior, fit_noise_scale: bool):
     """Maximise the evidence over log α (and log ν): a coarse grid, then Nelder–Mead."""
     grid_a = np.linspace(np.log(1e-8), np.log(1e4), 25)
     grid_n = np.linspace(np.log(0.3), np.log(3.0), 9) if fit_noise_scale else np.array([0.0])
-    best = max(((post.log_evidence(a, v), a, v) for a in grid_a for v in grid_n))
+    best = max((post.log_evidence(a, v), a, v) for a in grid_a for v in grid_n)
     if fit_noise_scale:
         res = minimize(lambda x: -post.log_evidence(x[0], x[1]), x0=[best[1], best[2]], method="Nelder-Mead",
                        options={"xatol": 1e-3, "fatol": 1e-4})

@@ -48,7 +48,6 @@ from scipy.optimize import minimize_scalar
 from scipy.spatial import cKDTree
 from scipy.spatial.distance import cdist
 
-
 # --------------------------------------------------------------------------- helpers
 
 def single_thread_blas():

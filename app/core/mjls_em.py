@@ -37,8 +37,8 @@ accepts only steps that increase the expected complete-data log-likelihood).
 from __future__ import annotations
 
 import contextlib
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
 
 import numpy as np
 from scipy.optimize import minimize

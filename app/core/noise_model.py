@@ -157,7 +157,7 @@ class NoiseModel:
         return 0.5 * (P + P.T)
 
     # ------------------------------------------------------------------ scale
-    def scaled(self, factor: float) -> "NoiseModel":
+    def scaled(self, factor: float) -> NoiseModel:
         """The same shape with every weight multiplied by ``factor``."""
         if not (np.isfinite(factor) and factor > 0):
             raise ValueError(f"scale factor must be positive, got {factor!r}")
@@ -176,7 +176,7 @@ class NoiseModel:
         """The white-velocity level R ((cm/s)²) with the same band power as this model at R = 1."""
         return self.band_power(band_hz) / white_velocity(self.dt_s).band_power(band_hz)
 
-    def normalized(self, band_hz: tuple[float, float]) -> "NoiseModel":
+    def normalized(self, band_hz: tuple[float, float]) -> NoiseModel:
         """This shape scaled so that a level R means R (cm/s)² of equivalent white velocity
         noise in ``band_hz`` (the band the local level R(t) is measured in)."""
         return self.scaled(1.0 / self.equivalent_white_R(band_hz))

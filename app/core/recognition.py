@@ -10,8 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.core.mjls_em import (WindowModel, _layout, emission_loglik, forward_backward,
-                              single_thread_blas)
+from app.core.mjls_em import WindowModel, _layout, emission_loglik, forward_backward, single_thread_blas
 
 
 def _prepare(x, c, d, Q, R, transition, initial, extra_loglik=None):

@@ -40,9 +40,10 @@ short MA on the decimated grid.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from math import comb
-from typing import Callable, Literal
+from typing import Literal
 
 import numpy as np
 from scipy import signal

@@ -50,9 +50,10 @@ measurements", Int. J. Control 18(1); Rauch, Tung & Striebel (1965), AIAA J.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from math import comb
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import numpy as np
 from numba import njit

@@ -106,7 +106,7 @@ def _is_number(tok: str) -> bool:
 def _open_text(path: Path):
     if path.name.lower().endswith(".gz"):
         return gzip.open(path, "rt", encoding="utf-8", errors="replace", newline="")
-    return open(path, "rt", encoding="utf-8", errors="replace", newline="")
+    return open(path, encoding="utf-8", errors="replace", newline="")
 
 
 def sniff_dat(path, n_lines: int = 5) -> str | None:

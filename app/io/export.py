@@ -205,8 +205,8 @@ def write_grid_geotiff(path, easting_km, northing_km, dg, dg_std, crs) -> Path:
     (GDAL's unit type) and band tags ``units``, ``long_name``.
     """
     import rasterio
-    from rasterio.crs import CRS as RioCRS
     from affine import Affine
+    from rasterio.crs import CRS as RioCRS
 
     e, n, g, s = _check_grid(easting_km, northing_km, dg, dg_std, uniform=True)
     if s is None:

@@ -52,12 +52,21 @@ from pydantic import ValidationError
 
 from app.config import SurveyConfig, check_name
 from app.core.geodesy import radii_of_curvature_m, vertical_velocity_from_heights_ms
-from app.io.errors import InputError
 from app.io.dgs import read_dgs, sniff_dat
+from app.io.errors import InputError
 from app.io.gfile import is_gfile_name, read_gfile
+from app.io.tables import (
+    check_file_size,
+    check_finite,
+    check_range,
+    check_rate,
+    check_time_increasing,
+    fill_short_nan_runs,
+    gap_rows_in_windows,
+    median_rate_hz,
+    read_csv_table,
+)
 from app.io.xyz import XyzTable, scan_xyz, xyz_table
-from app.io.tables import (check_file_size, check_finite, check_range, check_rate, check_time_increasing,
-                           fill_short_nan_runs, gap_rows_in_windows, median_rate_hz, read_csv_table)
 
 __all__ = ["Flight", "Survey", "read_survey", "read_config", "read_lines", "read_gravimeter", "read_gnss",
            "survey_summary", "path_length_km", "LINE_KINDS"]

@@ -184,7 +184,7 @@ def _read_text(path: Path, display: str) -> str:
         if path.name.lower().endswith(".gz"):
             with gzip.open(path, "rt", encoding="utf-8", errors="replace", newline="") as fh:
                 return fh.read()
-        with open(path, "rt", encoding="utf-8", errors="replace", newline="") as fh:
+        with open(path, encoding="utf-8", errors="replace", newline="") as fh:
             return fh.read()
     except (OSError, EOFError) as exc:
         raise InputError(display, None, None, f"cannot read the file: {exc}") from None

@@ -9,16 +9,16 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 from app.config import SurveyConfig
 from app.pipeline.stages import storage
 from app.pipeline.stages.choice import Candidate, choose_model, choose_order, count_crossovers
-from app.pipeline.stages.filtering import fir_baseline, filter_survey
+from app.pipeline.stages.filtering import filter_survey, fir_baseline
 from app.pipeline.stages.gridding import grid_survey
 from app.pipeline.stages.identification import Identification, identify
 from app.pipeline.stages.leveling import level_survey

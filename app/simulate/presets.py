@@ -133,7 +133,7 @@ class SimConfig:
     compress: bool = False
     processing: dict = field(default_factory=dict)         # written to [processing] of survey.toml
 
-    def replace(self, **overrides) -> "SimConfig":
+    def replace(self, **overrides) -> SimConfig:
         """Copy with fields replaced; unknown names raise ``TypeError``."""
         names = {f.name for f in dataclasses.fields(self)}
         bad = sorted(set(overrides) - names)

@@ -53,15 +53,29 @@ import pandas as pd
 import xarray as xr
 from scipy.interpolate import CubicSpline, LinearNDInterpolator, PPoly, make_interp_spline
 
-from app.core.geodesy import (OMEGA_EARTH, eotvos_mgal, normal_gravity_mgal, project_km,
-                              radii_of_curvature_m, unproject_km)
+from app.core.geodesy import (
+    OMEGA_EARTH,
+    eotvos_mgal,
+    normal_gravity_mgal,
+    project_km,
+    radii_of_curvature_m,
+    unproject_km,
+)
 from app.io.survey_writer import GNSS_HEIGHTS_ONLY_COLUMNS, write_survey
 from app.simulate.field import make_field
 from app.simulate.markov import empirical_transition, make_state_map, markov_line
 from app.simulate.motion import layout_lines, make_drape, plan_flight, vertical_motion
 from app.simulate.presets import PRESETS, SimConfig
-from app.simulate.sensors import (LaggedResponse, LaggedResponseN, fir_gain, fir_pp, gauss_markov, noise_episodes,
-                                  quadratic_from_means, sigma_factor)
+from app.simulate.sensors import (
+    LaggedResponse,
+    LaggedResponseN,
+    fir_gain,
+    fir_pp,
+    gauss_markov,
+    noise_episodes,
+    quadratic_from_means,
+    sigma_factor,
+)
 from app.simulate.topography import make_topography
 
 MGAL = 1e-5  # m/s² per mGal

@@ -13,13 +13,12 @@ concurrent submissions cannot both succeed whatever the timing.
 from __future__ import annotations
 
 import datetime as dt
+import logging
 from typing import Any
 
-import logging
-
 from sqlalchemy import JSON, Float, ForeignKey, Index, Integer, String, Text, create_engine, event, text, update
-from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.engine import Engine
+from sqlalchemy.exc import IntegrityError, OperationalError
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship, sessionmaker
 
 JOB_STATES = ("queued", "running", "succeeded", "failed", "cancelled")
@@ -29,7 +28,7 @@ log = logging.getLogger("aerograv.web.db")
 
 
 def utcnow() -> dt.datetime:
-    return dt.datetime.now(dt.timezone.utc).replace(tzinfo=None)
+    return dt.datetime.now(dt.UTC).replace(tzinfo=None)
 
 
 class Base(DeclarativeBase):
@@ -44,9 +43,9 @@ class Survey(Base):
     input_dir: Mapped[str | None] = mapped_column(Text, nullable=True)  # current input snapshot
     current_result_id: Mapped[int | None] = mapped_column(Integer, nullable=True)
     crs: Mapped[str | None] = mapped_column(Text, nullable=True)
-    flights: Mapped[list["Flight"]] = relationship(back_populates="survey", cascade="all, delete-orphan",
+    flights: Mapped[list[Flight]] = relationship(back_populates="survey", cascade="all, delete-orphan",
                                                    order_by="Flight.name")
-    lines: Mapped[list["Line"]] = relationship(back_populates="survey", cascade="all, delete-orphan",
+    lines: Mapped[list[Line]] = relationship(back_populates="survey", cascade="all, delete-orphan",
                                                order_by="Line.id")
 
 

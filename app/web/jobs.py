@@ -32,8 +32,9 @@ import signal
 import threading
 import time
 import traceback
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from sqlalchemy import update
 
@@ -359,6 +360,7 @@ class JobManager:
         this server, and their worker process (``worker_pid``) gone; a queued job without a worker
         gets ``queued_grace_s`` to start.  Returns the ids failed."""
         import datetime as dt
+
         from sqlalchemy import select
 
         failed = []

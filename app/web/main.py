@@ -296,7 +296,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.exception("I/O error")
         return JSONResponse(status_code=500, content={"detail": f"I/O error on the server: {exc.strerror or exc}"})
 
-    from .routers import jobs as jobs_router, results, surveys
+    from .routers import jobs as jobs_router
+    from .routers import results, surveys
     app.include_router(surveys.router)
     app.include_router(jobs_router.router)
     app.include_router(results.router)

@@ -72,7 +72,7 @@ class SurveyOut(BaseModel):
     result_outdated: bool = Field(False, description="The survey's input (data or survey.toml) changed after the "
                                   "current result was computed: run processing again")
     settings: SurveySettings | None = Field(None, description="survey.toml fields of the current input")
-    last_job: "JobOut | None" = None
+    last_job: JobOut | None = None
 
 
 class EMIteration(BaseModel):

@@ -17,8 +17,9 @@ import json
 import os
 import re
 import shutil
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import pandas as pd
 from sqlalchemy import select, update
@@ -317,6 +318,7 @@ def validate_config(data: dict) -> None:
     from pydantic import ValidationError
 
     from app.config import SurveyConfig
+
     from .errors import validation_detail
     try:
         cfg = SurveyConfig.model_validate(data)

@@ -4,9 +4,20 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from app.core.accuracy import (GridAccuracy, crossover_rms, crossover_std_factor, grid_accuracy_in_hull,
-                               grid_rms_in_hull, internal_accuracy, line_demeaned, mean_error_vs_reference,
-                               points_in_hull, repeat_line_accuracy, rms_vs_reference, std_calibration)
+from app.core.accuracy import (
+    GridAccuracy,
+    crossover_rms,
+    crossover_std_factor,
+    grid_accuracy_in_hull,
+    grid_rms_in_hull,
+    internal_accuracy,
+    line_demeaned,
+    mean_error_vs_reference,
+    points_in_hull,
+    repeat_line_accuracy,
+    rms_vs_reference,
+    std_calibration,
+)
 
 
 def test_internal_accuracy_by_hand():

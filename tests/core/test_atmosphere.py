@@ -15,8 +15,13 @@ import numpy as np
 import pytest
 from scipy.integrate import quad
 
-from app.core.atmosphere import (G_SI, R_MEAN_M, atmospheric_correction_mgal, ussa76_density_kgm3,
-                                 ussa76_temperature_pressure)
+from app.core.atmosphere import (
+    G_SI,
+    R_MEAN_M,
+    atmospheric_correction_mgal,
+    ussa76_density_kgm3,
+    ussa76_temperature_pressure,
+)
 
 H_KM = np.arange(0.0, 10.01, 0.5)
 

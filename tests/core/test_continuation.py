@@ -11,7 +11,7 @@ import harmonica as hm
 import numpy as np
 import pytest
 
-from app.core.continuation import (block_average_lines, draped_datum_height_m, fit_equivalent_sources)
+from app.core.continuation import block_average_lines, draped_datum_height_m, fit_equivalent_sources
 
 H0 = 3000.0
 

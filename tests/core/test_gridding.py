@@ -3,8 +3,15 @@
 import numpy as np
 import pytest
 
-from app.core.gridding import (Collocation, Spline, block_thin, empirical_covariance, fit_gm2,
-                               gm2_covariance, line_spacing_km)
+from app.core.gridding import (
+    Collocation,
+    Spline,
+    block_thin,
+    empirical_covariance,
+    fit_gm2,
+    gm2_covariance,
+    line_spacing_km,
+)
 
 VAR, LEN = 25.0, 3.0          # mGal², km of the simulated field
 

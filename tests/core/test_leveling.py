@@ -1,7 +1,6 @@
 """Tests of crossovers and line leveling against analytic truth and simulations."""
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from app.core.leveling import LineTrack, crossover_table, find_crossovers, level_lines

@@ -6,8 +6,13 @@ import harmonica as hm
 import numpy as np
 import pytest
 
-from app.core.terrain import (Dem, simple_bouguer_mgal, terrain_clearance_m, terrain_effect_along_lines_mgal,
-                              terrain_effect_mgal)
+from app.core.terrain import (
+    Dem,
+    simple_bouguer_mgal,
+    terrain_clearance_m,
+    terrain_effect_along_lines_mgal,
+    terrain_effect_mgal,
+)
 
 
 def _dem(nx=48, ny=36, step=250.0, seed=0, below=True):

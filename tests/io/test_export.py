@@ -8,8 +8,17 @@ import pandas as pd
 import pytest
 
 from app.io import export
-from app.io.export import (SURFER_BLANK, atomic_write, write_csv, write_grid_csv, write_grid_geotiff,
-                           write_grid_netcdf, write_grid_surfer, write_json, write_parquet)
+from app.io.export import (
+    SURFER_BLANK,
+    atomic_write,
+    write_csv,
+    write_grid_csv,
+    write_grid_geotiff,
+    write_grid_netcdf,
+    write_grid_surfer,
+    write_json,
+    write_parquet,
+)
 
 CRS = "EPSG:32657"
 

@@ -9,8 +9,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from app.core.terrain import (simple_bouguer_mgal, terrain_clearance_m, terrain_effect_along_lines_mgal,
-                              terrain_effect_mgal)
+from app.core.terrain import (
+    simple_bouguer_mgal,
+    terrain_clearance_m,
+    terrain_effect_along_lines_mgal,
+    terrain_effect_mgal,
+)
 from app.io.dem import read_dem
 from app.simulate import PRESETS, simulate_survey
 

@@ -123,6 +123,7 @@ def test_patch_survey_settings(client, tiny_zip):
                                             "base_gravity_mgal": 982316.4}
     # stored as a new input snapshot: the survey.toml the pipeline reads says so, the old snapshot is intact
     import tomllib
+
     from app.web.db import Survey
     with client.app.state.Session() as db:
         new_dir = db.get(Survey, sid).input_dir

@@ -183,10 +183,11 @@ def test_02_parameters_bounded_in_api_and_survey_toml(client, tiny_src, tmp_path
 
 def test_02_grid_cells_capped_from_the_extent(client, tiny_src, monkeypatch):
     """The node count over the lines' extent is checked when the job is submitted (and by the pipeline)."""
-    import app.config as config
-    from app.pipeline.stages.lines import check_grid_size as _check_grid_size
-    from app.io.errors import InputError
     from types import SimpleNamespace
+
+    import app.config as config
+    from app.io.errors import InputError
+    from app.pipeline.stages.lines import check_grid_size as _check_grid_size
 
     sid = import_zip(client, zip_dir(tiny_src)).json()["id"]
     monkeypatch.setattr(config, "MAX_GRID_CELLS", 500)  # the tiny survey is ~13 km long

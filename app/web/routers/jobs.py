@@ -11,11 +11,11 @@ from app.config import ProcessingParams
 
 from ..db import ACTIVE_STATES, Job, Survey
 from ..deps import JobId, get_db, get_jobs, get_store, get_survey_or_404
+from ..errors import validation_detail
 from ..jobs import JobManager
 from ..schemas import JobCreate, JobOut
 from ..services import JobConflict, SurveyConflict, check_grid_size, start_job
 from ..store import Store
-from ..errors import validation_detail
 from .surveys import job_out
 
 router = APIRouter(tags=["jobs"])

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import shutil
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from fastapi import APIRouter, Depends, File, Form, HTTPException, Response, UploadFile
 from sqlalchemy import select
@@ -12,10 +12,21 @@ from sqlalchemy.orm import Session
 
 from ..db import Job, Survey
 from ..deps import get_cache, get_db, get_settings, get_store, get_survey_or_404, get_survey_reader
-from ..settings import Settings
 from ..schemas import FlightOut, JobOut, LineOut, QCOut, SurveyCreate, SurveyOut, SurveyPatch
-from ..services import (JobConflict, NoInput, SettingsRejected, StorageBudgetExceeded, SurveyConflict, add_flight,
-                        delete_survey, import_survey_tree, patch_survey, result_outdated, survey_settings)
+from ..services import (
+    JobConflict,
+    NoInput,
+    SettingsRejected,
+    StorageBudgetExceeded,
+    SurveyConflict,
+    add_flight,
+    delete_survey,
+    import_survey_tree,
+    patch_survey,
+    result_outdated,
+    survey_settings,
+)
+from ..settings import Settings
 from ..store import SAFE_NAME, ResultCache, Store, extract_survey_zip
 
 router = APIRouter(prefix="/api/surveys", tags=["surveys"])
