@@ -98,7 +98,8 @@ def terrain(table: pd.DataFrame, dem_path: Path | None, crs: str, p, warnings: l
 
     e = table["easting_km"].to_numpy(float) * 1000.0
     n = table["northing_km"].to_numpy(float) * 1000.0
-    h = table["h"].to_numpy(float)
+    # the terrain effect where the free-air values are: at the datum when one is set
+    h = table["datum_height_m" if "datum_height_m" in table else "h"].to_numpy(float)
     bounds = (float(np.nanmin(e)), float(np.nanmax(e)), float(np.nanmin(n)), float(np.nanmax(n)))
     dem = read_dem(dem_path, crs, bounds_m=bounds, spacing_m=p.dem_spacing_m, margin_m=p.terrain_radius_m,
                    height_offset_m=p.dem_height_offset_m, require_bounds_m=bounds, display="dem.tif")
