@@ -340,8 +340,10 @@ class ProcessingParams(_Strict):
                                           "normalised residuals when the collocation model under-states it")
     grid_error_corr_km: float = Field(1.0, ge=0, le=1000, description="Along-line error correlation length for thinning in collocation")
     # --- geophysical products (app.pipeline.stages.products)
-    atmospheric_correction: bool = Field(True, description="Add the IAG atmospheric correction δg_atm(h) (US "
-                                         "Standard Atmosphere 1976: 0.84 mGal at 330 m) to every estimate")
+    atmospheric_correction: bool = Field(False, description="Add the IAG atmospheric correction δg_atm(h) (US "
+                                         "Standard Atmosphere 1976: 0.84 mGal at 330 m) to every estimate. Off by "
+                                         "default: dg_mgal is SPEC §1's disturbance, whose z has no atmospheric "
+                                         "term; the correction is written per epoch (atm_corr_mgal) either way")
     datum: Literal["flight", "constant", "draped"] = Field(
         "flight", description="Surface the anomaly is given on: 'flight' (the flight height, no continuation), "
         "'constant' (datum_height_m) or 'draped' (a smooth surface through the flight heights); the others "

@@ -2,9 +2,12 @@
 correction, the continuation to a common datum by equivalent sources, and the terrain
 (complete Bouguer) correction from the survey's DEM.
 
-* **Atmospheric correction** (``atmospheric_correction``, default on): the IAG/USSA76
-  ``δg_atm(h)`` (:mod:`app.core.atmosphere`) is added to every estimate column; per epoch
-  ``atm_corr_mgal``.
+* **Atmospheric correction** (``atmospheric_correction``, default off): the IAG/USSA76
+  ``δg_atm(h)`` (:mod:`app.core.atmosphere`), written per epoch as ``atm_corr_mgal`` and, when
+  switched on, added to every estimate column.  Off by default because SPEC §1 defines the
+  measurement (and so ``dg_mgal``) without it: on a survey whose gravity has no atmosphere
+  term the correction is a +0.8 mGal bias (2σ coverage of the posterior std 0.95 → 0.86 on the
+  quiet regime).
 * **Datum** (``datum``: ``"flight"`` default = no continuation, ``"constant"`` at
   ``datum_height_m`` (default the mean flight height), ``"draped"``: a smooth surface through the
   flight heights): equivalent sources fitted to the line estimates with their posterior std
@@ -44,15 +47,17 @@ class Products:
 
 def atmosphere(table: pd.DataFrame, p) -> dict:
     """The atmospheric correction added to every estimate (in place)."""
-    if not p.atmospheric_correction:
-        table["atm_corr_mgal"] = 0.0
-        return {"applied": False}
     corr = atmospheric_correction_mgal(table["h"].to_numpy(float))
     table["atm_corr_mgal"] = corr
+    rep = {"applied": bool(p.atmospheric_correction), "model": "IAG / US Standard Atmosphere 1976",
+           "mean_mgal": float(np.nanmean(corr)), "min_mgal": float(np.nanmin(corr)), "max_mgal": float(np.nanmax(corr))}
+    if not p.atmospheric_correction:
+        rep["note"] = ("not applied (default): dg_mgal is SPEC §1's free-air disturbance; add atm_corr_mgal for "
+                       "the atmosphere-corrected anomaly contractors deliver, or set atmospheric_correction = true")
+        return rep
     for c in ESTIMATE_COLUMNS:
         table[c] = table[c] + corr
-    return {"applied": True, "model": "IAG / US Standard Atmosphere 1976", "mean_mgal": float(np.mean(corr)),
-            "min_mgal": float(np.min(corr)), "max_mgal": float(np.max(corr))}
+    return rep
 
 
 def continue_to_datum(table: pd.DataFrame, p, warnings: list) -> dict:
