@@ -320,9 +320,9 @@ class ProcessingParams(_Strict):
                                       "about the two lines' errors (widen only, below std_crossover_min_n)")
     std_crossover_min_n: int = Field(20, ge=3, le=1_000_000, description="Crossovers needed to also narrow dg_std (fewer: the "
                                      "check only widens it)")
-    std_crossover_min_factor: float = Field(0.75, gt=0, le=1, description="Never narrow dg_std by more than this "
-                                            "factor (errors are correlated along lines: a few tens of crossovers "
-                                            "scatter by a factor of two)")
+    std_crossover_min_factor: float = Field(1.0, gt=0, le=1, description="Never narrow dg_std by more than this "
+                                            "factor (default 1: never narrow — crossovers see only the difference of two lines' errors, blind to "
+                                            "what they share, so they can show a std too small, never too large)")
     std_crossover_shared_fraction: float = Field(0.4, ge=0, lt=1, description="Correlation assumed between two "
                                                  "crossing lines' errors (they share part of the unresolved anomaly "
                                                  "at the crossing), so Var(diff) = 2σ²(1 − this)")
