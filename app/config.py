@@ -223,7 +223,7 @@ class ProcessingParams(_Strict):
                           "chooses it from the data (model_order)")
     model_order: Literal["crossovers", "spectrum", "likelihood"] = Field(
         "crossovers", description="How m is chosen when not given: 'crossovers' = m = 1 and 2 both identified and "
-        "filtered, the one whose estimates disagree less at the crossovers is used (with fewer than "
+        "filtered, m = 2 used only when m = 1's disagree significantly more at the crossovers (order_choice_p; with fewer than "
         "choice_min_crossovers crossovers: m = 2, SPEC's default); 'spectrum' = the Whittle likelihood of the lines' "
         "spectra up to noise_fit_fmax_hz; 'likelihood' = the full-rate Kalman likelihood (m = 1, 2; dominated "
         "by the high-frequency noise)")
@@ -231,6 +231,9 @@ class ProcessingParams(_Strict):
                                           "anomaly levels) of this anomaly order when it is identified, whichever "
                                           "order filters (m = 1 recognises terrain classes best: the sample 0.80 "
                                           "against 0.56 with m = 2); None: each order its own")
+    order_choice_p: float = Field(0.05, gt=0, le=1, description="m = 2 is used only when m = 1's estimates "
+                                  "disagree significantly more at the crossovers (one-sided p below this): the "
+                                  "crossovers favour the smoother order, blind to the error two crossing lines share")
     choice_min_crossovers: int = Field(10, ge=3, le=1_000_000, description="Crossovers needed to choose between "
                                        "models (m, the FIR guard) by their crossover differences")
     flatten_check: bool = Field(True, description="A line whose estimate is flattened (flatten_min_ratio) takes the "
