@@ -242,7 +242,10 @@ class ProcessingParams(_Strict):
                                      "this share of the anomaly variance the FIR shows beyond its noise is flattened")
     fir_guard: bool = Field(True, description="Use FIR 100 s when the chosen estimate disagrees significantly more "
                             "at the crossovers than FIR does")
-    fir_guard_p: float = Field(0.01, gt=0, lt=0.5, description="Significance of that test (one-sided p)")
+    fir_guard_min_crossovers: int = Field(4, ge=2, le=1_000_000, description="Crossovers needed for the FIR "
+                                          "guard's paired test (its p-value accounts for how few there are)")
+    fir_guard_p: float = Field(0.05, gt=0, lt=0.5, description="Significance of that test (one-sided p; on every "
+                               "regime and preset where the adaptive estimate is better p > 0.6)")
     # --- regularization (SPEC §2 step 1)
     decimation_n: int | None = Field(None, ge=2, le=MAX_DECIMATION_N, description="Decimation factor n; chosen for ~1 km steps when None")
     decimation_step_km: float = Field(1.0, gt=0, le=50)

@@ -16,7 +16,9 @@
    variance the FIR 100 s estimate shows beyond its own noise
    (:func:`app.core.model_check.flattening_ratio` < ``flatten_min_ratio``) failed to detect
    the anomaly: that line takes the stationary estimate, or FIR if that is flattened too.
-3. **FIR guard.**  With enough crossovers, when the chosen estimate disagrees
+3. **FIR guard.**  With at least ``fir_guard_min_crossovers`` crossovers (the paired test's
+   p-value accounts for how few there are: a 4-line survey's 8 crossovers can still show an
+   estimate ruined by a wrong noise model), when the chosen estimate disagrees
    significantly more at the crossovers than FIR 100 s does (paired test, one-sided
    p < ``fir_guard_p``), every line takes FIR.
 
@@ -144,16 +146,21 @@ def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> d
 def fir_guard(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dict:
     """Step 3 (in place)."""
     d_est = crossover_differences(table, "dg_unleveled_mgal", p.leveling_include_repeat)
-    if d_est.size < p.choice_min_crossovers:
-        return {"applied": False, "reason": f"{d_est.size} crossovers (< {p.choice_min_crossovers})"}
+    if d_est.size < p.fir_guard_min_crossovers:
+        return {"applied": False, "reason": f"{d_est.size} crossovers (< {p.fir_guard_min_crossovers})"}
     d_fir = crossover_differences(table, "dg_fir_mgal", p.leveling_include_repeat)
     cmp = crossover_comparison(d_est, d_fir)
     rep = {"n_crossovers": cmp.n, "crossover_rms_mgal": cmp.rms_a_mgal, "crossover_rms_fir_mgal": cmp.rms_b_mgal,
            "p_value": cmp.p_value, "applied": bool(cmp.p_value < p.fir_guard_p)}
     if rep["applied"]:
+        # the FIR's std: its noise under the fitted model, but never below what its crossovers
+        # show (each line's share of the crossover difference) — the guard fired because the
+        # fitted model misjudged the data
+        floor = cmp.rms_b_mgal / np.sqrt(2.0)
         for line, g in table.groupby("line", sort=False):
             fir_var = fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s, p.fir_cutoff_period_s)
-            _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), np.sqrt(fir_var)))
+            _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), max(np.sqrt(fir_var), floor)))
+        rep["fir_std_floor_mgal"] = float(floor)
         warnings.append(f"the adaptive estimate disagrees more at the crossovers than FIR 100 s "
                         f"({cmp.rms_a_mgal:.2f} vs {cmp.rms_b_mgal:.2f} mGal, p = {cmp.p_value:.3g}): FIR used")
     return rep
