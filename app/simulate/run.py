@@ -322,7 +322,7 @@ def _pass_height_offset_m(path, cfg: SimConfig, ts: np.ndarray) -> np.ndarray:
             off = offs[r % len(offs)]
         held.append((ta - cfg.run_in_s, tb + cfg.run_out_s, off))
     out = np.full(ts.shape, held[0][2] if held else 0.0)
-    for (a0, a1, oa), (b0, _b1, ob) in zip(held[:-1], held[1:]):
+    for (_a0, a1, oa), (b0, _b1, ob) in zip(held[:-1], held[1:]):
         s = np.clip((ts - a1) / max(b0 - a1, 1e-9), 0.0, 1.0)
         ramp = oa + (ob - oa) * 0.5 * (1.0 - np.cos(np.pi * s))
         out = np.where(ts > a1, ramp, out)
