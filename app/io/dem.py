@@ -31,6 +31,7 @@ from typing import NamedTuple
 
 import numpy as np
 import rasterio
+import rasterio.windows
 from pyproj import Transformer
 from rasterio.crs import CRS
 from rasterio.errors import RasterioIOError
@@ -187,6 +188,70 @@ def _check_coverage(src, dst_crs, crs: str, x, y, heights, spacing_m: float, req
     raise InputError(name, row_i + 1 if 0 <= row_i < src.height else None, "band 1",
                      f"no terrain height under the survey at {x[i]:.0f} E, {y[j]:.0f} N "
                      f"({crs}; {where}); {int(hole.sum())} cells of the survey area lack data")
+
+
+def check_dem(path, crs: str, require_bounds_m=None, max_cells: int = MAX_DEM_CELLS,
+              display: str | None = None) -> dict:
+    """Validate a DEM as it arrives (an upload), cheaply and in bounded memory: a raster GDAL reads,
+    with a CRS and at least one band, at most ``max_cells`` pixels, band 1 read in blocks of rows with
+    some data and every height within ``HEIGHT_RANGE_M`` (the first offending pixel named, as
+    :func:`read_dem` does), and a footprint (in ``crs``) that contains ``require_bounds_m = (west,
+    east, south, north)`` (m; the survey lines' extent).  Holes inside the footprint are left to
+    :func:`read_dem`'s coverage check at processing time.
+
+    Returns the raster's description: ``source_crs``, ``shape`` [rows, columns], ``resolution``,
+    ``footprint_m`` (west, east, south, north in ``crs``), ``valid_fraction``, ``height_range_m``.
+    Raises ``InputError(display, row, column, message)``."""
+    name = _display(path, display)
+    dst_crs = _target_crs(crs, name)
+    try:
+        src = rasterio.open(Path(path))
+    except (RasterioIOError, OSError) as exc:
+        raise InputError(name, None, None, f"not a raster GDAL can read (GeoTIFF expected): {exc}") from None
+    with src:
+        if src.count < 1:
+            raise InputError(name, None, "band 1", "the raster has no bands")
+        if src.crs is None:
+            raise InputError(name, None, "crs", "the DEM has no coordinate reference system; "
+                                                "write one into the GeoTIFF (e.g. gdal_edit.py -a_srs)")
+        if src.width * src.height > max_cells:
+            raise InputError(name, None, None, f"the DEM has {src.height} × {src.width} pixels (> {max_cells:,}); "
+                                               "crop it to the survey area plus the terrain radius or resample it")
+        n_valid, lo, hi = 0, np.inf, -np.inf
+        step = max(1, (1 << 22) // max(1, src.width))          # ~4 M pixels per read
+        try:
+            for r0 in range(0, src.height, step):
+                win = rasterio.windows.Window(0, r0, src.width, min(step, src.height - r0))
+                data = src.read(1, window=win, masked=True).astype(float).filled(np.nan)
+                data[~np.isfinite(data)] = np.nan
+                bad = np.isfinite(data) & ((data < HEIGHT_RANGE_M[0]) | (data > HEIGHT_RANGE_M[1]))
+                if bad.any():
+                    r, c = (int(v) for v in np.argwhere(bad)[0])
+                    raise InputError(name, r0 + r + 1, "band 1",
+                                     f"height {data[r, c]:.6g} m at pixel row {r0 + r + 1}, column {c + 1} is outside "
+                                     f"{HEIGHT_RANGE_M[0]:g} … {HEIGHT_RANGE_M[1]:g} m (heights must be metres)")
+                ok = np.isfinite(data)
+                if ok.any():
+                    n_valid += int(ok.sum())
+                    lo, hi = min(lo, float(data[ok].min())), max(hi, float(data[ok].max()))
+        except RasterioIOError as exc:
+            raise InputError(name, None, "band 1", f"the raster's data cannot be read (damaged file?): {exc}") from None
+        if n_valid == 0:
+            raise InputError(name, None, "band 1", "the DEM holds no data (every pixel is nodata)")
+        try:
+            w, s_, e, n = transform_bounds(src.crs, dst_crs, *src.bounds, densify_pts=21)
+        except Exception as exc:  # noqa: BLE001 - PROJ errors come in several types
+            raise InputError(name, None, "crs", f"the DEM's CRS cannot be transformed to {crs}: {exc}") from None
+        if require_bounds_m is not None:
+            rw, re_, rs, rn = (float(v) for v in require_bounds_m)
+            if rw < w or re_ > e or rs < s_ or rn > n:
+                raise InputError(name, None, None,
+                                 f"the DEM (covering {w:.0f}…{e:.0f} E, {s_:.0f}…{n:.0f} N in {crs}) does not cover "
+                                 f"the survey lines ({rw:.0f}…{re_:.0f} E, {rs:.0f}…{rn:.0f} N)")
+        return {"source_crs": src.crs.to_string(), "shape": [src.height, src.width],
+                "resolution": [abs(src.transform.a), abs(src.transform.e)],
+                "footprint_m": [float(w), float(e), float(s_), float(n)],
+                "valid_fraction": n_valid / float(src.width * src.height), "height_range_m": [lo, hi]}
 
 
 def write_dem(path, dem: Dem, dtype: str = "float32", nodata: float = -32768.0) -> Path:

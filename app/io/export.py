@@ -302,7 +302,11 @@ def write_grid_csv(path, easting_km, northing_km, dg, dg_std=None, crs=None) -> 
 XYZ_LINE_CHANNELS = {"x": "X", "y": "Y", "time": "TIME", "lat": "LAT", "lon": "LON", "h": "HGT",
                      "z_mgal": "Z_MGAL", "dg_mgal": "DG", "dg_std_mgal": "DG_STD",
                      "dg_unleveled_mgal": "DG_UNLEV", "dg_stationary_mgal": "DG_STAT", "dg_fir_mgal": "DG_FIR",
-                     "state": "STATE", "Q_mgal2": "Q_MGAL2", "R_cm2s2": "R_CM2S2"}
+                     "state": "STATE", "Q_mgal2": "Q_MGAL2", "R_cm2s2": "R_CM2S2",
+                     # geophysical products (app.pipeline.stages.products), when present
+                     "atm_corr_mgal": "ATM_CORR", "dg_flight_mgal": "DG_FLIGHT", "dg_flight_std_mgal": "DG_FLIGHT_STD",
+                     "dg_datum_mgal": "DG_DATUM", "dg_datum_std_mgal": "DG_DATUM_STD", "datum_height_m": "DATUM_HGT",
+                     "terrain_mgal": "TERRAIN", "terrain_height_m": "TERRAIN_HGT", "dg_bouguer_mgal": "DG_BOUGUER"}
 
 
 def write_lines_xyz(path, lines, crs=None, comments: tuple[str, ...] = ()) -> Path:
@@ -311,8 +315,9 @@ def write_lines_xyz(path, lines, crs=None, comments: tuple[str, ...] = ()) -> Pa
     One block per survey line in time order, headed ``Line <id>`` (main and repeat lines) or
     ``Tie <id>``; channels ``X``, ``Y`` (the projected coordinates in the CRS's unit: metres for
     UTM), ``TIME``, ``LAT``, ``LON``, ``HGT``, then the anomalies in mGal (``DG`` is the final
-    estimate), ``STATE``, ``Q_MGAL2``, ``R_CM2S2`` (those present in ``lines``); missing values
-    ``*``.  ``app.io.xyz.scan_xyz`` reads it back (the survey readers do not take it as a
+    estimate), ``STATE``, ``Q_MGAL2``, ``R_CM2S2`` and the products ``ATM_CORR``, ``DG_FLIGHT``,
+    ``DG_FLIGHT_STD``, ``DG_DATUM``, ``DG_DATUM_STD``, ``DATUM_HGT`` (m), ``TERRAIN``, ``TERRAIN_HGT`` (m),
+    ``DG_BOUGUER`` (those present in ``lines``); missing values ``*``.  ``app.io.xyz.scan_xyz`` reads it back (the survey readers do not take it as a
     flight: it holds no gravimeter record).
     """
     from app.io.xyz import write_xyz
@@ -335,7 +340,8 @@ def write_lines_xyz(path, lines, crs=None, comments: tuple[str, ...] = ()) -> Pa
     head = list(comments)
     if crs is not None:
         unit, _ = crs_unit(crs)
-        head.append(f"X, Y: {_crs(crs).to_string()} ({unit}); anomalies mGal; TIME s; HGT m")
+        hgt = ", ".join(v for k, v in names.items() if k in ("h", "datum_height_m", "terrain_height_m")) or "HGT"
+        head.append(f"X, Y: {_crs(crs).to_string()} ({unit}); anomalies mGal; TIME s; {hgt} m")
     return atomic_write(path, lambda tmp: write_xyz(tmp, df, names, segments, comments=tuple(head)))
 
 

@@ -27,7 +27,7 @@ from app.pipeline.stages.measurement import measure
 from app.pipeline.stages.model_order import candidate_orders, choose_model_order
 from app.pipeline.stages.noise import model_noise
 from app.pipeline.stages.outputs import build_report, identification_json, write_outputs
-from app.pipeline.stages.products import apply_products, refresh_bouguer
+from app.pipeline.stages.products import apply_products, flight_height_table, refresh_bouguer
 from app.pipeline.stages.recognition import state_map
 
 Progress = Callable[[str, float, dict | None], None]
@@ -219,20 +219,28 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     if "dg_bouguer_mgal" in table:
         grid_bouguer = grid_survey(table.assign(dg_mgal=table["dg_bouguer_mgal"]), p, warnings,
                                    leveled.report.get("rms_after_mgal"))
+    grid_flight = None
+    at_flight = flight_height_table(table)
+    if at_flight is not None:  # continued to a datum: the free-air map at flight height beside it
+        # (no crossover term: the crossovers were measured at the datum)
+        grid_flight = grid_survey(at_flight, p, warnings, None)
     tr.start("writing")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     ident_json = identification_json(idf.identifications[choice.m], idf.noise.model, best.smap, idf.dt_s)
     ident_json["state_map_from_m"] = best.ident.recognition_m if hasattr(best.ident, "recognition_m") else choice.m
     write_outputs(out, table, best.smap.table(best.ident.recognition), leveled.crossovers, ident_json, grid, idf.crs,
-                  grid_bouguer=grid_bouguer)
+                  grid_bouguer=grid_bouguer, grid_flight=grid_flight)
     tr.close()
     report = build_report(survey_name or cfg.survey.name, idf.crs, table, idf.flights, leveled, best.ident, grid,
                           warnings)
     report.update(idf.measurement_report)
     report["noise_model"] = idf.noise.describe()
     report["model_choice"] = choice.report
-    report["products"] = products.report
+    report["products"] = {**products.report, "grids": {
+        "free_air": "grid" if grid is not None else None,
+        "bouguer": "grid_bouguer" if grid_bouguer is not None else None,
+        "free_air_flight_height": "grid_flight" if grid_flight is not None else None}}
     level_rep = best.filtered.report(p)
     if level_rep is not None:
         report["level_refinement"] = level_rep

@@ -78,6 +78,9 @@ class SimConfig:
     drape_amp_m: float = 0.0              # the height spans height_m ± this on the line windows (0: constant)
     drape_wavelength_km: tuple[float, float] = (5.0, 15.0)
     drape_components: int = 12
+    repeat_height_offsets_m: tuple[float, ...] = ()  # repeat pass r flies offsets[r % len] higher (m), held
+    #                                                  over its run-in, window and run-out, eased (cosine) in the
+    #                                                  turns; () = every pass at the same height
     # --- topography as prisms (0: none); docs/SIMULATOR.md, app/simulate/topography.py
     topo_amp_m: float = 0.0               # terrain spans topo_base_m ± this over the DEM
     topo_base_m: float = 700.0

@@ -118,6 +118,8 @@ def _check_regime(cfg: SimConfig) -> None:
         raise ValueError("terrain-following flight (topo_clearance_m > 0) needs topography (topo_amp_m > 0)")
     if cfg.topo_clearance_m > 0 and cfg.drape_amp_m > 0:
         raise ValueError("choose one drape: drape_amp_m (plane waves) or topo_clearance_m (terrain following)")
+    if cfg.repeat_height_offsets_m and cfg.field_kind != "sources":
+        raise ValueError("repeat passes at other heights (repeat_height_offsets_m) need field_kind = 'sources'")
 
 
 def _fir_half_s(cfg: SimConfig) -> float:
@@ -307,16 +309,40 @@ class _TrueMotion:
     eot: np.ndarray        # Eötvös (mGal)
 
 
+def _pass_height_offset_m(path, cfg: SimConfig, ts: np.ndarray) -> np.ndarray:
+    """Height offset (m) of the repeat passes (``repeat_height_offsets_m``) at times ``ts``: pass r's
+    offset is held from the start of its run-in to the end of its run-out (other lines: 0), and
+    eased with a half cosine between consecutive lines (in the turns)."""
+    offs = tuple(float(v) for v in cfg.repeat_height_offsets_m)
+    held = []                                   # (t_start, t_end, offset) per line, in flying order
+    for ln, ta, tb in path.windows:
+        off = 0.0
+        if ln.kind == "repeat":
+            r = int(str(ln.line).rsplit("-", 1)[-1]) - 1
+            off = offs[r % len(offs)]
+        held.append((ta - cfg.run_in_s, tb + cfg.run_out_s, off))
+    out = np.full(ts.shape, held[0][2] if held else 0.0)
+    for (_a0, a1, oa), (b0, _b1, ob) in zip(held[:-1], held[1:]):
+        s = np.clip((ts - a1) / max(b0 - a1, 1e-9), 0.0, 1.0)
+        ramp = oa + (ob - oa) * 0.5 * (1.0 - np.cos(np.pi * s))
+        out = np.where(ts > a1, ramp, out)
+    return out
+
+
 def _true_motion(path, cfg: SimConfig, rng, tg, e0_km, n0_km, drape) -> _TrueMotion:
-    """Vertical motion (exact piecewise cubic acceleration and its integrals), the optional drape,
-    and position, velocity, normal gravity and Eötvös at the GNSS epochs ``tg``."""
+    """Vertical motion (exact piecewise cubic acceleration and its integrals), the optional drape
+    (and repeat passes at their own heights), and position, velocity, normal gravity and Eötvös at
+    the GNSS epochs ``tg``."""
     a_pp, v_pp, h_pp, motion_info = vertical_motion(path.t0, path.t1, cfg, rng)
     d_pp = None
-    if drape is not None:
+    if drape is not None or cfg.repeat_height_offsets_m:
         # draped height as an exact quintic spline in time through 1 s samples along the path;
         # its first and second derivatives are the drape's vertical velocity and acceleration
         ts = np.arange(path.t0 - 40.0, path.t1 + 40.0 + 0.5, 1.0)
-        d_pp = PPoly.from_spline(make_interp_spline(ts, drape(path.x_pp(ts), path.y_pp(ts)), k=5))
+        d = drape(path.x_pp(ts), path.y_pp(ts)) if drape is not None else np.zeros(ts.size)
+        if cfg.repeat_height_offsets_m:
+            d = d + _pass_height_offset_m(path, cfg, ts)
+        d_pp = PPoly.from_spline(make_interp_spline(ts, d, k=5))
         h = cfg.height_m + h_pp(tg) + d_pp(tg)
         vu = v_pp(tg) + d_pp.derivative()(tg)
     else:
@@ -737,7 +763,7 @@ def _make_field(cfg: SimConfig, planned, ext, e0: float, n0: float, rng, seed) -
         line_pts = _line_points(planned) if cfg.field_std_over == "lines" else None
         fld = make_field(cfg, ext, e0, n0, rng, line_pts)
         truth_extra["field"] = fld.info
-        if drape is not None:
+        if drape is not None or cfg.repeat_height_offsets_m:
             src = fld.sources
             truth_extra["field"] = {**fld.info, "sources": {
                 "note": ("draped flight: dg_true = harmonica point_gravity(field='g_z') of these point masses "
@@ -948,6 +974,12 @@ def _regime_notes(cfg: SimConfig, drape) -> dict:
                                  "waves in the survey plane (x, y m from the centre) plus a constant, spanning exactly "
                                  "[-amp_m, +amp_m] on the line windows; the true height per epoch is h_true_m "
                                  "in lines.parquet; truth/grid.nc stays at height_m")}
+    if cfg.repeat_height_offsets_m:
+        out["repeat_heights"] = {"offsets_m": [float(v) for v in cfg.repeat_height_offsets_m],
+                                 "note": ("repeat pass r (R1-<r+1>) flies offsets_m[r % len] above the other lines "
+                                          "(on top of any drape), held from its run-in to its run-out and eased "
+                                          "with a half cosine in the turns; true height per epoch: h_true_m; the "
+                                          "point sources are in field.sources")}
     if not cfg.gnss_velocity or cfg.h_colored_m > 0:
         out["gnss"] = {"velocity_columns": bool(cfg.gnss_velocity), "rate_hz": cfg.gnss_rate_hz,
                        "h_white_m": cfg.sigma_h_m, "h_colored_m": cfg.h_colored_m,
@@ -962,7 +994,8 @@ def _regime_notes(cfg: SimConfig, drape) -> dict:
 
 def _truth_has_height(cfg: SimConfig) -> bool:
     """``h_true_m`` is in truth/lines.parquet when the height matters: draped flight or heights-only GNSS."""
-    return cfg.drape_amp_m > 0 or cfg.topo_clearance_m > 0 or not cfg.gnss_velocity
+    return (cfg.drape_amp_m > 0 or cfg.topo_clearance_m > 0 or bool(cfg.repeat_height_offsets_m)
+            or not cfg.gnss_velocity)
 
 
 def _stable_rng(*key) -> np.random.Generator:

@@ -73,6 +73,8 @@ class SurveyOut(BaseModel):
                                   "current result was computed: run processing again")
     settings: SurveySettings | None = Field(None, description="survey.toml fields of the current input")
     last_job: JobOut | None = None
+    has_dem: bool = Field(False, description="The current input holds a terrain model (dem.tif): processing "
+                          "adds the terrain correction and the Bouguer anomaly")
 
 
 class EMIteration(BaseModel):
@@ -161,6 +163,18 @@ class ProfileOut(BaseModel):
     dg_fir: list[float | None]
     dg_unleveled: list[float | None] | None = None
     state: list[int | None]
+    # geophysical products (app.pipeline.stages.products): null when the result has no such column
+    height_m: list[float | None] | None = Field(None, description="flight height h (m)")
+    atm_corr: list[float | None] | None = Field(None, description="atmospheric correction added (mGal)")
+    dg_flight: list[float | None] | None = Field(None, description="δg at flight height before continuation "
+                                                 "(a datum was used: dg is at the datum)")
+    dg_flight_std: list[float | None] | None = None
+    dg_datum: list[float | None] | None = Field(None, description="δg continued to the datum, before leveling")
+    dg_datum_std: list[float | None] | None = None
+    datum_height_m: list[float | None] | None = Field(None, description="height of the datum (m)")
+    terrain: list[float | None] | None = Field(None, description="terrain effect of the DEM (mGal)")
+    terrain_height_m: list[float | None] | None = Field(None, description="DEM height under the point (m)")
+    dg_bouguer: list[float | None] | None = Field(None, description="complete Bouguer anomaly dg − terrain (mGal)")
 
 
 class GridOut(BaseModel):
@@ -174,6 +188,13 @@ class GridOut(BaseModel):
     lines: list[dict[str, Any]] = Field(default_factory=list, description="{line, kind, easting_km[], northing_km[]}")
     crossovers: list[dict[str, Any]] = []
     report: dict[str, Any] = {}
+    product: str = Field("free_air", description="free_air or bouguer")
+    height: str = Field("flight", description="flight (the flight height) or datum (continued to the datum)")
+    datum: dict[str, Any] | None = Field(None, description="report.json products.datum when a datum was used")
+    available: dict[str, dict[str, bool]] = Field(default_factory=dict, description="{free_air: {flight, datum}, "
+                                                  "bouguer: {flight, datum}}: which grids the result has")
+    unavailable: dict[str, str] = Field(default_factory=dict, description="why a grid is not available, by "
+                                        "'<product>@<height>' (e.g. 'bouguer@datum': the survey has no DEM)")
 
 
 class LineDifference(BaseModel):

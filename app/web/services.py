@@ -21,6 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pandas as pd
 from sqlalchemy import select, update
 from sqlalchemy.exc import IntegrityError
@@ -31,7 +32,7 @@ from app.io.errors import InputError
 
 from .db import ACTIVE_STATES, Flight, Job, Line, Result, Survey, utcnow
 from .jobs import JobManager
-from .store import SAFE_NAME, Store, link_tree, relativize, release_memory, survey_qc
+from .store import DEM_NAME, SAFE_NAME, Store, link_tree, relativize, release_memory, survey_qc
 
 
 class SurveyConflict(Exception):
@@ -127,11 +128,58 @@ def survey_name(survey, fallback: str) -> str:
     return name if name and name != "survey" else clean_name(fallback)
 
 
+def survey_extent_m(survey) -> tuple[str, tuple[float, float, float, float]]:
+    """The survey's projected CRS (``survey.crs`` or the UTM zone of its data, as the pipeline
+    chooses it) and the extent of its lines there, ``(west, east, south, north)`` in metres."""
+    from app.core.geodesy import project_km, utm_crs_for
+
+    flights = survey.flights
+    crs = getattr(getattr(getattr(survey, "config", None), "survey", None), "crs", None)
+    if not crs:
+        lon = np.concatenate([np.asarray(f.gnss["lon"], float)[:: max(1, len(f.gnss) // 1000)] for f in flights.values()])
+        lat = np.concatenate([np.asarray(f.gnss["lat"], float)[:: max(1, len(f.gnss) // 1000)] for f in flights.values()])
+        crs = utm_crs_for(lon, lat)
+    es, ns = [], []
+    for row in survey.lines.itertuples(index=False):
+        fl = flights.get(row.flight)
+        if fl is None:
+            continue
+        g = fl.gnss
+        m = ((g["time"] >= row.t_start) & (g["time"] <= row.t_end)).to_numpy()
+        if m.any():
+            e, n = project_km(np.asarray(g["lon"], float)[m], np.asarray(g["lat"], float)[m], crs)
+            es += [float(np.nanmin(e)), float(np.nanmax(e))]
+            ns += [float(np.nanmin(n)), float(np.nanmax(n))]
+    if not es:
+        raise InputError("lines.csv", None, None, "no survey line has GNSS data: the DEM's coverage cannot be checked")
+    return crs, (1000.0 * min(es), 1000.0 * max(es), 1000.0 * min(ns), 1000.0 * max(ns))
+
+
+def check_survey_dem(root: Path, survey) -> dict | None:
+    """The survey directory's ``dem.tif``, when there is one, checked as it arrives
+    (:func:`app.io.dem.check_dem`: a raster with a CRS and heights in metres whose footprint covers
+    the survey lines); InputError naming ``dem.tif`` otherwise.  None without a DEM."""
+    from app.io.dem import check_dem
+
+    p = Path(root) / DEM_NAME
+    if not p.is_file():
+        return None
+    crs, bounds = survey_extent_m(survey)
+    return check_dem(p, crs, require_bounds_m=bounds, display=DEM_NAME)
+
+
+def has_dem(s: Survey) -> bool:
+    """The survey's current input holds a terrain model (``dem.tif``)."""
+    return bool(s.input_dir) and (Path(s.input_dir) / DEM_NAME).is_file()
+
+
 def import_survey_tree(db: Session, store: Store, reader: Callable, root: Path, fallback_name: str,
                        budget_bytes: int | None = None) -> Survey:
-    """Validate the survey directory ``root`` (already staged under the store's tmp) and store it."""
+    """Validate the survey directory ``root`` (already staged under the store's tmp; its optional
+    ``dem.tif`` too) and store it."""
     try:
         survey = validate(reader, root)
+        check_survey_dem(root, survey)
         check_budget(store, None, root, budget_bytes)
         s = Survey(name=survey_name(survey, fallback_name))
         db.add(s)
@@ -376,6 +424,41 @@ def patch_survey(db: Session, store: Store, reader: Callable, s: Survey, patch, 
             db.rollback()
             raise
         finally:
+            shutil.rmtree(staging, ignore_errors=True)
+            release_memory()
+        prune_survey(db, store, s.id)
+    return s
+
+
+def replace_dem(db: Session, store: Store, reader: Callable, s: Survey, write_dem: Callable[[Path], None] | None,
+                budget_bytes: int | None = None) -> Survey:
+    """Add, replace (``write_dem(path)`` writes the new file) or remove (``write_dem=None``) the
+    survey's terrain model: a new input snapshot (hard links to the current files, ``dem.tif`` a new
+    file or gone), the DEM checked against the survey's lines (:func:`check_survey_dem`) and switched
+    to under the survey's lock like a flight upload.  :class:`NoInput` for a survey without data."""
+    with store.survey_lock(s.id):
+        refresh_survey(db, s)
+        base = s.input_dir
+        if not base or not (Path(base) / "survey.toml").is_file():
+            raise NoInput("the survey has no data yet: upload a flight (or import a survey) first, then its DEM")
+        if write_dem is None and not (Path(base) / DEM_NAME).exists():
+            return s
+        staging = store.staging_dir()
+        try:
+            root = staging / "survey"
+            link_tree(Path(base), root)
+            (root / DEM_NAME).unlink(missing_ok=True)   # the link only: the current snapshot keeps its file
+            if write_dem is not None:
+                write_dem(root / DEM_NAME)
+            survey = validate(reader, root)
+            check_survey_dem(root, survey)
+            check_budget(store, s.id, root, budget_bytes)
+            install_snapshot(db, store, s, root, survey, expect_input_dir=base, check_expected=True)
+        except Exception:
+            db.rollback()
+            raise
+        finally:
+            survey = None
             shutil.rmtree(staging, ignore_errors=True)
             release_memory()
         prune_survey(db, store, s.id)

@@ -204,9 +204,14 @@ def _entry_parts(name: str) -> list[str]:
     return parts
 
 
+#: the optional terrain model of a survey directory (the pipeline's terrain correction reads it)
+DEM_NAME = "dem.tif"
+
+
 def _survey_member(rel: list[str]) -> bool:
-    """The files of a survey directory the reader uses (everything else in a zip is not stored)."""
-    return rel in (["survey.toml"], ["lines.csv"]) or (len(rel) == 3 and rel[0] == "flights")
+    """The files of a survey directory the reader and the pipeline use (everything else in a zip is
+    not stored)."""
+    return rel in (["survey.toml"], ["lines.csv"], [DEM_NAME]) or (len(rel) == 3 and rel[0] == "flights")
 
 
 def extract_survey_zip(fileobj, dest: Path, max_bytes: int | None = None,
@@ -216,8 +221,8 @@ def extract_survey_zip(fileobj, dest: Path, max_bytes: int | None = None,
 
     Streamed: every entry is decompressed in 1 MB chunks and the bytes actually produced are
     counted against ``max_bytes`` (the declared sizes are checked first, but not trusted), so
-    memory stays constant whatever the archive claims.  Only ``survey.toml``, ``lines.csv`` and
-    the files of ``flights/<flight>/`` are extracted.  Unsafe, over-long or over-deep names,
+    memory stays constant whatever the archive claims.  Only ``survey.toml``, ``lines.csv``, the
+    optional ``dem.tif`` and the files of ``flights/<flight>/`` are extracted.  Unsafe, over-long or over-deep names,
     encrypted, damaged or size-lying entries and more than ``max_entries`` entries are
     InputErrors."""
     try:

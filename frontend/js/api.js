@@ -43,10 +43,10 @@ export async function api(path, { method = "GET", json, params } = {}) {
 }
 
 // multipart upload with progress (XMLHttpRequest: fetch has no upload progress)
-export function upload(path, formData, onProgress) {
+export function upload(path, formData, onProgress, method = "POST") {
   return new Promise((resolve, reject) => {
     const xhr = new XMLHttpRequest();
-    xhr.open("POST", path);
+    xhr.open(method, path);
     const h = authHeaders();
     for (const k in h) xhr.setRequestHeader(k, h[k]);
     xhr.upload.onprogress = (e) => { if (e.lengthComputable && onProgress) onProgress(e.loaded / e.total); };
@@ -69,7 +69,8 @@ export const endpoints = {
   lines: (id) => api(`/api/surveys/${id}/lines`),
   profile: (id, line, params) => api(`/api/surveys/${id}/lines/${encodeURIComponent(line)}`, { params }),
   recognition: (id, params) => api(`/api/surveys/${id}/recognition`, { params }),
-  grid: (id) => api(`/api/surveys/${id}/grid`),
+  grid: (id, params) => api(`/api/surveys/${id}/grid`, params ? { params } : {}),
+  deleteDem: (id) => api(`/api/surveys/${id}/dem`, { method: "DELETE" }),
   report: (id) => api(`/api/surveys/${id}/report`),
   patchSurvey: (id, body) => api(`/api/surveys/${id}`, { method: "PATCH", json: body }),
   deleteSurvey: (id) => api(`/api/surveys/${id}`, { method: "DELETE" }),

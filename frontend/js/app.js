@@ -56,6 +56,19 @@ function renderSurveyList() {
   }));
   const s = ctx.survey;
   document.getElementById("survey-title").textContent = s ? `${s.name} — ${s.flights.length} flight(s), ${s.n_lines} line(s)` : "";
+  renderDemStatus(s);
+}
+
+// the DEM section: shown for a survey with data; says whether it has a terrain model
+function renderDemStatus(s) {
+  const box = document.getElementById("dem-upload");
+  box.hidden = !(s && s.has_input);
+  if (!s) return;
+  box.dataset.hasDem = s.has_dem ? "1" : "0";
+  document.getElementById("dem-status").textContent = s.has_dem
+    ? "This survey has a terrain model (dem.tif): processing adds the terrain correction and the Bouguer anomaly. Upload another to replace it."
+    : "No terrain model: upload a GeoTIFF DEM (its CRS, heights in metres, covering the lines) for the terrain correction and the Bouguer anomaly.";
+  document.getElementById("dem-remove").hidden = !s.has_dem;
 }
 
 function selectSurvey(id) {
@@ -129,6 +142,38 @@ function setupUploads() {
     } catch (e) {
       ferr.hidden = false; ferr.textContent = `Flight rejected — ${e.message}`;
     } finally { setTimeout(() => { fbar.hidden = true; }, 800); }
+  });
+
+  const dbtn = document.getElementById("dem-btn");
+  const dinput = document.getElementById("dem-file");
+  const dbar = document.getElementById("dem-progress");
+  const derr = document.getElementById("dem-error");
+  const demChanged = async () => {
+    await loadSurveys();
+    state.rendered = {};
+    showTab(state.tab);
+  };
+  dbtn.addEventListener("click", async () => {
+    derr.hidden = true;
+    if (!dinput.files.length) { derr.hidden = false; derr.textContent = "Choose a GeoTIFF file first."; return; }
+    const fd = new FormData();
+    fd.append("dem", dinput.files[0]);
+    dbar.hidden = false; dbar.value = 0; dbtn.disabled = true;
+    try {
+      await upload(`/api/surveys/${state.surveyId}/dem`, fd, (f) => { dbar.value = f; }, "PUT");
+      dinput.value = "";
+      await demChanged();
+    } catch (e) {
+      derr.hidden = false; derr.textContent = `DEM rejected — ${e.message}`;
+    } finally { dbtn.disabled = false; setTimeout(() => { dbar.hidden = true; }, 800); }
+  });
+  document.getElementById("dem-remove").addEventListener("click", async () => {
+    derr.hidden = true;
+    if (!confirm("Remove this survey's terrain model? The next processing has no Bouguer anomaly.")) return;
+    try {
+      await endpoints.deleteDem(state.surveyId);
+      await demChanged();
+    } catch (e) { derr.hidden = false; derr.textContent = `${e.message}`; }
   });
 
   document.getElementById("new-survey").addEventListener("submit", async (ev) => {

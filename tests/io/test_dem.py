@@ -102,3 +102,30 @@ def test_bad_input(tmp_path):
     assert ei.value.column == "spacing_m"
     with pytest.raises(InputError, match="not projected"):
         read_dem(p, "EPSG:4326")
+
+
+def test_check_dem_as_it_arrives(tmp_path):
+    """check_dem (uploads): the raster's description, coverage of the lines' extent, the pixel cap,
+    heights out of range named by their pixel, nodata-only rasters."""
+    from app.io.dem import check_dem
+
+    path, data = _geographic_dem(tmp_path)
+    info = check_dem(path, CRS, display="dem.tif")
+    assert info["shape"] == [240, 300] and info["source_crs"] == "EPSG:4326" and info["valid_fraction"] == 1.0
+    assert info["height_range_m"][0] == pytest.approx(data.min()) and info["height_range_m"][1] == pytest.approx(data.max())
+    w, e, s, n = info["footprint_m"]
+    check_dem(path, CRS, require_bounds_m=(w + 1000, e - 1000, s + 1000, n - 1000))
+    with pytest.raises(InputError, match="does not cover the survey lines") as exc:
+        check_dem(path, CRS, require_bounds_m=(w + 1000, e + 1000, s + 1000, n - 1000), display="dem.tif")
+    assert exc.value.file == "dem.tif"
+    with pytest.raises(InputError, match=r"240 × 300 pixels \(> 1,000\)"):
+        check_dem(path, CRS, max_cells=1000)
+    bad = data.copy()
+    bad[117, 42] = 12000.0
+    p2 = _geotiff(tmp_path / "high.tif", bad, from_origin(159.7, 65.62, 0.002, 0.001))
+    with pytest.raises(InputError, match="pixel row 118, column 43") as exc:
+        check_dem(p2, CRS)
+    assert exc.value.row == 118 and exc.value.column == "band 1"
+    p3 = _geotiff(tmp_path / "empty.tif", np.full((5, 5), -9999.0), from_origin(159.7, 65.62, 0.002, 0.001), nodata=-9999.0)
+    with pytest.raises(InputError, match="holds no data"):
+        check_dem(p3, CRS)

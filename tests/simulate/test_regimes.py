@@ -329,6 +329,32 @@ def test_draped_motion_is_in_the_files(draped):
     assert np.std(vu - dh) < 0.05 and np.std(vu) > 0.5
 
 
+def test_repeat_passes_at_their_own_heights(tmp_path):
+    """``repeat_height_offsets_m``: each repeat pass flies its offset above the other lines (here
+    without a drape), the GNSS heights follow, and dg_true is the sources' field at that height."""
+    import harmonica as hm
+
+    p = simulate_survey("tiny", tmp_path / "rh", seed=2, **{**MINI_SMALL, "n_repeat": 2, "repeat_length_km": 10.0},
+                        repeat_height_offsets_m=(-300.0, 250.0))
+    tj = json.loads((p / "truth" / "truth.json").read_text())
+    assert tj["regime"]["repeat_heights"]["offsets_m"] == [-300.0, 250.0]
+    src, (e0, n0) = tj["field"]["sources"], tj["survey_centre_km"]
+    truth = pd.read_parquet(p / "truth" / "lines.parquet")
+    h0 = PRESETS["tiny"].height_m
+    mean_h = truth.groupby("line").h_true_m.mean() - h0
+    assert abs(mean_h["R1-1"] + 300.0) < 10 and abs(mean_h["R1-2"] - 250.0) < 10
+    assert mean_h.drop(["R1-1", "R1-2"]).abs().max() < 10
+    n = _read(p, "gnss", "F01")
+    n = n.set_index(np.round(n.time.to_numpy(), 3))
+    for line, d in truth.groupby("line"):
+        assert np.abs(n.h.reindex(np.round(d.time, 3)).to_numpy() - d.h_true_m.to_numpy()).max() < 0.2, line
+        idx = np.linspace(1, len(d) - 1, 15).astype(int)
+        mid = lambda c: 0.5 * (d[c].to_numpy()[idx - 1] + d[c].to_numpy()[idx])  # noqa: E731, B023
+        g = hm.point_gravity(((mid("easting_km") - e0) * 1000.0, (mid("northing_km") - n0) * 1000.0, mid("h_true_m")),
+                             (src["x_m"], src["y_m"], src["z_m"]), src["mass_kg"], field="g_z") - src["offset_mgal"]
+        assert np.abs(g - d.dg_true_mgal.to_numpy()[idx]).max() < 0.001, line
+
+
 # ---------------------------------------------------------------- determinism and the original presets
 
 def test_auxiliary_streams_do_not_depend_on_pythonhashseed(tmp_path):

@@ -42,6 +42,23 @@ def make_tiny_survey(root: Path, name: str = "tiny", seed: int = 0) -> Path:
     return root
 
 
+def make_dem(path: Path, crs: str = "EPSG:32657", bounds_deg=(157.9, 158.9, 61.97, 62.03), spacing_m: float = 250.0,
+             shift_m: tuple[float, float] = (0.0, 0.0)) -> Path:
+    """A small terrain model (GeoTIFF, float32) covering ``bounds_deg = (lon0, lon1, lat0, lat1)`` (by
+    default the tiny survey and a few km around it), heights 200–600 m; ``shift_m`` moves it."""
+    from app.core.geodesy import project_km
+    from app.core.terrain import Dem
+    from app.io.dem import write_dem
+
+    lon0, lon1, lat0, lat1 = bounds_deg
+    e, n = project_km(np.array([lon0, lon1, lon0, lon1]), np.array([lat0, lat0, lat1, lat1]), crs)
+    x = np.arange(np.floor(e.min() * 1000 / spacing_m), np.ceil(e.max() * 1000 / spacing_m) + 1) * spacing_m + shift_m[0]
+    y = np.arange(np.floor(n.min() * 1000 / spacing_m), np.ceil(n.max() * 1000 / spacing_m) + 1) * spacing_m + shift_m[1]
+    X, Y = np.meshgrid(x, y)
+    height = 400.0 + 150.0 * np.sin(X / 4000.0) * np.cos(Y / 3000.0) + 50.0 * np.sin(X / 900.0)
+    return write_dem(Path(path), Dem(x, y, height, crs=crs))
+
+
 def zip_dir(root: Path, nested: bool = True) -> bytes:
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:

@@ -74,9 +74,12 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
 
 
 def write_outputs(out: Path, lines_df: pd.DataFrame, crs: str = "EPSG:32657", seed: int = 0,
-                  base_gravity_mgal: float | None = None) -> dict:
+                  base_gravity_mgal: float | None = None, dem: bool = False, datum: str = "flight") -> dict:
     """Write lines.parquet, recognition.parquet, identification.json, crossovers.csv, grid.* and
-    report.json from a frame with ``line, flight, kind, time, lat, lon, h, easting_km, northing_km``."""
+    report.json from a frame with ``line, flight, kind, time, lat, lon, h, easting_km, northing_km``.
+    Products as the real pipeline names them: always ``atm_corr_mgal``; with ``dem`` the terrain
+    columns and ``grid_bouguer.*``; with a ``datum`` other than "flight" the datum columns and
+    ``grid_flight.*`` (the values are made up: shapes and names are what matters here)."""
     rng = np.random.default_rng(seed)
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -93,6 +96,23 @@ def write_outputs(out: Path, lines_df: pd.DataFrame, crs: str = "EPSG:32657", se
     df["state"] = state
     df["Q_mgal2"] = np.where(state == 1, 0.35, 0.04)
     df["R_cm2s2"] = 1.7
+    df["atm_corr_mgal"] = 0.78
+    products = {"atmospheric_correction": {"applied": True, "mean_mgal": 0.78},
+                "datum": {"datum": "flight height (no continuation)"}, "terrain": {"dem": None}}
+    if datum != "flight":
+        df["dg_flight_mgal"] = df["dg_mgal"] + 0.05 * (df["h"] - 1000.0)
+        df["dg_flight_std_mgal"] = df["dg_std_mgal"]
+        df["dg_datum_mgal"] = df["dg_mgal"]
+        df["dg_datum_std_mgal"] = df["dg_std_mgal"] * 1.1
+        df["datum_height_m"] = 1100.0
+        products["datum"] = {"datum": datum, "height_m": {"mean": 1100.0, "min": 1100.0, "max": 1100.0}}
+    if dem:
+        df["terrain_mgal"] = 0.1119 * (300.0 + 50.0 * np.sin(e / 3.0))
+        df["terrain_height_m"] = 300.0 + 50.0 * np.sin(e / 3.0)
+        df["dg_bouguer_mgal"] = df["dg_mgal"] - df["terrain_mgal"]
+        products["terrain"] = {"dem": "dem.tif", "density_kgm3": 2670.0, "radius_m": 20000.0}
+    products["grids"] = {"free_air": "grid", "bouguer": "grid_bouguer" if dem else None,
+                         "free_air_flight_height": "grid_flight" if datum != "flight" else None}
     df.to_parquet(out / "lines.parquet", index=False)
 
     # decimated recognition points: every 10th epoch (AEROGRAV_FAKE_DECIMATE; 100 = ~1 km, as the pipeline)
@@ -134,7 +154,18 @@ def write_outputs(out: Path, lines_df: pd.DataFrame, crs: str = "EPSG:32657", se
     export.write_grid_geotiff(out / "grid.tif", xs, ys, G, S, crs)
     export.write_grid_surfer(out / "grid.grd", xs, ys, G, S)
     export.write_grid_csv(out / "grid.csv", xs, ys, G, S)
+    extra = {}
+    if dem:                           # Bouguer: the free-air grid less a smooth "terrain effect"
+        extra["grid_bouguer"] = (G - 0.1119 * (300.0 + 50.0 * np.sin(X / 3.0)) + 20.0, S * 1.02)
+    if datum != "flight":             # at flight height: the free-air grid plus a tilt
+        extra["grid_flight"] = (G + 2.0 * (Y - Y.mean()), S * 0.95)
+    for stem, (gg, ss) in extra.items():
+        export.write_grid_netcdf(out / f"{stem}.nc", xs, ys, gg, ss, crs)
+        export.write_grid_geotiff(out / f"{stem}.tif", xs, ys, gg, ss, crs)
+        export.write_grid_surfer(out / f"{stem}.grd", xs, ys, gg, ss)
+        export.write_grid_csv(out / f"{stem}.csv", xs, ys, gg, ss)
     report = fake_report(df, base_gravity_mgal, crs)
+    report["products"] = products
     (out / "report.json").write_text(json.dumps(report))
     return report
 
@@ -171,4 +202,5 @@ def process_survey(survey_dir, out_dir, overrides=None, progress=None, kind="pro
     cb("outputs", 0.95, None)
     (Path(out_dir) / "identified").mkdir(parents=True, exist_ok=True)  # a later filter job may start from here
     return write_outputs(out_dir, df, crs=survey.config.survey.crs or "EPSG:32657",
-                         base_gravity_mgal=survey.config.gravimeter.base_gravity_mgal)
+                         base_gravity_mgal=survey.config.gravimeter.base_gravity_mgal,
+                         dem=(Path(survey_dir) / "dem.tif").is_file(), datum=survey.config.processing.datum)

@@ -113,14 +113,15 @@ LINE_COLUMNS = ["line", "flight", "kind", "time", "lat", "lon", "h", "easting_km
 
 
 #: product columns written after SPEC §5's when present (app.pipeline.stages.products)
-PRODUCT_COLUMNS = ["atm_corr_mgal", "dg_flight_mgal", "dg_datum_mgal", "dg_datum_std_mgal", "datum_height_m",
+PRODUCT_COLUMNS = ["atm_corr_mgal", "dg_flight_mgal", "dg_flight_std_mgal", "dg_datum_mgal", "dg_datum_std_mgal", "datum_height_m",
                    "terrain_mgal", "terrain_height_m", "dg_bouguer_mgal"]
 
 
 def write_outputs(out, table: pd.DataFrame, recognition: pd.DataFrame, crossovers: pd.DataFrame,
-                  identification: dict, grid, crs: str, grid_bouguer=None) -> None:
+                  identification: dict, grid, crs: str, grid_bouguer=None, grid_flight=None) -> None:
     """The files of SPEC §5 except ``report.json`` (each written atomically); with a Bouguer grid
-    also ``grid_bouguer.{nc,tif,grd,csv}``."""
+    also ``grid_bouguer.{nc,tif,grd,csv}``, with a flight-height grid (the values were continued to a
+    datum) ``grid_flight.{nc,tif,grd,csv}``."""
     from pathlib import Path
 
     from app.io import export
@@ -130,7 +131,7 @@ def write_outputs(out, table: pd.DataFrame, recognition: pd.DataFrame, crossover
     export.write_parquet(recognition, out / "recognition.parquet")
     export.write_csv(crossovers, out / "crossovers.csv")
     export.write_json(identification, out / "identification.json")
-    for name, gr in (("grid", grid), ("grid_bouguer", grid_bouguer)):
+    for name, gr in (("grid", grid), ("grid_bouguer", grid_bouguer), ("grid_flight", grid_flight)):
         if gr is not None:
             e, n, g, gs = gr.easting_km, gr.northing_km, gr.dg_mgal, gr.dg_std_mgal
             export.write_grid_netcdf(out / f"{name}.nc", e, n, g, gs, crs)

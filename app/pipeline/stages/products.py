@@ -13,7 +13,8 @@ correction, the continuation to a common datum by equivalent sources, and the te
   flight heights): equivalent sources fitted to the line estimates with their posterior std
   (:mod:`app.core.continuation`); per epoch ``dg_datum_mgal``, ``dg_datum_std_mgal``,
   ``datum_height_m``.  ``dg_mgal`` and ``dg_std_mgal`` then carry the continued values (leveling and
-  gridding work on them); ``dg_flight_mgal`` keeps the estimate at flight height.
+  gridding work on them); ``dg_flight_mgal`` and ``dg_flight_std_mgal`` keep the estimate at flight
+  height (gridded as ``grid_flight.*``: :func:`flight_height_table`).
 * **Terrain** (when the survey directory holds ``dem.tif``): the prisms of the DEM within
   ``terrain_radius_m`` at ``bouguer_density_kgm3`` (:mod:`app.core.terrain`); per epoch
   ``terrain_mgal``, ``terrain_height_m``, ``dg_bouguer_mgal = dg − terrain``; a Bouguer grid beside
@@ -80,6 +81,7 @@ def continue_to_datum(table: pd.DataFrame, p, warnings: list) -> dict:
     else:
         hd = draped_datum_height_m(e, n, e[ok], n[ok], h[ok], smoothing_m=p.datum_smoothing_m)
     table["dg_flight_mgal"] = table["dg_mgal"]
+    table["dg_flight_std_mgal"] = table["dg_std_mgal"]
     table["dg_datum_mgal"] = model.predict(e, n, hd)
     table["dg_datum_std_mgal"] = model.predict_std(e, n, hd)
     table["datum_height_m"] = hd
@@ -138,3 +140,15 @@ def refresh_bouguer(table: pd.DataFrame) -> None:
     """After leveling: the Bouguer anomaly follows the leveled free-air estimate."""
     if "terrain_mgal" in table:
         table["dg_bouguer_mgal"] = table["dg_mgal"] - table["terrain_mgal"]
+
+
+def flight_height_table(table: pd.DataFrame) -> pd.DataFrame | None:
+    """When the values were continued to a datum: the line table with ``dg_mgal``/``dg_std_mgal`` at
+    flight height (``dg_flight_mgal`` plus the leveling correction found at the datum — the drift is
+    the instrument's, not the height's — and ``dg_flight_std_mgal``), for the flight-height grid;
+    None otherwise."""
+    if "dg_flight_mgal" not in table:
+        return None
+    leveling = table["dg_mgal"] - table["dg_unleveled_mgal"]
+    std = table["dg_flight_std_mgal"] if "dg_flight_std_mgal" in table else table["dg_std_mgal"]
+    return table.assign(dg_mgal=table["dg_flight_mgal"] + leveling, dg_std_mgal=std)

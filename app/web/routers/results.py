@@ -21,6 +21,7 @@ from app.pipeline.stages.recognition import Recognition, state_map
 from ..db import Result, Survey
 from ..deps import get_cache, get_db, get_survey_or_404
 from ..schemas import GridOut, LineOut, ProfileOut, RecognitionOut, ReportOut
+from ..services import has_dem
 from ..store import ResultCache
 
 router = APIRouter(prefix="/api/surveys", tags=["results"])
@@ -154,12 +155,22 @@ def list_lines(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get
     return out
 
 
+#: ProfileOut field ← lines.parquet product column (app.pipeline.stages.outputs.PRODUCT_COLUMNS and h)
+PROFILE_PRODUCTS = {"height_m": "h", "atm_corr": "atm_corr_mgal", "dg_flight": "dg_flight_mgal",
+                    "dg_flight_std": "dg_flight_std_mgal", "dg_datum": "dg_datum_mgal",
+                    "dg_datum_std": "dg_datum_std_mgal", "datum_height_m": "datum_height_m",
+                    "terrain": "terrain_mgal", "terrain_height_m": "terrain_height_m",
+                    "dg_bouguer": "dg_bouguer_mgal"}
+
+
 @router.get("/{survey_id}/lines/{line:path}", response_model=ProfileOut)
 def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, description="decimate to about this many points"),
                  z_lowpass_s: float = Query(30.0, ge=0, le=600, description="Gaussian low-pass of z, full width at half maximum (s)"),
                  s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
                  cache: ResultCache = Depends(get_cache)):
-    """Profile series of one line: z low-passed, final δg ± σ, stationary, FIR, state (decimated)."""
+    """Profile series of one line: z low-passed, final δg ± σ, stationary, FIR, state (decimated), and
+    the product columns the result has (flight height, atmospheric correction, δg at flight height and
+    at the datum, terrain effect, Bouguer anomaly; null when absent)."""
     r = current_result(s, db)
     groups = cache.get(("lines", r.id), lambda: _load_lines(r))["groups"]
     g = groups.get(line)
@@ -191,6 +202,7 @@ def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, descr
         dg=col("dg_mgal"), dg_std=col("dg_std_mgal"), dg_stationary=col("dg_stationary_mgal"),
         dg_fir=col("dg_fir_mgal"), dg_unleveled=col("dg_unleveled_mgal"),
         state=_ints(g["state"].to_numpy()[sl]) if "state" in g else [None] * len(t[sl]),
+        **{k: _clean(g[c].to_numpy(float)[sl]) for k, c in PROFILE_PRODUCTS.items() if c in g},
     ).model_dump())
 
 
@@ -297,9 +309,84 @@ def report(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db)
     return _json(out.model_dump())
 
 
-def _load_grid(r: Result) -> dict[str, Any]:
+# ---------------------------------------------------------------- product grids
+PRODUCTS = ("free_air", "bouguer")
+HEIGHTS = ("flight", "datum")
+GRID_EXT = {"geotiff": ".tif", "netcdf": ".nc", "surfer": ".grd", "csv": ".csv"}
+
+
+def _datum_of(r: Result) -> dict | None:
+    """report.json ``products.datum`` when the result was continued to a datum, else None."""
+    prods = (r.report or {}).get("products")
+    datum = prods.get("datum") if isinstance(prods, dict) else None
+    return datum if isinstance(datum, dict) and datum.get("datum") in ("constant", "draped") else None
+
+
+def _no_dem_reason(s: Survey, r: Result) -> str:
+    prods = (r.report or {}).get("products")
+    terrain = prods.get("terrain") if isinstance(prods, dict) else None
+    used = isinstance(terrain, dict) and terrain.get("dem")
+    if not used and not has_dem(s):
+        return (f"survey {s.id} has no DEM (dem.tif): the Bouguer anomaly needs a terrain model; add one "
+                f"(PUT /api/surveys/{s.id}/dem, or dem.tif beside survey.toml in an imported zip) and process again")
+    if not used:
+        return "the current result was computed without the survey's DEM (added since): process the survey again"
+    return "the current result has no Bouguer grid (the terrain correction ran, the gridding did not: see the warnings)"
+
+
+def grid_files(s: Survey, r: Result) -> tuple[dict[tuple[str, str], str | None], dict[str, str]]:
+    """The grid file stem of every (product, height) of a result (None when there is none) and why
+    the missing ones are missing (``'<product>@<height>'``).
+
+    Without a datum ``grid.*`` and ``grid_bouguer.*`` are at flight height; with one ``grid.*`` and
+    ``grid_bouguer.*`` are at the datum and ``grid_flight.*`` is the free-air grid at flight height
+    (the Bouguer anomaly exists at the datum only: the terrain effect was evaluated there)."""
+    d = Path(r.dir)
+    there = {stem: (d / f"{stem}.nc").exists() for stem in ("grid", "grid_bouguer", "grid_flight")}
+    datum = _datum_of(r)
+    if datum is None:
+        want = {("free_air", "flight"): "grid", ("bouguer", "flight"): "grid_bouguer",
+                ("free_air", "datum"): None, ("bouguer", "datum"): None}
+    else:
+        want = {("free_air", "datum"): "grid", ("bouguer", "datum"): "grid_bouguer",
+                ("free_air", "flight"): "grid_flight", ("bouguer", "flight"): None}
+    files, why = {}, {}
+    for (product, height), stem in want.items():
+        files[(product, height)] = stem if stem is not None and there[stem] else None
+        if files[(product, height)] is not None:
+            continue
+        key = f"{product}@{height}"
+        if datum is None and height == "datum":
+            why[key] = ("no datum was used (processing.datum = 'flight'): the values are at flight height; set "
+                        "datum = 'constant' or 'draped' and process again to continue them to a common datum")
+        elif product == "bouguer" and not there["grid_bouguer"]:
+            why[key] = _no_dem_reason(s, r)
+        elif product == "bouguer":
+            why[key] = ("with a datum the Bouguer anomaly is given at the datum only (the terrain effect is "
+                        "evaluated there); its line values at flight height are not computed")
+        elif stem == "grid_flight":
+            why[key] = "the current result has no flight-height grid (grid_flight.nc): process the survey again"
+        else:
+            why[key] = f"{stem}.nc is not among the stored results"
+    return files, why
+
+
+def _grid_stem(s: Survey, r: Result, product: str, height: str | None) -> tuple[str, str]:
+    """(file stem, height) of the grid asked for; 404 naming why when the result has none.  Without
+    ``height``: the height the result's values are given at (the datum when one was used)."""
+    height = height or ("datum" if _datum_of(r) is not None else "flight")
+    files, why = grid_files(s, r)
+    stem = files[(product, height)]
+    if stem is None:
+        if not (Path(r.dir) / "grid.nc").exists():
+            _result_file(r, "grid.nc")          # an identification or a result without grid: that message
+        raise HTTPException(404, f"no {product.replace('_', '-')} grid at {height} height: {why[f'{product}@{height}']}")
+    return stem, height
+
+
+def _load_grid(r: Result, stem: str = "grid") -> dict[str, Any]:
     import xarray as xr
-    with xr.open_dataset(_result_file(r, "grid.nc")) as ds:
+    with xr.open_dataset(_result_file(r, f"{stem}.nc")) as ds:
         ds = ds.load()
     dg = ds["dg"]
     ydim, xdim = dg.dims[-2], dg.dims[-1]
@@ -331,13 +418,26 @@ def _load_grid(r: Result) -> dict[str, Any]:
     return out
 
 
-@router.get("/{survey_id}/grid", response_model=GridOut)
-def grid(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+@router.get("/{survey_id}/grid", response_model=GridOut,
+            responses={404: {"description": "no such survey, no result yet, or no grid of this product and "
+                                            "height (the detail says why, e.g. the survey has no DEM)"}})
+def grid(product: Literal["free_air", "bouguer"] = Query("free_air", description="free_air (δg) or bouguer "
+                                                           "(δg − terrain effect of the survey's DEM)"),
+         height: Literal["flight", "datum"] | None = Query(None, description="flight (the flight height) or datum "
+                                                           "(continued to processing.datum); default: the "
+                                                           "height the result's values are given at"),
+         s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
          cache: ResultCache = Depends(get_cache)):
-    """Anomaly grid δg and its posterior σ (mGal) with lines and crossovers for overlays."""
+    """Anomaly grid (free-air δg or the Bouguer anomaly, at flight height or at the datum) and its
+    posterior σ (mGal) with lines and crossovers for overlays; ``available``/``unavailable`` say
+    which other grids the result has and why the others are missing."""
     r = current_result(s, db)
-    g = cache.get(("grid", r.id), lambda: _load_grid(r))
-    return _json({"survey_id": s.id, "result_id": r.id, **g, "report": r.report or {}})
+    stem, height = _grid_stem(s, r, product, height)
+    g = cache.get((stem, r.id), lambda: _load_grid(r, stem))   # (name, result id): dropped with the survey
+    files, why = grid_files(s, r)
+    available = {pr: {h: files[(pr, h)] is not None for h in HEIGHTS} for pr in PRODUCTS}
+    return _json({"survey_id": s.id, "result_id": r.id, **g, "report": r.report or {}, "product": product,
+                  "height": height, "datum": _datum_of(r), "available": available, "unavailable": why})
 
 
 def _lines_xyz(s: Survey, r: Result) -> Path:
@@ -356,11 +456,18 @@ def _lines_xyz(s: Survey, r: Result) -> Path:
 @router.get("/{survey_id}/export")
 def export(format: Literal["geotiff", "netcdf", "surfer", "csv", "parquet", "xyz", "crossovers", "report"] = Query(
                ..., description="geotiff, netcdf, surfer (grids: x/y in metres of the CRS), csv (grid), "
-               "parquet or xyz (line data; xyz = Geosoft XYZ with X/Y in metres), crossovers, report"),
+               "parquet or xyz (line data with every product column; xyz = Geosoft XYZ with X/Y in metres), "
+               "crossovers, report"),
+           product: Literal["free_air", "bouguer"] = Query("free_air", description="grids: free_air or bouguer"),
+           height: Literal["flight", "datum"] | None = Query(None, description="grids: flight or datum (default: "
+                                                             "the height the result's values are given at)"),
            s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db)):
-    """Download a stored output of the current result."""
+    """Download a stored output of the current result (grids: the product and height asked for,
+    404 naming why when the result has none)."""
     r = current_result(s, db)
     fname, media = EXPORTS[format]
+    if format in GRID_EXT and (product != "free_air" or height is not None):
+        fname = _grid_stem(s, r, product, height)[0] + GRID_EXT[format]
     p = _lines_xyz(s, r) if format == "xyz" else _result_file(r, fname)
     safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in s.name)
     return FileResponse(p, media_type=media, filename=f"{safe}_{fname}")

@@ -21,8 +21,10 @@ from ..services import (
     SurveyConflict,
     add_flight,
     delete_survey,
+    has_dem,
     import_survey_tree,
     patch_survey,
+    replace_dem,
     result_outdated,
     survey_settings,
 )
@@ -43,7 +45,7 @@ def survey_out(db: Session, s: Survey) -> SurveyOut:
     return SurveyOut(id=s.id, name=s.name, created_at=s.created_at, crs=s.crs,
                      flights=[f.name for f in s.flights], n_lines=len(s.lines), has_input=bool(s.input_dir),
                      current_result_id=s.current_result_id, result_outdated=result_outdated(db, s),
-                     settings=survey_settings(s), last_job=job_out(last) if last else None)
+                     settings=survey_settings(s), last_job=job_out(last) if last else None, has_dem=has_dem(s))
 
 
 @router.post("", response_model=SurveyOut, status_code=201)
@@ -151,6 +153,52 @@ def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv
         raise HTTPException(409, str(e))
     except StorageBudgetExceeded as e:
         raise HTTPException(413, str(e))
+    return survey_out(db, s)
+
+
+@router.put("/{survey_id}/dem", response_model=SurveyOut,
+            responses={404: {"description": "no such survey"},
+                       409: {"description": "no data yet, or changed meanwhile"},
+                       413: {"description": "over the upload limit or the survey's storage budget"},
+                       422: {"description": "the DEM is not usable: the detail names dem.tif and what is wrong"}})
+def put_dem(dem: UploadFile = File(..., description="terrain model: a GeoTIFF (any raster GDAL reads) with its CRS, "
+                                   "heights in metres, covering the survey lines"),
+            s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+            store: Store = Depends(get_store), reader: Callable = Depends(get_survey_reader),
+            settings: Settings = Depends(get_settings)) -> SurveyOut:
+    """Add or replace the survey's terrain model (``dem.tif``): checked (readable, CRS, heights,
+    covers the lines), stored as a new input snapshot.  The next processing adds the terrain
+    correction and the Bouguer anomaly."""
+    limit = settings.max_uncompressed_bytes
+
+    def write(dest: Path) -> None:
+        with open(dest, "wb") as fh:
+            size = 0
+            while chunk := dem.file.read(1 << 20):
+                size += len(chunk)
+                if size > limit:
+                    raise HTTPException(413, f"dem.tif is larger than the {limit / 2**20:.0f} MB allowed "
+                                             "(AEROGRAV_MAX_UNCOMPRESSED_MB)")
+                fh.write(chunk)
+
+    try:
+        replace_dem(db, store, reader, s, write, budget_bytes=settings.survey_storage_bytes)
+    except (NoInput, SurveyConflict) as e:
+        raise HTTPException(409, str(e)) from None
+    except StorageBudgetExceeded as e:
+        raise HTTPException(413, str(e)) from None
+    return survey_out(db, s)
+
+
+@router.delete("/{survey_id}/dem", response_model=SurveyOut,
+               responses={404: {"description": "no such survey"}, 409: {"description": "no data yet, or changed meanwhile"}})
+def delete_dem(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+               store: Store = Depends(get_store), reader: Callable = Depends(get_survey_reader)) -> SurveyOut:
+    """Remove the survey's terrain model (a new input snapshot without ``dem.tif``)."""
+    try:
+        replace_dem(db, store, reader, s, None)
+    except (NoInput, SurveyConflict) as e:
+        raise HTTPException(409, str(e)) from None
     return survey_out(db, s)
 
 

@@ -1,7 +1,9 @@
 // Anomaly grid: δg on a diverging scale white at 0 (symmetric robust limits or the analyst's), its σ,
 // or both side by side; optional hillshade; lines (click one for its profile), labels and crossovers.
+// Products: free-air or Bouguer (with a DEM), at flight height or at the datum (when one was used);
+// a choice the result does not have is disabled with the reason as its tooltip.
 import { endpoints } from "../api.js";
-import { divergingScale, el, esc, fmt, hillshade, lineLabels, mapLayout, plotConfig, pngButton, symmetricLimit } from "../plots.js";
+import { divergingScale, el, esc, fmt, hillshade, lineLabels, mapLayout, plotConfig, pngButton, showError, symmetricLimit } from "../plots.js";
 
 export function baseTieMissing(report) {
   return ((report && report.warnings) || []).some((w) => String(w).startsWith("no absolute base tie"));
@@ -13,8 +15,35 @@ export async function render(sec, ctx) {
     sec.replaceChildren(el("div", { class: "empty" }, "No results yet: run a processing job first."));
     return;
   }
-  const g = await endpoints.grid(s.id);
+  let g = await endpoints.grid(s.id);
   const relative = baseTieMissing(g.report);
+  const productIn = el("select", { id: "grid-product" }, el("option", { value: "free_air" }, "free-air"),
+    el("option", { value: "bouguer" }, "Bouguer"));
+  const heightIn = el("select", { id: "grid-height" }, el("option", { value: "flight" }, "flight height"),
+    el("option", { value: "datum" }, "datum"));
+  const heightLabel = el("label", { id: "grid-height-label" }, "at", heightIn);
+  const productNote = el("span", { class: "note", id: "grid-product-note" });
+  // options enabled by what the result has (g.available[product][height]); the reason as tooltip
+  const syncChoices = () => {
+    productIn.value = g.product;
+    heightIn.value = g.height;
+    const av = g.available || {}, why = g.unavailable || {};
+    for (const o of productIn.options) {
+      const ok = !!(av[o.value] && av[o.value][g.height]);
+      o.disabled = !ok && o.value !== g.product;
+      o.title = ok ? "" : (why[`${o.value}@${g.height}`] || "not available");
+    }
+    for (const o of heightIn.options) {
+      const ok = !!(av[g.product] && av[g.product][o.value]);
+      o.disabled = !ok && o.value !== g.height;
+      o.title = ok ? "" : (why[`${g.product}@${o.value}`] || "not available");
+    }
+    const noBouguer = [...productIn.options].find((o) => o.value === "bouguer").disabled;
+    productIn.title = noBouguer ? `Bouguer: ${why[`bouguer@${g.height}`] || "not available"}` : "";
+    productNote.textContent = noBouguer ? `Bouguer anomaly not available: ${why[`bouguer@${g.height}`] || ""}` : "";
+    // the height choice only when the values were continued to a datum
+    heightLabel.hidden = !g.datum;
+  };
   const varIn = el("select", { id: "grid-var" }, el("option", { value: "dg" }, "anomaly δg"),
     el("option", { value: "dg_std", disabled: !g.dg_std }, "posterior σ"),
     el("option", { value: "both", disabled: !g.dg_std }, "δg and σ side by side"));
@@ -34,6 +63,7 @@ export async function render(sec, ctx) {
   const limits = el("span", { class: "note", id: "grid-limits" });
   sec.replaceChildren(el("div", { class: "card" }, el("h3", {}, `Anomaly grid (${g.crs || "projected CRS"})`),
     relative ? el("p", { class: "warnline", id: "grid-relative" }, "No absolute base tie was made: the grid's level is relative (it may be off by 100+ mGal); differences are reliable. Set the base gravity in Survey settings.") : null,
+    el("div", { class: "controls" }, el("label", {}, "anomaly", productIn), heightLabel, productNote),
     el("div", { class: "controls" }, el("label", {}, "show", varIn), el("label", {}, "style", styleIn),
       el("label", {}, "δg from", zminIn, "to", zmaxIn, "mGal"), limits),
     el("div", { class: "controls" }, el("label", {}, shadeIn, "hillshade"), el("label", {}, linesIn, "survey lines"),
@@ -41,11 +71,20 @@ export async function render(sec, ctx) {
       el("span", { class: "note" }, "click a line for its profile")),
     el("p", { class: "note", id: "grid-summary" }, summary.slice(0, 8).join(" · ")), plot));
 
-  const dx = g.easting_km.length > 1 ? g.easting_km[1] - g.easting_km[0] : 1;
-  const dy = g.northing_km.length > 1 ? g.northing_km[1] - g.northing_km[0] : 1;
-  const shade = () => (g._shade = g._shade || hillshade(g.dg, dx, dy));
+  const shade = () => {
+    const dx = g.easting_km.length > 1 ? g.easting_km[1] - g.easting_km[0] : 1;
+    const dy = g.northing_km.length > 1 ? g.northing_km[1] - g.northing_km[0] : 1;
+    return (g._shade = g._shade || hillshade(g.dg, dx, dy));
+  };
   const kind = Object.fromEntries(g.lines.map((l) => [l.line, l.kind]));
   const crossings = g.crossovers.filter((c) => !(kind[c.line_a] === "repeat" && kind[c.line_b] === "repeat"));
+  const symbol = () => (g.product === "bouguer" ? "δg_B" : "δg");
+  const heightText = () => {
+    if (g.height !== "datum" || !g.datum) return "at flight height";
+    const hm = g.datum.height_m || {};
+    const at = g.datum.datum === "constant" ? `${fmt(hm.mean, 0)} m` : `${fmt(hm.min, 0)}–${fmt(hm.max, 0)} m`;
+    return `at the ${g.datum.datum} datum (${at})`;
+  };
 
   const fieldTrace = (isStd, axes, colorbarX) => {
     const z = isStd ? g.dg_std : g.dg;
@@ -61,9 +100,9 @@ export async function render(sec, ctx) {
       limits.textContent = `colour scale ${fmt(zmin, 3)} … ${fmt(zmax, 3)} mGal, white at 0` + (zminIn.value === "" && zmaxIn.value === "" ? " (±98th percentile of |δg|)" : "");
     }
     return {
-      x: g.easting_km, y: g.northing_km, z, type: styleIn.value, name: isStd ? "σ" : "δg", colorscale, zmin, zmax, zauto: false,
-      colorbar: { title: { text: isStd ? "σ (mGal)" : "δg (mGal)" }, ...(colorbarX !== undefined ? { x: colorbarX, len: 0.9 } : {}) },
-      hovertemplate: `E %{x:.2f} km, N %{y:.2f} km<br>${isStd ? "σ" : "δg"} %{z:.2f} mGal<extra></extra>`,
+      x: g.easting_km, y: g.northing_km, z, type: styleIn.value, name: isStd ? "σ" : symbol(), colorscale, zmin, zmax, zauto: false,
+      colorbar: { title: { text: isStd ? "σ (mGal)" : `${symbol()} (mGal)` }, ...(colorbarX !== undefined ? { x: colorbarX, len: 0.9 } : {}) },
+      hovertemplate: `E %{x:.2f} km, N %{y:.2f} km<br>${isStd ? "σ" : symbol()} %{z:.2f} mGal<extra></extra>`,
       ...(styleIn.value === "contour" ? { contours: { coloring: "fill", showlines: true, start: zmin, end: zmax, size: (zmax - zmin) / 20 }, line: { width: 0.5, color: "rgba(0,0,0,0.3)" } } : {}),
       ...axes,
     };
@@ -93,8 +132,9 @@ export async function render(sec, ctx) {
 
   const draw = async () => {
     const v = varIn.value;
-    const title = `${s.name}: ` + (v === "dg_std" ? "posterior σ of δg"
-      : `free-air anomaly δg at flight height${relative ? " — relative level (no absolute base tie)" : ""}` + (v === "both" ? " and its σ" : ""));
+    const what = g.product === "bouguer" ? "Bouguer anomaly δg_B" : "free-air anomaly δg";
+    const title = `${s.name}: ` + (v === "dg_std" ? `posterior σ of ${symbol()} ${heightText()}`
+      : `${what} ${heightText()}${relative ? " — relative level (no absolute base tie)" : ""}` + (v === "both" ? " and its σ" : ""));
     let traces, layout;
     if (v === "both") {
       const a1 = {}, a2 = { xaxis: "x2", yaxis: "y2" };
@@ -114,11 +154,35 @@ export async function render(sec, ctx) {
     }
     await Plotly.react(plot, traces, layout, plotConfig(`${s.name}-grid`));
     plot.dataset.variable = v;
+    plot.dataset.product = g.product;
+    plot.dataset.height = g.height;
     plot.dataset.hillshade = shadeIn.checked ? "1" : "0";
     plot.dataset.relative = relative ? "1" : "0";
     plot.dataset.title = title;
   };
   for (const c of [varIn, styleIn, shadeIn, linesIn, labelsIn, xoIn, zminIn, zmaxIn]) c.addEventListener("change", draw);
+  // another product or height: its grid from the server (same nodes, lines and crossovers)
+  const switchGrid = async () => {
+    const want = { product: productIn.value, height: heightIn.value };
+    if (!(g.available && g.available[want.product] && g.available[want.product][want.height])) {
+      want.height = want.height === "datum" ? "flight" : "datum";   // the other height of this product
+    }
+    productIn.disabled = heightIn.disabled = true;
+    try {
+      g = await endpoints.grid(s.id, want);
+    } catch (e) {
+      showError(sec, e);
+    } finally {
+      productIn.disabled = heightIn.disabled = false;
+    }
+    syncChoices();
+    varIn.querySelector("option[value=dg_std]").disabled = varIn.querySelector("option[value=both]").disabled = !g.dg_std;
+    if (!g.dg_std && varIn.value !== "dg") varIn.value = "dg";
+    await draw();
+  };
+  productIn.addEventListener("change", switchGrid);
+  heightIn.addEventListener("change", switchGrid);
+  syncChoices();
   await draw();
   plot.on("plotly_click", (ev) => {
     const p = ev && ev.points && ev.points.find((q) => q.customdata !== undefined && q.data.name !== "crossovers");

@@ -1,4 +1,6 @@
-// Line profiles: z low-passed, adaptive δg ± 2σ, stationary smoother, FIR 100 s, state bands.
+// Line profiles: z low-passed, adaptive δg ± 2σ, stationary smoother, FIR 100 s, state bands, and the
+// products the result has: δg at flight height beside the datum values, the Bouguer anomaly, the
+// terrain effect (shown from the legend).
 import { endpoints } from "../api.js";
 import { el, esc, fmt, plotConfig, pngButton, stateColor } from "../plots.js";
 
@@ -60,7 +62,8 @@ export async function render(sec, ctx) {
     const diff = ad.map((v, i) => (v === null || p.dg_fir[i] === null ? null : v - p.dg_fir[i]));
     const neg = p.dg_std.map((v) => (v === null ? null : -v));
     const a2 = { xaxis: "x", yaxis: "y2" };
-    const dgName = leveled ? "adaptive δg (final, leveled)" : "adaptive δg (final, not leveled)";
+    const atDatum = p.dg_flight !== null && p.dg_flight !== undefined;
+    const dgName = (leveled ? "adaptive δg (final, leveled)" : "adaptive δg (final, not leveled)") + (atDatum ? ", at the datum" : "");
     const traces = [
       { x, y: p.z_lowpassed, name: `z, low-passed (${p.z_lowpass_s} s)`, mode: "lines", line: { color: "#9e9e9e", width: 1 }, customdata: cd, hovertemplate: ht("z") },
       { x, y: lo, mode: "lines", line: { width: 0 }, showlegend: false, hoverinfo: "skip" },
@@ -72,8 +75,23 @@ export async function render(sec, ctx) {
       { x, y: p.dg_std, name: "± σ (adaptive)", legendgroup: "sigma", mode: "lines", line: { color: "#1f6feb", width: 1, dash: "dot" }, customdata: cd, hovertemplate: ht("σ"), ...a2 },
       { x, y: neg, name: "− σ", legendgroup: "sigma", showlegend: false, mode: "lines", line: { color: "#1f6feb", width: 1, dash: "dot" }, hoverinfo: "skip", ...a2 },
     ];
+    // products (null when the result has none)
+    const products = [];
+    if (atDatum) {
+      products.push("dg_flight");
+      traces.push({ x, y: p.dg_flight, name: "δg at flight height (before continuation)", mode: "lines", line: { color: "#5b8fd6", width: 1.5, dash: "dashdot" }, customdata: cd, hovertemplate: ht("δg at flight height") });
+    }
+    if (p.dg_bouguer) {
+      products.push("dg_bouguer");
+      traces.push({ x, y: p.dg_bouguer, name: "Bouguer anomaly δg_B" + (atDatum ? ", at the datum" : ""), mode: "lines", line: { color: "#8c510a", width: 2 }, customdata: cd, hovertemplate: ht("δg_B") });
+    }
+    if (p.terrain) {
+      products.push("terrain");
+      traces.push({ x, y: p.terrain, name: "terrain effect (DEM)", visible: "legendonly", mode: "lines", line: { color: "#bf812d", width: 1, dash: "dot" }, customdata: cd, hovertemplate: ht("terrain effect") });
+    }
     // y range from the filtered series (z can carry large transients at the line ends)
-    const vals = [...lo, ...hi, ...p.dg_stationary, ...p.dg_fir].filter((v) => v !== null && Number.isFinite(v));
+    const vals = [...lo, ...hi, ...p.dg_stationary, ...p.dg_fir, ...(p.dg_bouguer || []), ...(atDatum ? p.dg_flight : [])]
+      .filter((v) => v !== null && Number.isFinite(v));
     const ymin = Math.min(...vals), ymax = Math.max(...vals), pad = 0.25 * Math.max(ymax - ymin, 1);
     const layout = {
       title: { text: `Line ${esc(p.line)} (${esc(p.kind)}, flight ${esc(p.flight)})`, font: { size: 15 } },
@@ -93,6 +111,7 @@ export async function render(sec, ctx) {
       (d ? ` · adaptive − FIR: RMS ${fmt(d.rms_mgal, 3)} mGal (std ${fmt(d.std_mgal, 3)})` : "");
     plot.dataset.line = p.line;
     plot.dataset.leveled = leveled ? "1" : "0";
+    plot.dataset.products = products.join(" ");
   };
   drawLine = (line) => {
     if (![...sel.options].some((o) => o.value === line)) return;
