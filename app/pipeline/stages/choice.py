@@ -142,7 +142,7 @@ def fir_guard(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dic
     rep = {"n_crossovers": cmp.n, "crossover_rms_mgal": cmp.rms_a_mgal, "crossover_rms_fir_mgal": cmp.rms_b_mgal,
            "p_value": cmp.p_value, "applied": bool(cmp.p_value < p.fir_guard_p)}
     if rep["applied"]:
-        for line, g in table.groupby("line", sort=False):
+        for _, g in table.groupby("line", sort=False):
             fir_var = fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s, p.fir_cutoff_period_s)
             _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), np.sqrt(fir_var)))
         warnings.append(f"the adaptive estimate disagrees more at the crossovers than FIR 100 s "

@@ -78,11 +78,11 @@ def update_survey(body: SurveyPatch, s: Survey = Depends(get_survey_or_404), db:
     try:
         patch_survey(db, store, reader, s, body, budget_bytes=settings.survey_storage_bytes)
     except SettingsRejected as e:
-        raise HTTPException(422, e.detail)
+        raise HTTPException(422, e.detail) from e
     except (NoInput, SurveyConflict) as e:
-        raise HTTPException(409, str(e))
+        raise HTTPException(409, str(e)) from e
     except StorageBudgetExceeded as e:
-        raise HTTPException(413, str(e))
+        raise HTTPException(413, str(e)) from e
     return survey_out(db, s)
 
 
@@ -95,7 +95,7 @@ def remove_survey(s: Survey = Depends(get_survey_or_404), db: Session = Depends(
     try:
         ids = set(delete_survey(db, store, s))
     except (JobConflict, SurveyConflict) as e:
-        raise HTTPException(409, str(e))
+        raise HTTPException(409, str(e)) from e
     cache.discard(lambda k: isinstance(k, tuple) and len(k) == 2 and k[1] in ids)
     return Response(status_code=204)
 
@@ -114,7 +114,7 @@ def import_survey(file: UploadFile = File(..., description="zip of a survey dire
                                budget_bytes=settings.survey_storage_bytes)
         return survey_out(db, s)
     except StorageBudgetExceeded as e:
-        raise HTTPException(413, str(e))
+        raise HTTPException(413, str(e)) from e
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 
@@ -148,9 +148,9 @@ def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv
         add_flight(db, store, reader, s, flight, write_files, lines.file.read() if lines is not None else None,
                    budget_bytes=settings.survey_storage_bytes)
     except SurveyConflict as e:
-        raise HTTPException(409, str(e))
+        raise HTTPException(409, str(e)) from e
     except StorageBudgetExceeded as e:
-        raise HTTPException(413, str(e))
+        raise HTTPException(413, str(e)) from e
     return survey_out(db, s)
 
 
