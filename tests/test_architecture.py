@@ -40,3 +40,12 @@ def test_core_imports_no_upper_layer():
                 if parts[0] == "app" and len(parts) > 1 and parts[1] != "core":
                     bad.append(f"{path.name}: {m}")
     assert not bad, bad
+
+
+def test_jsonsafe_imports_no_app_module():
+    """app.jsonsafe serves io, pipeline and web alike: it depends on nothing of the application."""
+    tree = ast.parse((APP / "jsonsafe.py").read_text(encoding="utf-8"))
+    mods = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    mods += [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.level == 0]
+    assert not [m for m in mods if m == "app" or m.startswith("app.")], mods
+    assert not [n for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.level > 0]

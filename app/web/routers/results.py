@@ -16,6 +16,7 @@ from fastapi.responses import FileResponse, Response
 from sqlalchemy.orm import Session
 
 from app.core.nlmeans import RecognitionMap
+from app.jsonsafe import finite_float, float_list, int_list, to_jsonable
 from app.pipeline.stages.recognition import Recognition, state_map
 
 from ..db import Result, Survey
@@ -42,25 +43,11 @@ def _json(obj: Any) -> Response:
 
 
 def _clean(a, nd: int = 3) -> list:
-    """Array → JSON list, rounded, NaN/inf → null."""
-    a = np.asarray(a, dtype=float)
-    r = np.round(a, nd)
-    ok = np.isfinite(r)
-    if ok.all():
-        return r.tolist()
-    out = r.astype(object)
-    out[~ok] = None
-    return out.tolist()
+    """Array → JSON list, rounded, NaN/inf → null (:func:`app.jsonsafe.float_list`)."""
+    return float_list(a, nd)
 
 
-def _ints(a) -> list:
-    a = np.asarray(a)
-    if a.dtype.kind == "f":
-        ok = np.isfinite(a)
-        out = np.where(ok, a, -1).astype(int).astype(object)
-        out[~ok] = None
-        return out.tolist()
-    return a.astype(int).tolist()
+_ints = int_list
 
 
 def current_result(s: Survey, db: Session) -> Result:
@@ -227,8 +214,7 @@ def recognition(h: float | None = Query(None, ge=0, le=100, description="NL-mean
     return RecognitionOut(**body)
 
 
-def _finite(v) -> float | None:
-    return float(v) if v is not None and math.isfinite(float(v)) else None
+_finite = finite_float
 
 
 def _load_report(r: Result) -> dict[str, Any]:
@@ -276,7 +262,7 @@ def _load_report(r: Result) -> dict[str, Any]:
         for col in c.columns:
             if c[col].dtype.kind == "f":
                 c[col] = c[col].round(4)
-        crossovers = c.astype(object).where(pd.notna(c), None).to_dict(orient="records")
+        crossovers = to_jsonable(c)
     warnings = [str(w) for w in rep.get("warnings") or []] if isinstance(rep.get("warnings"), list) else []
     xo = rep.get("crossovers") if isinstance(rep.get("crossovers"), dict) else {}
     return {"warnings": warnings, "leveled": xo.get("status") == "leveled", "leveling_status": xo.get("status"),
@@ -323,9 +309,7 @@ def _load_grid(r: Result) -> dict[str, Any]:
     out["lines"] = tracks
     cx = Path(r.dir) / "crossovers.csv"
     if cx.exists():
-        c = pd.read_csv(cx)
-        c = c.astype(object).where(pd.notna(c), None)
-        out["crossovers"] = c.to_dict(orient="records")
+        out["crossovers"] = to_jsonable(pd.read_csv(cx))
     else:
         out["crossovers"] = []
     return out
