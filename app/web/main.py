@@ -40,6 +40,7 @@ from app.io.errors import InputError
 from .db import session_factory
 from .errors import validation_detail
 from .jobs import JobManager
+from .schemas import HealthOut, ParamsSchemaOut
 from .settings import Settings
 from .store import ResultCache, Store
 
@@ -334,21 +335,22 @@ def _add_api_routes(app: FastAPI, settings: Settings, store: Store, Session, job
     app.include_router(jobs_router.router)
     app.include_router(results.router)
 
-    @app.get("/api/params/schema", tags=["params"])
-    def params_schema() -> dict:
+    @app.get("/api/params/schema", tags=["params"], response_model=ParamsSchemaOut)
+    def params_schema() -> ParamsSchemaOut:
         """ProcessingParams: JSON schema with defaults and descriptions (for the parameters form)."""
-        return {"schema": ProcessingParams.model_json_schema(), "defaults": ProcessingParams().model_dump()}
+        return ParamsSchemaOut(json_schema=ProcessingParams.model_json_schema(),
+                               defaults=ProcessingParams().model_dump())
 
     storage_report = _storage_reporter(settings, store, Session)
 
-    @app.get("/api/health", tags=["meta"])
-    def health() -> dict:
+    @app.get("/api/health", tags=["meta"], response_model=HealthOut)
+    def health() -> HealthOut:
         hosts = settings.allowed_host_set()
-        return {"status": "ok", "backend": jobs.backend, "auth": bool(settings.token),
-                "max_upload_mb": settings.max_upload_mb,
-                "max_uncompressed_mb": round(settings.max_uncompressed_bytes / 2**20, 3),
-                "allowed_hosts": sorted(hosts) if hosts is not None else ["*"],
-                "storage": storage_report()}
+        return HealthOut(status="ok", backend=jobs.backend, auth=bool(settings.token),
+                         max_upload_mb=settings.max_upload_mb,
+                         max_uncompressed_mb=round(settings.max_uncompressed_bytes / 2**20, 3),
+                         allowed_hosts=sorted(hosts) if hosts is not None else ["*"],
+                         storage=storage_report())
 
 
 def _add_static_routes(app: FastAPI) -> None:

@@ -12,7 +12,7 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 from fastapi import APIRouter, Depends, HTTPException, Query
-from fastapi.responses import FileResponse, Response
+from fastapi.responses import FileResponse
 from sqlalchemy.orm import Session
 
 from app.core.nlmeans import RecognitionMap
@@ -36,10 +36,6 @@ EXPORTS = {
     "crossovers": ("crossovers.csv", "text/csv"),
     "report": ("report.json", "application/json"),
 }
-
-
-def _json(obj: Any) -> Response:
-    return Response(json.dumps(obj, separators=(",", ":"), allow_nan=False), media_type="application/json")
 
 
 def _clean(a, nd: int = 3) -> list:
@@ -145,7 +141,7 @@ def list_lines(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get
 def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, description="decimate to about this many points"),
                  z_lowpass_s: float = Query(30.0, ge=0, le=600, description="Gaussian low-pass of z, full width at half maximum (s)"),
                  s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
-                 cache: ResultCache = Depends(get_cache)):
+                 cache: ResultCache = Depends(get_cache)) -> ProfileOut:
     """Profile series of one line: z low-passed, final δg ± σ, stationary, FIR, state (decimated)."""
     r = current_result(s, db)
     groups = cache.get(("lines", r.id), lambda: _load_lines(r))["groups"]
@@ -171,14 +167,14 @@ def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, descr
     def col(name):
         return _clean(g[name].to_numpy(float)[sl]) if name in g else [None] * len(t[sl])
 
-    return _json(ProfileOut(
+    return ProfileOut(
         survey_id=s.id, line=line, flight=str(g["flight"].iloc[0]) if "flight" in g else "",
         kind=str(g["kind"].iloc[0]) if "kind" in g else "", n_total=n, step=step, z_lowpass_s=z_lowpass_s,
         time=_clean(t[sl], 2), distance_km=_clean(dist[sl], 4), z_lowpassed=_clean(z[sl]),
         dg=col("dg_mgal"), dg_std=col("dg_std_mgal"), dg_stationary=col("dg_stationary_mgal"),
         dg_fir=col("dg_fir_mgal"), dg_unleveled=col("dg_unleveled_mgal"),
         state=_ints(g["state"].to_numpy()[sl]) if "state" in g else [None] * len(t[sl]),
-    ).model_dump())
+    )
 
 
 @router.get("/{survey_id}/recognition", response_model=RecognitionOut, response_model_exclude_none=True)
@@ -273,14 +269,13 @@ def _load_report(r: Result) -> dict[str, Any]:
 @router.get("/{survey_id}/report", response_model=ReportOut,
             responses={404: {"description": "no such survey, or no result yet"}})
 def report(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
-           cache: ResultCache = Depends(get_cache)):
+           cache: ResultCache = Depends(get_cache)) -> ReportOut:
     """The current result's report: every warning and automatic decision (base ties, time offsets, lag
     check, spike repair, leveling F-test, crossovers, noise model, model order, identification, repeat
     lines), with the per-line RMS of adaptive − FIR computed from lines.parquet."""
     r = current_result(s, db)
     body = cache.get(("report", r.id), lambda: _load_report(r))
-    out = ReportOut(survey_id=s.id, result_id=r.id, job_id=r.job_id, **body)
-    return _json(out.model_dump())
+    return ReportOut(survey_id=s.id, result_id=r.id, job_id=r.job_id, **body)
 
 
 def _load_grid(r: Result) -> dict[str, Any]:
@@ -317,11 +312,11 @@ def _load_grid(r: Result) -> dict[str, Any]:
 
 @router.get("/{survey_id}/grid", response_model=GridOut)
 def grid(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
-         cache: ResultCache = Depends(get_cache)):
+         cache: ResultCache = Depends(get_cache)) -> GridOut:
     """Anomaly grid δg and its posterior σ (mGal) with lines and crossovers for overlays."""
     r = current_result(s, db)
     g = cache.get(("grid", r.id), lambda: _load_grid(r))
-    return _json({"survey_id": s.id, "result_id": r.id, **g, "report": r.report or {}})
+    return GridOut(survey_id=s.id, result_id=r.id, **g, report=r.report or {})
 
 
 def _lines_xyz(s: Survey, r: Result) -> Path:

@@ -12,7 +12,17 @@ from sqlalchemy.orm import Session
 
 from ..db import Job, Survey
 from ..deps import get_cache, get_db, get_settings, get_store, get_survey_or_404, get_survey_reader
-from ..schemas import FlightOut, JobOut, LineOut, QCOut, SurveyCreate, SurveyOut, SurveyPatch
+from ..schemas import (
+    FlightOut,
+    JobOut,
+    LineOut,
+    QCOut,
+    SurveyCreate,
+    SurveyOut,
+    SurveyPatch,
+    TrackLine,
+    TracksOut,
+)
 from ..services import (
     JobConflict,
     NoInput,
@@ -162,10 +172,10 @@ def survey_qc_view(s: Survey = Depends(get_survey_or_404)) -> QCOut:
                                 t_end=l.t_end, qc=l.qc or {}) for l in s.lines])
 
 
-@router.get("/{survey_id}/tracks")
-def survey_tracks(s: Survey = Depends(get_survey_or_404)) -> dict:
+@router.get("/{survey_id}/tracks", response_model=TracksOut)
+def survey_tracks(s: Survey = Depends(get_survey_or_404)) -> TracksOut:
     """Decimated line tracks in the survey CRS (km) for the line map (available before processing)."""
-    return {"survey_id": s.id, "crs": s.crs or next((l.track.get("crs") for l in s.lines if l.track), None),
-            "lines": [{"line": l.line, "flight": l.flight, "kind": l.kind,
-                       "easting_km": (l.track or {}).get("easting_km", []),
-                       "northing_km": (l.track or {}).get("northing_km", [])} for l in s.lines]}
+    return TracksOut(survey_id=s.id, crs=s.crs or next((l.track.get("crs") for l in s.lines if l.track), None),
+                     lines=[TrackLine(line=l.line, flight=l.flight, kind=l.kind,
+                                      easting_km=(l.track or {}).get("easting_km", []),
+                                      northing_km=(l.track or {}).get("northing_km", [])) for l in s.lines])
