@@ -26,6 +26,7 @@ browser:
 	fi
 
 test: install browser
+	$(VENV)/bin/ruff check app tests
 	$(PY) -m pytest -q -p no:cacheprovider
 
 test-fast: install

@@ -173,8 +173,10 @@ def _hessian_se(f, x, h=0.05):
     f0 = f(x)
     for i in range(n):
         for j in range(i, n):
-            ei = np.zeros(n); ei[i] = h
-            ej = np.zeros(n); ej[j] = h
+            ei = np.zeros(n)
+            ei[i] = h
+            ej = np.zeros(n)
+            ej[j] = h
             if i == j:
                 H[i, i] = (f(x + ei) - 2 * f0 + f(x - ei)) / h**2
             else:

@@ -520,10 +520,10 @@ def _normal_inverse(M: np.ndarray, names: tuple) -> np.ndarray:
     if ev[0] < 1e-10:
         v = np.abs(evec[:p, 0])
         involved = [names[i] for i in np.argsort(-v) if v[i] > 0.2]
-        raise ValueError("singular normal matrix (condition %.1e): parameters %s cannot be "
-                         "separated by this segment's manoeuvres; estimate fewer parameters or "
-                         "use a segment with independent manoeuvres on each channel"
-                         % (ev[-1] / max(ev[0], 1e-300), involved or list(names)))
+        cond = ev[-1] / max(ev[0], 1e-300)
+        raise ValueError(f"singular normal matrix (condition {cond:.1e}): parameters {involved or list(names)} "
+                         "cannot be separated by this segment's manoeuvres; estimate fewer parameters or "
+                         "use a segment with independent manoeuvres on each channel")
     Ci = np.linalg.inv(C)
     return Ci / np.outer(s, s)
 

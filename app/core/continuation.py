@@ -94,7 +94,7 @@ def block_average_lines(easting_m, northing_m, height_m, dg_mgal, std_mgal, line
         b = np.floor(sdist / block_m).astype(np.int64)
         _, bi, cnt = np.unique(b, return_inverse=True, return_counts=True)
 
-        def mean(x):
+        def mean(x, bi=bi, idx=idx, cnt=cnt):
             return np.bincount(bi, weights=x[idx]) / cnt
 
         step = float(np.median(ds)) if ds.size else block_m

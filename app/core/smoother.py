@@ -337,7 +337,6 @@ def _smooth_bf(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt, out_innov
 
 @njit(cache=True)
 def _loglik_only(z, Qs, Q0s, Rs, m, x0, P0):
-    n = m + 2
     N = z.shape[0]
     x, P, xp, Pp, T, K, g, h = _filter_state(x0, P0)
     ll = 0.0
@@ -1167,8 +1166,10 @@ def kalman_filter(A, Qmat, C, Rmeas, z, x0, P0, u=None) -> FilteredStates:
     """
     A, Qm, C, Rm, z, x0, P0, u = generic_model_inputs(A, Qmat, C, Rmeas, z, x0, P0, u)
     N, n = z.shape[0], A.shape[0]
-    xf = np.empty((N, n)); Pf = np.empty((N, n, n))
-    xp = np.empty((N, n)); Pp = np.empty((N, n, n))
+    xf = np.empty((N, n))
+    Pf = np.empty((N, n, n))
+    xp = np.empty((N, n))
+    Pp = np.empty((N, n, n))
     x, P = x0.copy(), P0.copy()
     ll = 0.0
     I = np.eye(n)
@@ -1206,7 +1207,8 @@ def rts_smooth(A, Qmat, C, Rmeas, z, x0, P0, u=None) -> SmoothedStates:
     A = np.atleast_2d(np.asarray(A, dtype=float))
     xf, Pf, xp, Pp, ll = kalman_filter(A, Qmat, C, Rmeas, z, x0, P0, u)
     N = xf.shape[0]
-    xs = xf.copy(); Ps = Pf.copy()
+    xs = xf.copy()
+    Ps = Pf.copy()
     for k in range(N - 2, -1, -1):
         Gt = np.linalg.lstsq(Pp[k + 1], A @ Pf[k], rcond=None)[0]
         G = Gt.T

@@ -293,7 +293,7 @@ def terrain_effect_along_lines_mgal(easting_m, northing_m, height_m, line, dem: 
     h = np.asarray(height_m, dtype=float)
     lab = np.asarray(line)
     out = np.full(e.size, np.nan)
-    idx_all, pts, spans = [], [], []
+    idx_all, spans = [], []
     spacing_used = {}
     clear = terrain_clearance_m(e, n, h, dem)
     start = 0
@@ -329,10 +329,12 @@ def terrain_effect_along_lines_mgal(easting_m, northing_m, height_m, line, dem: 
                 out[sl] = v
             elif j.size >= 2:
                 sj, keep = np.unique(s[j], return_index=True)
-                if sj.size >= 3:
-                    f = lambda y: CubicSpline(sj, y[keep], bc_type="not-a-knot")(s)     # noqa: E731
-                else:
-                    f = lambda y: np.interp(s, sj, y[keep])                              # noqa: E731
+
+                def f(y, sj=sj, keep=keep, s=s):
+                    if sj.size >= 3:
+                        return CubicSpline(sj, y[keep], bc_type="not-a-knot")(s)
+                    return np.interp(s, sj, y[keep])
+
                 out[sl] = f(v) + f(gz) * (h[sl] - f(hj))
             else:
                 out[sl] = v[0] + gz[0] * (h[sl] - hj[0])

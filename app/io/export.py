@@ -20,15 +20,14 @@ failure half-way leaves any previous file intact and no partial file behind.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
-import datetime as _dt
 import json
-import math
 import os
 import uuid
 from pathlib import Path
 
 import numpy as np
+
+from app.jsonsafe import encoder, finite_tree
 
 #: Blank value of Surfer grids.
 SURFER_BLANK = 1.70141e38
@@ -357,68 +356,13 @@ def write_parquet(df, path) -> Path:
     return atomic_write(path, lambda tmp: df.to_parquet(tmp, index=False, engine="pyarrow"))
 
 
-def to_jsonable(obj):
-    """Convert numpy/pandas/dataclass/Path values into plain JSON types.
-
-    Non-finite floats become ``None`` (JSON has no NaN).  Raises TypeError for
-    anything else it cannot convert.
-    """
-    if obj is None or isinstance(obj, (bool, str)):
-        return obj
-    if isinstance(obj, (int, np.integer)) and not isinstance(obj, np.bool_):
-        return int(obj)
-    if isinstance(obj, np.bool_):
-        return bool(obj)
-    if isinstance(obj, (float, np.floating)):
-        f = float(obj)
-        return f if math.isfinite(f) else None
-    if isinstance(obj, dict):
-        return {str(k): to_jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple, set, frozenset)):
-        return [to_jsonable(v) for v in obj]
-    if isinstance(obj, np.ndarray):
-        return [to_jsonable(v) for v in obj.tolist()] if obj.ndim else to_jsonable(obj.item())
-    if isinstance(obj, Path):
-        return str(obj)
-    if isinstance(obj, (_dt.datetime, _dt.date)):
-        return obj.isoformat()
-    if dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        return to_jsonable(dataclasses.asdict(obj))
-    try:
-        import pandas as pd
-
-        if isinstance(obj, pd.DataFrame):
-            return to_jsonable(obj.to_dict(orient="records"))
-        if isinstance(obj, pd.Series):
-            return to_jsonable(obj.tolist())
-        if isinstance(obj, pd.Timestamp):
-            return obj.isoformat()
-    except ImportError:  # pragma: no cover
-        pass
-    if hasattr(obj, "model_dump"):  # pydantic
-        return to_jsonable(obj.model_dump())
-    raise TypeError(f"cannot write {type(obj).__name__} to JSON")
-
-
 def write_json(obj, path, indent: int | None = 2) -> Path:
     """JSON (numpy-aware, NaN → null, strict), atomically."""
     def _w(tmp):
         with open(tmp, "w", encoding="utf-8") as f:
-            for chunk in json.JSONEncoder(indent=indent, allow_nan=False, ensure_ascii=False,
-                                          default=to_jsonable).iterencode(_prefilter(obj)):
+            for chunk in encoder(indent).iterencode(finite_tree(obj)):
                 f.write(chunk)
             f.write("\n")
             f.flush()
             os.fsync(f.fileno())
     return atomic_write(path, _w)
-
-
-def _prefilter(obj):
-    """Replace non-finite floats (which ``default`` never sees) by None, lazily."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k if isinstance(k, str) else str(k): _prefilter(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_prefilter(v) for v in obj]
-    return obj

@@ -115,7 +115,7 @@ def _read_raw(path: Path, display: str) -> tuple[pd.DataFrame, np.ndarray]:
     except ValueError:
         raw = pd.read_csv(path, header=None, skiprows=1, names=names, dtype=str,
                           skip_blank_lines=False, engine="c", low_memory=False, **kw)
-        for i_col, col in enumerate(names[:-1]):
+        for col in names[:-1]:
             s = raw[col]
             num = pd.to_numeric(s.str.strip(), errors="coerce")
             bad = np.flatnonzero(num.isna().to_numpy() & s.notna().to_numpy())

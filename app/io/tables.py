@@ -56,7 +56,8 @@ class _Limits:
     max_rows: int | None = None
 
 
-_LIMITS: ContextVar[_Limits] = ContextVar("aerograv_table_limits", default=_Limits())
+_NO_LIMITS = _Limits()  # frozen: safe as the ContextVar's shared default
+_LIMITS: ContextVar[_Limits] = ContextVar("aerograv_table_limits", default=_NO_LIMITS)
 
 
 @contextlib.contextmanager

@@ -4,16 +4,20 @@ Used by the tests, the benchmarks and ``aerograv evaluate``; never by processing
 Metrics: RMS vs truth of the adaptive, stationary and FIR estimates per terrain class
 (first and last ``edge_km`` of each line excluded), std calibration (fraction of epochs
 with |error| < 2σ), recognition accuracy (raw and smoothed), grid RMS inside the lines'
-convex hull and the grid std calibration.
+convex hull and the grid std calibration.  The accuracy figures are those of
+:mod:`app.core.accuracy`; a selection without finite values reads NaN.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from app.core import accuracy
 
 ESTIMATES = ("dg_mgal", "dg_unleveled_mgal", "dg_stationary_mgal", "dg_fir_mgal")
 
@@ -43,30 +47,48 @@ def merge_truth(lines: pd.DataFrame, truth: pd.DataFrame) -> pd.DataFrame:
     return pd.concat(out, ignore_index=True)
 
 
+def _has_pairs(est, true, where=None) -> bool:
+    """Whether the selection holds a point where both the estimate and the truth are finite (the
+    accuracy functions raise otherwise; evaluate reports NaN)."""
+    ok = np.isfinite(np.asarray(est, float)) & np.isfinite(np.asarray(true, float))
+    return bool((ok if where is None else ok & np.asarray(where, bool)).any())
+
+
+def _rms_or_nan(est, true, *, line=None, where=None) -> float:
+    """:func:`app.core.accuracy.rms_vs_reference`, NaN when the selection has no finite pair."""
+    if not _has_pairs(est, true, where):
+        return float("nan")
+    return accuracy.rms_vs_reference(est, true, line=line, where=where)
+
+
 def line_accuracy(lines: pd.DataFrame, truth: pd.DataFrame, edge_km: float = 10.0) -> dict:
-    """RMS vs truth per terrain for each estimate, and std calibration."""
+    """RMS vs truth per terrain for each estimate, and std calibration (:mod:`app.core.accuracy`)."""
     m = merge_truth(lines, truth)
     L = m.groupby("line")["along_km"].transform("max")
     core = m[(m["along_km"] >= edge_km) & (m["along_km"] <= L - edge_km) & m["dg_true_mgal"].notna()]
     res: dict = {"epochs": int(len(core))}
+    true = core["dg_true_mgal"].to_numpy(float)
+    line = core["line"].to_numpy()
     for col in ESTIMATES:
         if col not in core:
             continue
-        err = core[col] - core["dg_true_mgal"]
-        d = {"all": float(np.sqrt(np.mean(err ** 2)))}
-        # the same with each line's mean error removed (what leveling/base ties cannot see)
-        err_d = err - err.groupby(core["line"]).transform("mean")
-        d["all_line_demeaned"] = float(np.sqrt(np.mean(err_d ** 2)))
+        est = core[col].to_numpy(float)
+        d = {"all": _rms_or_nan(est, true),
+             # the same with each line's mean error removed (what leveling/base ties cannot see)
+             "all_line_demeaned": _rms_or_nan(est, true, line=line)}
         for terr in ("mountain", "plain"):
-            sel = core["terrain"] == terr
+            sel = (core["terrain"] == terr).to_numpy()
             if sel.any():
-                d[terr] = float(np.sqrt(np.mean(err[sel] ** 2)))
-                d[f"{terr}_line_demeaned"] = float(np.sqrt(np.mean(err_d[sel] ** 2)))
+                d[terr] = _rms_or_nan(est, true, where=sel)
+                d[f"{terr}_line_demeaned"] = _rms_or_nan(est, true, line=line, where=sel)
         res[col] = d
+    std = core["dg_std_mgal"].to_numpy(float)
     for col in ("dg_mgal", "dg_unleveled_mgal"):
-        err = core[col] - core["dg_true_mgal"]
-        res[f"std_calibration_{col}"] = float(np.mean(np.abs(err) < 2 * core["dg_std_mgal"]))
-    res["bias_dg_mgal"] = float(np.mean(core["dg_mgal"] - core["dg_true_mgal"]))
+        err = core[col].to_numpy(float) - true
+        res[f"std_calibration_{col}"] = (accuracy.std_calibration(err, std, 2.0) if _has_pairs(err, std)
+                                         else float("nan"))
+    dg = core["dg_mgal"].to_numpy(float)
+    res["bias_dg_mgal"] = accuracy.mean_error_vs_reference(dg, true) if _has_pairs(dg, true) else float("nan")
     return res
 
 
@@ -96,31 +118,24 @@ def recognition_accuracy(rec: pd.DataFrame, truth: pd.DataFrame, n_r: int = 1) -
 
 
 def grid_accuracy(out_dir: Path, truth_dir: Path) -> dict:
+    """Grid RMS and std calibration inside the lines' convex hull
+    (:func:`app.core.accuracy.grid_accuracy_in_hull`) against the true grid interpolated to the
+    nodes: ``{cells, rms_mgal, rms_demeaned_mgal, std_calibration}`` (None figures without cells)."""
     import xarray as xr
     from scipy.interpolate import RegularGridInterpolator
-    from scipy.spatial import Delaunay
 
-    g = xr.open_dataset(out_dir / "grid.nc")
-    t = xr.open_dataset(truth_dir / "grid.nc")
-    e = g["easting_km"].values
-    n = g["northing_km"].values
-    dg = g["dg"].values
-    std = g["dg_std"].values
-    interp = RegularGridInterpolator((t["northing_km"].values, t["easting_km"].values), t["dg"].values,
-                                     bounds_error=False, fill_value=np.nan)
+    with xr.open_dataset(out_dir / "grid.nc") as g, xr.open_dataset(truth_dir / "grid.nc") as t:
+        e = g["easting_km"].values
+        n = g["northing_km"].values
+        dg = g["dg"].values
+        std = g["dg_std"].values
+        interp = RegularGridInterpolator((t["northing_km"].values, t["easting_km"].values), t["dg"].values,
+                                         bounds_error=False, fill_value=np.nan)
     N, E = np.meshgrid(n, e, indexing="ij")
     true = interp(np.column_stack([N.ravel(), E.ravel()])).reshape(N.shape)
     lines = pd.read_parquet(out_dir / "lines.parquet", columns=["easting_km", "northing_km"])
-    pts = lines.to_numpy()[:: max(1, len(lines) // 20000)]
-    hull = Delaunay(pts)
-    inside = hull.find_simplex(np.column_stack([E.ravel(), N.ravel()])).reshape(N.shape) >= 0
-    ok = inside & np.isfinite(dg) & np.isfinite(true)
-    err = dg[ok] - true[ok]
-    g.close()
-    t.close()
-    return {"cells": int(ok.sum()), "rms_mgal": float(np.sqrt(np.mean(err ** 2))) if ok.any() else None,
-            "rms_demeaned_mgal": float(np.std(err)) if ok.any() else None,
-            "std_calibration": float(np.mean(np.abs(err) < 2 * std[ok])) if ok.any() else None}
+    return dataclasses.asdict(accuracy.grid_accuracy_in_hull(e, n, dg, true, lines["easting_km"].to_numpy(),
+                                                             lines["northing_km"].to_numpy(), std_mgal=std))
 
 
 def evaluate(survey_dir, out_dir, edge_km: float = 10.0) -> dict:

@@ -1,4 +1,8 @@
-"""``aerograv inspect``: a QC table per flight and line (rates, gaps, duration, length, lag)."""
+"""``aerograv inspect``: a QC table per flight and line (rates, gaps, duration, length, lag).
+
+:func:`inspect_table` is the survey QC of both the command line and the web application (the
+browser's QC tab shows its figures), so the two never disagree.
+"""
 
 from __future__ import annotations
 
@@ -6,14 +10,11 @@ import numpy as np
 import pandas as pd
 
 
-def inspect_survey(survey_dir) -> pd.DataFrame:
-    """QC table: one row per line (and its flight's sensor rates), with the estimated
-    gravimeter–GNSS time offset of the flight (cross-correlation of accelerations)."""
+def _time_offsets(survey) -> dict[str, tuple[float, float]]:
+    """Per flight: the estimated gravimeter–GNSS time offset (s) and its correlation (NaN, NaN when
+    it cannot be estimated)."""
     from app.core import gravimeter as gm
-    from app.io.survey import read_survey, survey_summary
 
-    survey = read_survey(survey_dir)
-    table = survey_summary(survey)
     cfg = survey.config
     lags = {}
     for name, fl in survey.flights.items():
@@ -25,6 +26,28 @@ def inspect_survey(survey_dir) -> pd.DataFrame:
             lags[name] = (round(off, 4), round(corr, 3))
         except ValueError:
             lags[name] = (np.nan, np.nan)
-    table["lag_s"] = table["flight"].map(lambda f: lags.get(str(f), (np.nan, np.nan))[0])
-    table["lag_corr"] = table["flight"].map(lambda f: lags.get(str(f), (np.nan, np.nan))[1])
+    return lags
+
+
+def inspect_table(survey, time_offsets: bool = True) -> pd.DataFrame:
+    """QC table of a read survey (:func:`app.io.survey.survey_summary`: one row per flight, then
+    one per line, with rates from the median interval, the largest gaps, durations and ellipsoidal
+    path lengths).  With ``time_offsets`` also ``lag_s`` and ``lag_corr``: each flight's
+    gravimeter–GNSS time offset by cross-correlation of accelerations (seconds of computation per
+    flight)."""
+    from app.io.survey import survey_summary
+
+    table = survey_summary(survey)
+    if time_offsets:
+        lags = _time_offsets(survey)
+        table["lag_s"] = table["flight"].map(lambda f: lags.get(str(f), (np.nan, np.nan))[0])
+        table["lag_corr"] = table["flight"].map(lambda f: lags.get(str(f), (np.nan, np.nan))[1])
     return table
+
+
+def inspect_survey(survey_dir) -> pd.DataFrame:
+    """QC table: one row per line (and its flight's sensor rates), with the estimated
+    gravimeter–GNSS time offset of the flight (cross-correlation of accelerations)."""
+    from app.io.survey import read_survey
+
+    return inspect_table(read_survey(survey_dir))

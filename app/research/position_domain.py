@@ -89,15 +89,18 @@ def _discretize(dt, qa, qg) -> _Discrete:
 
 
 @njit(cache=True)
-def _pos_kf_rts(Phi_t, B_t, Q_t, idx, u, H, y, R, x0, P0, xs_out, Ps_out):
-    """Kalman filter (Joseph form, scalar measurement H·x + v) + RTS, dense small n."""
+def _pos_kf(Phi_t, B_t, Q_t, idx, u, H, y, R, x0, P0, xf, Pf, xp, Pp):
+    """Kalman filter (Joseph form, scalar measurement H·x + v), dense small n: fills the filtered
+    ``xf, Pf`` and predicted ``xp, Pp`` states and returns the log-likelihood."""
     N = y.shape[0]
     n = x0.shape[0]
-    xf = np.empty((N, n)); Pf = np.empty((N, n, n))
-    xp = np.empty((N, n)); Pp = np.empty((N, n, n))
-    x = x0.copy(); P = P0.copy()
-    T = np.empty((n, n)); T2 = np.empty((n, n))
-    g = np.empty(n); K = np.empty(n); xt = np.empty(n)
+    x = x0.copy()
+    P = P0.copy()
+    T = np.empty((n, n))
+    T2 = np.empty((n, n))
+    g = np.empty(n)
+    K = np.empty(n)
+    xt = np.empty(n)
     ll = 0.0
     for k in range(N):
         if k > 0:
@@ -146,12 +149,25 @@ def _pos_kf_rts(Phi_t, B_t, Q_t, idx, u, H, y, R, x0, P0, xs_out, Ps_out):
             ll -= 0.5 * (_LOG_2PI + np.log(S) + nu * nu / S)
         xf[k] = x
         Pf[k] = P
+    return ll
+
+
+@njit(cache=True)
+def _pos_rts(Phi_t, idx, xf, Pf, xp, Pp, xs_out, Ps_out):
+    """RTS backward pass over :func:`_pos_kf`'s states: smoothed means into ``xs_out`` and the
+    diagonal of the smoothed covariances into ``Ps_out``."""
+    N, n = xf.shape
+    T = np.empty((n, n))
+    T2 = np.empty((n, n))
+    xt = np.empty(n)
     xs = xf[N - 1].copy()
     Ps = Pf[N - 1].copy()
     xs_out[N - 1] = xs
     for i in range(n):
         Ps_out[N - 1, i] = Ps[i, i]
-    Gt = np.empty((n, n)); G = np.empty((n, n)); D = np.empty((n, n))
+    Gt = np.empty((n, n))
+    G = np.empty((n, n))
+    D = np.empty((n, n))
     dx = np.empty(n)
     for k in range(N - 2, -1, -1):
         j = idx[k + 1]
@@ -176,6 +192,17 @@ def _pos_kf_rts(Phi_t, B_t, Q_t, idx, u, H, y, R, x0, P0, xs_out, Ps_out):
         xs_out[k] = xs
         for i in range(n):
             Ps_out[k, i] = Ps[i, i]
+
+
+def _pos_kf_rts(Phi_t, B_t, Q_t, idx, u, H, y, R, x0, P0, xs_out, Ps_out):
+    """Kalman filter + RTS (:func:`_pos_kf` then :func:`_pos_rts`); returns the log-likelihood."""
+    N, n = y.shape[0], x0.shape[0]
+    xf = np.empty((N, n))
+    Pf = np.empty((N, n, n))
+    xp = np.empty((N, n))
+    Pp = np.empty((N, n, n))
+    ll = _pos_kf(Phi_t, B_t, Q_t, idx, u, H, y, R, x0, P0, xf, Pf, xp, Pp)
+    _pos_rts(Phi_t, idx, xf, Pf, xp, Pp, xs_out, Ps_out)
     return ll
 
 

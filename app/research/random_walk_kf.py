@@ -123,7 +123,8 @@ def random_walk_kf(series, R: float, Q: float | None = None,
         raise ValueError(f"R must be > 0, got {R!r}")
     k0 = int(fin[0])
     N = y.size
-    xf = np.empty(N); Pf = np.empty(N)
+    xf = np.empty(N)
+    Pf = np.empty(N)
     if Q is None:
         lo, hi = Q_bounds if Q_bounds is not None else (1e-10 * R, 1e4 * R)
         if not (0 < lo < hi):
@@ -137,7 +138,8 @@ def random_walk_kf(series, R: float, Q: float | None = None,
         if not (np.isfinite(Q) and Q > 0):
             raise ValueError(f"Q must be > 0, got {Q!r}")
     ll = _rw_filter(y, Q, R, k0, xf, Pf)
-    xs = np.empty(N); Ps = np.empty(N)
+    xs = np.empty(N)
+    Ps = np.empty(N)
     _rw_smooth(Q, k0, xf, Pf, xs, Ps)
     return RandomWalkResult(filtered=xf, filtered_var=Pf, smoothed=xs, smoothed_var=Ps,
                             Q=Q, R=R, loglik=float(ll))

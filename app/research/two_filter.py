@@ -58,7 +58,8 @@ def two_filter_smooth(A, Qmat, C, Rmeas, z, x0, P0, u=None) -> SmoothedStates:
     I = np.eye(n)
     IB = np.zeros((n, n))  # information about x_k from z_{k+1..}
     iB = np.zeros(n)
-    xs = np.empty_like(xf); Ps = np.empty_like(Pf)
+    xs = np.empty_like(xf)
+    Ps = np.empty_like(Pf)
     for k in range(N - 1, -1, -1):
         # fuse
         F = I + Pf[k] @ IB
@@ -68,7 +69,8 @@ def two_filter_smooth(A, Qmat, C, Rmeas, z, x0, P0, u=None) -> SmoothedStates:
         if k == 0:
             break
         # add z_k
-        M = IB.copy(); j = iB.copy()
+        M = IB.copy()
+        j = iB.copy()
         if np.all(np.isfinite(zz[k])):
             CtRi = np.linalg.solve(Rm[k], C).T  # Cᵀ R⁻¹ (R symmetric)
             M = M + CtRi @ C

@@ -38,6 +38,8 @@ from typing import Any
 
 from sqlalchemy import update
 
+from app.jsonsafe import to_jsonable
+
 from .db import ACTIVE_STATES, Job, Result, Survey, session_factory, utcnow
 
 log = logging.getLogger("aerograv.web.jobs")
@@ -51,26 +53,6 @@ def load_entry(entry: str) -> Callable:
     """Resolve ``'module:function'``."""
     mod, _, fn = entry.partition(":")
     return getattr(importlib.import_module(mod), fn)
-
-
-def _jsonable(x: Any) -> Any:
-    """numpy scalars/arrays and nested containers → plain JSON values."""
-    try:
-        import numpy as np
-    except ImportError:  # pragma: no cover
-        np = None
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if np is not None:
-        if isinstance(x, np.ndarray):
-            return _jsonable(x.tolist())
-        if isinstance(x, np.generic):
-            return x.item()
-    if isinstance(x, float) and x != x:  # NaN
-        return None
-    return x
 
 
 def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: str,
@@ -99,7 +81,7 @@ def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: s
         now = time.monotonic()
         values: dict[str, Any] = {}
         if info and "em_iteration" in info:
-            em_rows.append(_jsonable(dict(info["em_iteration"])))
+            em_rows.append(to_jsonable(dict(info["em_iteration"])))
             values["em_iterations"] = list(em_rows)
         if values or stage != last["stage"] or now - last["t"] > 0.3:
             values.update(stage=str(stage), progress=float(min(max(fraction, 0.0), 0.999)))
@@ -134,7 +116,7 @@ def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: s
                 raise JobCancelled()
             job = s.get(Job, job_id)
             result = Result(survey_id=job.survey_id, job_id=job_id, dir=str(out),
-                            report=_jsonable(report) if isinstance(report, dict) else {})
+                            report=to_jsonable(report) if isinstance(report, dict) else {})
             s.add(result)
             s.flush()
             s.execute(update(Survey).where(Survey.id == job.survey_id).values(current_result_id=result.id))
@@ -175,7 +157,7 @@ def _stored_em_table(result_dir: str) -> list[dict[str, Any]]:
     if not p.exists():
         return []
     rows = json.loads(p.read_text()).get("em", {}).get("iterations", [])
-    return [_jsonable({**r, "model": "stored"}) for r in rows]
+    return [to_jsonable({**r, "model": "stored"}) for r in rows]
 
 
 def _death_reason(exitcode: int | None) -> str:

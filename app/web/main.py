@@ -30,7 +30,7 @@ from urllib.parse import urlsplit
 
 from fastapi import FastAPI, HTTPException, Request
 from fastapi.exceptions import RequestValidationError
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import OperationalError
 
@@ -40,6 +40,7 @@ from app.io.errors import InputError
 from .db import session_factory
 from .errors import validation_detail
 from .jobs import JobManager
+from .schemas import HealthOut, ParamsSchemaOut
 from .settings import Settings
 from .store import ResultCache, Store
 
@@ -84,6 +85,8 @@ def docs_assets_dir() -> Path | None:
         return None
     d = Path(list(spec.submodule_search_locations)[0]) / "static"
     return d if d.is_dir() else None
+
+
 SECURITY_HEADERS = [(b"x-frame-options", b"DENY"), (b"x-content-type-options", b"nosniff"),
                     (b"referrer-policy", b"no-referrer"), (b"cross-origin-opener-policy", b"same-origin")]
 
@@ -203,12 +206,9 @@ class GuardMiddleware:
         return await self.app(scope, limited_receive, send_secure)
 
 
-def create_app(settings: Settings | None = None) -> FastAPI:
-    settings = settings or Settings()
-    settings.data_dir = Path(settings.data_dir).resolve()
-    store = Store(settings.data_dir)
-    Session = session_factory(settings.db_url)
-    jobs = JobManager(settings, Session)
+def _recover(settings: Settings, store: Store, Session, jobs: JobManager) -> None:
+    """Start-up housekeeping: jobs a previous server left running are marked failed, half-written
+    folders are removed, and an open Host allow-list is warned about."""
     n = jobs.recover()
     if n:
         log.warning("%d job(s) left running by a previous server marked failed", n)
@@ -222,6 +222,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.warning("any Host header is accepted (bound to %s): set AEROGRAV_ALLOWED_HOSTS to this server's "
                     "names to protect browsers against DNS rebinding", settings.bind_host or settings.allowed_hosts)
 
+
+def _lifespan(jobs: JobManager):
+    """The application's lifespan: the job workers run while the server does."""
+
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         jobs.start()
@@ -230,14 +234,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         finally:
             jobs.shutdown()
 
-    app = FastAPI(title="Aerograv", version="0.1.0", lifespan=lifespan, docs_url=None, redoc_url=None,
-                  description="Airborne gravimetry processing: surveys, jobs, recognition, profiles, grids, exports.")
-    app.state.settings = settings
-    app.state.store = store
-    app.state.Session = Session
-    app.state.jobs = jobs
-    app.state.cache = ResultCache()
-    app.add_middleware(GuardMiddleware, settings=settings)
+    return lifespan
+
+
+def _add_job_hooks(app: FastAPI, jobs: JobManager, Session, store: Store) -> None:
+    """After a job ended: warm the recognition cache (successful jobs) and prune the survey's files."""
 
     def _warm(job_id: int) -> None:
         """After a successful job, load its recognition map so the first slider move is fast."""
@@ -270,6 +271,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     jobs.on_finished.append(_warm)
     jobs.on_finished.append(_prune)
 
+
+def _add_exception_handlers(app: FastAPI) -> None:
+    """Malformed input → 4xx with a reason; database and disk trouble → 503/507 (never a bare 500)."""
+
     @app.exception_handler(InputError)
     async def _input_error(_req: Request, exc: InputError):
         return JSONResponse(status_code=422, content={"detail": exc.to_dict()})
@@ -296,22 +301,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         log.exception("I/O error")
         return JSONResponse(status_code=500, content={"detail": f"I/O error on the server: {exc.strerror or exc}"})
 
-    from .routers import jobs as jobs_router
-    from .routers import results, surveys
-    app.include_router(surveys.router)
-    app.include_router(jobs_router.router)
-    app.include_router(results.router)
 
-    @app.get("/api/params/schema", tags=["params"])
-    def params_schema() -> dict:
-        """ProcessingParams: JSON schema with defaults and descriptions (for the parameters form)."""
-        return {"schema": ProcessingParams.model_json_schema(), "defaults": ProcessingParams().model_dump()}
-
+def _storage_reporter(settings: Settings, store: Store, Session):
+    """``storage_report()``: disk used by each survey against its budget (walked at most every 10 s)."""
     usage_cache: dict = {"t": -1e9, "v": None}
     usage_lock = threading.Lock()
 
     def storage_report() -> dict:
-        """Disk used by each survey against its budget (walked at most every 10 s)."""
         with usage_lock:
             if time.monotonic() - usage_cache["t"] > 10 or usage_cache["v"] is None:
                 budget = settings.survey_storage_bytes
@@ -328,16 +324,38 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                 usage_cache["t"] = time.monotonic()
             return usage_cache["v"]
 
-    @app.get("/api/health", tags=["meta"])
-    def health() -> dict:
-        hosts = settings.allowed_host_set()
-        return {"status": "ok", "backend": jobs.backend, "auth": bool(settings.token),
-                "max_upload_mb": settings.max_upload_mb,
-                "max_uncompressed_mb": round(settings.max_uncompressed_bytes / 2**20, 3),
-                "allowed_hosts": sorted(hosts) if hosts is not None else ["*"],
-                "storage": storage_report()}
+    return storage_report
 
-    from fastapi.responses import HTMLResponse, Response
+
+def _add_api_routes(app: FastAPI, settings: Settings, store: Store, Session, jobs: JobManager) -> None:
+    """The routers (surveys, jobs, results) and the small meta endpoints (parameter schema, health)."""
+    from .routers import jobs as jobs_router
+    from .routers import results, surveys
+    app.include_router(surveys.router)
+    app.include_router(jobs_router.router)
+    app.include_router(results.router)
+
+    @app.get("/api/params/schema", tags=["params"], response_model=ParamsSchemaOut)
+    def params_schema() -> ParamsSchemaOut:
+        """ProcessingParams: JSON schema with defaults and descriptions (for the parameters form)."""
+        return ParamsSchemaOut(json_schema=ProcessingParams.model_json_schema(),
+                               defaults=ProcessingParams().model_dump())
+
+    storage_report = _storage_reporter(settings, store, Session)
+
+    @app.get("/api/health", tags=["meta"], response_model=HealthOut)
+    def health() -> HealthOut:
+        hosts = settings.allowed_host_set()
+        return HealthOut(status="ok", backend=jobs.backend, auth=bool(settings.token),
+                         max_upload_mb=settings.max_upload_mb,
+                         max_uncompressed_mb=round(settings.max_uncompressed_bytes / 2**20, 3),
+                         allowed_hosts=sorted(hosts) if hosts is not None else ["*"],
+                         storage=storage_report())
+
+
+def _add_static_routes(app: FastAPI) -> None:
+    """Swagger UI / ReDoc from fastapi-offline, Plotly's script, and the frontend at ``/`` (last:
+    the mount catches every path the routes above do not)."""
 
     @app.get("/docs", include_in_schema=False)
     def swagger_ui() -> HTMLResponse:
@@ -368,4 +386,26 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     if FRONTEND_DIR.is_dir():
         app.mount("/", StaticFiles(directory=FRONTEND_DIR, html=True), name="frontend")
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or Settings()
+    settings.data_dir = Path(settings.data_dir).resolve()
+    store = Store(settings.data_dir)
+    Session = session_factory(settings.db_url)
+    jobs = JobManager(settings, Session)
+    _recover(settings, store, Session, jobs)
+
+    app = FastAPI(title="Aerograv", version="0.1.0", lifespan=_lifespan(jobs), docs_url=None, redoc_url=None,
+                  description="Airborne gravimetry processing: surveys, jobs, recognition, profiles, grids, exports.")
+    app.state.settings = settings
+    app.state.store = store
+    app.state.Session = Session
+    app.state.jobs = jobs
+    app.state.cache = ResultCache()
+    app.add_middleware(GuardMiddleware, settings=settings)
+    _add_job_hooks(app, jobs, Session, store)
+    _add_exception_handlers(app)
+    _add_api_routes(app, settings, store, Session, jobs)
+    _add_static_routes(app)
     return app

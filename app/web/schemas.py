@@ -1,4 +1,9 @@
-"""Pydantic request/response schemas of the REST API."""
+"""Pydantic request/response schemas of the REST API.
+
+Every JSON endpoint declares its response model and returns an instance of it; FastAPI writes
+it with pydantic's serializer (non-finite floats → null).  Response models forbid undeclared
+fields, so a key added to a response without its declaration fails loudly instead of vanishing.
+QC figures and line statistics come from stored JSON and allow further keys."""
 
 from __future__ import annotations
 
@@ -19,11 +24,40 @@ class SurveyCreate(BaseModel):
                        "no '/' or '\\')")
 
 
-class FlightOut(BaseModel):
+class Out(BaseModel):
+    """A response body: every field the endpoint returns is declared here."""
+    model_config = ConfigDict(extra="forbid")
+
+
+class SensorQC(BaseModel):
+    """QC figures of a flight or line: those of ``aerograv inspect`` (app.pipeline.inspect.inspect_table)."""
+    model_config = ConfigDict(extra="allow")
+    gravimeter_samples: int | None = Field(None, description="Gravimeter samples in the window")
+    gnss_samples: int | None = Field(None, description="GNSS samples in the window")
+    gravimeter_rate_hz: float | None = Field(None, description="Gravimeter rate from the median interval (Hz)")
+    gnss_rate_hz: float | None = Field(None, description="GNSS rate from the median interval (Hz)")
+    gravimeter_max_gap_s: float | None = Field(None, description="Largest gravimeter step, window edges included (s)")
+    gnss_max_gap_s: float | None = Field(None, description="Largest GNSS step, window edges included (s)")
+    duration_s: float | None = None
+    length_km: float | None = Field(None, description="Ellipsoidal path length of the GNSS track at flight height")
+
+
+class FlightQC(SensorQC):
+    t_start: float | None = None
+    t_end: float | None = None
+
+
+class LineQC(SensorQC):
+    speed_ms: float | None = Field(None, description="length / duration (m/s)")
+    mean_h_m: float | None = Field(None, description="Mean GNSS height over the line (m)")
+    track: str | None = Field(None, description="Track id of lines.csv (repeat lines share one)")
+
+
+class FlightOut(Out):
     model_config = ConfigDict(from_attributes=True)
     id: int
     name: str
-    qc: dict[str, Any] = {}
+    qc: FlightQC = Field(default_factory=FlightQC)
 
 
 class SurveySectionPatch(BaseModel):
@@ -53,14 +87,14 @@ class SurveyPatch(BaseModel):
     gravimeter: GravimeterSectionPatch | None = None
 
 
-class SurveySettings(BaseModel):
+class SurveySettings(Out):
     """The editable fields of the current ``survey.toml`` (after defaults)."""
     survey: dict[str, Any] = Field(default_factory=dict, description="name, crs, normal_gravity")
     gravimeter: dict[str, Any] = Field(default_factory=dict,
                                        description="model, tau_s, scale, rate_hz, base_gravity_mgal")
 
 
-class SurveyOut(BaseModel):
+class SurveyOut(Out):
     id: int
     name: str
     created_at: dt.datetime
@@ -93,7 +127,7 @@ class JobCreate(BaseModel):
                                    description="ProcessingParams overrides (see GET /api/params/schema)")
 
 
-class JobOut(BaseModel):
+class JobOut(Out):
     id: int
     survey_id: int
     kind: JobKind
@@ -109,24 +143,78 @@ class JobOut(BaseModel):
     finished_at: dt.datetime | None = None
 
 
-class LineOut(BaseModel):
+class LineStats(BaseModel):
+    """Statistics of a line's final anomaly in the current result."""
+    model_config = ConfigDict(extra="allow")
+    n: int
+    dg_mean_mgal: float | None = None
+    dg_std_mgal: float | None = None
+    dg_min_mgal: float | None = None
+    dg_max_mgal: float | None = None
+    sigma_mean_mgal: float | None = Field(None, description="Mean posterior σ (mGal)")
+
+
+class LineOut(Out):
     id: int
     line: str
     flight: str
     kind: str
     t_start: float
     t_end: float
-    qc: dict[str, Any] = {}
-    stats: dict[str, Any] | None = Field(None, description="From the current result: dg mean/std/min/max (mGal), n")
+    qc: LineQC = Field(default_factory=LineQC)
+    stats: LineStats | None = Field(None, description="From the current result: dg mean/std/min/max (mGal), n")
 
 
-class QCOut(BaseModel):
+class QCOut(Out):
     survey_id: int
     flights: list[FlightOut]
     lines: list[LineOut]
 
 
-class RecognitionOut(BaseModel):
+class TrackLine(Out):
+    line: str
+    flight: str
+    kind: str
+    easting_km: list[float | None] = Field(default_factory=list)
+    northing_km: list[float | None] = Field(default_factory=list)
+
+
+class TracksOut(Out):
+    """Decimated line tracks in the survey CRS (km)."""
+    survey_id: int
+    crs: str | None = None
+    lines: list[TrackLine]
+
+
+class SurveyStorage(Out):
+    survey_id: int
+    used_mb: float
+    over_budget: bool
+
+
+class StorageOut(Out):
+    budget_mb_per_survey: float
+    surveys: list[SurveyStorage]
+    used_mb_total: float
+
+
+class HealthOut(Out):
+    status: str
+    backend: str = Field(..., description="Job backend: local or dask")
+    auth: bool = Field(..., description="Mutating requests need the token")
+    max_upload_mb: float
+    max_uncompressed_mb: float
+    allowed_hosts: list[str]
+    storage: StorageOut
+
+
+class ParamsSchemaOut(Out):
+    model_config = ConfigDict(populate_by_name=True)
+    json_schema: dict[str, Any] = Field(..., alias="schema", description="JSON schema of ProcessingParams")
+    defaults: dict[str, Any]
+
+
+class RecognitionOut(Out):
     survey_id: int
     result_id: int
     h: float = Field(..., description="NL-means weight decay h (1/km)")
@@ -135,18 +223,18 @@ class RecognitionOut(BaseModel):
     n_states: int
     states: list[dict[str, Any]] = Field(default_factory=list, description="{index, Q, R} per state")
     n_points: int
-    easting_km: list[float] | None = None
-    northing_km: list[float] | None = None
+    easting_km: list[float | None] | None = None
+    northing_km: list[float | None] | None = None
     line: list[str] | None = None
     state_raw: list[int] | None = None
     state: list[int] = Field(..., description="Smoothed state per point")
-    p_max: list[float] = Field(..., description="Smoothed probability of the chosen state")
+    p_max: list[float | None] = Field(..., description="Smoothed probability of the chosen state")
     smoother: str = Field("", description="The function that made the map")
-    time: list[float] | None = None
+    time: list[float | None] | None = None
     elapsed_ms: float
 
 
-class ProfileOut(BaseModel):
+class ProfileOut(Out):
     survey_id: int
     line: str
     flight: str
@@ -154,8 +242,8 @@ class ProfileOut(BaseModel):
     n_total: int
     step: int = Field(..., description="Decimation stride applied for the browser")
     z_lowpass_s: float
-    time: list[float]
-    distance_km: list[float]
+    time: list[float | None]
+    distance_km: list[float | None]
     z_lowpassed: list[float | None]
     dg: list[float | None]
     dg_std: list[float | None]
@@ -177,17 +265,24 @@ class ProfileOut(BaseModel):
     dg_bouguer: list[float | None] | None = Field(None, description="complete Bouguer anomaly dg − terrain (mGal)")
 
 
-class GridOut(BaseModel):
+class GridLine(Out):
+    line: str
+    kind: str
+    easting_km: list[float | None]
+    northing_km: list[float | None]
+
+
+class GridOut(Out):
     survey_id: int
     result_id: int
     crs: str | None = None
-    easting_km: list[float]
-    northing_km: list[float]
+    easting_km: list[float | None]
+    northing_km: list[float | None]
     dg: list[list[float | None]]
     dg_std: list[list[float | None]] | None = None
-    lines: list[dict[str, Any]] = Field(default_factory=list, description="{line, kind, easting_km[], northing_km[]}")
-    crossovers: list[dict[str, Any]] = []
-    report: dict[str, Any] = {}
+    lines: list[GridLine] = Field(default_factory=list, description="Decimated line tracks for the overlay (km)")
+    crossovers: list[dict[str, Any]] = Field(default_factory=list, description="crossovers.csv rows")
+    report: dict[str, Any] = Field(default_factory=dict, description="The result's report.json")
     product: str = Field("free_air", description="free_air or bouguer")
     height: str = Field("flight", description="flight (the flight height) or datum (continued to the datum)")
     datum: dict[str, Any] | None = Field(None, description="report.json products.datum when a datum was used")
@@ -197,7 +292,7 @@ class GridOut(BaseModel):
                                         "'<product>@<height>' (e.g. 'bouguer@datum': the survey has no DEM)")
 
 
-class LineDifference(BaseModel):
+class LineDifference(Out):
     line: str
     flight: str
     kind: str
@@ -207,7 +302,7 @@ class LineDifference(BaseModel):
     std_mgal: float | None = Field(None, description="Standard deviation of adaptive − FIR, mGal")
 
 
-class ReportOut(BaseModel):
+class ReportOut(Out):
     """The current result's report.json with what the browser needs beside it."""
     survey_id: int
     result_id: int

@@ -58,7 +58,10 @@ def validate(reader: Callable, root: Path):
     try:
         return reader(root)
     except InputError as e:
-        raise relativize(e, root)
+        err = relativize(e, root)
+        if err is e:
+            raise
+        raise err from e
 
 
 def replace_metadata(db: Session, s: Survey, survey) -> None:
@@ -253,7 +256,7 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
                 try:
                     new = pd.read_csv(io.BytesIO(lines_raw), dtype=str, keep_default_na=False)
                 except Exception as e:
-                    raise InputError("lines.csv", None, None, f"cannot read the uploaded lines file: {e}")
+                    raise InputError("lines.csv", None, None, f"cannot read the uploaded lines file: {e}") from e
                 if "flight" not in new.columns:
                     new.insert(1 if len(new.columns) else 0, "flight", name)
                 elif len({v.strip() for v in new["flight"] if v.strip()}) <= 1:

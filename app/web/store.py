@@ -37,6 +37,7 @@ import numpy as np
 
 from app.config import check_name
 from app.io.errors import InputError
+from app.jsonsafe import finite_float, float_list
 
 SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,99}\Z")  # \Z: "$" would accept a final newline
 #: zip archives: most entries, deepest path, longest path element
@@ -297,89 +298,65 @@ def extract_survey_zip(fileobj, dest: Path, max_bytes: int | None = None,
     return dest.joinpath(*root_parts)
 
 
-def _gaps(t: np.ndarray) -> tuple[float, float]:
-    """(mean sampling interval, longest interval); the mean, not the median: time stamps are
-    rounded, so the median step of an 18.24 Hz file reads as 0.055 s (18.18 Hz)."""
-    if t.size < 2:
-        return float("nan"), float("nan")
-    dt = np.diff(t)
-    return float((t[-1] - t[0]) / (t.size - 1)), float(dt.max())
+#: the QC table's figures of a flight or line, under the names the web's QC has always used
+_QC_FIELDS = {"gravimeter_samples": "n_gravimeter", "gnss_samples": "n_gnss",
+              "gravimeter_rate_hz": "gravimeter_rate_hz", "gnss_rate_hz": "gnss_rate_hz",
+              "gravimeter_max_gap_s": "gravimeter_max_gap_s", "gnss_max_gap_s": "gnss_max_gap_s",
+              "duration_s": "duration_s", "length_km": "length_km"}
 
 
-def _length_km(lat: np.ndarray, lon: np.ndarray) -> float:
-    if lat.size < 2:
-        return 0.0
-    phi = np.deg2rad(lat)
-    dy = np.diff(phi) * 6371.0
-    dx = np.diff(np.deg2rad(lon)) * 6371.0 * np.cos(0.5 * (phi[1:] + phi[:-1]))
-    return float(np.hypot(dx, dy).sum())
+def _qc_figures(row) -> dict[str, Any]:
+    q: dict[str, Any] = {k: finite_float(getattr(row, c)) for k, c in _QC_FIELDS.items()}
+    q["gravimeter_samples"] = int(row.n_gravimeter)
+    q["gnss_samples"] = int(row.n_gnss)
+    return q
 
 
-def _round_list(a, nd: int = 3) -> list:
-    a = np.round(np.asarray(a, float), nd)
-    return [None if not np.isfinite(v) else float(v) for v in a]
+def _line_track(g, m, crs: str, track_points: int) -> dict:
+    """The line's GNSS positions, decimated to about ``track_points``, in the survey CRS (km)."""
+    from app.core.geodesy import project_km
 
-
-def _f(x: float, nd: int = 4) -> float | None:
-    return None if x is None or not np.isfinite(x) else round(float(x), nd)
+    step = max(1, int(m.sum()) // track_points)
+    try:
+        e, n = project_km(g["lon"][m].to_numpy()[::step], g["lat"][m].to_numpy()[::step], crs)
+    except Exception:  # pragma: no cover - bad CRS string: no map, QC still shown
+        return {}
+    return {"easting_km": float_list(e, 3), "northing_km": float_list(n, 3), "crs": crs}
 
 
 def survey_qc(survey, track_points: int = 150) -> tuple[dict[str, dict], list[dict]]:
-    """Per-flight and per-line QC from a validated ``Survey`` (rates, gaps, duration, length),
-    plus each line's decimated track in the survey CRS (km) for the line map."""
-    from app.core.geodesy import project_km, utm_crs_for
+    """Per-flight and per-line QC from a validated ``Survey``, plus each line's decimated track in
+    the survey CRS (km) for the line map.
+
+    The figures (sample counts, rates from the median interval, largest gaps, durations,
+    ellipsoidal path lengths) are those of ``aerograv inspect``
+    (:func:`app.pipeline.inspect.inspect_table`, without the time offsets: seconds per flight
+    at every upload, and the processing report gives them); a line adds its mean speed
+    (``length / duration``) and mean GNSS height."""
+    from app.core.geodesy import utm_crs_for
+    from app.pipeline.inspect import inspect_table
 
     crs = getattr(getattr(getattr(survey, "config", None), "survey", None), "crs", None)
     if not crs:
         g0 = next(iter(survey.flights.values())).gnss if survey.flights else None
         crs = utm_crs_for(g0["lon"], g0["lat"]) if g0 is not None and len(g0) else "EPSG:4326"
+    table = inspect_table(survey, time_offsets=False)
     flights: dict[str, dict] = {}
-    for name, fl in survey.flights.items():
-        tg = np.asarray(fl.gravimeter["time"], float)
-        tn = np.asarray(fl.gnss["time"], float)
-        mg, xg = _gaps(tg)
-        mn, xn = _gaps(tn)
-        flights[str(name)] = {
-            "gravimeter_samples": int(tg.size), "gnss_samples": int(tn.size),
-            "gravimeter_rate_hz": _f(1.0 / mg if mg else np.nan, 3), "gnss_rate_hz": _f(1.0 / mn if mn else np.nan, 3),
-            "gravimeter_max_gap_s": _f(xg, 3), "gnss_max_gap_s": _f(xn, 3),
-            "t_start": _f(min(tg.min(), tn.min()), 3) if tg.size and tn.size else None,
-            "t_end": _f(max(tg.max(), tn.max()), 3) if tg.size and tn.size else None,
-            "duration_s": _f(max(tg.max(), tn.max()) - min(tg.min(), tn.min()), 2) if tg.size and tn.size else None,
-            "length_km": _f(_length_km(np.asarray(fl.gnss["lat"], float), np.asarray(fl.gnss["lon"], float)), 2),
-        }
+    for row in table[table["level"] == "flight"].itertuples(index=False):
+        flights[str(row.flight)] = {**_qc_figures(row), "t_start": finite_float(row.t_start),
+                                    "t_end": finite_float(row.t_end)}
     lines: list[dict] = []
-    for row in survey.lines.itertuples(index=False):
-        fl = survey.flights.get(row.flight)
-        q: dict[str, Any] = {"duration_s": _f(row.t_end - row.t_start, 2)}
-        map_track: dict = {}
-        if fl is not None:
-            g = fl.gnss
-            m = (g["time"] >= row.t_start) & (g["time"] <= row.t_end)
-            tn = np.asarray(g["time"][m], float)
-            med, mx = _gaps(tn)
-            tg = np.asarray(fl.gravimeter["time"], float)
-            tg = tg[(tg >= row.t_start) & (tg <= row.t_end)]
-            gmed, gmx = _gaps(tg)
-            length = _length_km(np.asarray(g["lat"][m], float), np.asarray(g["lon"][m], float))
-            step = max(1, int(m.sum()) // track_points)
-            try:
-                e, n = project_km(g["lon"][m].to_numpy()[::step], g["lat"][m].to_numpy()[::step], crs)
-                map_track = {"easting_km": _round_list(e), "northing_km": _round_list(n), "crs": crs}
-            except Exception:  # pragma: no cover - bad CRS string: no map, QC still shown
-                map_track = {}
-            q.update({
-                "gnss_samples": int(tn.size), "gnss_rate_hz": _f(1.0 / med if med else np.nan, 3),
-                "gnss_max_gap_s": _f(mx, 3), "gravimeter_samples": int(tg.size),
-                "gravimeter_rate_hz": _f(1.0 / gmed if gmed else np.nan, 3), "gravimeter_max_gap_s": _f(gmx, 3),
-                "length_km": _f(length, 2),
-                "speed_ms": _f(1000.0 * length / (row.t_end - row.t_start) if row.t_end > row.t_start else np.nan, 1),
-                "mean_h_m": _f(float(np.mean(g["h"][m])) if tn.size else np.nan, 1),
-            })
-        track = getattr(row, "track", None)
+    for row in table[table["level"] == "line"].itertuples(index=False):
+        g = survey.flights[row.flight].gnss
+        m = ((g["time"] >= row.t_start) & (g["time"] <= row.t_end)).to_numpy()
+        q = _qc_figures(row)
+        q["speed_ms"] = finite_float(1000.0 * row.length_km / row.duration_s) if row.duration_s > 0 else None
+        q["mean_h_m"] = finite_float(np.mean(g["h"].to_numpy(float)[m])) if m.any() else None
+        track = row.track
         lines.append({"line": str(row.line), "flight": str(row.flight), "kind": str(row.kind),
                       "track": None if track is None or (isinstance(track, float) and np.isnan(track)) else str(track),
-                      "t_start": float(row.t_start), "t_end": float(row.t_end), "qc": q, "map_track": map_track})
+                      "t_start": float(row.t_start), "t_end": float(row.t_end), "qc": q,
+                      "map_track": _line_track(g, m, crs, track_points)})
     return flights, lines
 
 

@@ -39,7 +39,9 @@ def _smooth_noise(rng, n, sigma, corr_samples):
 def test_repeat_line_accuracy_recovers_known_noise():
     rng = np.random.default_rng(0)
     sigma = 0.7
-    truth = lambda s: 15 * np.sin(s / 9.0) + 4 * np.cos(s / 2.3)
+    def truth(s):
+        return 15 * np.sin(s / 9.0) + 4 * np.cos(s / 2.3)
+
     es, ns, gs = [], [], []
     direction = np.array([np.cos(0.4), np.sin(0.4)])
     for k in range(6):

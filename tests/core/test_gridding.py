@@ -119,7 +119,9 @@ def test_local_collocation_equals_global_dense_solve():
     G = np.column_stack([np.ones_like(e), e - e.mean(), n - n.mean()])
     beta = np.linalg.lstsq(G, v, rcond=None)[0]
     r = v - G @ beta
-    cov = lambda d: var * (1 + d / L) * np.exp(-d / L)
+    def cov(d):
+        return var * (1 + d / L) * np.exp(-d / L)
+
     K = cov(np.hypot(e[:, None] - e, n[:, None] - n)) + np.diag(s ** 2 + nug)
     k = cov(np.hypot(pe[:, None] - e, pn[:, None] - n))
     want = k @ np.linalg.solve(K, r) + np.column_stack([np.ones_like(pe), pe - e.mean(), pn - n.mean()]) @ beta
@@ -159,7 +161,9 @@ def test_mask_and_errors():
 
 def test_spline_reproduces_smooth_field():
     e, n, obs, lab, ge, gn, _ = _simulate(0, noise=0.0, nlines=6)
-    f = lambda x, y: 3 * np.sin(x / 4.0) + 0.5 * y
+    def f(x, y):
+        return 3 * np.sin(x / 4.0) + 0.5 * y
+
     obs = f(e, n)
     sp = Spline(thin_km=0.25).fit(e, n, obs, 0.1, line=lab)
     x, y, dg, sd = sp.grid(spacing_km=1.0)

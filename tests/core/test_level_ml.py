@@ -11,7 +11,6 @@ DT = 0.1
 
 def _simulate(Q_t, R_t, m, rng):
     """z = δg − 1000·∇r/Δt with ∇^m δg = q, Var q = Q_t, Var r = R_t (the model of SPEC §2)."""
-    n = Q_t.size
     g = rng.normal(0, np.sqrt(Q_t))
     for _ in range(m):
         g = np.cumsum(g)

@@ -9,7 +9,7 @@ from app.core.measurement import anomaly_measurement_mgal, gnss_acceleration_ms2
 
 
 def test_stationary_gravimeter_on_apron_gives_g_minus_gamma():
-    lat, lon, h = 65.4321, 160.05, 220.0
+    lat, h = 65.4321, 220.0
     g_mgal = 982316.4                                   # absolute gravity at the parking place
     rate = 18.24
     n = int(600 * rate)

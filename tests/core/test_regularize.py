@@ -193,7 +193,9 @@ def test_full_grid_difference_aliases_gnss_noise():
     d = design_regularization(0.1, 100.0, difference_grid="full")
     dt = d.dt_s
     for m in (1, 2):
-        psd = lambda f: (2 * np.sin(np.pi * f * dt)) ** (2 * (m + 1))  # noqa: E731
+        def psd(f, m=m):
+            return (2 * np.sin(np.pi * f * dt)) ** (2 * (m + 1))
+
         frac = aliased_power_fraction(d.taps, dt, d.n, psd)
         assert frac > 0.5
         assert measure_filter(d, m).aliased_fraction == pytest.approx(frac, rel=0.02)

@@ -135,21 +135,24 @@ def _exact_rts(A, c, z, Q, Rs, m, x0, P0, prec=50):
             P = mm(mm(Am, P), tr(Am))
             P[0][0] += D(Q[k])
             P[m][m] += D(Rs[k])
-        xp.append(x); Pp.append(P)
+        xp.append(x)
+        Pp.append(P)
         if np.isfinite(z[k]):
             S = mm(mm(Cm, P), tr(Cm))[0][0]
             K = [[v[0] / S] for v in mm(P, tr(Cm))]
             nu = D(z[k]) - mm(Cm, x)[0][0]
             x = [[x[i][0] + K[i][0] * nu] for i in range(n)]
             P = lin(P, [[K[i][0] * S * K[j][0] for j in range(n)] for i in range(n)], -1)
-        xf.append(x); Pf.append(P)
+        xf.append(x)
+        Pf.append(P)
     xs, Ps = xf[-1], Pf[-1]
     mean, var = [xs[0][0]], [Ps[0][0]]
     for k in range(len(z) - 2, -1, -1):
         G = mm(mm(Pf[k], tr(Am)), inv(Pp[k + 1]))
         xs = lin(xf[k], mm(G, lin(xs, xp[k + 1], -1)))
         Ps = lin(Pf[k], mm(mm(G, lin(Ps, Pp[k + 1], -1)), tr(G)))
-        mean.append(xs[0][0]); var.append(Ps[0][0])
+        mean.append(xs[0][0])
+        var.append(Ps[0][0])
     return np.array([float(v) for v in mean[::-1]]), np.array([float(v) for v in var[::-1]])
 
 
@@ -166,9 +169,11 @@ def test_exact_arithmetic_reference(m):
     z[30:33] = np.nan
     c = 1000.0 / dt
     A, _, C = build_model(m, dt)
-    x0 = np.zeros(m + 2); x0[:m] = np.nanmean(z)
+    x0 = np.zeros(m + 2)
+    x0[:m] = np.nanmean(z)
     P0 = np.diag([1e6] * m + [R[0], R[0]])
-    P0s = P0.copy(); P0s[m:, m:] *= c * c
+    P0s = P0.copy()
+    P0s[m:, m:] *= c * c
     mean, var = _exact_rts(A, C[0] / np.r_[np.ones(m), c, c], z, Q, R * c * c, m, x0, P0s)
     for method, tol in (("bf", 1e-8), ("rts", 1e-8)):
         res = kalman_smooth(z, Q, R, dt, m=m, method=method, x0=x0, P0=P0)
@@ -188,7 +193,10 @@ def test_posterior_std_calibrated_on_simulation():
         Q = np.array([1e-2, 1.0])[seg_q[k // 2000]]
         R = np.array([1.0, 4.0])[seg_r[k // 3000]]
         z, dg = _simulate(rng, T, m, Q, R, dt)
-        zs.append(z); truth.append(dg); Qs.append(Q); Rs.append(R)
+        zs.append(z)
+        truth.append(dg)
+        Qs.append(Q)
+        Rs.append(R)
     res = smooth_many(zs, Qs, Rs, dt, m=m)
     assert len(res) == L and all(isinstance(r, SmootherResult) for r in res)
     err = np.concatenate([r.dg_mgal - t for r, t in zip(res, truth)])

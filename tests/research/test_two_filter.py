@@ -23,7 +23,8 @@ def test_two_filter_equals_rts_generic_model():
         z[k] = x[0] + rng.normal(0, np.sqrt(0.5))
     z[100:110] = np.nan
     x0, P0 = np.zeros(2), np.diag([10.0, 1.0])
-    u = np.zeros((T, 2)); u[:, 1] = 0.001
+    u = np.zeros((T, 2))
+    u[:, 1] = 0.001
     xs_r, Ps_r, ll_r = rts_smooth(A, Q, C, Rm, z, x0, P0, u=u)
     xs_t, Ps_t, ll_t = two_filter_smooth(A, Q, C, Rm, z, x0, P0, u=u)
     np.testing.assert_allclose(xs_t, xs_r, rtol=1e-9, atol=1e-9)

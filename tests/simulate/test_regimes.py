@@ -196,7 +196,7 @@ def test_fir_and_lag_against_quadrature():
         m1 = quad(pp, t - W / 2, t + W / 2, points=brk[np.abs(brk - t) < W / 2], limit=200)[0] / W
         assert abs(b1(t) - m1) < 1e-12
         # two boxcars = triangular window of half-width W
-        m2 = quad(lambda s: pp(s) * (1 - abs(s - t) / W) / W, t - W, t + W, points=np.r_[brk, t], limit=400,
+        m2 = quad(lambda s, t=t: pp(s) * (1 - abs(s - t) / W) / W, t - W, t + W, points=np.r_[brk, t], limit=400,
                   epsabs=1e-14)[0]
         assert abs(b2(t) - m2) < 1e-10
     # sinusoid: gain sinc(fW)^n, zero phase; then the lag, analytic
@@ -297,7 +297,9 @@ def test_draped_truth_is_harmonica_at_the_actual_height(draped):
     for line, d in truth.groupby("line"):
         assert np.ptp(d.h_true_m) > 20.0, line
         idx = np.linspace(1, len(d) - 1, 25).astype(int)                    # a few points per line
-        mid = lambda c: 0.5 * (d[c].to_numpy()[idx - 1] + d[c].to_numpy()[idx])  # noqa: E731
+        def mid(c, d=d, idx=idx):
+            return 0.5 * (d[c].to_numpy()[idx - 1] + d[c].to_numpy()[idx])
+
         e, n, h = mid("easting_km"), mid("northing_km"), mid("h_true_m")
         g = hm.point_gravity(((e - e0) * 1000.0, (n - n0) * 1000.0, h), (src["x_m"], src["y_m"], src["z_m"]),
                              src["mass_kg"], field="g_z") - src["offset_mgal"]

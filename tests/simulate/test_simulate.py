@@ -206,7 +206,7 @@ def test_z_equals_true_anomaly_with_lag_scale_offset(lagged):
     tj = json.loads((Path(lagged) / "truth" / "truth.json").read_text())
     w = np.blackman(1001)
     errs = _line_errors(Path(lagged), tj["tau_s"], tj["scale"], tj["time_offset_s"], w / w.sum())
-    for line, (raw, ma) in errs.items():
+    for line, (_, ma) in errs.items():
         assert np.max(np.abs(ma)) < 0.02, line
     # ignoring the scale error costs (k−1)·f ≈ 196 mGal: the test can fail
     errs_bad = _line_errors(Path(lagged), tj["tau_s"], 1.0, tj["time_offset_s"], w / w.sum())
@@ -222,7 +222,7 @@ def test_z_equals_true_anomaly_kalgoorlie_helmert(tmp_path):
     w = np.blackman(1001)
     errs = _line_errors(Path(p), 0.0, 1.0, 0.0, w / w.sum())
     assert len(errs) == 2
-    for line, (raw, ma) in errs.items():
+    for line, (_, ma) in errs.items():
         assert np.max(np.abs(ma)) < 0.02, line
 
 
@@ -452,7 +452,9 @@ def test_drift_continuous_across_gap(drifty):
     truth = pd.read_parquet(p / "truth" / "lines.parquet")
     rw = tj["config"]["drift_rw_mgal_rth"]
     for fl, fi in tj["flights"].items():
-        lin = lambda t: fi["drift_offset_mgal"] + fi["drift_rate_mgal_h"] * (t - fi["t0"]) / 3600.0  # noqa: E731
+        def lin(t, fi=fi):
+            return fi["drift_offset_mgal"] + fi["drift_rate_mgal_h"] * (t - fi["t0"]) / 3600.0
+
         st = _static_readings(p, fl, model)
         d_static = [k * (meas + gam) - g_base for _, meas, gam in st]     # drift seen at rest (files)
         for (tm, _, _), d in zip(st, d_static):

@@ -157,7 +157,7 @@ def fir_guard(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dic
         # show (each line's share of the crossover difference) — the guard fired because the
         # fitted model misjudged the data
         floor = cmp.rms_b_mgal / np.sqrt(2.0)
-        for line, g in table.groupby("line", sort=False):
+        for _, g in table.groupby("line", sort=False):
             fir_var = fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s, p.fir_cutoff_period_s)
             _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), max(np.sqrt(fir_var), floor)))
         rep["fir_std_floor_mgal"] = float(floor)

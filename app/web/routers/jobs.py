@@ -28,12 +28,12 @@ def create_job(body: JobCreate, s: Survey = Depends(get_survey_or_404), db: Sess
     try:
         params = ProcessingParams.model_validate(body.params).model_dump(exclude_unset=True, mode="json")
     except ValidationError as e:
-        raise HTTPException(422, validation_detail(e.errors()))
+        raise HTTPException(422, validation_detail(e.errors())) from e
     check_grid_size(s, params)
     try:
         job = start_job(db, store, jobs, s, body.kind, params)
     except (JobConflict, SurveyConflict) as e:
-        raise HTTPException(409, str(e))
+        raise HTTPException(409, str(e)) from e
     return job_out(job)
 
 

@@ -12,10 +12,11 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 from fastapi import APIRouter, Depends, HTTPException, Query
-from fastapi.responses import FileResponse, Response
+from fastapi.responses import FileResponse
 from sqlalchemy.orm import Session
 
 from app.core.nlmeans import RecognitionMap
+from app.jsonsafe import finite_float, float_list, int_list, to_jsonable
 from app.pipeline.stages.recognition import Recognition, state_map
 
 from ..db import Result, Survey
@@ -38,30 +39,12 @@ EXPORTS = {
 }
 
 
-def _json(obj: Any) -> Response:
-    return Response(json.dumps(obj, separators=(",", ":"), allow_nan=False), media_type="application/json")
-
-
 def _clean(a, nd: int = 3) -> list:
-    """Array → JSON list, rounded, NaN/inf → null."""
-    a = np.asarray(a, dtype=float)
-    r = np.round(a, nd)
-    ok = np.isfinite(r)
-    if ok.all():
-        return r.tolist()
-    out = r.astype(object)
-    out[~ok] = None
-    return out.tolist()
+    """Array → JSON list, rounded, NaN/inf → null (:func:`app.jsonsafe.float_list`)."""
+    return float_list(a, nd)
 
 
-def _ints(a) -> list:
-    a = np.asarray(a)
-    if a.dtype.kind == "f":
-        ok = np.isfinite(a)
-        out = np.where(ok, a, -1).astype(int).astype(object)
-        out[~ok] = None
-        return out.tolist()
-    return a.astype(int).tolist()
+_ints = int_list
 
 
 def current_result(s: Survey, db: Session) -> Result:
@@ -167,7 +150,7 @@ PROFILE_PRODUCTS = {"height_m": "h", "atm_corr": "atm_corr_mgal", "dg_flight": "
 def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, description="decimate to about this many points"),
                  z_lowpass_s: float = Query(30.0, ge=0, le=600, description="Gaussian low-pass of z, full width at half maximum (s)"),
                  s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
-                 cache: ResultCache = Depends(get_cache)):
+                 cache: ResultCache = Depends(get_cache)) -> ProfileOut:
     """Profile series of one line: z low-passed, final δg ± σ, stationary, FIR, state (decimated), and
     the product columns the result has (flight height, atmospheric correction, δg at flight height and
     at the datum, terrain effect, Bouguer anomaly; null when absent)."""
@@ -195,7 +178,7 @@ def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, descr
     def col(name):
         return _clean(g[name].to_numpy(float)[sl]) if name in g else [None] * len(t[sl])
 
-    return _json(ProfileOut(
+    return ProfileOut(
         survey_id=s.id, line=line, flight=str(g["flight"].iloc[0]) if "flight" in g else "",
         kind=str(g["kind"].iloc[0]) if "kind" in g else "", n_total=n, step=step, z_lowpass_s=z_lowpass_s,
         time=_clean(t[sl], 2), distance_km=_clean(dist[sl], 4), z_lowpassed=_clean(z[sl]),
@@ -203,7 +186,7 @@ def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, descr
         dg_fir=col("dg_fir_mgal"), dg_unleveled=col("dg_unleveled_mgal"),
         state=_ints(g["state"].to_numpy()[sl]) if "state" in g else [None] * len(t[sl]),
         **{k: _clean(g[c].to_numpy(float)[sl]) for k, c in PROFILE_PRODUCTS.items() if c in g},
-    ).model_dump())
+    )
 
 
 @router.get("/{survey_id}/recognition", response_model=RecognitionOut, response_model_exclude_none=True)
@@ -239,8 +222,7 @@ def recognition(h: float | None = Query(None, ge=0, le=100, description="NL-mean
     return RecognitionOut(**body)
 
 
-def _finite(v) -> float | None:
-    return float(v) if v is not None and math.isfinite(float(v)) else None
+_finite = finite_float
 
 
 def _load_report(r: Result) -> dict[str, Any]:
@@ -288,7 +270,7 @@ def _load_report(r: Result) -> dict[str, Any]:
         for col in c.columns:
             if c[col].dtype.kind == "f":
                 c[col] = c[col].round(4)
-        crossovers = c.astype(object).where(pd.notna(c), None).to_dict(orient="records")
+        crossovers = to_jsonable(c)
     warnings = [str(w) for w in rep.get("warnings") or []] if isinstance(rep.get("warnings"), list) else []
     xo = rep.get("crossovers") if isinstance(rep.get("crossovers"), dict) else {}
     return {"warnings": warnings, "leveled": xo.get("status") == "leveled", "leveling_status": xo.get("status"),
@@ -299,14 +281,13 @@ def _load_report(r: Result) -> dict[str, Any]:
 @router.get("/{survey_id}/report", response_model=ReportOut,
             responses={404: {"description": "no such survey, or no result yet"}})
 def report(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
-           cache: ResultCache = Depends(get_cache)):
+           cache: ResultCache = Depends(get_cache)) -> ReportOut:
     """The current result's report: every warning and automatic decision (base ties, time offsets, lag
     check, spike repair, leveling F-test, crossovers, noise model, model order, identification, repeat
     lines), with the per-line RMS of adaptive − FIR computed from lines.parquet."""
     r = current_result(s, db)
     body = cache.get(("report", r.id), lambda: _load_report(r))
-    out = ReportOut(survey_id=s.id, result_id=r.id, job_id=r.job_id, **body)
-    return _json(out.model_dump())
+    return ReportOut(survey_id=s.id, result_id=r.id, job_id=r.job_id, **body)
 
 
 # ---------------------------------------------------------------- product grids
@@ -410,9 +391,7 @@ def _load_grid(r: Result, stem: str = "grid") -> dict[str, Any]:
     out["lines"] = tracks
     cx = Path(r.dir) / "crossovers.csv"
     if cx.exists():
-        c = pd.read_csv(cx)
-        c = c.astype(object).where(pd.notna(c), None)
-        out["crossovers"] = c.to_dict(orient="records")
+        out["crossovers"] = to_jsonable(pd.read_csv(cx))
     else:
         out["crossovers"] = []
     return out
@@ -427,7 +406,7 @@ def grid(product: Literal["free_air", "bouguer"] = Query("free_air", description
                                                            "(continued to processing.datum); default: the "
                                                            "height the result's values are given at"),
          s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
-         cache: ResultCache = Depends(get_cache)):
+         cache: ResultCache = Depends(get_cache)) -> GridOut:
     """Anomaly grid (free-air δg or the Bouguer anomaly, at flight height or at the datum) and its
     posterior σ (mGal) with lines and crossovers for overlays; ``available``/``unavailable`` say
     which other grids the result has and why the others are missing."""
@@ -436,8 +415,8 @@ def grid(product: Literal["free_air", "bouguer"] = Query("free_air", description
     g = cache.get((stem, r.id), lambda: _load_grid(r, stem))   # (name, result id): dropped with the survey
     files, why = grid_files(s, r)
     available = {pr: {h: files[(pr, h)] is not None for h in HEIGHTS} for pr in PRODUCTS}
-    return _json({"survey_id": s.id, "result_id": r.id, **g, "report": r.report or {}, "product": product,
-                  "height": height, "datum": _datum_of(r), "available": available, "unavailable": why})
+    return GridOut(survey_id=s.id, result_id=r.id, **g, report=r.report or {}, product=product, height=height,
+                   datum=_datum_of(r), available=available, unavailable=why)
 
 
 def _lines_xyz(s: Survey, r: Result) -> Path:

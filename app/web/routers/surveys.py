@@ -12,7 +12,17 @@ from sqlalchemy.orm import Session
 
 from ..db import Job, Survey
 from ..deps import get_cache, get_db, get_settings, get_store, get_survey_or_404, get_survey_reader
-from ..schemas import FlightOut, JobOut, LineOut, QCOut, SurveyCreate, SurveyOut, SurveyPatch
+from ..schemas import (
+    FlightOut,
+    JobOut,
+    LineOut,
+    QCOut,
+    SurveyCreate,
+    SurveyOut,
+    SurveyPatch,
+    TrackLine,
+    TracksOut,
+)
 from ..services import (
     JobConflict,
     NoInput,
@@ -80,11 +90,11 @@ def update_survey(body: SurveyPatch, s: Survey = Depends(get_survey_or_404), db:
     try:
         patch_survey(db, store, reader, s, body, budget_bytes=settings.survey_storage_bytes)
     except SettingsRejected as e:
-        raise HTTPException(422, e.detail)
+        raise HTTPException(422, e.detail) from e
     except (NoInput, SurveyConflict) as e:
-        raise HTTPException(409, str(e))
+        raise HTTPException(409, str(e)) from e
     except StorageBudgetExceeded as e:
-        raise HTTPException(413, str(e))
+        raise HTTPException(413, str(e)) from e
     return survey_out(db, s)
 
 
@@ -97,7 +107,7 @@ def remove_survey(s: Survey = Depends(get_survey_or_404), db: Session = Depends(
     try:
         ids = set(delete_survey(db, store, s))
     except (JobConflict, SurveyConflict) as e:
-        raise HTTPException(409, str(e))
+        raise HTTPException(409, str(e)) from e
     cache.discard(lambda k: isinstance(k, tuple) and len(k) == 2 and k[1] in ids)
     return Response(status_code=204)
 
@@ -116,7 +126,7 @@ def import_survey(file: UploadFile = File(..., description="zip of a survey dire
                                budget_bytes=settings.survey_storage_bytes)
         return survey_out(db, s)
     except StorageBudgetExceeded as e:
-        raise HTTPException(413, str(e))
+        raise HTTPException(413, str(e)) from e
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 
@@ -150,9 +160,9 @@ def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv
         add_flight(db, store, reader, s, flight, write_files, lines.file.read() if lines is not None else None,
                    budget_bytes=settings.survey_storage_bytes)
     except SurveyConflict as e:
-        raise HTTPException(409, str(e))
+        raise HTTPException(409, str(e)) from e
     except StorageBudgetExceeded as e:
-        raise HTTPException(413, str(e))
+        raise HTTPException(413, str(e)) from e
     return survey_out(db, s)
 
 
@@ -210,10 +220,10 @@ def survey_qc_view(s: Survey = Depends(get_survey_or_404)) -> QCOut:
                                 t_end=l.t_end, qc=l.qc or {}) for l in s.lines])
 
 
-@router.get("/{survey_id}/tracks")
-def survey_tracks(s: Survey = Depends(get_survey_or_404)) -> dict:
+@router.get("/{survey_id}/tracks", response_model=TracksOut)
+def survey_tracks(s: Survey = Depends(get_survey_or_404)) -> TracksOut:
     """Decimated line tracks in the survey CRS (km) for the line map (available before processing)."""
-    return {"survey_id": s.id, "crs": s.crs or next((l.track.get("crs") for l in s.lines if l.track), None),
-            "lines": [{"line": l.line, "flight": l.flight, "kind": l.kind,
-                       "easting_km": (l.track or {}).get("easting_km", []),
-                       "northing_km": (l.track or {}).get("northing_km", [])} for l in s.lines]}
+    return TracksOut(survey_id=s.id, crs=s.crs or next((l.track.get("crs") for l in s.lines if l.track), None),
+                     lines=[TrackLine(line=l.line, flight=l.flight, kind=l.kind,
+                                      easting_km=(l.track or {}).get("easting_km", []),
+                                      northing_km=(l.track or {}).get("northing_km", [])) for l in s.lines])
