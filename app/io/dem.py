@@ -51,6 +51,15 @@ def _display(path, display):
     return display if display is not None else str(path)
 
 
+
+def _open_raster(path, name: str):
+    """The raster at ``path`` opened with rasterio; an :class:`InputError` naming the file when GDAL
+    cannot read it."""
+    try:
+        return rasterio.open(Path(path))
+    except (RasterioIOError, OSError) as exc:
+        raise InputError(name, None, None, f"not a raster GDAL can read (GeoTIFF expected): {exc}") from None
+
 def read_dem(path, crs: str, bounds_m=None, spacing_m: float | None = None, margin_m: float = 0.0,
              resampling: str = "bilinear", height_offset_m: float = 0.0, require_bounds_m=None,
              display: str | None = None) -> Dem:
@@ -68,10 +77,7 @@ def read_dem(path, crs: str, bounds_m=None, spacing_m: float | None = None, marg
         raise InputError(name, None, "resampling", f"resampling must be one of {', '.join(_RESAMPLING)}, "
                                                    f"not {resampling!r}")
     dst_crs = _target_crs(crs, name)
-    try:
-        src = rasterio.open(Path(path))
-    except (RasterioIOError, OSError) as exc:
-        raise InputError(name, None, None, f"not a raster GDAL can read (GeoTIFF expected): {exc}") from None
+    src = _open_raster(path, name)
     with src:
         data = _read_heights(src, name)
         grid = _target_grid(src, dst_crs, crs, bounds_m, spacing_m, margin_m, name)
@@ -204,10 +210,7 @@ def check_dem(path, crs: str, require_bounds_m=None, max_cells: int = MAX_DEM_CE
     Raises ``InputError(display, row, column, message)``."""
     name = _display(path, display)
     dst_crs = _target_crs(crs, name)
-    try:
-        src = rasterio.open(Path(path))
-    except (RasterioIOError, OSError) as exc:
-        raise InputError(name, None, None, f"not a raster GDAL can read (GeoTIFF expected): {exc}") from None
+    src = _open_raster(path, name)
     with src:
         if src.count < 1:
             raise InputError(name, None, "band 1", "the raster has no bands")
