@@ -223,7 +223,7 @@ class ProcessingParams(_Strict):
                           "chooses it from the data (model_order)")
     model_order: Literal["crossovers", "spectrum", "likelihood"] = Field(
         "crossovers", description="How m is chosen when not given: 'crossovers' = m = 1 and 2 both identified and "
-        "filtered, m = 2 used only when m = 1's disagree significantly more at the crossovers (order_choice_p; with fewer than "
+        "filtered, m = 2 used unless m = 1's agree significantly better at the crossovers (order_choice_p; with fewer than "
         "choice_min_crossovers crossovers: m = 2, SPEC's default); 'spectrum' = the Whittle likelihood of the lines' "
         "spectra up to noise_fit_fmax_hz; 'likelihood' = the full-rate Kalman likelihood (m = 1, 2; dominated "
         "by the high-frequency noise)")
@@ -231,9 +231,9 @@ class ProcessingParams(_Strict):
                                           "anomaly levels) of this anomaly order when it is identified, whichever "
                                           "order filters (m = 1 recognises terrain classes best: the sample 0.80 "
                                           "against 0.56 with m = 2); None: each order its own")
-    order_choice_p: float = Field(0.05, gt=0, le=1, description="m = 2 is used only when m = 1's estimates "
-                                  "disagree significantly more at the crossovers (one-sided p below this): the "
-                                  "crossovers favour the smoother order, blind to the error two crossing lines share")
+    order_choice_p: float = Field(0.05, gt=0, le=1, description="m = 1 replaces SPEC's default m = 2 only when its "
+                                  "estimates agree significantly better at the crossovers (one-sided p below this): "
+                                  "the crossovers are blind to the error two crossing lines share")
     choice_min_crossovers: int = Field(10, ge=3, le=1_000_000, description="Crossovers needed to choose between "
                                        "models (m, the FIR guard) by their crossover differences")
     flatten_check: bool = Field(True, description="A line whose estimate is flattened (flatten_min_ratio) takes the "
@@ -268,9 +268,17 @@ class ProcessingParams(_Strict):
     include_tie_lines: bool = True
     refine_levels: bool = Field(True, description="Re-estimate Q_i, R_j by full-rate Kalman likelihood given the "
                                 "recognised states (the decimated EM can collapse a smooth state's Q)")
+    refine_lift_only: bool = Field(True, description="The refinement may only raise a Q level above the EM's, "
+                                   "never lower it: it guards against a collapsed level. At full rate the "
+                                   "likelihood is ruled by frequencies above the anomaly band, where the "
+                                   "random-walk model's spectrum decays slower than a real anomaly's, so its "
+                                   "maximum sits 3-50x below the RMS-optimal level and can invert the levels")
     q_from_posteriors: bool = Field(True, description="Q(t) for filtering: the Q levels' geometric mean weighted "
                                     "by the smoothed map's probabilities, interpolated between decimated points "
                                     "(False: the held state's level, jumping at the hold boundaries)")
+    std_state_mixture: bool = Field(True, description="dg_std_mgal from the smoother under the probability-weighted "
+                                    "arithmetic mean of the Q levels (the spread a mixture of levels adds where the "
+                                    "map is unsure), while dg_mgal uses the geometric mean")
     noise_model: Literal["band", "local", "states"] = Field(
         "band", description="GNSS noise level for filtering: 'band' = R(t) from z's content just above the "
         "anomaly band (noise_band_hz), scaled to the EM's in-band level; 'local' = R(t) from the high-frequency "
@@ -332,6 +340,10 @@ class ProcessingParams(_Strict):
     std_crossover_shared_fraction: float = Field(0.4, ge=0, lt=1, description="Correlation assumed between two "
                                                  "crossing lines' errors (they share part of the unresolved anomaly "
                                                  "at the crossing), so Var(diff) = 2σ²(1 − this)")
+    leveling_cross_validate: bool = Field(True, description="Apply the leveling only when the drift, fitted "
+                                          "without a line's crossovers, also predicts them (leave-one-line-out RMS "
+                                          "significantly below the RMS without leveling, paired test at "
+                                          "leveling_significance)")
     leveling_significance: float = Field(0.01, gt=0, le=1, description="Apply the leveling only when the drift "
                                          "model's F-test against no correction at the crossovers has p below this "
                                          "(1 = always apply)")

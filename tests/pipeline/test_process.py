@@ -50,6 +50,12 @@ def test_outputs_follow_spec(tiny_processed):
     assert any(i and "em_iteration" in i for _, _, i in events)
     assert np.all(lines["dg_std_mgal"] > 0)
     assert lines[["dg_mgal", "dg_fir_mgal", "dg_stationary_mgal"]].notna().all().all()
+    # the full-rate refinement only ever raises a level above the EM's (METHOD.md, stage 8), and
+    # the smoother's Q(t) lies between the levels used
+    q_used = np.asarray(report["level_refinement"]["Q_mgal2"])
+    q_em = np.asarray(report["identification"]["Q_mgal2"])
+    assert q_used.shape == q_em.shape and np.all(q_used >= q_em)
+    assert lines["Q_mgal2"].between(q_used.min() * (1 - 1e-9), q_used.max() * (1 + 1e-9)).all()
 
 
 def test_measurement_noise_matches_simulated_gnss_noise(tiny_survey, tiny_processed):

@@ -2,16 +2,16 @@
 
 1. **Anomaly order.**  When ``processing.m`` is not set and the survey has at least
    ``choice_min_crossovers`` crossovers, the orders m = 1 and m = 2 are both identified and
-   filtered; m = 2 wins only when m = 1's estimates disagree significantly more at the
-   crossovers (one-sided p < ``order_choice_p``), else m = 1.  Two crossing
-   lines' errors are nearly independent (different directions, flights, times), so the
-   mean square crossover difference estimates the sum of the two lines' mean square errors
-   — distortion included, which repeat passes cannot see — except the part of the error the
-   two lines share: a smoother estimate misses the same anomaly at the crossing on both
-   lines, so the crossovers favour the smoother order, which must therefore win
-   significantly (omolon: m = 2 had the lower crossover RMS, 3.45 vs 3.51 mGal, p = 0.22, and
-   the larger error against truth, 2.49 vs 2.34 mGal).  Without enough crossovers the
-   SPEC default m = 2 is used.
+   filtered; SPEC's default m = 2 is used unless m = 1's estimates agree significantly better
+   at the crossovers (one-sided p < ``order_choice_p``).  Two crossing lines' errors are
+   nearly independent (different directions, flights, times), so the mean square crossover
+   difference estimates the sum of the two lines' mean square errors — distortion included,
+   which repeat passes cannot see — except the part of the error the two lines share: an
+   estimate that misses an anomaly misses it on both lines at the crossing.  A small
+   difference either way therefore says nothing about the error against the truth
+   (omolon: m = 2 had the lower crossover RMS, 3.45 vs 3.51 mGal, p = 0.22, and the larger
+   error against truth, 2.49 vs 2.34 mGal, when both used the full-rate refined levels).
+   Without enough crossovers the SPEC default m = 2 is used.
 2. **Flattened lines.**  An estimate whose along-line variance is far below the anomaly
    variance the FIR 100 s estimate shows beyond its own noise
    (:func:`app.core.model_check.flattening_ratio` < ``flatten_min_ratio``) failed to detect
@@ -103,15 +103,17 @@ def choose_order(candidates: dict, p) -> tuple[int, dict]:
         return 2, {"criterion": f"default: {n} crossovers (< {p.choice_min_crossovers}) cannot tell the orders apart",
                    "m": 2}
     rms = {m: float(np.sqrt(np.mean((d - d.mean()) ** 2))) if d.size else float("inf") for m, d in diffs.items()}
-    cmp = crossover_comparison(diffs[orders[0]], diffs[orders[1]])
-    # the crossovers cannot see the error two crossing lines share — the anomaly a smoother
-    # estimate misses at the crossing is missed on both lines — so they favour the smoother
-    # order: it must win significantly
-    best = orders[1] if cmp.p_value < p.order_choice_p else orders[0]
-    return best, {"criterion": f"crossover RMS: m = {orders[1]} (smoother) only when m = {orders[0]} disagrees "
-                               f"significantly more at the crossovers (one-sided p < {p.order_choice_p})",
+    lo, hi = orders[0], orders[-1]
+    cmp = crossover_comparison(diffs[hi], diffs[lo])
+    # SPEC's default order stands unless the other one is significantly better at the
+    # crossovers: the crossovers cannot see the error two crossing lines share (the anomaly a
+    # smoother estimate misses at the crossing is missed on both lines), so a small
+    # difference either way says nothing about the error against the truth
+    best = lo if cmp.p_value < p.order_choice_p else hi
+    return best, {"criterion": f"crossover RMS: m = {hi} (SPEC's default) unless m = {lo} agrees significantly "
+                               f"better at the crossovers (one-sided p < {p.order_choice_p})",
                   "crossover_rms_mgal": {str(m): rms[m] for m in orders}, "n_crossovers": cmp.n,
-                  f"p_m{orders[0]}_worse_than_m{orders[1]}": cmp.p_value, "m": best}
+                  f"p_m{hi}_worse_than_m{lo}": cmp.p_value, "m": best}
 
 
 def _use(table: pd.DataFrame, rows: np.ndarray, values, std) -> None:

@@ -111,15 +111,18 @@ def em_level_scale(prepared: list[PreparedLine], R_levels, n_r: int, n_dec: int,
     return float(np.clip(R_levels[0] / np.median(hf), p.em_level_scale_min, 1e4))
 
 
-def q_series(pr: PreparedLine, Q_levels, n_r: int, q_from_posteriors: bool) -> np.ndarray:
+def q_series(pr: PreparedLine, Q_levels, n_r: int, q_from_posteriors: bool, mean: str = "geometric") -> np.ndarray:
     """Q(t) over the extended line: the held state's level, or — where the map is unsure
-    between levels — a level between them (geometric mean weighted by the smoothed
-    probabilities), changing smoothly between decimated points instead of jumping at the
-    hold boundaries."""
+    between levels — a level between them (``mean`` of the levels weighted by the smoothed
+    probabilities: 'geometric' or 'arithmetic'), changing smoothly between decimated points
+    instead of jumping at the hold boundaries."""
     q = Q_levels[pr.s_ext // n_r]
     if q_from_posteriors and pr.pq is not None:
-        logq = pr.pq @ np.log(Q_levels)
-        q = np.exp(np.interp(np.arange(len(pr.s_ext)) - pr.inner.start, pr.idx, logq))
+        if mean == "arithmetic":
+            lq = np.log(pr.pq @ np.asarray(Q_levels, float))
+        else:
+            lq = pr.pq @ np.log(Q_levels)
+        q = np.exp(np.interp(np.arange(len(pr.s_ext)) - pr.inner.start, pr.idx, lq))
     return q
 
 
@@ -206,7 +209,11 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
                                       r_base_lines=[r_scale * pr.r_ext for pr in prepared] if r_local else None,
                                       fit_r=False, noise=noise, simplex_step=0.3 if warm else 1.0,
                                       max_evaluations=8 * len(Qs) if warm else None)
-            Qs = level_fit.Q_mgal2
+            Qs = np.asarray(level_fit.Q_mgal2, float)
+            if p.refine_lift_only:
+                # a guard against a collapsed level, not a replacement of the EM's levels (config)
+                Qs = np.maximum(Qs, np.asarray(em.Q, float))
+                level_fit.Q_mgal2 = Qs
         except (ValueError, FloatingPointError) as exc:
             warnings.append(f"level refinement skipped: {exc}")
     if r_local:
@@ -219,6 +226,12 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
         q = q_series(pr, Qs, n_r, p.q_from_posteriors)
         r = Rs[pr.s_ext % n_r] if pr.r_ext is None else r_scale * pr.r_ext
         dg, std = filter_line(pr.z_ext, q, r, dt_s, ident.m, p.smoother, noise)
+        if p.std_state_mixture and pr.pq is not None and len(Qs) > 1:
+            # where the map is unsure of the level, the std is that of the mixture of levels:
+            # the smoother under the probability-weighted arithmetic mean of the Q levels
+            # (the variance a mixture adds), not the geometric mean the estimate uses
+            _, std = filter_line(pr.z_ext, q_series(pr, Qs, n_r, True, "arithmetic"), r, dt_s, ident.m,
+                                 p.smoother, noise)
         # stationary baseline (seed 000 Fig. 8): one (Q₁, R₁) pair — the smooth state's Q
         # and the survey's typical noise level
         dgs = np.full(pr.z_ext.size, np.nan)

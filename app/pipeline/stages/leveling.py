@@ -12,7 +12,7 @@ import pandas as pd
 from scipy.stats import f as f_dist
 
 from app.core.accuracy import crossover_std_factor
-from app.core.leveling import LineTrack, find_crossovers, level_lines
+from app.core.leveling import LineTrack, cross_validated_leveling, find_crossovers, level_lines
 
 
 def tracks(table: pd.DataFrame, col: str):
@@ -66,9 +66,21 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFr
         p_value = float(f_dist.sf(F, k, n - k))
     rep = {"degree": p.leveling_degree, "per_flight": bool(p.leveling_per_flight), "n_crossovers": int(len(cx)),
            "rms_before_mgal": float(res.rms_before), "n_drift_parameters": k, "p_value": p_value}
+    reason = None
     if p_value > p.leveling_significance:
-        rep.update(status="not leveled: the drift model is not significant at the crossovers "
-                          f"(F-test p = {p_value:.3g} > {p.leveling_significance})",
+        reason = ("the drift model is not significant at the crossovers "
+                  f"(F-test p = {p_value:.3g} > {p.leveling_significance})")
+    elif p.leveling_cross_validate:
+        # crossover errors are correlated along lines: the F-test can call smoothing errors a
+        # drift; the drift must also predict the crossovers of lines left out of its fit
+        cv = cross_validated_leveling(cx, ranges, degree=p.leveling_degree, groups=groups)
+        rep["cross_validation"] = cv
+        if not (cv["rms_cv_mgal"] < cv["rms_before_mgal"] and cv["p_value"] < p.leveling_significance):
+            reason = (f"the drift does not predict held-out lines' crossovers significantly (leave-one-line-out "
+                      f"RMS {cv['rms_cv_mgal']:.3g} mGal against {cv['rms_before_mgal']:.3g} without leveling, "
+                      f"p = {cv['p_value']:.3g}, needs < {p.leveling_significance})")
+    if reason is not None:
+        rep.update(status=f"not leveled: {reason}",
                    rms_after_mgal=float(res.rms_before), rms_after_if_leveled_mgal=float(res.rms_after))
         rep["std_check"] = std_check(before, pred_var, p)
         cx = cx.assign(diff_before_mgal=before, diff_after_mgal=before)
