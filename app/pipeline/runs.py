@@ -206,6 +206,8 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     m_best, order_rep = choose_order(cands, p)
     if len(cands) > 1:  # the baseline only for the order that is used
         cands[m_best].filtered.add_stationary(idf.dt_s, m_best, p.smoother, idf.noise.model, p)
+    if p.std_state_mixture:  # and the std of the mixture of levels
+        cands[m_best].filtered.mixture_std(idf.dt_s, m_best, p.smoother, idf.noise.model)
     choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings, order=(m_best, order_rep))
     best = cands[choice.m]
     table = choice.table

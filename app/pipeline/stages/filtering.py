@@ -148,6 +148,8 @@ class Filtered:
     r_stationary: float = float("nan")
     prepared: list | None = None
     Q_stationary: float = float("nan")
+    r_lines: list | None = None
+    n_r: int = 1
 
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
@@ -157,6 +159,23 @@ class Filtered:
         return {"Q_mgal2": np.asarray(f.Q_mgal2).tolist(), "R_local_scale": self.r_scale, "noise_model": p.noise_model,
                 "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations,
                 "Q_stationary_mgal2": self.Q_stationary}
+
+    def mixture_std(self, dt_s: float, m: int, method: str, noise) -> None:
+        """Replace ``dg_std_mgal`` by the std of the mixture of levels (``std_state_mixture``):
+        where the map is unsure of the level, the smoother under the probability-weighted
+        arithmetic mean of the Q levels (the variance a mixture adds), not the geometric mean
+        the estimate uses.  Run for the order that is used only."""
+        if len(self.Q_levels) < 2 or not self.prepared or self.r_lines is None:
+            return
+        col = self.table["dg_std_mgal"].to_numpy().copy()
+        off = 0
+        for pr, r in zip(self.prepared, self.r_lines):
+            n = pr.inner.stop - pr.inner.start
+            if pr.pq is not None:
+                q = q_series(pr, self.Q_levels, self.n_r, True, "arithmetic")
+                col[off:off + n] = filter_line(pr.z_ext, q, r, dt_s, m, method, noise)[1][pr.inner]
+            off += n
+        self.table["dg_std_mgal"] = col
 
     def add_stationary(self, dt_s: float, m: int, method: str, noise, p=None) -> None:
         """Fill the ``dg_stationary_mgal`` column (when :func:`filter_survey` skipped it): the
@@ -220,18 +239,13 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
         r_stationary = r_scale * float(np.median(np.concatenate([pr.r_ext for pr in prepared])))
     else:
         r_stationary = float(Rs[0])
-    frames = []
+    frames, r_lines = [], []
     for i, pr in enumerate(prepared):
         ln, inner = pr.line, pr.inner
         q = q_series(pr, Qs, n_r, p.q_from_posteriors)
         r = Rs[pr.s_ext % n_r] if pr.r_ext is None else r_scale * pr.r_ext
         dg, std = filter_line(pr.z_ext, q, r, dt_s, ident.m, p.smoother, noise)
-        if p.std_state_mixture and pr.pq is not None and len(Qs) > 1:
-            # where the map is unsure of the level, the std is that of the mixture of levels:
-            # the smoother under the probability-weighted arithmetic mean of the Q levels
-            # (the variance a mixture adds), not the geometric mean the estimate uses
-            _, std = filter_line(pr.z_ext, q_series(pr, Qs, n_r, True, "arithmetic"), r, dt_s, ident.m,
-                                 p.smoother, noise)
+        r_lines.append(r)
         # stationary baseline (seed 000 Fig. 8): one (Q₁, R₁) pair — the smooth state's Q
         # and the survey's typical noise level
         dgs = np.full(pr.z_ext.size, np.nan)
@@ -248,7 +262,7 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
         if progress is not None:
             progress((i + 1) / len(prepared))
     out = Filtered(pd.concat(frames, ignore_index=True), np.asarray(Qs, float), level_fit, r_scale, r_stationary,
-                   prepared)
+                   prepared, r_lines=r_lines, n_r=n_r)
     if stationary:
         out.add_stationary(dt_s, ident.m, p.smoother, noise, p)
     return out
