@@ -90,7 +90,10 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     page.wait_for_selector("#report-summary li", timeout=20000)
     summary = page.inner_text("#report-summary")
     assert "RELATIVE — no absolute base tie" in summary
-    assert "Leveling NOT applied" in summary and "F-test p = 0.269" in summary
+    assert "Leveling NOT applied" in summary and "does not predict held-out lines' crossovers" in summary
+    # the leave-one-line-out evidence is shown beside the F-test
+    cv_row = page.inner_text("#report-leveling-cv tbody tr")
+    assert "1.31" in cv_row and "0.83" in cv_row
     assert "adaptive (final) estimate is the least repeatable (3.73 mGal)" in summary
     assert "Model choice: adaptive" in summary
     assert page.locator("#report-warnings li").count() == 2

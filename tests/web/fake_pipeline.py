@@ -44,9 +44,12 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
         "spike_repair": {f: {"threshold": 6.0, "flagged": 3, "epochs": int((df["flight"] == f).sum()),
                              "applied": True, "fraction": 0.00019} for f in flights},
         "crossovers": {"degree": 1, "per_flight": True, "n_crossovers": 1, "rms_before_mgal": 1.2,
-                       "n_drift_parameters": 4, "p_value": 0.269,
-                       "status": "not leveled: the drift model is not significant at the crossovers "
-                                 "(F-test p = 0.269 > 0.01)",
+                       "n_drift_parameters": 4, "p_value": 0.004,
+                       "cross_validation": {"rms_before_mgal": 1.2, "rms_cv_mgal": 1.31, "p_value": 0.83,
+                                            "n_folds": 2},
+                       "status": "not leveled: the drift does not predict held-out lines' crossovers "
+                                 "significantly (leave-one-line-out RMS 1.31 mGal against 1.2 without "
+                                 "leveling, p = 0.83, needs < 0.01)",
                        "rms_after_mgal": 1.2, "rms_after_if_leveled_mgal": 0.1,
                        "std_check": {"n": 1, "rms_ratio": 0.57, "factor": 1.0}},
         "identification": {"Q_mgal2": [0.041, 0.353], "R_cm2s2": [1.679], "transition": [[0.98, 0.02], [0.03, 0.97]]},

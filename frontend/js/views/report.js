@@ -38,7 +38,9 @@ function summary(r) {
   const xo = rep.crossovers || {};
   if (xo.status !== undefined) {
     items.push(r.leveled
-      ? { cls: "ok", text: `Leveling applied (F-test p = ${fmt(xo.p_value, 3)}); crossover RMS ${fmt(xo.rms_before_mgal, 3)} → ${fmt(xo.rms_after_mgal, 3)} mGal.` }
+      ? { cls: "ok", text: `Leveling applied (F-test p = ${fmt(xo.p_value, 3)}` +
+          (xo.cross_validation ? `; held-out lines' crossovers ${fmt(xo.cross_validation.rms_before_mgal, 3)} → ${fmt(xo.cross_validation.rms_cv_mgal, 3)} mGal, p = ${fmt(xo.cross_validation.p_value, 3)}` : "") +
+          `); crossover RMS ${fmt(xo.rms_before_mgal, 3)} → ${fmt(xo.rms_after_mgal, 3)} mGal.` }
       : { cls: "warn", text: `Leveling NOT applied — ${String(xo.status).replace(/^not leveled:\s*/, "")}; crossover RMS ${fmt(xo.rms_before_mgal, 3)} mGal` +
         (xo.rms_after_if_leveled_mgal !== undefined ? ` (${fmt(xo.rms_after_if_leveled_mgal, 3)} if leveled).` : ".") });
   }
@@ -86,6 +88,12 @@ const RENDER = {
     const out = [table(["Status", "F-test p", "Crossovers", "Drift parameters", "RMS before (mGal)", "RMS after (mGal)", "RMS if leveled (mGal)"],
       [[v.status ?? "—", fmt(v.p_value, 3), String(v.n_crossovers ?? "—"), String(v.n_drift_parameters ?? "—"),
         fmt(v.rms_before_mgal, 4), fmt(v.rms_after_mgal, 4), fmt(v.rms_after_if_leveled_mgal, 4)]], { id: "report-leveling" })];
+    if (v.cross_validation) {
+      const cv = v.cross_validation;
+      out.push(el("p", { class: "note" }, "Leave-one-line-out check of the drift (each line's crossovers predicted by the drift fitted without them):"),
+        table(["RMS without leveling (mGal)", "Held-out RMS after (mGal)", "p (one-sided)", "Lines left out"],
+          [[fmt(cv.rms_before_mgal, 4), fmt(cv.rms_cv_mgal, 4), fmt(cv.p_value, 3), String(cv.n_folds ?? "—")]], { id: "report-leveling-cv" }));
+    }
     if (v.std_check) out.push(el("p", { class: "note" }, `σ check at the crossovers: `), genericView(v.std_check));
     if (r.crossovers && r.crossovers.length) {
       out.push(el("h4", {}, `Crossovers (${r.crossovers.length})`), el("div", { class: "scroll" }, table(["Line a", "Line b", "E (km)", "N (km)", "before (mGal)", "after (mGal)"],
