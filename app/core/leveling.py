@@ -340,17 +340,23 @@ class LevelingResult:
     n_crossovers: int = 0
     unleveled_lines: list = field(default_factory=list)
     unit_of: dict = field(default_factory=dict)
+    fit_ranges: dict = field(default_factory=dict)
 
     def correction(self, line: str, time_s) -> np.ndarray:
         """Drift of ``line`` at ``time_s`` (mGal): subtract it from the line's ``dg``.
 
-        Lines whose drift unit had no crossing get zero.
+        Lines whose drift unit had no crossing get zero.  The drift is not extrapolated:
+        outside the time span of the unit's lines that have crossings (``fit_ranges``) it is
+        held at the edge value (a slope fitted to two tie lines' crossings, carried an hour
+        further, put 36 mGal on repeat lines that had no crossings of their own).
         """
         t = np.asarray(time_s, dtype=float)
         unit = self.unit_of.get(str(line), str(line))
         if unit not in self.coefs:
             return np.zeros_like(t)
         t0, t1 = self.time_ranges[unit]
+        if unit in self.fit_ranges:
+            t = np.clip(t, *self.fit_ranges[unit])
         tau = 2.0 * (t - t0) / (t1 - t0) - 1.0
         return _basis(tau.ravel(), self.degrees[unit]).dot(self.coefs[unit]).reshape(t.shape)
 
@@ -363,6 +369,7 @@ class LevelingResult:
             "degrees": dict(self.degrees),
             "coefs_mgal": {k: [float(c) for c in v] for k, v in self.coefs.items()},
             "time_ranges_s": {k: [float(a), float(b)] for k, (a, b) in self.time_ranges.items()},
+            "crossing_time_ranges_s": {k: [float(a), float(b)] for k, (a, b) in self.fit_ranges.items()},
             "unleveled_lines": list(self.unleveled_lines),
         }
 
@@ -524,7 +531,16 @@ def level_lines(crossovers: pd.DataFrame, line_time_ranges: dict, degree: int = 
     diff_after = np.full(obs.diff_all.size, np.nan)
     diff_after[obs.keep] = obs.diff - model
     unleveled = sorted(ln for ln, u in units.unit_of.items() if u not in involved)
+    # the time span over which each drift is applied: the lines whose crossings determined it
+    crossing_lines = set(obs.line_a) | set(obs.line_b)
+    line_ranges = {str(k): v for k, v in line_time_ranges.items()}
+    fit_ranges = {}
+    for ln in sorted(crossing_lines):
+        u = units.unit_of[ln]
+        t0, t1 = (float(v) for v in line_ranges[ln])
+        fit_ranges[u] = (min(t0, fit_ranges[u][0]), max(t1, fit_ranges[u][1])) if u in fit_ranges else (t0, t1)
     return LevelingResult(coefs=coefs, degrees=layout.degrees, time_ranges=units.ranges, unit_of=units.unit_of,
+                          fit_ranges=fit_ranges,
                           rms_before=_rms(obs.diff), rms_after=_rms(diff_after),
                           diff_before=obs.diff_all, diff_after=diff_after, reference=ref,
                           sigma0_mgal=float(sigma0_mgal), n_crossovers=int(nx),

@@ -315,3 +315,24 @@ def test_cross_validated_leveling_confirms_a_real_drift_and_rejects_none():
         p_none.append(cv0["p_value"])
     assert np.median(p_real) < 0.01
     assert min(p_none) > 0.01
+
+
+def test_drift_is_not_extrapolated_to_lines_without_crossings():
+    """A flight's drift is applied over the lines whose crossings determined it; a line of the
+    same flight flown later with no crossings (a repeat pass) gets the edge value, not the
+    slope carried on."""
+    lines, truth, ranges = _survey(drift_deg=1, noise=0.0, seed=5)
+    flight = {k: "F1" for k in lines}
+    t_end = max(t1 for _, t1 in ranges.values())
+    ranges = dict(ranges, X=(t_end + 3000.0, t_end + 3600.0))
+    flight["X"] = "F1"
+    res = level_lines(find_crossovers(lines), ranges, degree=1, groups=flight)
+    assert res.degrees["F1"] == 1 and abs(res.coefs["F1"][1]) > 0.1
+    assert res.fit_ranges["F1"][1] == pytest.approx(t_end)
+    edge = res.correction("M0", [t_end])[0]
+    np.testing.assert_allclose(res.correction("X", [t_end + 3000.0, t_end + 3600.0]), edge)
+    # inside the span the polynomial itself
+    t0, t1 = res.time_ranges["F1"]
+    t_mid = 0.5 * (ranges["M3"][0] + ranges["M3"][1])
+    tau = 2 * (t_mid - t0) / (t1 - t0) - 1
+    np.testing.assert_allclose(res.correction("M3", [t_mid])[0], res.coefs["F1"][0] + res.coefs["F1"][1] * tau)
