@@ -272,7 +272,7 @@ def std_calibration(error_mgal, std_mgal, k: float = 2.0) -> float:
     return float(np.mean(np.abs(e[ok]) < k * s[ok]))
 
 
-def crossover_std_factor(diff_mgal, pred_var_mgal2, shared_fraction: float = 0.4, min_n_narrow: int = 20,
+def crossover_std_factor(diff_mgal, pred_var_mgal2, shared_fraction: float = 0.2, min_n_narrow: int = 20,
                          min_factor: float = 0.75, max_factor: float = 20.0) -> dict:
     """Scale factor for the lines' posterior std from the crossover differences.
 
