@@ -304,7 +304,9 @@ class ProcessingParams(_Strict):
                                            "counts like the lowest one")
     noise_fit_fmax_hz: float = Field(0.2, gt=0, le=500, description="Highest frequency (Hz) of the spectra the noise "
                                      "model is fitted to (clipped to 0.8 × the GNSS Nyquist frequency)")
-    refine_max_epochs: int = Field(300_000, ge=1000, le=10_000_000, description="Cap on epochs used by the level refinement")
+    refine_max_epochs: int = Field(100_000, ge=1000, le=10_000_000, description="Cap on epochs used by the level "
+                                   "refinement (a subset of lines covering every state; ~3 h of 10 Hz data is "
+                                   "enough to see a collapsed level, which is all the refinement now corrects)")
 
     @field_validator("noise_band_hz")
     @classmethod

@@ -200,7 +200,7 @@ def stationary_level(prepared: list, Q_levels, r_stationary: float, dt_s: float,
     try:
         fit = refine_levels([pr.z_ext for pr in prepared], [np.zeros(pr.z_ext.size, int) for pr in prepared],
                             np.array([start]), np.array([r_stationary]), dt_s, m,
-                            max_epochs=p.refine_max_epochs if p is not None else 300_000, fit_r=False, noise=noise)
+                            max_epochs=p.refine_max_epochs if p is not None else 100_000, fit_r=False, noise=noise)
         return float(fit.Q_mgal2[0])
     except (ValueError, FloatingPointError):
         return float(Qs[0])
