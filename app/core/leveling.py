@@ -34,9 +34,9 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 from scipy.spatial import cKDTree
-from scipy.stats import t as t_dist
 
 from app.core.gridding import single_thread_blas
+from app.core.model_check import paired_decrease_p
 
 KINDS = ("main", "tie", "repeat")
 CROSSOVER_COLUMNS = ["line_a", "line_b", "easting_km", "northing_km", "time_a", "time_b",
@@ -423,14 +423,11 @@ def cross_validated_leveling(crossovers: pd.DataFrame, line_time_ranges: dict, d
     if not sq:
         return {"rms_before_mgal": _rms(before[ok]), "rms_cv_mgal": float("nan"), "p_value": 1.0, "n_folds": 0}
     a, b = np.concatenate(sq0), np.concatenate(sq)
-    d = a - b
-    sd = float(np.std(d, ddof=1)) if d.size > 1 else 0.0
-    # one-sided paired t-test of "leveling lowers the held-out squared differences"; each
-    # crossover enters twice (once per held-out line), so n is halved
-    n_eff = max(2, d.size // 2)
-    p = 0.5 if sd == 0 else float(t_dist.sf(float(np.mean(d)) / (sd / np.sqrt(n_eff)), n_eff - 1))
-    return {"rms_before_mgal": _rms(before[ok]), "rms_cv_mgal": float(np.sqrt(np.mean(b))), "p_value": p,
-            "n_folds": n_folds}
+    # one-sided paired test of "leveling lowers the held-out squared differences"; each
+    # crossover enters twice (once per held-out line), so the independent pairs are halved
+    p = paired_decrease_p(a, b, n_eff=max(2, a.size // 2))
+    return {"rms_before_mgal": _rms(before[ok]), "rms_cv_mgal": float(np.sqrt(np.mean(b))),
+            "p_value": 1.0 if not np.isfinite(p) else p, "n_folds": n_folds}
 
 
 def _rms(x):

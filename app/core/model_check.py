@@ -116,8 +116,6 @@ def crossover_comparison(diff_a_mgal, diff_b_mgal) -> CrossoverComparison:
 
     The differences' mean (a level offset that leveling removes) is taken out of each.
     """
-    from scipy import stats
-
     a = np.asarray(diff_a_mgal, dtype=float)
     b = np.asarray(diff_b_mgal, dtype=float)
     ok = np.isfinite(a) & np.isfinite(b)
@@ -125,11 +123,32 @@ def crossover_comparison(diff_a_mgal, diff_b_mgal) -> CrossoverComparison:
     n = int(a.size)
     if n < 3:
         return CrossoverComparison(n, float("nan"), float("nan"), float("nan"))
-    d = a ** 2 - b ** 2
+    p = paired_decrease_p(a ** 2, b ** 2)
+    return CrossoverComparison(n, float(np.sqrt(np.mean(a ** 2))), float(np.sqrt(np.mean(b ** 2))), p)
+
+
+def paired_decrease_p(before, after, n_eff: int | None = None) -> float:
+    """One-sided paired t-test that ``after`` is lower than ``before`` on average.
+
+    Parameters
+    ----------
+    before, after : array_like, shape (n,)
+        Paired values (e.g. squared crossover differences, mGal²).
+    n_eff : int, optional
+        Independent pairs, when the n pairs are not (default n).
+
+    Returns
+    -------
+    float
+        p-value of ``mean(before − after) > 0`` (0.5 when every difference is equal).
+    """
+    from scipy import stats
+
+    d = np.asarray(before, dtype=float) - np.asarray(after, dtype=float)
+    n = int(d.size if n_eff is None else n_eff)
+    if d.size < 2 or n < 2:
+        return float("nan")
     sd = float(np.std(d, ddof=1))
     if sd == 0:
-        p = 0.5
-    else:
-        t = float(np.mean(d) / (sd / np.sqrt(n)))
-        p = float(stats.t.sf(t, n - 1))
-    return CrossoverComparison(n, float(np.sqrt(np.mean(a ** 2))), float(np.sqrt(np.mean(b ** 2))), p)
+        return 0.5
+    return float(stats.t.sf(float(np.mean(d)) / (sd / np.sqrt(n)), n - 1))

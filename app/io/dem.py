@@ -51,7 +51,6 @@ def _display(path, display):
     return display if display is not None else str(path)
 
 
-
 def _open_raster(path, name: str):
     """The raster at ``path`` opened with rasterio; an :class:`InputError` naming the file when GDAL
     cannot read it."""
@@ -59,6 +58,7 @@ def _open_raster(path, name: str):
         return rasterio.open(Path(path))
     except (RasterioIOError, OSError) as exc:
         raise InputError(name, None, None, f"not a raster GDAL can read (GeoTIFF expected): {exc}") from None
+
 
 def read_dem(path, crs: str, bounds_m=None, spacing_m: float | None = None, margin_m: float = 0.0,
              resampling: str = "bilinear", height_offset_m: float = 0.0, require_bounds_m=None,

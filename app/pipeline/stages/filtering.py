@@ -156,7 +156,8 @@ class Filtered:
         f = self.level_fit
         if f is None:
             return None
-        return {"Q_mgal2": np.asarray(f.Q_mgal2).tolist(), "R_local_scale": self.r_scale, "noise_model": p.noise_model,
+        return {"Q_mgal2": np.asarray(self.Q_levels).tolist(), "Q_full_rate_ml_mgal2": np.asarray(f.Q_mgal2).tolist(),
+                "lift_only": bool(p.refine_lift_only), "R_local_scale": self.r_scale, "noise_model": p.noise_model,
                 "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations,
                 "Q_stationary_mgal2": self.Q_stationary}
 
@@ -230,9 +231,9 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
                                       max_evaluations=8 * len(Qs) if warm else None)
             Qs = np.asarray(level_fit.Q_mgal2, float)
             if p.refine_lift_only:
-                # a guard against a collapsed level, not a replacement of the EM's levels (config)
+                # a guard against a collapsed level, not a replacement of the EM's levels (config);
+                # the report keeps the likelihood's own levels beside the ones used
                 Qs = np.maximum(Qs, np.asarray(em.Q, float))
-                level_fit.Q_mgal2 = Qs
         except (ValueError, FloatingPointError) as exc:
             warnings.append(f"level refinement skipped: {exc}")
     if r_local:
