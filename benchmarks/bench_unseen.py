@@ -17,7 +17,7 @@ once from the seed (:func:`draw`), so the combinations are new:
   0.5–4 km, line spacing 1–4 km, gravimeter noise 0.3–2 mGal/√Hz and wind 0–15 m/s.
 
 Each survey is processed with default settings in a child process and scored as in
-``bench_regimes.py`` (RMS against truth of the default estimate, FIR 100 s and the
+``bench_regimes.py`` (:func:`bench_regimes.run_survey`: RMS against truth of the default estimate, FIR 100 s and the
 stationary smoother; std coverage); ``--oracle`` adds the truth-tuned oracle (slow).
 """
 
@@ -32,7 +32,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_regimes import process, score, simulate  # noqa: E402
+from bench_regimes import run_survey  # noqa: E402
 
 
 def draw(seed: int) -> dict:
@@ -79,22 +79,12 @@ def main() -> int:
     a = ap.parse_args()
     work = Path(a.workdir)
     work.mkdir(parents=True, exist_ok=True)
-    if not a.oracle:
-        import bench_regimes
-        bench_regimes.oracle = lambda *args, **kw: {"rms": float("nan")}
     rows = []
     for seed in a.seeds:
         ov = draw(seed)
-        survey = simulate("omolon-mini", ov, work / f"unseen-{seed}", seed)
-        out = work / f"unseen-{seed}-out"
-        run = process(survey, out)
-        s = score(survey, out)
-        s.update(run, seed=seed, overrides=ov)
+        s = run_survey("unseen", "omolon-mini", ov, work, seed, with_oracle=a.oracle)
+        s.update(seed=seed, overrides=ov)
         rows.append(s)
-        print(f"unseen-{seed:<4d} adaptive {s['dg_mgal']:6.2f}  FIR {s['dg_fir_mgal']:6.2f}  "
-              f"ratio {s['dg_mgal'] / s['dg_fir_mgal']:5.2f}  stationary {s['dg_stationary_mgal']:6.2f}  "
-              f"oracle {s['oracle']['rms']:6.2f}  corr {s['corr']:5.3f} var {s['var_ratio']:4.2f} "
-              f"cov2σ {s['std_coverage']:4.2f}  noise {s['noise_family']}  {s['wall_s']:5.1f} s", flush=True)
     ratios = np.array([r["dg_mgal"] / r["dg_fir_mgal"] for r in rows])
     print(f"\nadaptive/FIR over {len(rows)} unseen surveys: mean {ratios.mean():.3f}, max {ratios.max():.3f}, "
           f"worse than FIR on {int(np.sum(ratios > 1.0))}")
