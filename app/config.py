@@ -240,6 +240,9 @@ class ProcessingParams(_Strict):
                                 "stationary or the FIR estimate")
     flatten_min_ratio: float = Field(0.5, gt=0, le=1, description="An estimate whose along-line variance is below "
                                      "this share of the anomaly variance the FIR shows beyond its noise is flattened")
+    noisy_max_ratio: float = Field(3.0, gt=1, le=1000, description="Every line takes FIR when the lines' median "
+                                   "ratio of the estimate's along-line variance to the anomaly variance FIR shows "
+                                   "beyond its noise exceeds this (the estimate passes noise; with flatten_check)")
     fir_guard: bool = Field(True, description="Use FIR 100 s when the chosen estimate disagrees significantly more "
                             "at the crossovers than FIR does")
     fir_guard_min_crossovers: int = Field(4, ge=2, le=1_000_000, description="Crossovers needed for the FIR "

@@ -16,7 +16,16 @@
    variance the FIR 100 s estimate shows beyond its own noise
    (:func:`app.core.model_check.flattening_ratio` < ``flatten_min_ratio``) failed to detect
    the anomaly: that line takes the stationary estimate, or FIR if that is flattened too.
-3. **FIR guard.**  With at least ``fir_guard_min_crossovers`` crossovers (the paired test's
+3. **Noisy estimate.**  The converse of step 2, survey-wide: when the lines' median ratio of
+   the estimate's along-line variance to the anomaly variance FIR shows beyond its noise
+   exceeds ``noisy_max_ratio`` (3), the estimate carries several times more variance than
+   the anomaly has in FIR's band.  At flight height the anomaly has little variance at periods
+   below 100 s, so the excess is noise the model let through (a level or a noise model gone
+   wrong): every line takes FIR.  Over 59 simulated surveys (13 regimes × 2 seeds, three
+   presets, 16 unseen and 14 random geometries) the median was 0.15–1.45; a 60th — three
+   12 km lines, two ties, a 1 Hz platform gravimeter — gave 8.2 with an error of 20.3 mGal
+   against FIR's 8.1 (its 6 crossovers: p = 0.08 in step 4, not significant).
+4. **FIR guard.**  With at least ``fir_guard_min_crossovers`` crossovers (the paired test's
    p-value accounts for how few there are: a 4-line survey's 8 crossovers can still show an
    estimate ruined by a wrong noise model), when the chosen estimate disagrees
    significantly more at the crossovers than FIR 100 s does (paired test, one-sided
@@ -130,7 +139,7 @@ def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> d
         fir_var = fir_noise_variance_mgal2(noise, level, dt_s, p.fir_cutoff_period_s)
         fl = flattening_ratio(g["dg_unleveled_mgal"], g["dg_fir_mgal"], fir_var)
         rec = {"estimate": "adaptive", "flattening_ratio": fl.ratio, "fir_signal_var_mgal2": fl.signal_var_mgal2,
-               "fir_noise_std_mgal": float(np.sqrt(fir_var))}
+               "fir_noise_std_mgal": float(np.sqrt(fir_var)), "detectable": fl.detectable}
         if fl.detectable and fl.ratio < p.flatten_min_ratio:
             st = flattening_ratio(g["dg_stationary_mgal"], g["dg_fir_mgal"], fir_var)
             if st.ratio >= p.flatten_min_ratio:
@@ -145,8 +154,34 @@ def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> d
     return out
 
 
+def _use_fir(table: pd.DataFrame, noise, dt_s: float, p, floor_mgal: float = 0.0) -> None:
+    """Every line takes FIR 100 s, with its noise std under the fitted model (at least ``floor_mgal``)."""
+    for _, g in table.groupby("line", sort=False):
+        fir_var = fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s, p.fir_cutoff_period_s)
+        _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), max(np.sqrt(fir_var), floor_mgal)))
+
+
+def noisy_check(table: pd.DataFrame, lines: dict, noise, dt_s: float, p, warnings: list) -> dict:
+    """Step 3 (in place): an estimate with several times the anomaly variance FIR shows is noise."""
+    ratios = np.array([r["flattening_ratio"] for r in lines.values() if r.get("detectable")], float)
+    ratios = ratios[np.isfinite(ratios)]
+    if ratios.size == 0:
+        return {"applied": False, "reason": "no line whose anomaly FIR resolves beyond its noise"}
+    med = float(np.median(ratios))
+    rep = {"median_variance_ratio": med, "n_lines": int(ratios.size), "max_ratio": p.noisy_max_ratio,
+           "applied": bool(med > p.noisy_max_ratio)}
+    if rep["applied"]:
+        d_fir = crossover_differences(table, "dg_fir_mgal", p.leveling_include_repeat)
+        floor = float(np.sqrt(np.mean((d_fir - d_fir.mean()) ** 2) / 2.0)) if d_fir.size >= 4 else 0.0
+        _use_fir(table, noise, dt_s, p, floor)
+        rep["fir_std_floor_mgal"] = floor
+        warnings.append(f"the adaptive estimate has {med:.1f}x the along-line variance of the anomaly FIR 100 s "
+                        f"shows beyond its noise (median of {ratios.size} lines): it passes noise, FIR used")
+    return rep
+
+
 def fir_guard(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dict:
-    """Step 3 (in place)."""
+    """Step 4 (in place)."""
     d_est = crossover_differences(table, "dg_unleveled_mgal", p.leveling_include_repeat)
     if d_est.size < p.fir_guard_min_crossovers:
         return {"applied": False, "reason": f"{d_est.size} crossovers (< {p.fir_guard_min_crossovers})"}
@@ -159,9 +194,7 @@ def fir_guard(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dic
         # show (each line's share of the crossover difference) — the guard fired because the
         # fitted model misjudged the data
         floor = cmp.rms_b_mgal / np.sqrt(2.0)
-        for _, g in table.groupby("line", sort=False):
-            fir_var = fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s, p.fir_cutoff_period_s)
-            _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), max(np.sqrt(fir_var), floor)))
+        _use_fir(table, noise, dt_s, p, floor)
         rep["fir_std_floor_mgal"] = float(floor)
         warnings.append(f"the adaptive estimate disagrees more at the crossovers than FIR 100 s "
                         f"({cmp.rms_a_mgal:.2f} vs {cmp.rms_b_mgal:.2f} mGal, p = {cmp.p_value:.3g}): FIR used")
@@ -176,13 +209,19 @@ def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=
     # they change, and the candidates are not read after the choice (a deep copy took ~1 s on omolon)
     table = candidates[m].filtered.table.copy(deep=False)
     lines = check_lines(table, noise, dt_s, p, warnings) if p.flatten_check else {}
-    guard = fir_guard(table, noise, dt_s, p, warnings) if p.fir_guard else {"applied": False, "reason": "off"}
+    noisy = (noisy_check(table, lines, noise, dt_s, p, warnings) if p.flatten_check
+             else {"applied": False, "reason": "off"})
+    if noisy["applied"]:
+        guard = {"applied": False, "reason": "FIR already used (noisy estimate)"}
+    else:
+        guard = fir_guard(table, noise, dt_s, p, warnings) if p.fir_guard else {"applied": False, "reason": "off"}
     used = {r["estimate"] for r in lines.values()} or {"adaptive"}
-    chosen = "FIR" if guard.get("applied") else ("adaptive" if used == {"adaptive"} else "mixed")
+    chosen = ("FIR" if guard.get("applied") or noisy["applied"] else
+              ("adaptive" if used == {"adaptive"} else "mixed"))
     n_q = len(candidates[m].ident.learned.em.Q)
     why = ("two anomaly levels (Markov-switching Q)" if n_q > 1 else
            f"one anomaly level: {candidates[m].ident.n_points} decimated points "
            f"(< {p.min_points_adaptive}) cannot tell two apart" if p.n_q is None else "n_q = 1 set")
     rep = {"chosen": chosen, "m": m, "order": order_rep, "anomaly_levels": n_q, "anomaly_levels_reason": why,
-           "lines": lines, "fir_guard": guard}
+           "lines": lines, "noisy_check": noisy, "fir_guard": guard}
     return ModelChoice(m, table, rep)
