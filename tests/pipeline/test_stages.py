@@ -68,3 +68,24 @@ def test_storage_refuses_classes_outside_the_pipeline(tmp_path):
     (tmp_path / "ok" / "state.json").write_text(json.dumps(state))
     with pytest.raises(ValueError, match="outside the allowed modules"):
         storage.load(tmp_path / "ok")
+
+
+def test_static_segments_found_in_velocities_differenced_from_noisy_positions():
+    """Parked 300 s, then a 60 s take-off roll to 60 m/s: 20 Hz positions with 2 cm noise,
+    velocities differenced from them (0.6 m/s of noise per epoch, as a heights-only GNSS
+    file gives).  The parking is found (within its 10 s trims), the roll is not static."""
+    from app.pipeline.stages.measurement import static_segments
+
+    rng = np.random.default_rng(7)
+    dt = 0.05
+    t = np.arange(0.0, 600.0, dt)
+    speed = np.clip((t - 300.0) / 60.0, 0.0, 1.0) * 60.0           # m/s along east
+    east = np.cumsum(speed) * dt + rng.normal(0.0, 0.02, t.size)
+    north = rng.normal(0.0, 0.02, t.size)
+    up = 200.0 + rng.normal(0.0, 0.02, t.size)
+    ve, vn, vu = (np.gradient(x, dt) for x in (east, north, up))
+    assert static_segments(t, ve, vn, vu, smooth_s=0.0) == []      # epoch by epoch: never still for 60 s
+    segs = static_segments(t, ve, vn, vu)
+    assert len(segs) == 1
+    a, b = segs[0]
+    assert t[a] == pytest.approx(10.0, abs=3.0) and 285.0 < t[b - 1] <= 300.0
