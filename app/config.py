@@ -213,7 +213,9 @@ class ProcessingParams(_Strict):
     # --- measurement
     estimate_time_offset: bool = True
     apply_time_offset: bool = Field(True, description="Shift the gravimeter time scale by the cross-correlation estimate")
-    max_time_offset_s: float = Field(2.0, gt=0, le=60)
+    max_time_offset_s: float = Field(60.0, gt=0, le=600, description="Search range (± s) of the gravimeter–GNSS "
+                                     "time offset (at most an eighth of a flight): wide enough for GPS−UTC leap "
+                                     "seconds (18 s), which left uncorrected put 480 mGal of error on every epoch")
     time_offset_min_z: float = Field(3.0, ge=0, le=1000, description="Apply the estimated time offset only when it exceeds "
                                      "this many standard errors")
     time_offset_min_improvement: float = Field(0.01, ge=0, lt=1, description="… and removes at least this share "

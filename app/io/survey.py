@@ -349,8 +349,9 @@ def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: flo
     seconds of day onto the survey scale; for DGS records it is added to the
     GPS seconds of week (:mod:`app.io.dgs`).  When None it is the whole number
     of days that best puts the data inside ``gnss_time_range`` (no leap
-    seconds: GNSS assumed on UTC for G files, on GPS time for DGS records, or
-    the pipeline's lag estimate absorbs the rest; see the report).
+    seconds: GNSS assumed on UTC for G files, on GPS time for DGS records; the
+    pipeline's time-offset estimate, searched over ±60 s, finds and removes the
+    rest — e.g. 18 s of GPS−UTC — and reports it).
     """
     path = Path(path)
     p = config.processing

@@ -134,6 +134,26 @@ def test_time_offset_recovered_to_10ms():
     assert corr > 0.9
 
 
+@pytest.mark.parametrize("offset", [18.0, -17.0])
+def test_leap_second_offset_found_in_a_60_s_search(offset):
+    """Gravimeter stamped in UTC, GNSS in GPS time (18 s apart; 17 s before 2017): the
+    offset is found to 10 ms by the ±60 s search; a ±2 s one cannot reach it."""
+    rng = np.random.default_rng(11)
+    freqs = rng.uniform(0.03, 0.8, 40)   # broadband accelerations: no periodic false peak
+    amps = rng.uniform(0.02, 0.2, 40)
+    omegas, phases = 2 * np.pi * freqs, rng.uniform(0, 2 * np.pi, 40)
+    tau = 2.0
+    _, lagged_mean = _sin_lagged(amps, omegas, phases, tau, 1.0)
+    stamps, vals = _grav_samples(0.0, 1300.0, lagged_mean, offset=offset)
+    series = gm.integrate_samples(stamps, vals + rng.normal(0, 2e-4, vals.size))
+    t = np.arange(100.0, 1200.0, 0.1)
+    v = sum(-A / w * np.cos(w * t + p) for A, w, p in zip(amps, omegas, phases)) + rng.normal(0, 0.015, t.size)
+    fit = gm.fit_time_offset(series, t, v, tau_s=tau, max_offset_s=60.0)
+    assert abs(fit.offset_s - offset) < 0.010 and fit.correlation > 0.9
+    narrow = gm.fit_time_offset(series, t, v, tau_s=tau, max_offset_s=2.0)
+    assert abs(narrow.offset_s - offset) > 10.0 and narrow.correlation < 0.6
+
+
 def test_bad_inputs():
     with pytest.raises(ValueError, match="increasing"):
         gm.integrate_samples(np.array([0.0, 1.0, 1.0]), np.ones(3))

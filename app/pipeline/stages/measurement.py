@@ -114,6 +114,11 @@ def time_offset(series, t, vu, tau: float, k: float, p, notes: list) -> dict:
     offset, corr = fit.offset_s, fit.correlation
     info = {"estimated": True, "offset_s": offset, "se_s": fit.se_s, "correlation": corr,
             "residual_reduction": fit.relative_improvement}
+    if not (np.isfinite(corr) and corr > 0.1):
+        notes.append(f"the gravimeter's and the GNSS vertical accelerations do not match at any time offset "
+                     f"within ±{p.max_time_offset_s:g} s (best correlation {corr:.2f}): the two files' time "
+                     "scales differ (GPS vs UTC, time zone?) or one of them is not this flight's; set "
+                     "[gravimeter] time_offset_s — the anomaly is not usable as it is")
     if not p.apply_time_offset:
         return info
     why = []
