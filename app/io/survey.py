@@ -120,6 +120,9 @@ class Survey:
     config: SurveyConfig
     lines: pd.DataFrame
     flights: dict[str, Flight] = field(default_factory=dict)
+    #: what the readers changed or assumed while reading (saturated G-file messages dropped,
+    #: DGS records without GPS sync, relative DGS readings …), for the report's warnings
+    notes: list[str] = field(default_factory=list)
 
 
 # --------------------------------------------------------------------------- survey.toml
@@ -662,8 +665,15 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
     flights: dict[str, Flight] = {}
     series: dict[str, _FlightSeries] = {}
     block_sources: dict[str, dict[str, _BlockSource]] = {}
+    notes: list[str] = []
     for name, d in flight_dirs.items():
-        fs = _read_flight_series(name, d, root, config, block_sources)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            fs = _read_flight_series(name, d, root, config, block_sources)
+        for w in caught:
+            warnings.warn(str(w.message), stacklevel=2)   # still on stderr for scripts
+            if str(w.message) not in notes:
+                notes.append(str(w.message))
         series[name] = fs
         flights[name] = Flight(name=name, gravimeter=fs.grav, gnss=fs.gnss, gravimeter_path=fs.grav_path,
                                gnss_path=fs.gnss_path,
@@ -678,7 +688,7 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
                              f"blocks{which}: add a lines.csv")
     for name, fs in series.items():
         _check_line_windows(name, fs, lines, origins, config.processing.max_gap_s)
-    return Survey(root=root, config=config, lines=lines, flights=flights)
+    return Survey(root=root, config=config, lines=lines, flights=flights, notes=notes)
 
 
 def _flight_dirs(root: Path, lines: pd.DataFrame | None, origins: list) -> dict[str, Path]:

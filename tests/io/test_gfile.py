@@ -191,6 +191,27 @@ def test_g_file_in_survey(tmp_path):
     np.testing.assert_allclose(g["time"], centres, rtol=0, atol=2e-4)
 
 
+def test_dropped_saturated_messages_reach_the_survey_notes(tmp_path):
+    """What a reader drops is said where the report can show it (Survey.notes → report warnings)."""
+    day = 4 * 86400.0
+    msgs, _ = make_messages(int(300 * MSG_HZ), t0_sod=3600.0)
+    msgs.loc[[100, 101, 102], "sat"] = 1
+    root = tmp_path / "s"
+    d = root / "flights" / "F1"
+    d.mkdir(parents=True)
+    write_g(d / "F1.G", msgs)
+    tn = np.round(day + 3600.0 + np.arange(3000) / 10.0, 2)
+    pd.DataFrame({"time": tn, "lat": 60.0, "lon": 150.0 + 1e-5 * np.arange(3000), "h": 2000.0, "vu": 0.0}).to_csv(
+        d / "gnss.csv", index=False)
+    pd.DataFrame([{"line": "L1", "flight": "F1", "t_start": day + 3650.0, "t_end": day + 3850.0, "kind": "main"}]).to_csv(
+        root / "lines.csv", index=False)
+    (root / "survey.toml").write_text('[survey]\nname = "g"\n')
+    with pytest.warns(UserWarning, match="3 saturated"):
+        s = read_survey(root)
+    assert len(s.notes) == 1 and "3 saturated message(s) dropped" in s.notes[0] and "F1.G" in s.notes[0]
+    assert len(s.flights["F1"].gravimeter) == 2 * (int(300 * MSG_HZ) - 3)
+
+
 def test_two_g_files_in_a_flight_is_an_error(tmp_path):
     day = 4 * 86400.0
     msgs, _ = make_messages(200, t0_sod=3600.0)

@@ -399,7 +399,7 @@ def measure(survey, progress=None) -> Measurement:
     flight measured and tied to its base readings.  ``progress(fraction)`` after each flight."""
     cfg = survey.config
     p = cfg.processing
-    warnings: list[str] = []
+    warnings: list[str] = list(getattr(survey, "notes", []))   # what the readers assumed or dropped
     tau_s = scale = None
     calibration = lag_check = None
     if p.calibrate:
