@@ -78,6 +78,8 @@ GNSS_REQUIRED = ("time", "lat", "lon", "h")
 GNSS_OPTIONAL = ("vu", "ve", "vn", "sigma_v")  # vu derived from h when absent
 #: plausible median |f_z| (m/s²) of a gravimeter file in m/s² with Z up
 F_Z_PLAUSIBLE_MS2 = (7.0, 13.0)
+#: other units a CSV f_z is recognised in by its median (×factor → m/s²): Gal, mGal, µm/s²
+F_Z_UNITS = (("Gal (cm/s²)", 1e-2), ("mGal", 1e-5), ("µm/s²", 1e-6))
 #: rates (Hz) accepted when none is declared (airborne and marine gravimeters; GNSS receivers)
 GRAVIMETER_RATE_SANITY_HZ = (0.5, 100.0)
 GNSS_RATE_SANITY_HZ = (0.5, 50.0)
@@ -387,8 +389,28 @@ def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: flo
         _check_ranges(df, rows, display)
     else:
         df, rows = read_csv_table(path, display, GRAV_REQUIRED, GRAV_OPTIONAL, min_rows=2)
+        _csv_force_units(df, display)
         df = _finish_series(df, rows, display, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL)
     return finish_gravimeter(df, rows, display, config), rows
+
+
+def _csv_force_units(df: pd.DataFrame, display: str) -> None:
+    """SPEC's gravimeter.csv has f_z in m/s²; a file in Gal, mGal or µm/s² is recognised by its
+    median (≈ 9.8·10², 10⁵·9.8, 10⁶·9.8 — the ranges do not overlap) and converted in place,
+    f_x/f_y with it, with a warning.  Anything else is left to the range checks (an error)."""
+    fz = pd.to_numeric(df["f_z"], errors="coerce").to_numpy(dtype=float)
+    if not np.isfinite(fz).any():
+        return
+    med = float(np.nanmedian(fz))
+    lo, hi = F_Z_PLAUSIBLE_MS2
+    for unit, factor in F_Z_UNITS:
+        if lo <= med * factor <= hi:
+            for c in ("f_z", "f_x", "f_y"):
+                if c in df:
+                    df[c] = pd.to_numeric(df[c], errors="coerce") * factor
+            warnings.warn(f"{display}: f_z read as {unit} (median {med:.6g}) and converted to m/s² "
+                          f"(× {factor:g}); SPEC's gravimeter.csv is in m/s²", stacklevel=2)
+            return
 
 
 def gnss_runs(t: np.ndarray, max_gap_s: float) -> list[tuple[int, int]]:

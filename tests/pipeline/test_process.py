@@ -145,3 +145,26 @@ def test_wrong_declared_lag_is_detected_in_flight(tmp_path):
     assert any("gravimeter lag" in w for w in rep["warnings"])
     process_survey(survey, tmp_path / "trusted", {"lag_check_s": None})
     assert rms(tmp_path / "checked") < 0.5 * rms(tmp_path / "trusted")
+
+
+def test_gravimeter_csv_in_mgal_is_recognised(tmp_path, tiny_survey, tiny_processed):
+    """The same survey with gravimeter.csv in mGal (≈ 9.8·10⁵): recognised by its median,
+    converted with a warning in the report, and processed to the same estimate as in m/s²."""
+    import shutil
+
+    from app.pipeline.process import process_survey
+
+    out0, report0, _ = tiny_processed
+    s = tmp_path / "mgal"
+    shutil.copytree(tiny_survey, s)
+    for g in sorted((s / "flights").glob("*/gravimeter.csv*")):
+        df = pd.read_csv(g)
+        for c in ("f_z", "f_x", "f_y"):
+            if c in df:
+                df[c] = df[c] * 1e5
+        df.to_csv(g, index=False)
+    rep = process_survey(s, tmp_path / "out")
+    assert any("f_z read as mGal" in w for w in rep["warnings"])
+    a = pd.read_parquet(out0 / "lines.parquet")
+    b = pd.read_parquet(tmp_path / "out" / "lines.parquet")
+    np.testing.assert_allclose(b["dg_mgal"], a["dg_mgal"], rtol=0, atol=1e-3)
