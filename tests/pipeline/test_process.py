@@ -168,3 +168,27 @@ def test_gravimeter_csv_in_mgal_is_recognised(tmp_path, tiny_survey, tiny_proces
     a = pd.read_parquet(out0 / "lines.parquet")
     b = pd.read_parquet(tmp_path / "out" / "lines.parquet")
     np.testing.assert_allclose(b["dg_mgal"], a["dg_mgal"], rtol=0, atol=1e-3)
+
+
+def test_lines_shorter_than_the_regularization_filter_fall_back_to_a_finer_step(tmp_path):
+    """12 km lines at 100 m/s (2 min each) are shorter than the ~1 km-step filter: the
+    regularization falls back to 0.5 km steps (with a warning) instead of refusing, and the
+    estimate is a sound one: within 20 % of FIR 100 s against the truth (on seeds 5–12 of this
+    layout 0.88–1.12×; all epochs, the lines have no core) and following the anomaly."""
+    from app.pipeline.process import process_survey
+    from app.simulate import simulate_survey
+
+    survey = simulate_survey("tiny", tmp_path / "s", seed=5, n_main=3, main_length_km=12.0, n_tie=2)
+    rep = process_survey(survey, tmp_path / "out")
+    assert any("decimated at 0.5 km instead" in w for w in rep["warnings"])
+    m = merge_truth(pd.read_parquet(tmp_path / "out" / "lines.parquet"),
+                    pd.read_parquet(survey / "truth" / "lines.parquet"))
+    m = m[m["dg_true_mgal"].notna()]
+
+    def rms(col):
+        e = m[col] - m["dg_true_mgal"]
+        e = e - e.groupby(m["line"]).transform("mean")
+        return float(np.sqrt(np.mean(e ** 2)))
+
+    assert rms("dg_mgal") < 1.2 * rms("dg_fir_mgal")
+    assert np.corrcoef(m["dg_mgal"], m["dg_true_mgal"])[0, 1] > 0.9

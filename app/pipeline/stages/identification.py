@@ -46,6 +46,8 @@ def identify(lines: list, dt_s: float, noise, cfg: SurveyConfig, m: int, callbac
     if progress is not None:
         progress("regularization")
     reg = regularize_lines(lines, cfg, dt_s, m, None if noise.is_white_velocity else noise)
+    if reg.note:
+        warnings.append(reg.note)
     for ln, why in reg.skipped.items():
         warnings.append(f"line {ln} not identified: {why}")
     n_dec = sum(len(x) for x in reg.x)

@@ -14,8 +14,11 @@ from app.core.ma_approx import fit_ma_model
 from app.core.regularize import design_regularization, min_line_samples, regularize_line
 from app.pipeline.stages.lines import LineData, finite_segments
 
+#: finest decimation step (km) the regularization falls back to when every line is too short
+#: for the configured one
+MIN_FALLBACK_STEP_KM = 0.25
 
-@dataclass
+
 @dataclass
 class Regularized:
     design: object                 # app.core.regularize.RegularizationDesign
@@ -24,6 +27,7 @@ class Regularized:
     x: list                        # decimated regularized sequences
     idx: list                      # full-rate indices (into the line) of each decimated point
     skipped: dict                  # line → reason
+    note: str = ""                 # a fallback taken (finer decimation), for the report
 
 
 def _regularize_segments(z_mgal, m: int, design):
@@ -55,7 +59,28 @@ def regularize_lines(lines: list[LineData], cfg: SurveyConfig, dt_s: float, m: i
     if not use:
         raise ValueError("no lines to identify (all are tie lines and include_tie_lines is false)")
     speed = float(np.nanmedian([ln.speed_ms for ln in use]))
-    design = design_regularization(dt_s, speed, step_km=p.decimation_step_km, n=p.decimation_n,
+    step = float(p.decimation_step_km)
+    try:
+        return _regularize_at(use, p, dt_s, speed, step, m, noise)
+    except ValueError as first:
+        # Lines shorter than the filter at ~1 km steps (a 12 km line at 100 m/s): a finer
+        # step shortens the filter with it.  Only when the step is not set by n or a cut-off.
+        if p.decimation_n is not None or p.cutoff_hz is not None or not str(first).startswith("every line"):
+            raise
+        while step / 2.0 >= MIN_FALLBACK_STEP_KM:
+            step /= 2.0
+            try:
+                reg = _regularize_at(use, p, dt_s, speed, step, m, noise)
+            except ValueError:
+                continue
+            reg.note = (f"every line is too short for the regularization at {p.decimation_step_km:g} km steps: "
+                        f"decimated at {step:g} km instead (a shorter filter; more GNSS noise per point)")
+            return reg
+        raise first
+
+
+def _regularize_at(use: list, p, dt_s: float, speed: float, step_km: float, m: int, noise) -> Regularized:
+    design = design_regularization(dt_s, speed, step_km=step_km, n=p.decimation_n,
                                    cutoff_hz=p.cutoff_hz, attenuation_db=p.stopband_attenuation_db,
                                    difference_grid=p.regularization_difference_grid)
     ma = fit_ma_model(design, m, K=p.ma_order_K, L=p.ma_order_L,
