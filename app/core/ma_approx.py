@@ -146,12 +146,19 @@ def spectral_factor(gamma: np.ndarray) -> np.ndarray:
     if J == 0:
         return np.array([np.sqrt(max(gamma[0], 0.0))])
     poly = np.concatenate([gamma[:0:-1], gamma])
-    roots = np.roots(poly)
-    roots = roots[np.argsort(np.abs(roots))][:J]  # the J innermost (reciprocal pairs)
-    b = np.real(np.poly(roots))
-    a = ma_autocovariance(b)
-    s2 = float(a @ gamma) / float(a @ a)
-    return b * np.sqrt(max(s2, 0.0))
+    with np.errstate(all="ignore"):
+        roots = np.roots(poly)
+        roots = roots[np.argsort(np.abs(roots))][:J]  # the J innermost (reciprocal pairs)
+        b = np.real(np.poly(roots))
+        a = ma_autocovariance(b)
+        s2 = float(a @ gamma) / float(a @ a)
+        out = b * np.sqrt(max(s2, 0.0))
+    if not np.all(np.isfinite(out)):
+        # root finding lost on an ill-conditioned autocovariance (a height-noise component
+        # differenced m + 2 times spans many decades): the white factor, a start only
+        out = np.zeros(J + 1)
+        out[0] = np.sqrt(max(gamma[0], 0.0))
+    return out
 
 
 def _fit_order(gamma: np.ndarray, order: int, b_full: np.ndarray) -> tuple[np.ndarray, float]:
@@ -186,6 +193,7 @@ def _fit_order(gamma: np.ndarray, order: int, b_full: np.ndarray) -> tuple[np.nd
     if order < J:  # second start: factor of the Bartlett-tapered, truncated autocovariance
         taper = 1.0 - np.arange(order + 1) / (order + 1)
         starts.append(spectral_factor(gn[:order + 1] * taper))
+    starts = [s for s in starts if np.all(np.isfinite(s))] or [np.eye(order + 1)[0]]
     best = None
     for s in starts:
         if order >= J:
