@@ -457,7 +457,8 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                     families=FAMILIES, nw: float = 3.0, min_duration_s: float = 120.0,
                     n_starts: int = 4, seed: int = 0, bic_margin: float = 10.0,
                     differences=(), octave_weights: bool = False,
-                    knee_max_fraction: float | None = None, hidden_knees: bool = True) -> NoiseFit:
+                    knee_max_fraction: float | None = None, hidden_knees: bool = True,
+                    prefer_height: bool = False) -> NoiseFit:
     """Fit the error of z by the Whittle likelihood of prewhitened multitaper spectra.
 
     Model of z's spectrum: ``S(f) = S_anomaly(f; Q, m) + Σ_c S_c(f)``; each family of
@@ -487,6 +488,13 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     hidden_knees : bool
         Move corners that fall between the lowest fitted frequency and twice the
         anomaly/noise crossover below the data and refit (see the code comment).
+    prefer_height : bool
+        The error is known to come from GNSS heights (no velocity in the file): among the
+        families within ``bic_margin`` of the best, the simplest *height* family (white or
+        coloured height components only) is chosen when there is one.  The spectra cannot
+        tell a white-velocity error (a random-walk height error, unbounded — not what GNSS
+        heights do) from a coloured height error whose corner lies in the anomaly band, yet
+        the two put very different noise there.
     differences : sequence of PassDifference
         Differences of two passes of one repeat track on a common along-track grid: the
         anomaly cancels, so their spectra show the noise alone — also where it hides under
@@ -507,7 +515,7 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     f_low = float(np.min(spectra.f_hz))
     if knee_max_fraction is not None:
         prob.phi_min = float(np.clip(1.0 - 2.0 * np.pi * dt_s * knee_max_fraction * f_low, 0.0, PHI_MAX - 1e-6))
-    chosen = prob.select(families, m, bic_margin)
+    chosen = prob.select(families, m, bic_margin, prefer_height)
     hidden = prob.hidden_corners(chosen, m) if hidden_knees else []
     phi_low = float(np.clip(1.0 - 2.0 * np.pi * dt_s * f_low, 0.0, PHI_MAX - 1e-6))
     if hidden and prob.phi_min < phi_low:
@@ -517,7 +525,7 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         # moved below the data (the noise keeps its slope down to the lowest frequency) and the
         # families are fitted again.
         prob.phi_min = phi_low
-        chosen = prob.select(families, m, bic_margin)
+        chosen = prob.select(families, m, bic_margin, prefer_height)
     orders = prob.orders(chosen, m)
     m_best = min(orders, key=lambda mm: orders[mm][0])
     Q_best, comps_best = _unpack(orders[m_best][1], chosen["_spec"], prob.phi_min)
@@ -525,7 +533,7 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                        info={"fit": "Whittle, prewhitened multitaper", "fmax_hz": float(fmax_hz),
                              "n_bins": int(spectra.f_hz.size), "n_difference_bins": spectra.n_diff_bins,
                              "n_pass_differences": spectra.n_differences, "m": int(m_best),
-                             "hidden_corners_hz": hidden,
+                             "hidden_corners_hz": hidden, "height_family_preferred": bool(prefer_height),
                              "max_corner_hz": knee_hz(prob.phi_min, dt_s) if prob.phi_min > 0 else None,
                              "nll_by_m": {str(k): float(v[0]) for k, v in orders.items()}})
     cands = [{k: v for k, v in c.items() if not k.startswith("_")} for c in prob.candidates]
@@ -690,11 +698,12 @@ class _Whittle:
                 out.append(th)
         return out
 
-    def select(self, families, m: int, bic_margin: float) -> dict:
+    def select(self, families, m: int, bic_margin: float, prefer_height: bool = False) -> dict:
         """Fit every family; the simplest within ``bic_margin`` of the best BIC.  A richer shape
         must be strongly supported (ΔBIC > 10), because its behaviour below the noise-dominated
         band — where the data cannot check it — decides how the smoother separates anomaly
-        from noise."""
+        from noise.  ``prefer_height``: the simplest height-only family within the margin, when
+        there is one (:func:`fit_noise_model`)."""
         self.candidates = []
         for name, spec in families:
             best = self.fit(spec, m, self.random_starts(spec) + self.warm_starts(spec))
@@ -706,8 +715,9 @@ class _Whittle:
                 "components": [{"order": c.order, "phi": c.phi, "weight_mgal2": c.weight} for c in comps],
                 "_theta": best.x, "_spec": spec})
         best_bic = min(c["bic"] for c in self.candidates)
-        return next(c for c in sorted(self.candidates, key=lambda c: c["n_params"])
-                    if c["bic"] <= best_bic + bic_margin)
+        near = [c for c in sorted(self.candidates, key=lambda c: c["n_params"]) if c["bic"] <= best_bic + bic_margin]
+        heights = [c for c in near if all(order == 2 for order, _ in c["_spec"])]
+        return heights[0] if prefer_height and heights else near[0]
 
     def hidden_corners(self, chosen: dict, m: int) -> list:
         """Corners (Hz) of the chosen family's AR components that lie between the lowest fitted

@@ -192,3 +192,31 @@ def test_lines_shorter_than_the_regularization_filter_fall_back_to_a_finer_step(
 
     assert rms("dg_mgal") < 1.2 * rms("dg_fir_mgal")
     assert np.corrcoef(m["dg_mgal"], m["dg_true_mgal"])[0, 1] > 0.9
+
+
+def test_heights_only_survey_gets_a_height_noise_family(tmp_path):
+    """GNSS heights only (5 mm white + 3 cm Gauss–Markov): the noise spectra cannot tell white
+    velocity from coloured height noise (ΔBIC < 10), and the file says the error comes from
+    heights, so a height family is used (report: height_family_preferred).  On this survey it
+    gives 2.75 mGal against truth where white velocity gives 3.87 (six seeds of this layout:
+    mean 4.06 against 4.26); the test keeps it within 5 % of FIR 100 s."""
+    from app.pipeline.process import process_survey
+    from app.simulate import simulate_survey
+
+    survey = simulate_survey("tiny", tmp_path / "s", seed=7, gnss_velocity=False, sigma_h_m=0.005,
+                             h_colored_m=0.03)
+    rep = process_survey(survey, tmp_path / "out")
+    nm = rep["noise_model"]
+    assert nm["family"] in ("white height", "coloured height", "white + coloured height")
+    assert nm["height_family_preferred"] is True
+    m = merge_truth(pd.read_parquet(tmp_path / "out" / "lines.parquet"),
+                    pd.read_parquet(survey / "truth" / "lines.parquet"))
+    L = m.groupby("line")["along_km"].transform("max")
+    m = m[(m["along_km"] >= 10) & (m["along_km"] <= L - 10) & m["dg_true_mgal"].notna()]
+
+    def rms(col):
+        e = m[col] - m["dg_true_mgal"]
+        e = e - e.groupby(m["line"]).transform("mean")
+        return float(np.sqrt(np.mean(e ** 2)))
+
+    assert rms("dg_mgal") < 1.05 * rms("dg_fir_mgal")

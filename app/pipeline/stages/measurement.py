@@ -49,6 +49,7 @@ class FlightMeasurement:
     notes: list = field(default_factory=list)
     despike: dict = field(default_factory=dict)
     time_offset: dict = field(default_factory=dict)
+    heights_only: bool = False        # the GNSS file had no vu (derived from the heights)
 
 
 def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
@@ -94,7 +95,7 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     z, despike = despike_z(z, float(np.median(np.diff(t))), p, notes)
     return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
                              float(offset), float(offset_info.get("correlation", np.nan)), applied, notes,
-                             despike, offset_info)
+                             despike, offset_info, bool(getattr(flight, "vu_derived_from_h", False)))
 
 
 def time_offset(series, t, vu, tau: float, k: float, p, notes: list) -> dict:

@@ -29,16 +29,19 @@ def level_band(p, dt_s: float) -> tuple[float, float]:
     return (min(float(p.noise_band_hz[0]), 0.5 * f2), f2)
 
 
-def fit_noise(lines: list[LineData], dt_s: float, p):
+def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False):
     """The error of z as a coloured process (:mod:`app.core.noise_model`), fitted on the
     finite stretches of every line; returns (NoiseFit, model normalised so that a level R is
-    the equivalent white velocity noise in :func:`level_band`)."""
+    the equivalent white velocity noise in :func:`level_band`).  ``heights_only``: every
+    flight's vu was derived from its heights, so among the families the spectra cannot tell
+    apart (within the BIC margin) a height family is preferred (:func:`fit_noise_model`)."""
     fams = FAMILIES if p.noise_family == "auto" else tuple(f for f in FAMILIES if f[0] == p.noise_family)
     segs = [ln.z_mgal[a:b] for ln in lines for a, b in finite_segments(ln.z_mgal)]
     fmax = min(float(p.noise_fit_fmax_hz), 0.8 * 0.5 / dt_s)
     diffs = repeat_differences(lines, dt_s, min(2.0 * fmax, 0.45 / dt_s)) if p.noise_fit_repeats else []
     fit = fit_noise_model(segs, dt_s, m=2, fmax_hz=fmax, families=fams, differences=diffs,
-                          octave_weights=p.noise_fit_octave_weights, knee_max_fraction=p.noise_knee_max_fraction)
+                          octave_weights=p.noise_fit_octave_weights, knee_max_fraction=p.noise_knee_max_fraction,
+                          prefer_height=heights_only)
     return fit, fit.model.normalized(level_band(p, dt_s))
 
 
@@ -132,7 +135,8 @@ class NoiseStage:
 
 def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt_s: float, p) -> NoiseStage:
     """Stage 3: the noise model of the survey and the local level of every flight."""
-    fit, model = fit_noise(lines, dt_s, p)
+    heights_only = bool(flights) and all(getattr(f, "heights_only", False) for f in flights.values())
+    fit, model = fit_noise(lines, dt_s, p, heights_only)
     band = level_band(p, dt_s)
     r_local = noise_levels(flights, dt_s, p)
     scale = level_scale(fit, band, lines, r_local)
