@@ -489,12 +489,13 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         Move corners that fall between the lowest fitted frequency and twice the
         anomaly/noise crossover below the data and refit (see the code comment).
     prefer_height : bool
-        The error is known to come from GNSS heights (no velocity in the file): among the
-        families within ``bic_margin`` of the best, the simplest *height* family (white or
-        coloured height components only) is chosen when there is one.  The spectra cannot
-        tell a white-velocity error (a random-walk height error, unbounded — not what GNSS
-        heights do) from a coloured height error whose corner lies in the anomaly band, yet
-        the two put very different noise there.
+        The error is known to come from GNSS heights (no velocity in the file): when the
+        family chosen is a pure *velocity* family, the simplest height family within
+        ``bic_margin`` of the best replaces it, if there is one.  The spectra cannot tell a
+        white-velocity error (a random-walk height error, unbounded — not what GNSS heights
+        do) from a coloured height error whose corner lies in the anomaly band, yet the two
+        put very different noise there.  A chosen family with a height component is kept:
+        the data have already said the error is partly a height error.
     differences : sequence of PassDifference
         Differences of two passes of one repeat track on a common along-track grid: the
         anomaly cancels, so their spectra show the noise alone — also where it hides under
@@ -702,8 +703,8 @@ class _Whittle:
         """Fit every family; the simplest within ``bic_margin`` of the best BIC.  A richer shape
         must be strongly supported (ΔBIC > 10), because its behaviour below the noise-dominated
         band — where the data cannot check it — decides how the smoother separates anomaly
-        from noise.  ``prefer_height``: the simplest height-only family within the margin, when
-        there is one (:func:`fit_noise_model`)."""
+        from noise.  ``prefer_height``: a pure velocity choice gives way to the simplest
+        height-only family within the margin, when there is one (:func:`fit_noise_model`)."""
         self.candidates = []
         for name, spec in families:
             best = self.fit(spec, m, self.random_starts(spec) + self.warm_starts(spec))
@@ -716,8 +717,11 @@ class _Whittle:
                 "_theta": best.x, "_spec": spec})
         best_bic = min(c["bic"] for c in self.candidates)
         near = [c for c in sorted(self.candidates, key=lambda c: c["n_params"]) if c["bic"] <= best_bic + bic_margin]
-        heights = [c for c in near if all(order == 2 for order, _ in c["_spec"])]
-        return heights[0] if prefer_height and heights else near[0]
+        if prefer_height and all(order == 1 for order, _ in near[0]["_spec"]):
+            heights = [c for c in near if all(order == 2 for order, _ in c["_spec"])]
+            if heights:
+                return heights[0]
+        return near[0]
 
     def hidden_corners(self, chosen: dict, m: int) -> list:
         """Corners (Hz) of the chosen family's AR components that lie between the lowest fitted
