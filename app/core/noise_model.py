@@ -534,7 +534,9 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                        info={"fit": "Whittle, prewhitened multitaper", "fmax_hz": float(fmax_hz),
                              "n_bins": int(spectra.f_hz.size), "n_difference_bins": spectra.n_diff_bins,
                              "n_pass_differences": spectra.n_differences, "m": int(m_best),
-                             "hidden_corners_hz": hidden, "height_family_preferred": bool(prefer_height),
+                             "hidden_corners_hz": hidden,
+                             # the velocity family the heights-only rule replaced (None: not applied)
+                             "height_family_preferred": prob.height_replaced,
                              "max_corner_hz": knee_hz(prob.phi_min, dt_s) if prob.phi_min > 0 else None,
                              "nll_by_m": {str(k): float(v[0]) for k, v in orders.items()}})
     cands = [{k: v for k, v in c.items() if not k.startswith("_")} for c in prob.candidates]
@@ -717,9 +719,11 @@ class _Whittle:
                 "_theta": best.x, "_spec": spec})
         best_bic = min(c["bic"] for c in self.candidates)
         near = [c for c in sorted(self.candidates, key=lambda c: c["n_params"]) if c["bic"] <= best_bic + bic_margin]
+        self.height_replaced = None
         if prefer_height and all(order == 1 for order, _ in near[0]["_spec"]):
             heights = [c for c in near if all(order == 2 for order, _ in c["_spec"])]
             if heights:
+                self.height_replaced = near[0]["family"]
                 return heights[0]
         return near[0]
 

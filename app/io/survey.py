@@ -397,8 +397,9 @@ def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: flo
 def _csv_force_units(df: pd.DataFrame, display: str) -> None:
     """SPEC's gravimeter.csv has f_z in m/s²; a file in Gal, mGal or µm/s² is recognised by its
     median (≈ 9.8·10², 10⁵·9.8, 10⁶·9.8 — the ranges do not overlap) and converted in place,
-    f_x/f_y with it, with a warning.  Anything else is left to the range checks (an error)."""
-    fz = pd.to_numeric(df["f_z"], errors="coerce").to_numpy(dtype=float)
+    f_x/f_y with it, with a warning.  Anything else is left to the range checks (an error).
+    ``df`` is :func:`read_csv_table`'s (float columns: bad cells are already errors)."""
+    fz = df["f_z"].to_numpy(dtype=float)
     if not np.isfinite(fz).any():
         return
     med = float(np.nanmedian(fz))
@@ -407,7 +408,7 @@ def _csv_force_units(df: pd.DataFrame, display: str) -> None:
         if lo <= med * factor <= hi:
             for c in ("f_z", "f_x", "f_y"):
                 if c in df:
-                    df[c] = pd.to_numeric(df[c], errors="coerce") * factor
+                    df[c] = df[c] * factor
             warnings.warn(f"{display}: f_z read as {unit} (median {med:.6g}) and converted to m/s² "
                           f"(× {factor:g}); SPEC's gravimeter.csv is in m/s²", stacklevel=2)
             return

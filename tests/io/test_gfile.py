@@ -169,21 +169,29 @@ def test_names():
     assert not is_gfile_name("gnss.csv") and not is_gfile_name("data.dat")
 
 
-def test_g_file_in_survey(tmp_path):
-    """A flight with a G file instead of gravimeter.csv; GNSS in GPS seconds of week (day 4)."""
-    day = 4 * 86400.0
-    msgs, t_end = make_messages(int(300 * MSG_HZ), t0_sod=3600.0)
-    root = tmp_path / "s"
+DAY_S = 4 * 86400.0   # GNSS in GPS seconds of week, day 4
+
+
+def _g_survey(root, msgs):
+    """A one-flight survey whose gravimeter is the G file of ``msgs`` (5 min from 01:00 UTC)
+    and whose GNSS is in GPS seconds of week; returns its directory."""
     d = root / "flights" / "F1"
     d.mkdir(parents=True)
     write_g(d / "F1.G", msgs)
-    tn = np.round(day + 3600.0 + np.arange(3000) / 10.0, 2)
+    tn = np.round(DAY_S + 3600.0 + np.arange(3000) / 10.0, 2)
     pd.DataFrame({"time": tn, "lat": 60.0, "lon": 150.0 + 1e-5 * np.arange(3000), "h": 2000.0, "vu": 0.0}).to_csv(
         d / "gnss.csv", index=False)
-    pd.DataFrame([{"line": "L1", "flight": "F1", "t_start": day + 3650.0, "t_end": day + 3850.0, "kind": "main"}]).to_csv(
-        root / "lines.csv", index=False)
+    pd.DataFrame([{"line": "L1", "flight": "F1", "t_start": DAY_S + 3650.0, "t_end": DAY_S + 3850.0,
+                   "kind": "main"}]).to_csv(root / "lines.csv", index=False)
     (root / "survey.toml").write_text('[survey]\nname = "g"\n')
-    s = read_survey(root)
+    return root
+
+
+def test_g_file_in_survey(tmp_path):
+    """A flight with a G file instead of gravimeter.csv; GNSS in GPS seconds of week (day 4)."""
+    day = DAY_S
+    msgs, t_end = make_messages(int(300 * MSG_HZ), t0_sod=3600.0)
+    s = read_survey(_g_survey(tmp_path / "s", msgs))
     g = s.flights["F1"].gravimeter
     assert list(g.columns) == ["time", "f_z", "f_x", "f_y"]
     assert s.flights["F1"].gravimeter_path.name == "F1.G"
@@ -193,19 +201,9 @@ def test_g_file_in_survey(tmp_path):
 
 def test_dropped_saturated_messages_reach_the_survey_notes(tmp_path):
     """What a reader drops is said where the report can show it (Survey.notes → report warnings)."""
-    day = 4 * 86400.0
     msgs, _ = make_messages(int(300 * MSG_HZ), t0_sod=3600.0)
     msgs.loc[[100, 101, 102], "sat"] = 1
-    root = tmp_path / "s"
-    d = root / "flights" / "F1"
-    d.mkdir(parents=True)
-    write_g(d / "F1.G", msgs)
-    tn = np.round(day + 3600.0 + np.arange(3000) / 10.0, 2)
-    pd.DataFrame({"time": tn, "lat": 60.0, "lon": 150.0 + 1e-5 * np.arange(3000), "h": 2000.0, "vu": 0.0}).to_csv(
-        d / "gnss.csv", index=False)
-    pd.DataFrame([{"line": "L1", "flight": "F1", "t_start": day + 3650.0, "t_end": day + 3850.0, "kind": "main"}]).to_csv(
-        root / "lines.csv", index=False)
-    (root / "survey.toml").write_text('[survey]\nname = "g"\n')
+    root = _g_survey(tmp_path / "s", msgs)
     with pytest.warns(UserWarning, match="3 saturated"):
         s = read_survey(root)
     assert len(s.notes) == 1 and "3 saturated message(s) dropped" in s.notes[0] and "F1.G" in s.notes[0]

@@ -19,6 +19,10 @@ from app.pipeline.stages.lines import LineData, finite_segments
 MIN_FALLBACK_STEP_KM = 0.25
 
 
+class LinesTooShort(ValueError):
+    """No line is long enough for the regularization filter at the step tried."""
+
+
 @dataclass
 class Regularized:
     design: object                 # app.core.regularize.RegularizationDesign
@@ -62,16 +66,16 @@ def regularize_lines(lines: list[LineData], cfg: SurveyConfig, dt_s: float, m: i
     step = float(p.decimation_step_km)
     try:
         return _regularize_at(use, p, dt_s, speed, step, m, noise)
-    except ValueError as first:
+    except LinesTooShort as first:
         # Lines shorter than the filter at ~1 km steps (a 12 km line at 100 m/s): a finer
         # step shortens the filter with it.  Only when the step is not set by n or a cut-off.
-        if p.decimation_n is not None or p.cutoff_hz is not None or not str(first).startswith("every line"):
+        if p.decimation_n is not None or p.cutoff_hz is not None:
             raise
         while step / 2.0 >= MIN_FALLBACK_STEP_KM:
             step /= 2.0
             try:
                 reg = _regularize_at(use, p, dt_s, speed, step, m, noise)
-            except ValueError:
+            except LinesTooShort:
                 continue
             reg.note = (f"every line is too short for the regularization at {p.decimation_step_km:g} km steps: "
                         f"decimated at {step:g} km instead (a shorter filter; more GNSS noise per point)")
@@ -99,6 +103,6 @@ def _regularize_at(use: list, p, dt_s: float, speed: float, step_km: float, m: i
         xs.append(np.asarray(x, float))
         idxs.append(np.asarray(idx, int))
     if not kept:
-        raise ValueError("every line is too short for the regularization filter: "
+        raise LinesTooShort("every line is too short for the regularization filter: "
                          + "; ".join(f"{k}: {v}" for k, v in skipped.items()))
     return Regularized(design, ma, kept, xs, idxs, skipped)
