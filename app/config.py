@@ -341,6 +341,8 @@ class ProcessingParams(_Strict):
                                       "about the two lines' errors (widen only, below std_crossover_min_n)")
     std_crossover_min_n: int = Field(20, ge=3, le=1_000_000, description="Crossovers needed to also narrow dg_std (fewer: the "
                                      "check only widens it)")
+    std_crossover_min_n_widen: int = Field(2, ge=2, le=1_000_000, description="Crossovers needed to widen dg_std "
+                                           "(a small survey's std has nothing else to check it)")
     std_crossover_min_factor: float = Field(1.0, gt=0, le=1, description="Never narrow dg_std by more than this "
                                             "factor (default 1: never narrow — crossovers see only the difference of two lines' errors, blind to "
                                             "what they share, so they can show a std too small, never too large)")

@@ -99,7 +99,8 @@ def std_check(diff_mgal, pred_var_mgal2, p) -> dict:
     """Crossover differences against the lines' posterior std: an independent check of
     ``dg_std_mgal``."""
     return crossover_std_factor(diff_mgal, pred_var_mgal2, p.std_crossover_shared_fraction,
-                                p.std_crossover_min_n, p.std_crossover_min_factor)
+                                p.std_crossover_min_n, p.std_crossover_min_factor,
+                                min_n=p.std_crossover_min_n_widen)
 
 
 @dataclass
