@@ -91,6 +91,39 @@ def flattening_ratio(estimate_mgal, fir_mgal, fir_noise_var_mgal2: float, min_sn
     return Flattening(ratio, sig, bool(detectable))
 
 
+def disagreement_ratio(estimate_mgal, fir_mgal) -> float:
+    """RMS of ``estimate − fir`` over the std of ``fir``, both with their means removed.
+
+    With ``estimate = s + e_a`` and ``fir = s + e_f`` (s the anomaly, errors independent of
+    it), ``RMS(estimate − fir)² = var(e_a) + var(e_f) − 2 cov(e_a, e_f)`` and
+    ``std(fir)² = var(s) + var(e_f)``; a ratio above 1 therefore means
+    ``var(e_a) > var(s) + 2 cov(e_a, e_f)`` — with errors that go the same way (both filters
+    pass the same noise of z and miss the same peaks) the estimate's error exceeds the
+    anomaly itself, whatever noise model made it.  Unlike :func:`flattening_ratio` this needs
+    no model of the FIR's noise.
+
+    Parameters
+    ----------
+    estimate_mgal, fir_mgal : ndarray, shape (n,)
+        The estimate and the FIR 100 s estimate on the same epochs (mGal; NaN ignored).
+
+    Returns
+    -------
+    float
+        The ratio; NaN with fewer than 10 common finite epochs or a constant FIR.
+    """
+    e = np.asarray(estimate_mgal, dtype=float)
+    f = np.asarray(fir_mgal, dtype=float)
+    if e.shape != f.shape:
+        raise ValueError(f"estimate_mgal and fir_mgal differ in shape: {e.shape} vs {f.shape}")
+    ok = np.isfinite(e) & np.isfinite(f)
+    if ok.sum() < 10:
+        return float("nan")
+    d = (e[ok] - e[ok].mean()) - (f[ok] - f[ok].mean())
+    sd = float(np.std(f[ok]))
+    return float(np.sqrt(np.mean(d ** 2)) / sd) if sd > 0 else float("nan")
+
+
 @dataclass(frozen=True)
 class CrossoverComparison:
     """Result of :func:`crossover_comparison`.

@@ -1,9 +1,10 @@
 """The paired tests of app.core.model_check against SciPy's ttest_rel and a simulation."""
 
 import numpy as np
+import pytest
 from scipy import stats
 
-from app.core.model_check import crossover_comparison, paired_decrease_p
+from app.core.model_check import crossover_comparison, disagreement_ratio, paired_decrease_p
 
 
 def test_paired_decrease_p_equals_scipy_one_sided_ttest_rel():
@@ -27,3 +28,20 @@ def test_crossover_comparison_prefers_the_more_accurate_estimate():
     assert c.n == 200 and c.p_value < 1e-6
     np.testing.assert_allclose([c.rms_a_mgal, c.rms_b_mgal], [2 * np.sqrt(2), np.sqrt(2)], rtol=0.15)
     assert crossover_comparison(d_good, d_bad).p_value > 0.99
+
+
+def test_disagreement_ratio_matches_its_analytic_value():
+    """estimate = s + e_a, fir = s + e_f, independent: the ratio is
+    sqrt((σ_a² + σ_f²) / (σ_s² + σ_f²)) (large-sample value); means do not matter."""
+    rng = np.random.default_rng(5)
+    n = 400_000
+    s = rng.normal(0.0, 3.0, n)
+    for sa, sf in ((1.0, 0.5), (4.0, 1.0), (2.0, 3.0)):
+        est = 10.0 + s + rng.normal(0.0, sa, n)
+        fir = -5.0 + s + rng.normal(0.0, sf, n)
+        want = np.sqrt((sa ** 2 + sf ** 2) / (9.0 + sf ** 2))
+        assert disagreement_ratio(est, fir) == pytest.approx(want, rel=0.01)
+    assert np.isnan(disagreement_ratio(np.ones(5), np.ones(5)))
+    assert np.isnan(disagreement_ratio(np.arange(20.0), np.ones(20)))
+    with pytest.raises(ValueError, match="shape"):
+        disagreement_ratio(np.ones(20), np.ones(21))

@@ -111,3 +111,42 @@ def test_a_flattened_line_is_replaced():
     assert lines["M2"]["estimate"] == "stationary" and lines["M2"]["flattening_ratio"] < 0.01
     assert all(lines[ln]["estimate"] == "adaptive" for ln in ("M1", "M3", "T1", "T2"))
     assert _rms(table.loc[k, "dg_mgal"], table.loc[k, "dg_true_mgal"]) == pytest.approx(1.0)
+
+
+def test_an_estimate_whose_error_exceeds_the_anomaly_gives_way_to_fir_without_a_noise_model():
+    """Anomaly + white noise of 1.4× the anomaly's along-line std: the variance ratio (~3,
+    depending on FIR's noise model) is not needed — RMS(estimate − FIR) exceeds FIR's own
+    std (analytic: sqrt((1.4² σ_s² + σ_f²) / (σ_s² + σ_f²)) > 1), so FIR is used, with FIR's
+    along-line spread as its std (the model's FIR noise is not trusted; the fixture's 4
+    crossovers are kept away, as on a survey without them)."""
+    rng = np.random.default_rng(4)
+    table, noise = _table(rng, 0.0)
+    table = table[table["kind"] == "main"].reset_index(drop=True)   # parallel lines: no crossovers
+    sd = table.groupby("line")["dg_true_mgal"].transform("std").to_numpy()
+    table["dg_unleveled_mgal"] = table["dg_true_mgal"] + rng.normal(0.0, 1.0, len(table)) * 1.4 * sd
+    p = ProcessingParams(noisy_max_ratio=1000.0)   # the variance test alone would keep it
+    warnings: list = []
+    lines = check_lines(table, noise, DT_S, p, warnings)
+    rep = noisy_check(table, lines, noise, DT_S, p, warnings)
+    assert rep["applied"] and rep["median_disagreement"] > 1.2
+    assert np.array_equal(table["dg_mgal"].to_numpy(), table["dg_fir_mgal"].to_numpy())
+    spread = np.median([g["dg_fir_mgal"].std(ddof=0) for _, g in table.groupby("line")])
+    assert table["dg_std_mgal"].min() == pytest.approx(spread)
+    assert any("exceed the anomaly" in w for w in warnings)
+
+
+def test_a_flattened_line_does_not_take_a_stationary_estimate_that_passes_noise():
+    """Line M2 flattened, and its stationary estimate = truth + noise of 1.5× the anomaly's
+    std (a noise episode its single level ignores): RMS(stationary − FIR) exceeds FIR's std,
+    so the line takes FIR, which is closer to the truth than that stationary estimate."""
+    rng = np.random.default_rng(6)
+    table, noise = _table(rng, 1.0)
+    k = table["line"] == "M2"
+    sd = float(table.loc[k, "dg_true_mgal"].std())
+    table.loc[k, "dg_unleveled_mgal"] = table.loc[k, "dg_true_mgal"].mean()
+    table.loc[k, "dg_stationary_mgal"] = table.loc[k, "dg_true_mgal"] + rng.normal(0.0, 1.5 * sd, int(k.sum()))
+    lines = check_lines(table, noise, DT_S, ProcessingParams(), [])
+    assert lines["M2"]["estimate"] == "FIR" and lines["M2"]["stationary_disagreement"] > 1.0
+    assert np.array_equal(table.loc[k, "dg_mgal"].to_numpy(), table.loc[k, "dg_fir_mgal"].to_numpy())
+    assert (_rms(table.loc[k, "dg_fir_mgal"], table.loc[k, "dg_true_mgal"])
+            < 0.5 * _rms(table.loc[k, "dg_stationary_mgal"], table.loc[k, "dg_true_mgal"]))

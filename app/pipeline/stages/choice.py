@@ -15,7 +15,10 @@
 2. **Flattened lines.**  An estimate whose along-line variance is far below the anomaly
    variance the FIR 100 s estimate shows beyond its own noise
    (:func:`app.core.model_check.flattening_ratio` < ``flatten_min_ratio``) failed to detect
-   the anomaly: that line takes the stationary estimate, or FIR if that is flattened too.
+   the anomaly: that line takes the stationary estimate, or FIR if that is flattened too or
+   differs from FIR by more than FIR's own along-line std (step 3's disagreement test: on a
+   line with a noise episode the stationary estimate, blind to the episode, had 66 mGal of
+   error against FIR's 27).
 3. **Noisy estimate.**  The converse of step 2, survey-wide: when the lines' median ratio of
    the estimate's along-line variance to the anomaly variance FIR shows beyond its noise
    exceeds ``noisy_max_ratio`` (3), the estimate carries several times more variance than
@@ -25,6 +28,11 @@
    presets, 16 unseen and 14 random geometries) the median was 0.15–1.45; a 60th — three
    12 km lines, two ties, a 1 Hz platform gravimeter — gave 8.2 with an error of 20.3 mGal
    against FIR's 8.1 (its 6 crossovers: p = 0.08 in step 4, not significant).
+   The same step also takes FIR when the median over those lines of RMS(estimate − FIR)
+   exceeds FIR's own along-line std (``noisy_max_disagreement``, 1): that says the estimate's error exceeds the
+   anomaly (:func:`app.core.model_check.disagreement_ratio`), and unlike the variance ratio
+   it needs no noise model — the variance ratio is fooled when the fitted model puts too
+   little noise in FIR's band, as a tiny heights-only survey's "white height" fit does.
 4. **FIR guard.**  With at least ``fir_guard_min_crossovers`` crossovers (the paired test's
    p-value accounts for how few there are: a 4-line survey's 8 crossovers can still show an
    estimate ruined by a wrong noise model), when the chosen estimate disagrees
@@ -42,7 +50,7 @@ import numpy as np
 import pandas as pd
 
 from app.core.leveling import LineTrack, find_crossovers
-from app.core.model_check import crossover_comparison, fir_noise_variance_mgal2, flattening_ratio
+from app.core.model_check import crossover_comparison, disagreement_ratio, fir_noise_variance_mgal2, flattening_ratio
 from app.pipeline.stages.leveling import tracks
 
 
@@ -142,7 +150,11 @@ def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> d
                "fir_noise_std_mgal": float(np.sqrt(fir_var)), "detectable": fl.detectable}
         if fl.detectable and fl.ratio < p.flatten_min_ratio:
             st = flattening_ratio(g["dg_stationary_mgal"], g["dg_fir_mgal"], fir_var)
-            if st.ratio >= p.flatten_min_ratio:
+            # the stationary estimate must not be flattened either, nor pass noise: an error
+            # beyond the anomaly's own spread (a noise episode the stationary level ignores)
+            st_dis = disagreement_ratio(g["dg_stationary_mgal"].to_numpy(), g["dg_fir_mgal"].to_numpy())
+            rec["stationary_disagreement"] = st_dis
+            if st.ratio >= p.flatten_min_ratio and not st_dis > p.noisy_max_disagreement:
                 _use(table, g.index, g["dg_stationary_mgal"].to_numpy(), g["dg_std_mgal"].to_numpy())
                 rec["estimate"] = "stationary"
             else:
@@ -162,21 +174,46 @@ def _use_fir(table: pd.DataFrame, noise, dt_s: float, p, floor_mgal: float = 0.0
 
 
 def noisy_check(table: pd.DataFrame, lines: dict, noise, dt_s: float, p, warnings: list) -> dict:
-    """Step 3 (in place): an estimate with several times the anomaly variance FIR shows is noise."""
+    """Step 3 (in place): an estimate with several times the anomaly variance FIR shows is
+    noise; so is one that differs from FIR by more than FIR's whole along-line std
+    (:func:`app.core.model_check.disagreement_ratio`, no noise model needed beyond which lines
+    FIR resolves)."""
+    # on the lines where FIR resolves the anomaly beyond its noise, as for the variance ratio: where
+    # FIR is mostly noise the ratio tends to 1 whatever the estimate's error (a 0.13×-FIR estimate
+    # gave 0.97), and the sampling scatter of FIR's noise variance decides which side it falls
+    dis = [disagreement_ratio(g["dg_unleveled_mgal"].to_numpy(), g["dg_fir_mgal"].to_numpy())
+           for line, g in table.groupby("line", sort=False) if lines.get(str(line), {}).get("detectable")]
+    dis = np.array([d for d in dis if np.isfinite(d)], float)
+    rep: dict = {"max_ratio": p.noisy_max_ratio, "max_disagreement": p.noisy_max_disagreement}
+    if dis.size:
+        rep["median_disagreement"] = float(np.median(dis))
     ratios = np.array([r["flattening_ratio"] for r in lines.values() if r.get("detectable")], float)
     ratios = ratios[np.isfinite(ratios)]
-    if ratios.size == 0:
-        return {"applied": False, "reason": "no line whose anomaly FIR resolves beyond its noise"}
-    med = float(np.median(ratios))
-    rep = {"median_variance_ratio": med, "n_lines": int(ratios.size), "max_ratio": p.noisy_max_ratio,
-           "applied": bool(med > p.noisy_max_ratio)}
+    if ratios.size:
+        rep.update(median_variance_ratio=float(np.median(ratios)), n_lines=int(ratios.size))
+    by_variance = ratios.size > 0 and rep["median_variance_ratio"] > p.noisy_max_ratio
+    by_disagreement = dis.size > 0 and rep["median_disagreement"] > p.noisy_max_disagreement
+    rep["applied"] = bool(by_variance or by_disagreement)
+    if not (ratios.size or dis.size):
+        rep["reason"] = "no line to compare with FIR"
     if rep["applied"]:
         d_fir = crossover_differences(table, "dg_fir_mgal", p.leveling_include_repeat)
-        floor = float(np.sqrt(np.mean((d_fir - d_fir.mean()) ** 2) / 2.0)) if d_fir.size >= 4 else 0.0
+        if d_fir.size >= 4:
+            floor = float(np.sqrt(np.mean((d_fir - d_fir.mean()) ** 2) / 2.0))
+        else:
+            # an estimate that passes noise means the fitted model misjudges the noise, in FIR's
+            # band too, so its FIR noise std means little (a tiny heights-only survey: 2σ
+            # coverage 0.07); without crossovers what is known is that FIR's error does not
+            # exceed its own along-line spread
+            spread = [float(np.nanstd(g["dg_fir_mgal"])) for _, g in table.groupby("line", sort=False)]
+            floor = float(np.nanmedian(spread))
         _use_fir(table, noise, dt_s, p, floor)
         rep["fir_std_floor_mgal"] = floor
-        warnings.append(f"the adaptive estimate has {med:.1f}x the along-line variance of the anomaly FIR 100 s "
-                        f"shows beyond its noise (median of {ratios.size} lines): it passes noise, FIR used")
+        why = (f"has {rep['median_variance_ratio']:.1f}x the along-line variance of the anomaly FIR 100 s shows "
+               f"beyond its noise (median of {ratios.size} lines)" if by_variance else
+               f"differs from FIR 100 s by {rep['median_disagreement']:.2f}x FIR's along-line std (median of "
+               f"{dis.size} lines): its error would exceed the anomaly")
+        warnings.append(f"the adaptive estimate {why}: it passes noise, FIR used")
     return rep
 
 
