@@ -198,6 +198,23 @@ def _click_line_on_map(page, plot_sel, line, axis="x"):
     page.mouse.click(xy[0], xy[1])
 
 
+def _open_profile_from_map(page, plot_sel, line, axis="x", attempts=3):
+    """Click ``line`` on the map until its profile opens: the pixel is read from the plot's
+    current layout at each attempt — on a cold, busy browser the first click can land while
+    Plotly is still laying out the maps just drawn (seen once on a fresh 2-core checkout)."""
+    want = f"() => document.querySelector('#profile-plot') && document.querySelector('#profile-plot').dataset.line === '{line}'"
+    from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
+    for k in range(attempts):
+        _click_line_on_map(page, plot_sel, line, axis)
+        try:
+            page.wait_for_function(want, timeout=8000)
+            return
+        except PlaywrightTimeout:
+            if k == attempts - 1:
+                raise
+
+
 def test_maps_profiles_em_and_exports(fake_server, browser_page, tmp_path, shots):
     import numpy as np
 
@@ -232,9 +249,7 @@ def test_maps_profiles_em_and_exports(fake_server, browser_page, tmp_path, shots
         page.locator("#grid-plot .x2y2").count() >= 1
     shots(page, "grid-side-by-side.png")
     # a click on line L2 in the σ map opens its profile
-    _click_line_on_map(page, "#grid-plot", "L2", axis="x2")
-    page.wait_for_function("() => document.querySelector('#profile-plot') && document.querySelector('#profile-plot').dataset.line === 'L2'",
-                           timeout=20000)
+    _open_profile_from_map(page, "#grid-plot", "L2", axis="x2")
     assert page.locator("#tabs button.active").inner_text() == "Line profiles"
     # the profile shows adaptive − FIR and σ in their own panel
     names = page.evaluate("() => document.querySelector('#profile-plot').data.map((t) => t.name)")
@@ -262,8 +277,7 @@ def test_maps_profiles_em_and_exports(fake_server, browser_page, tmp_path, shots
     # the QC line map too
     page.click("#tabs button[data-tab=qc]")
     page.wait_for_selector("#line-map .main-svg", timeout=20000)
-    _click_line_on_map(page, "#line-map", "L1")
-    page.wait_for_function("() => document.querySelector('#profile-plot').dataset.line === 'L1'", timeout=20000)
+    _open_profile_from_map(page, "#line-map", "L1")
 
     # EM table: states counted from 0 with their (Q, R), the full transition matrix of the final iteration
     page.click("#tabs button[data-tab=process]")
