@@ -245,9 +245,10 @@ class ProcessingParams(_Strict):
     noisy_max_ratio: float = Field(3.0, gt=1, le=1000, description="Every line takes FIR when the lines' median "
                                    "ratio of the estimate's along-line variance to the anomaly variance FIR shows "
                                    "beyond its noise exceeds this (the estimate passes noise; with flatten_check)")
-    noisy_max_disagreement: float = Field(1.0, gt=0, le=1000, description="Every line takes FIR when the lines' "
-                                          "median RMS(estimate − FIR) / std(FIR) exceeds this (the estimate's error "
-                                          "would exceed the anomaly; with flatten_check)")
+    noisy_max_disagreement: float = Field(1.0, gt=0, le=1000, description="Every line takes FIR when the median "
+                                          "RMS(estimate − FIR) / std(FIR) over the lines FIR resolves exceeds this "
+                                          "(the estimate's error would exceed the anomaly; also bars a flattened "
+                                          "line's stationary replacement; with flatten_check)")
     fir_guard: bool = Field(True, description="Use FIR 100 s when the chosen estimate disagrees significantly more "
                             "at the crossovers than FIR does")
     fir_guard_min_crossovers: int = Field(4, ge=2, le=1_000_000, description="Crossovers needed for the FIR "
