@@ -145,8 +145,10 @@ def test_a_flattened_line_does_not_take_a_stationary_estimate_that_passes_noise(
     sd = float(table.loc[k, "dg_true_mgal"].std())
     table.loc[k, "dg_unleveled_mgal"] = table.loc[k, "dg_true_mgal"].mean()
     table.loc[k, "dg_stationary_mgal"] = table.loc[k, "dg_true_mgal"] + rng.normal(0.0, 1.5 * sd, int(k.sum()))
-    lines = check_lines(table, noise, DT_S, ProcessingParams(), [])
+    warnings: list = []
+    lines = check_lines(table, noise, DT_S, ProcessingParams(), warnings)
     assert lines["M2"]["estimate"] == "FIR" and lines["M2"]["stationary_disagreement"] > 1.0
+    assert any("line M2" in w and "passes noise" in w for w in warnings)
     assert np.array_equal(table.loc[k, "dg_mgal"].to_numpy(), table.loc[k, "dg_fir_mgal"].to_numpy())
     assert (_rms(table.loc[k, "dg_fir_mgal"], table.loc[k, "dg_true_mgal"])
             < 0.5 * _rms(table.loc[k, "dg_stationary_mgal"], table.loc[k, "dg_true_mgal"]))

@@ -154,14 +154,18 @@ def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> d
             # beyond the anomaly's own spread (a noise episode the stationary level ignores)
             st_dis = disagreement_ratio(g["dg_stationary_mgal"].to_numpy(), g["dg_fir_mgal"].to_numpy())
             rec["stationary_disagreement"] = st_dis
-            if st.ratio >= p.flatten_min_ratio and not st_dis > p.noisy_max_disagreement:
+            st_noisy = bool(np.isfinite(st_dis) and st_dis > p.noisy_max_disagreement)
+            why = ""
+            if st.ratio >= p.flatten_min_ratio and not st_noisy:
                 _use(table, g.index, g["dg_stationary_mgal"].to_numpy(), g["dg_std_mgal"].to_numpy())
                 rec["estimate"] = "stationary"
             else:
                 _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), np.sqrt(fir_var)))
                 rec["estimate"] = "FIR"
+                why = (f" (the stationary one differs from FIR by {st_dis:.2f}x FIR's std: it passes noise)"
+                       if st_noisy else " (the stationary one is flattened too)")
             warnings.append(f"line {line}: the adaptive estimate is flattened (variance {fl.ratio:.2f} of the "
-                            f"anomaly variance FIR shows beyond its noise): {rec['estimate']} estimate used")
+                            f"anomaly variance FIR shows beyond its noise): {rec['estimate']} estimate used{why}")
         out[str(line)] = rec
     return out
 
