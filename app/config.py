@@ -234,7 +234,8 @@ class ProcessingParams(_Strict):
                                           "order filters (m = 1 recognises terrain classes best: the sample 0.80 "
                                           "against 0.56 with m = 2); None: each order its own")
     order_choice_p: float = Field(0.05, gt=0, le=1, description="m = 1 replaces SPEC's default m = 2 only when its "
-                                  "estimates agree significantly better at the crossovers (one-sided p below this): "
+                                  "estimates agree significantly better at the crossovers (one-sided p below this, by the "
+                                  "squared differences' paired t-test or the signed ranks of their magnitudes): "
                                   "the crossovers are blind to the error two crossing lines share")
     choice_min_crossovers: int = Field(10, ge=3, le=1_000_000, description="Crossovers needed to choose between "
                                        "models (m, the FIR guard) by their crossover differences")

@@ -182,3 +182,31 @@ def test_fir_guard_is_not_blinded_by_one_wild_crossover():
     assert _rms(table["dg_mgal"], table["dg_true_mgal"]) < 0.5 * _rms(table["dg_true_mgal"] + err,
                                                                         table["dg_true_mgal"])
     assert any("by the ranks" in w for w in warnings)
+
+
+def test_order_choice_is_not_blinded_by_one_wild_crossover():
+    """m = 2's estimate with a smooth 6 mGal error and one 150 mGal bump at a crossing, m = 1's
+    with 1 mGal: the t-test on the squared crossover differences misses it (p > 0.05), the
+    signed ranks do not, and m = 1 — closer to the truth — is chosen."""
+    from app.pipeline.stages.choice import choose_order
+
+    rng = np.random.default_rng(7)
+    table, _ = _table(rng, 0.0)
+    err2, err1 = np.zeros(len(table)), np.zeros(len(table))
+    for line, g in table.groupby("line"):
+        s_km = np.hypot(g["easting_km"] - g["easting_km"].iloc[0], g["northing_km"] - g["northing_km"].iloc[0])
+        err2[g.index] = 6.0 * np.sqrt(2) * np.sin(2 * np.pi * s_km / 9.0 + rng.uniform(0, 2 * np.pi))
+        err1[g.index] = 1.0 * np.sqrt(2) * np.sin(2 * np.pi * s_km / 9.0 + rng.uniform(0, 2 * np.pi))
+        if line == "M2":
+            err2[g.index] += 150.0 * np.exp(-0.5 * ((g["easting_km"] - 10.0) / 1.0) ** 2)
+
+    class _Cand:
+        def __init__(self, t):
+            self.filtered = type("F", (), {"table": t})()
+
+    cands = {m: _Cand(table.assign(dg_unleveled_mgal=table["dg_true_mgal"] + e)) for m, e in ((1, err1), (2, err2))}
+    p = ProcessingParams(choice_min_crossovers=6)
+    m, rep = choose_order(cands, p)
+    assert rep["n_crossovers"] == 6
+    assert rep["p_m2_worse_than_m1"] > 0.05 and rep["p_rank_m2_worse_than_m1"] < 0.05
+    assert m == 1 and rep["m"] == 1
