@@ -235,7 +235,8 @@ class ProcessingParams(_Strict):
                                           "against 0.56 with m = 2); None: each order its own")
     order_choice_p: float = Field(0.05, gt=0, le=1, description="m = 1 replaces SPEC's default m = 2 only when its "
                                   "estimates agree significantly better at the crossovers (one-sided p below this, by the "
-                                  "squared differences' paired t-test or the signed ranks of their magnitudes): "
+                                  "squared differences' paired t-test, or the signed ranks of their magnitudes when "
+                                  "m = 2's crossover RMS is the larger): "
                                   "the crossovers are blind to the error two crossing lines share")
     choice_min_crossovers: int = Field(10, ge=3, le=1_000_000, description="Crossovers needed to choose between "
                                        "models (m, the FIR guard) by their crossover differences")
@@ -255,8 +256,8 @@ class ProcessingParams(_Strict):
     fir_guard_min_crossovers: int = Field(4, ge=2, le=1_000_000, description="Crossovers needed for the FIR "
                                           "guard's paired test (its p-value accounts for how few there are)")
     fir_guard_p: float = Field(0.05, gt=0, lt=0.5, description="Significance of those tests (one-sided p of the "
-                               "paired t-test on the squared crossover differences or of the signed-rank test on "
-                               "their magnitudes; on the 13 regimes of benchmarks/bench_regimes.py, all better than "
+                               "paired t-test on the squared crossover differences, or of the signed-rank test on "
+                               "their magnitudes when the crossover RMS agrees; on the 13 regimes of benchmarks/bench_regimes.py, all better than "
                                "FIR, both p ≥ 0.19)")
     # --- regularization (SPEC §2 step 1)
     decimation_n: int | None = Field(None, ge=2, le=MAX_DECIMATION_N, description="Decimation factor n; chosen for ~1 km steps when None")

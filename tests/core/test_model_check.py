@@ -77,3 +77,21 @@ def test_crossover_comparison_rank_test_sees_through_one_wild_crossover():
         hits_rank += c.p_rank < 0.05
     assert hits_rank / 500 > 0.8
     assert hits_t / 500 < 0.2
+
+
+def test_significantly_worse_takes_the_ranks_only_when_the_rms_agrees():
+    """30 crossovers, the estimate's differences 1.5× FIR's at every crossing but FIR with two
+    wild ±40 mGal crossovers: the ranks say the estimate is worse, its crossover RMS says it
+    is better — not significantly worse.  Without them both agree — worse."""
+    from app.core.model_check import significantly_worse
+
+    rng = np.random.default_rng(4)
+    base = rng.normal(0, 1.0, 30)
+    d_est, d_fir = 1.5 * base, base.copy()
+    d_fir[:2] = 40.0, -40.0
+    c = crossover_comparison(d_est, d_fir)
+    assert c.p_rank < 0.05 and c.rms_a_mgal < c.rms_b_mgal and c.p_value > 0.5
+    assert not significantly_worse(c, 0.05)
+    c2 = crossover_comparison(d_est, base)
+    assert c2.p_rank < 0.05 and c2.rms_a_mgal > c2.rms_b_mgal
+    assert significantly_worse(c2, 0.05)

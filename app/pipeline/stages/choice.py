@@ -38,8 +38,9 @@
    p-value accounts for how few there are: a 4-line survey's 8 crossovers can still show an
    estimate ruined by a wrong noise model), when the chosen estimate disagrees
    significantly more at the crossovers than FIR 100 s does (one-sided p < ``fir_guard_p`` by
-   either a paired t-test on the squared differences or a signed-rank test on their
-   magnitudes — a few wild crossovers blind the first), every line takes FIR.
+   a paired t-test on the squared differences, or by a signed-rank test on their magnitudes
+   when the crossover RMS points the same way — a few wild crossovers blind the first:
+   :func:`app.core.model_check.significantly_worse`), every line takes FIR.
 
 Every decision is returned with its evidence (the report's ``model_choice`` section).
 """
@@ -52,7 +53,13 @@ import numpy as np
 import pandas as pd
 
 from app.core.leveling import LineTrack, find_crossovers
-from app.core.model_check import crossover_comparison, disagreement_ratio, fir_noise_variance_mgal2, flattening_ratio
+from app.core.model_check import (
+    crossover_comparison,
+    disagreement_ratio,
+    fir_noise_variance_mgal2,
+    flattening_ratio,
+    significantly_worse,
+)
 from app.pipeline.stages.leveling import tracks
 
 
@@ -130,10 +137,10 @@ def choose_order(candidates: dict, p) -> tuple[int, dict]:
     # difference either way says nothing about the error against the truth
     # (by the mean square or by the ranks, as for the FIR guard: a few wild crossovers of the
     # default order blind the t-test — unseen seed 88: 48.5 against 11.3 mGal, t p = 0.09)
-    best = lo if (cmp.p_value < p.order_choice_p or cmp.p_rank < p.order_choice_p) else hi
+    best = lo if significantly_worse(cmp, p.order_choice_p) else hi
     return best, {"criterion": f"crossover RMS: m = {hi} (SPEC's default) unless m = {lo} agrees significantly "
                                f"better at the crossovers (one-sided p < {p.order_choice_p} by the squared "
-                               "differences' t-test or the signed ranks of their magnitudes)",
+                               "differences' t-test, or the signed ranks of their magnitudes with the RMS agreeing)",
                   "crossover_rms_mgal": {str(m): rms[m] for m in orders}, "n_crossovers": cmp.n,
                   f"p_m{hi}_worse_than_m{lo}": cmp.p_value, f"p_rank_m{hi}_worse_than_m{lo}": cmp.p_rank, "m": best}
 
@@ -233,12 +240,12 @@ def fir_guard(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dic
         return {"applied": False, "reason": f"{d_est.size} crossovers (< {p.fir_guard_min_crossovers})"}
     d_fir = crossover_differences(table, "dg_fir_mgal", p.leveling_include_repeat)
     cmp = crossover_comparison(d_est, d_fir)
-    # by the mean square (t-test) or by the ranks of the magnitudes: a few wild crossovers
-    # make the squared differences' t-test blind (unseen seed 88: crossover RMS 48.5 against
-    # FIR's 21.9, p = 0.10, ranks p = 0.002; 2.0x FIR's error against the truth)
+    # by the mean square (t-test) or by the ranks of the magnitudes when the RMS agrees: a few
+    # wild crossovers make the squared differences' t-test blind (unseen seed 88: crossover RMS
+    # 48.5 against FIR's 21.9, p = 0.10, ranks p = 0.002; 2.0x FIR's error against the truth)
     rep = {"n_crossovers": cmp.n, "crossover_rms_mgal": cmp.rms_a_mgal, "crossover_rms_fir_mgal": cmp.rms_b_mgal,
            "p_value": cmp.p_value, "p_rank": cmp.p_rank,
-           "applied": bool(cmp.p_value < p.fir_guard_p or cmp.p_rank < p.fir_guard_p)}
+           "applied": significantly_worse(cmp, p.fir_guard_p)}
     if rep["applied"]:
         # the FIR's std: its noise under the fitted model, but never below what its crossovers
         # show (each line's share of the crossover difference) — the guard fired because the
