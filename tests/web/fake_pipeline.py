@@ -70,8 +70,10 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                                         "bic": 25052.4}],
                         "n_bins": 1198, "fit_fmax_hz": 0.2},
         "lag_check": {"declared_tau_s": 2.0, "estimated_tau_s": [1.9995, 1.9990, 1.9992], "applied": False},
-        "model_choice": {"chosen": "adaptive", "reason": "fake: the adaptive model is kept",
-                         "candidates": [{"model": "adaptive", "score": 1.0}, {"model": "stationary", "score": 0.9}]},
+        # as the real stage 9 writes it when the FIR guard fired (unseen seed 88's figures)
+        "model_choice": {"chosen": "FIR", "m": 2, "noisy_check": {"applied": False},
+                         "fir_guard": {"n_crossovers": 30, "crossover_rms_mgal": 48.5, "crossover_rms_fir_mgal": 21.9,
+                                       "p_value": 0.104, "p_rank": 0.002, "applied": True}},
         "future_section": {"note": "<b>not markup</b>", "value": 1},
     }
 

@@ -67,8 +67,22 @@ function summary(r) {
   }
   if (rep.model_choice !== undefined) {
     const mc = rep.model_choice;
-    items.push({ cls: "ok", text: `Model choice: ${typeof mc === "object" && mc ? (mc.chosen ?? mc.model ?? JSON.stringify(mc).slice(0, 120)) : String(mc)}` +
-      (mc && mc.reason ? ` — ${mc.reason}` : "") });
+    let text = `Model choice: ${typeof mc === "object" && mc ? (mc.chosen ?? mc.model ?? JSON.stringify(mc).slice(0, 120)) : String(mc)}` +
+      (mc && mc.reason ? ` — ${mc.reason}` : "");
+    if (mc && typeof mc === "object") {
+      if (mc.m !== undefined) text += ` (anomaly order m = ${mc.m})`;
+      // why FIR, when it is: the crossover guard or the noisy-estimate check (stage 9)
+      const g = mc.fir_guard || {}, n = mc.noisy_check || {};
+      if (g.applied) {
+        text += ` — the adaptive estimate disagrees more at the ${g.n_crossovers} crossovers than FIR 100 s ` +
+          `(RMS ${fmt(g.crossover_rms_mgal, 3)} against ${fmt(g.crossover_rms_fir_mgal, 3)} mGal; t-test p = ${fmt(g.p_value, 3)}, ` +
+          `signed ranks p = ${fmt(g.p_rank, 3)})`;
+      } else if (n.applied) {
+        text += ` — the adaptive estimate passes noise (median variance ratio ${fmt(n.median_variance_ratio, 3)}, ` +
+          `median disagreement with FIR ${fmt(n.median_disagreement, 3)})`;
+      }
+    }
+    items.push({ cls: mc && mc.chosen === "FIR" ? "warn" : "ok", text });
   }
   return el("ul", { id: "report-summary", class: "decisions" }, items.map((i) => el("li", { class: i.cls }, i.text)));
 }
