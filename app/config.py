@@ -257,8 +257,8 @@ class ProcessingParams(_Strict):
                                           "guard's paired test (its p-value accounts for how few there are)")
     fir_guard_p: float = Field(0.05, gt=0, lt=0.5, description="Significance of those tests (one-sided p of the "
                                "paired t-test on the squared crossover differences, or of the signed-rank test on "
-                               "their magnitudes when the crossover RMS agrees; on the 13 regimes of benchmarks/bench_regimes.py, all better than "
-                               "FIR, both p ≥ 0.19)")
+                               "their magnitudes when the crossover RMS agrees; on the 13 regimes of "
+                               "benchmarks/bench_regimes.py, all better than FIR, both p ≥ 0.19)")
     # --- regularization (SPEC §2 step 1)
     decimation_n: int | None = Field(None, ge=2, le=MAX_DECIMATION_N, description="Decimation factor n; chosen for ~1 km steps when None")
     decimation_step_km: float = Field(1.0, gt=0, le=50)

@@ -169,6 +169,14 @@ def crossover_comparison(diff_a_mgal, diff_b_mgal) -> CrossoverComparison:
                                paired_rank_p(np.abs(a), np.abs(b)))
 
 
+def crossover_rms_mgal(diff_mgal) -> float:
+    """RMS of the finite crossover differences after removing their mean (a level offset
+    that leveling removes), mGal; NaN when there are none."""
+    d = np.asarray(diff_mgal, dtype=float)
+    d = d[np.isfinite(d)]
+    return float(np.sqrt(np.mean((d - d.mean()) ** 2))) if d.size else float("nan")
+
+
 def significantly_worse(cmp: CrossoverComparison, p_level: float) -> bool:
     """Is estimate a significantly less accurate than b at the crossovers?
 

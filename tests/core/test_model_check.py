@@ -95,3 +95,11 @@ def test_significantly_worse_takes_the_ranks_only_when_the_rms_agrees():
     c2 = crossover_comparison(d_est, base)
     assert c2.p_rank < 0.05 and c2.rms_a_mgal > c2.rms_b_mgal
     assert significantly_worse(c2, 0.05)
+
+
+def test_crossover_rms_is_the_demeaned_rms_of_the_finite_differences():
+    """Hand-computed: differences 1, 3, NaN, 5 → mean 3, deviations −2, 0, 2 → RMS sqrt(8/3)."""
+    from app.core.model_check import crossover_rms_mgal
+
+    assert crossover_rms_mgal([1.0, 3.0, np.nan, 5.0]) == pytest.approx(np.sqrt(8.0 / 3.0))
+    assert np.isnan(crossover_rms_mgal([np.nan]))

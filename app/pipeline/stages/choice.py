@@ -55,6 +55,7 @@ import pandas as pd
 from app.core.leveling import LineTrack, find_crossovers
 from app.core.model_check import (
     crossover_comparison,
+    crossover_rms_mgal,
     disagreement_ratio,
     fir_noise_variance_mgal2,
     flattening_ratio,
@@ -128,7 +129,7 @@ def choose_order(candidates: dict, p) -> tuple[int, dict]:
         n = min(d.size for d in diffs.values())
         return 2, {"criterion": f"default: {n} crossovers (< {p.choice_min_crossovers}) cannot tell the orders apart",
                    "m": 2}
-    rms = {m: float(np.sqrt(np.mean((d - d.mean()) ** 2))) if d.size else float("inf") for m, d in diffs.items()}
+    rms = {m: crossover_rms_mgal(d) for m, d in diffs.items()}
     lo, hi = orders[0], orders[-1]
     cmp = crossover_comparison(diffs[hi], diffs[lo])
     # SPEC's default order stands unless the other one is significantly better at the
@@ -215,7 +216,7 @@ def noisy_check(table: pd.DataFrame, lines: dict, noise, dt_s: float, p, warning
     if rep["applied"]:
         d_fir = crossover_differences(table, "dg_fir_mgal", p.leveling_include_repeat)
         if d_fir.size >= 4:
-            floor = float(np.sqrt(np.mean((d_fir - d_fir.mean()) ** 2) / 2.0))
+            floor = crossover_rms_mgal(d_fir) / np.sqrt(2.0)
         else:
             # an estimate that passes noise means the fitted model misjudges the noise, in FIR's
             # band too, so its FIR noise std means little (a tiny heights-only survey: 2σ
