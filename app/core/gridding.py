@@ -290,10 +290,28 @@ def fit_gm2(lag_km, cov_mgal2, count, l_min_km: float, l_max_km: float, offset: 
 
 
 def line_spacing_km(easting_km, northing_km, line_label, sample_km: float = 0.5,
-                    max_points: int = 20000, seed: int = 0) -> float:
+                    max_points: int = 20000, seed: int = 0, coincident_km: float = 0.1) -> float:
     """Median distance from a line point to the nearest point of another line (km).
 
-    NaN when there is a single line.
+    Passes of one track (repeat lines: more than half of a line's points within
+    ``coincident_km`` of one other line) count as one line, else a survey with a repeated
+    track has a "spacing" of a few metres and every grid node is masked.
+
+    Parameters
+    ----------
+    easting_km, northing_km : array_like, shape (n,)
+        Line points (km).
+    line_label : array_like, shape (n,)
+        Line of each point.
+    sample_km : float
+        Lines are decimated to about one point per ``sample_km`` along their length.
+    coincident_km : float
+        Distance (km) below which a point lies on another line's track.
+
+    Returns
+    -------
+    float
+        NaN when there is a single line (or a single track).
     """
     e = np.asarray(easting_km, dtype=float)
     n = np.asarray(northing_km, dtype=float)
@@ -307,18 +325,46 @@ def line_spacing_km(easting_km, northing_km, line_label, sample_km: float = 0.5,
         s = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(e[idx]), np.diff(n[idx])))])
         b = np.floor(s / sample_km).astype(np.int64)
         keep[idx[np.concatenate([[True], b[1:] != b[:-1]])]] = True
-    e, n, lab = e[keep], n[keep], lab[keep]
+    e, n = e[keep], n[keep]
+    _, code = np.unique(lab[keep], return_inverse=True)
     tree = cKDTree(np.column_stack([e, n]))
     q = np.arange(e.size)
     if q.size > max_points:
         q = np.random.default_rng(seed).choice(q, max_points, replace=False)
     kk = min(e.size, 64)
     dist, nb = tree.query(np.column_stack([e[q], n[q]]), k=kk)
-    other = lab[nb] != lab[q][:, None]
-    dist = np.where(other, dist, np.inf)
-    best = dist.min(axis=1)
+    dist, nb = np.atleast_2d(dist), np.atleast_2d(nb)
+    track = _merge_coincident(code, q, dist, nb, coincident_km)
+    other = track[nb] != track[q][:, None]
+    best = np.where(other, dist, np.inf).min(axis=1)
     best = best[np.isfinite(best)]
     return float(np.median(best)) if best.size else float("nan")
+
+
+def _merge_coincident(code, q, dist, nb, coincident_km: float) -> np.ndarray:
+    """Track index of every point's line: lines that run along another (more than half of
+    their sampled points within ``coincident_km`` of that line) share one index.
+
+    ``code``: line index of every sampled point; ``q``: the query points; ``dist``/``nb``:
+    their nearest neighbours' distances and indices."""
+    n_lines = int(code.max()) + 1
+    rows, cols = np.nonzero((dist < coincident_km) & (code[nb] != code[q][:, None]))
+    # each (query point, other line) once, however many of that line's points are close
+    pair = np.unique(rows.astype(np.int64) * n_lines + code[nb[rows, cols]])
+    counts = np.zeros((n_lines, n_lines))
+    np.add.at(counts, (code[q][pair // n_lines], pair % n_lines), 1.0)
+    sampled = np.bincount(code[q], minlength=n_lines).astype(float)
+    parent = np.arange(n_lines)
+
+    def root(i):
+        while parent[i] != i:
+            i = parent[i]
+        return i
+
+    for a, b in zip(*np.nonzero(counts > 0.5 * np.maximum(sampled, 1.0)[:, None])):
+        ra, rb = root(a), root(b)
+        parent[max(ra, rb)] = min(ra, rb)
+    return np.array([root(i) for i in range(n_lines)])[code]
 
 
 def _grid_axes(region, spacing_km, e, n):

@@ -173,6 +173,31 @@ def test_spline_reproduces_smooth_field():
     assert np.sqrt(np.mean((dg[m] - f(X, Y)[m]) ** 2)) < 0.1
 
 
+def test_line_spacing_counts_repeat_passes_as_one_track():
+    """Passes of one track (a repeat line flown 4x, 20 m apart) are one line for the spacing:
+    three lines 2 km apart plus the repeat track 1 km off the last one give the median of
+    the points' nearest-other-track distances, computed here by hand."""
+    x = np.linspace(0, 20, 201)
+    mains = [(x, np.full(x.size, y)) for y in (0.0, 2.0, 4.0)]
+    passes = [(x, np.full(x.size, 5.0 + 0.02 * k)) for k in range(4)]
+    e = np.concatenate([a for a, _ in mains + passes])
+    n = np.concatenate([b for _, b in mains + passes])
+    lab = np.repeat(["M1", "M2", "M3", "R-1", "R-2", "R-3", "R-4"], x.size)
+    # per sampled point: M1 2, M2 2, M3 1 (to the track), each pass 1 (to M3, 1 + 0.02k):
+    # 4 of 7 equal-length lines sit ~1 km from another track, so the median is ~1 km
+    assert line_spacing_km(e, n, lab) == pytest.approx(1.0, abs=0.07)
+    # without the passes merged every pass point would have a neighbour 20 m away
+    assert line_spacing_km(e, n, lab, coincident_km=0.001) == pytest.approx(0.02, abs=1e-6)
+    # a single track flown four times has no spacing (as a single line)
+    rep = np.isin(lab, ["R-1", "R-2", "R-3", "R-4"])
+    assert np.isnan(line_spacing_km(e[rep], n[rep], lab[rep]))
+    # crossing lines are not merged: a tie across the three mains keeps the 2 km spacing
+    et = np.concatenate([e[:3 * x.size], np.full(41, 10.0)])
+    nt = np.concatenate([n[:3 * x.size], np.linspace(0, 4, 41)])
+    lt = np.concatenate([lab[:3 * x.size], np.full(41, "T1")])
+    assert line_spacing_km(et, nt, lt) == pytest.approx(2.0, abs=0.01)
+
+
 def test_line_spacing_and_empirical_covariance():
     e = np.concatenate([np.linspace(0, 10, 101)] * 3)
     n = np.repeat([0.0, 1.5, 3.0], 101)
