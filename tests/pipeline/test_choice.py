@@ -113,6 +113,36 @@ def test_a_flattened_line_is_replaced():
     assert _rms(table.loc[k, "dg_mgal"], table.loc[k, "dg_true_mgal"]) == pytest.approx(1.0)
 
 
+def test_lines_that_do_not_resolve_the_anomaly_are_reported():
+    """FIR's predicted noise (R 10⁴× the fixture's) swamps the anomaly, and the estimate is each
+    line's mean plus 0.5 mGal of noise with a posterior std of 2 mGal: no line resolves the
+    anomaly, each says so with its two stds (computed here by numpy), and one warning names
+    them; nothing is replaced.  The sound estimate of the same fixture is resolved everywhere
+    and draws no such warning."""
+    rng = np.random.default_rng(7)
+    table, noise = _table(rng, 1.0)
+    warnings: list = []
+    lines = check_lines(table, noise, DT_S, ProcessingParams(), warnings)
+    assert all(r["resolved"] for r in lines.values())
+    assert not any("resolve" in w for w in warnings)
+
+    table["R_cm2s2"] = 1e4 * R_CM2S2
+    flat = table.groupby("line")["dg_true_mgal"].transform("mean").to_numpy()
+    table["dg_unleveled_mgal"] = flat + rng.normal(0.0, 0.5, len(table))
+    table["dg_std_mgal"] = 2.0
+    before = table["dg_unleveled_mgal"].to_numpy().copy()
+    warnings = []
+    lines = check_lines(table, noise, DT_S, ProcessingParams(), warnings)
+    for ln, g in table.groupby("line"):
+        r = lines[ln]
+        assert not r["detectable"] and not r["resolved"]
+        assert r["estimate_std_mgal"] == pytest.approx(np.std(g["dg_unleveled_mgal"].to_numpy()))
+        assert r["posterior_std_mgal"] == pytest.approx(2.0)
+    msg = [w for w in warnings if "do not resolve the anomaly" in w]
+    assert len(msg) == 1 and msg[0].startswith("5 of 5 lines") and "M1" in msg[0]
+    assert np.array_equal(table["dg_unleveled_mgal"].to_numpy(), before)
+
+
 def test_an_estimate_whose_error_exceeds_the_anomaly_gives_way_to_fir_without_a_noise_model():
     """Anomaly + white noise of 1.4× the anomaly's along-line std: the variance ratio (~3,
     depending on FIR's noise model) is not needed — RMS(estimate − FIR) exceeds FIR's own
