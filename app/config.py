@@ -289,9 +289,10 @@ class ProcessingParams(_Strict):
     q_from_posteriors: bool = Field(True, description="Q(t) for filtering: the Q levels' geometric mean weighted "
                                     "by the smoothed map's probabilities, interpolated between decimated points "
                                     "(False: the held state's level, jumping at the hold boundaries)")
-    std_state_mixture: bool = Field(True, description="dg_std_mgal from the smoother under the probability-weighted "
-                                    "arithmetic mean of the Q levels (the spread a mixture of levels adds where the "
-                                    "map is unsure), while dg_mgal uses the geometric mean")
+    std_state_mixture: bool = Field(True, description="dg_std_mgal as the std of a mixture of levels where the map is "
+                                    "unsure: the larger of the smoother under the probability-weighted arithmetic "
+                                    "mean of the Q levels and the law of total variance over each level's smoother "
+                                    "(dg_mgal uses the geometric mean)")
     noise_model: Literal["band", "local", "states"] = Field(
         "band", description="GNSS noise level for filtering: 'band' = R(t) from z's content just above the "
         "anomaly band (noise_band_hz), scaled to the EM's in-band level; 'local' = R(t) from the high-frequency "

@@ -1216,3 +1216,35 @@ def rts_smooth(A, Qmat, C, Rmeas, z, x0, P0, u=None) -> SmoothedStates:
         Pk = Pf[k] + G @ (Ps[k + 1] - Pp[k + 1]) @ G.T
         Ps[k] = 0.5 * (Pk + Pk.T)
     return SmoothedStates(xs, Ps, ll)
+
+
+def mixture_std_mgal(center_mgal, means_mgal, stds_mgal, weights) -> np.ndarray:
+    """Root mean square deviation from ``center_mgal`` of a mixture of Gaussians (law of total
+    variance): ``sqrt(Σ_k w_k (σ_k² + (μ_k − c)²))`` per epoch.
+
+    Parameters
+    ----------
+    center_mgal : array_like, shape (n,)
+        The estimate the spread is measured about (mGal).
+    means_mgal, stds_mgal : array_like, shape (K, n)
+        Each component's posterior mean and std (mGal).
+    weights : array_like, shape (K, n)
+        Component probabilities at each epoch (non-negative; normalised here).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        mGal.
+    """
+    c = np.asarray(center_mgal, dtype=float)
+    mu = np.atleast_2d(np.asarray(means_mgal, dtype=float))
+    sd = np.atleast_2d(np.asarray(stds_mgal, dtype=float))
+    w = np.atleast_2d(np.asarray(weights, dtype=float))
+    if not (mu.shape == sd.shape == w.shape and mu.shape[1:] == c.shape):
+        raise ValueError(f"shapes differ: center {c.shape}, means {mu.shape}, stds {sd.shape}, weights {w.shape}")
+    if np.any(w < 0) or np.any(sd < 0):
+        raise ValueError("weights and stds must be non-negative")
+    tot = w.sum(axis=0)
+    if np.any(tot <= 0):
+        raise ValueError("the weights of some epoch sum to zero")
+    return np.sqrt(np.sum(w * (sd ** 2 + (mu - c) ** 2), axis=0) / tot)

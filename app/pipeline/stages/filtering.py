@@ -13,7 +13,7 @@ import pandas as pd
 
 from app.core.baselines import fir_lowpass_mgal
 from app.core.level_ml import refine_levels
-from app.core.smoother import kalman_smooth
+from app.core.smoother import kalman_smooth, mixture_std_mgal
 from app.pipeline.stages.lines import LineData
 from app.pipeline.stages.measurement import FlightMeasurement
 
@@ -162,19 +162,32 @@ class Filtered:
                 "Q_stationary_mgal2": self.Q_stationary}
 
     def mixture_std(self, dt_s: float, m: int, method: str, noise) -> None:
-        """Replace ``dg_std_mgal`` by the std of the mixture of levels (``std_state_mixture``):
-        where the map is unsure of the level, the smoother under the probability-weighted
-        arithmetic mean of the Q levels (the variance a mixture adds), not the geometric mean
-        the estimate uses.  Run for the order that is used only."""
+        """Replace ``dg_std_mgal`` by the std of the mixture of levels (``std_state_mixture``),
+        where the map is unsure of the level: the larger of two measures of it at each epoch —
+        the smoother under the probability-weighted *arithmetic* mean of the Q levels (not
+        the geometric mean the estimate uses), and the law of total variance over the
+        smoothers of each level held along the whole line, weighted by the map's
+        probabilities (:func:`app.core.smoother.mixture_std_mgal`, about the estimate).
+        Neither alone is cautious enough everywhere: where the map is unsure, the first is
+        wider; where one level's smoother departs from the estimate, the second.  Run for the
+        order that is used only."""
         if len(self.Q_levels) < 2 or not self.prepared or self.r_lines is None:
             return
         col = self.table["dg_std_mgal"].to_numpy().copy()
+        est = self.table["dg_mgal"].to_numpy()
         off = 0
         for pr, r in zip(self.prepared, self.r_lines):
             n = pr.inner.stop - pr.inner.start
             if pr.pq is not None:
                 q = q_series(pr, self.Q_levels, self.n_r, True, "arithmetic")
-                col[off:off + n] = filter_line(pr.z_ext, q, r, dt_s, m, method, noise)[1][pr.inner]
+                arith = filter_line(pr.z_ext, q, r, dt_s, m, method, noise)[1][pr.inner]
+                runs = [filter_line(pr.z_ext, np.full(pr.z_ext.size, qk), r, dt_s, m, method, noise)
+                        for qk in self.Q_levels]
+                pos = np.arange(n, dtype=float)
+                w = np.array([np.interp(pos, pr.idx, pr.pq[:, k]) for k in range(len(self.Q_levels))])
+                total = mixture_std_mgal(est[off:off + n], np.array([x[pr.inner] for x, _ in runs]),
+                                         np.array([s[pr.inner] for _, s in runs]), w)
+                col[off:off + n] = np.maximum(arith, total)
             off += n
         self.table["dg_std_mgal"] = col
 
