@@ -346,6 +346,10 @@ class ProcessingParams(_Strict):
                                       "by more than this (s) and the flights agree within it; None trusts "
                                       "survey.toml")
     leveling_degree: int = Field(1, ge=0, le=2)
+    std_unresolved_bound: bool = Field(True, description="On a line that does not resolve the anomaly (FIR shows "
+                                       "none beyond its predicted noise and the estimate varies by less than its "
+                                       "std), widen dg_std_mgal to Var(FIR) - Var(estimate), the error a smooth "
+                                       "estimate can have")
     std_crossover_check: bool = Field(True, description="Rescale dg_std by what the crossover differences say "
                                       "about the two lines' errors (widen only, below std_crossover_min_n)")
     std_crossover_min_n: int = Field(20, ge=3, le=1_000_000, description="Crossovers needed to also narrow dg_std (fewer: the "

@@ -14,6 +14,11 @@ from scipy.stats import f as f_dist
 from app.core.accuracy import crossover_std_factor
 from app.core.leveling import LineTrack, cross_validated_leveling, find_crossovers, level_lines
 
+#: Per-epoch lower bound of ``dg_std_mgal`` that stage 9 sets on lines that do not resolve the
+#: anomaly (:func:`app.pipeline.stages.choice.check_lines`); :func:`level_survey` applies it
+#: after the crossover check of the std and drops the column.
+STD_FLOOR = "dg_std_floor_mgal"
+
 
 def tracks(table: pd.DataFrame, col: str):
     """One :class:`app.core.leveling.LineTrack` per line of the table, carrying column ``col``."""
@@ -123,4 +128,6 @@ def level_survey(table: pd.DataFrame, p, warnings: list) -> Leveled:
         # (std too small), an anomaly smoother than the random-walk model (too large).
         table["dg_std_mgal"] = table["dg_std_mgal"] * sc["factor"]
         sc["applied_factor"] = sc["factor"]
+    if STD_FLOOR in table:  # stage 9's floor on lines that do not resolve the anomaly
+        table["dg_std_mgal"] = np.fmax(table["dg_std_mgal"].to_numpy(), table.pop(STD_FLOOR).to_numpy())
     return Leveled(crossovers, rep)
