@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 
 def fir_noise_variance_mgal2(noise, level: float, dt_s: float, cutoff_period_s: float = 100.0) -> float:
@@ -92,6 +93,34 @@ def flattening_ratio(estimate_mgal, fir_mgal, fir_noise_var_mgal2: float, min_sn
     detectable = sig > min_snr * fir_noise_var_mgal2 and sig > 0
     ratio = float(np.var(e[ok]) / sig) if sig > 0 else float("nan")
     return Flattening(ratio, sig, bool(detectable))
+
+
+def smooth_error_bound_mgal2(estimate_mgal, fir_mgal) -> float:
+    """Along-line error variance a smooth estimate can have: ``Var(fir) − Var(estimate)`` (mGal²).
+
+    With ``x̂`` the conditional mean of the anomaly ``x`` given the data,
+    ``Var(x̂ − x) = Var x − Var x̂``; the FIR 100 s estimate ``x + e_f`` (noise independent of
+    the anomaly) has ``Var x + Var e_f ≥ Var x``.  So the difference bounds the estimate's
+    error variance from above, with no noise model — the bound used where an estimate does
+    not resolve the anomaly and its posterior std says nothing about its error.
+
+    Parameters
+    ----------
+    estimate_mgal, fir_mgal : ndarray, shape (n,)
+        The estimate and FIR 100 s on the same epochs (mGal; NaN ignored).
+
+    Returns
+    -------
+    float
+        mGal² (may be negative: the estimate varies more than FIR); NaN with fewer than 10
+        common finite epochs.
+    """
+    e = np.asarray(estimate_mgal, dtype=float)
+    f = np.asarray(fir_mgal, dtype=float)
+    ok = np.isfinite(e) & np.isfinite(f)
+    if ok.sum() < 10:
+        return float("nan")
+    return float(np.var(f[ok]) - np.var(e[ok]))
 
 
 def disagreement_ratio(estimate_mgal, fir_mgal) -> float:
@@ -215,8 +244,6 @@ def paired_rank_p(before, after) -> float:
         p-value of "``before − after`` tends to be positive" (0.5 when every pair is tied;
         NaN below 2 pairs).
     """
-    from scipy import stats
-
     d = np.asarray(before, dtype=float) - np.asarray(after, dtype=float)
     d = d[np.isfinite(d)]
     if d.size < 2:
@@ -241,8 +268,6 @@ def paired_decrease_p(before, after, n_eff: int | None = None) -> float:
     float
         p-value of ``mean(before − after) > 0`` (0.5 when every difference is equal).
     """
-    from scipy import stats
-
     d = np.asarray(before, dtype=float) - np.asarray(after, dtype=float)
     n = int(d.size if n_eff is None else n_eff)
     if d.size < 2 or n < 2:

@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 from scipy import stats
 
-from app.core.model_check import crossover_comparison, disagreement_ratio, paired_decrease_p, paired_rank_p
+from app.core.model_check import (
+    crossover_comparison,
+    disagreement_ratio,
+    paired_decrease_p,
+    paired_rank_p,
+    smooth_error_bound_mgal2,
+)
 
 
 def test_paired_decrease_p_equals_scipy_one_sided_ttest_rel():
@@ -103,3 +109,20 @@ def test_crossover_rms_is_the_demeaned_rms_of_the_finite_differences():
 
     assert crossover_rms_mgal([1.0, 3.0, np.nan, 5.0]) == pytest.approx(np.sqrt(8.0 / 3.0))
     assert np.isnan(crossover_rms_mgal([np.nan]))
+
+
+def test_smooth_error_bound_holds_for_a_conditional_mean():
+    """x ~ N(0, 4), FIR = x + N(0, 1), data z = x + N(0, 16): the conditional mean
+    x̂ = 4/20 z has Var x̂ = 0.8 and error variance 4·16/20 = 3.2 (analytic); the bound
+    Var(FIR) − Var(x̂) = 5 − 0.8 = 4.2 lies above it.  A flat estimate's error is the anomaly:
+    bound 5 ≥ 4.  Fewer than 10 finite epochs: NaN."""
+    rng = np.random.default_rng(11)
+    n = 400_000
+    x = rng.normal(0.0, 2.0, n)
+    fir = x + rng.normal(0.0, 1.0, n)
+    xh = 0.2 * (x + rng.normal(0.0, 4.0, n))
+    b = smooth_error_bound_mgal2(xh, fir)
+    assert b == pytest.approx(4.2, rel=0.01)
+    assert np.var(xh - x) == pytest.approx(3.2, rel=0.01) and np.var(xh - x) < b
+    assert smooth_error_bound_mgal2(np.zeros(n), fir) == pytest.approx(5.0, rel=0.01)
+    assert np.isnan(smooth_error_bound_mgal2(np.full(9, 1.0), np.arange(9.0)))

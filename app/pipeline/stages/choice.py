@@ -65,6 +65,7 @@ from app.core.model_check import (
     fir_noise_variance_mgal2,
     flattening_ratio,
     significantly_worse,
+    smooth_error_bound_mgal2,
 )
 from app.pipeline.stages.leveling import STD_FLOOR, tracks
 
@@ -201,15 +202,13 @@ def _bound_std(table: pd.DataFrame, g: pd.DataFrame, rec: dict) -> None:
     """An unresolved line's std floor (in place, column :data:`STD_FLOOR`): the error a smooth
     estimate can have.
 
-    With ``x̂`` the conditional mean of the anomaly ``x``, ``Var(x̂ − x) = Var x − Var x̂``
-    along the line, and FIR 100 s bounds ``Var x`` from above (its anomaly plus its own
-    noise, which the fitted model may over- or under-state — which is why the line is
-    unresolved).  When ``Var(FIR) − Var(x̂)`` exceeds the mean posterior variance, the std
-    scaled up to it, keeping its shape in time, becomes the line's floor
+    :func:`app.core.model_check.smooth_error_bound_mgal2` (``Var(FIR) − Var(x̂)``) needs no
+    noise model — the fitted one may over- or under-state FIR's noise, which is why the line
+    is unresolved.  When the bound exceeds the mean posterior variance, the std scaled up to it, keeping its shape in time, becomes the line's floor
     (``std_bound_factor`` in the report).  It is applied after the crossover check of the
     std, which judges the model's own std: a floor counted there lowered the other lines'
     widening (unseen seed 83: 2σ coverage 0.97 → 0.83)."""
-    bound = float(np.nanvar(g["dg_fir_mgal"]) - np.nanvar(g["dg_unleveled_mgal"]))
+    bound = smooth_error_bound_mgal2(g["dg_unleveled_mgal"].to_numpy(), g["dg_fir_mgal"].to_numpy())
     post = rec["posterior_std_mgal"] ** 2
     if np.isfinite(bound) and post > 0 and bound > post:
         f = float(np.sqrt(bound / post))
