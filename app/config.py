@@ -304,6 +304,12 @@ class ProcessingParams(_Strict):
                           "white + coloured height", "coloured velocity + height"] = Field(
         "auto", description="Shape of the error of z in the smoother (app.core.noise_model): 'auto' fits every "
         "family to the lines' spectra and keeps the best by BIC; 'white velocity' is seed 000's model")
+    white_level_fitted: bool = Field(True, description="With the white-velocity family, lower the noise level "
+                                     "from the band measurement (noise_band_hz) to the level fitted to the lines' "
+                                     "spectra when that is lower — on surveys with at least "
+                                     "fir_guard_min_crossovers crossovers, where the FIR guard checks the rougher "
+                                     "estimate (a level fitted on two or three lines' spectra misses by 2x either "
+                                     "way)")
     noise_fit_repeats: bool = Field(True, description="Fit the noise model also to the differences of the passes "
                                     "of repeat tracks (the anomaly cancels: the noise alone, down to the band "
                                     "where it hides under the anomaly)")

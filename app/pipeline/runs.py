@@ -119,12 +119,12 @@ def run_identify(survey, tr: Tracker) -> Identified:
     tr.start("measurement")
     meas = measure(survey, progress=tr.emit)
     sl = survey_lines(survey, meas)
+    n_cx = count_crossovers(sl.lines, p.leveling_include_repeat)
     tr.start("noise")
-    noise = model_noise(sl.lines, meas.flights, meas.dt_s, p)
+    noise = model_noise(sl.lines, meas.flights, meas.dt_s, p, n_cx)
     tr.start("fir")
     fir = {name: fir_baseline(m, p.fir_cutoff_period_s) for name, m in meas.flights.items()}
     warnings = list(meas.warnings)
-    n_cx = count_crossovers(sl.lines, p.leveling_include_repeat)
     extra: dict = {}
     if p.m is None and p.model_order == "likelihood":
         order = choose_model_order(sl.lines, meas.dt_s, noise.model, noise.r_local)

@@ -83,7 +83,7 @@ def noise_levels(flights: dict[str, FlightMeasurement], dt_s: float, p) -> dict[
     return {}
 
 
-def level_scale(noise_fit, band_hz, lines: list[LineData], r_local: dict) -> float:
+def level_scale(noise_fit, band_hz, lines: list[LineData], r_local: dict, white_lower: bool = False) -> float:
     """Factor from the measured local levels R(t) to the fitted noise model's level.
 
     The model's weights were fitted on the pooled spectra of the lines, i.e. at the mean
@@ -91,14 +91,22 @@ def level_scale(noise_fit, band_hz, lines: list[LineData], r_local: dict) -> flo
     changes in time.  When the model describes the measurement band well the factor is
     ≈ 1; where it does not (a turbulence band the family cannot follow) it carries the
     measured changes in time to the fitted level where the smoother separates anomaly
-    from noise."""
-    if not r_local or noise_fit.model.is_white_velocity:
-        # the paper's shape: the band measurement is already its level
+    from noise.
+
+    The white-velocity family (the paper's shape) takes the band measurement as its level
+    (factor 1), unless ``white_lower``: then the factor is the fitted level's when that is
+    lower (never above 1) — a band that holds a turbulence bump above the f² shape (a 1 Hz
+    platform gravimeter: 4–7×) over-states the noise in the anomaly band and flattens the
+    estimate."""
+    if not r_local:
+        return 1.0
+    if noise_fit.model.is_white_velocity and not white_lower:
         return 1.0
     vals = np.concatenate([r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)] for ln in lines])
     if not vals.size:
         return 1.0
-    return float(noise_fit.model.equivalent_white_R(band_hz) / np.mean(vals))
+    scale = float(noise_fit.model.equivalent_white_R(band_hz) / np.mean(vals))
+    return min(scale, 1.0) if noise_fit.model.is_white_velocity else scale
 
 
 @dataclass
@@ -125,19 +133,34 @@ class NoiseStage:
     band_hz: tuple
     r_local: dict
     scale: float
+    level_note: str = ""
 
     def describe(self) -> dict:
         """The report's ``noise_model`` section."""
         return {**self.model.describe(), "level_band_hz": list(self.band_hz), "level_scale": self.scale,
+                "level_note": self.level_note,
                 "candidates": self.fit.candidates, "n_bins": self.fit.n_bins, "fit_fmax_hz": self.fit.fmax_hz,
                 "Q_whittle_mgal2": self.fit.Q_mgal2, "m_whittle": self.fit.m}
 
 
-def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt_s: float, p) -> NoiseStage:
-    """Stage 3: the noise model of the survey and the local level of every flight."""
+def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt_s: float, p,
+                n_crossovers: int = 0) -> NoiseStage:
+    """Stage 3: the noise model of the survey and the local level of every flight.
+    ``n_crossovers`` (geometry) decides whether a white-velocity level may be lowered to
+    its fitted value (``white_level_fitted``: only where the FIR guard can check it)."""
     heights_only = bool(flights) and all(getattr(f, "heights_only", False) for f in flights.values())
     fit, model = fit_noise(lines, dt_s, p, heights_only)
     band = level_band(p, dt_s)
     r_local = noise_levels(flights, dt_s, p)
-    scale = level_scale(fit, band, lines, r_local)
-    return NoiseStage(fit, model, band, {k: v * scale for k, v in r_local.items()}, scale)
+    white_lower = bool(p.white_level_fitted and p.fir_guard and n_crossovers >= p.fir_guard_min_crossovers)
+    scale = level_scale(fit, band, lines, r_local, white_lower)
+    if not model.is_white_velocity:
+        note = "the fitted model's level (local changes in time from the band measurement)"
+    elif white_lower:
+        note = (f"white velocity: the fitted level where lower than the band measurement ({n_crossovers} "
+                f"crossovers, the FIR guard checks it)")
+    else:
+        note = ("white velocity: the band measurement" +
+                (f" (the fitted level is not used: {n_crossovers} crossovers < {p.fir_guard_min_crossovers} "
+                 "cannot check it)" if p.white_level_fitted else ""))
+    return NoiseStage(fit, model, band, {k: v * scale for k, v in r_local.items()}, scale, note)
