@@ -7,6 +7,9 @@ why (``app.pipeline`` model choice).
 
 * :func:`fir_noise_variance_mgal2` — variance of the FIR 100 s estimate's error due to
   the noise, from the fitted noise model: what the FIR passes of the noise.
+* :func:`noise_overstated` — the FIR estimate's crossover differences bound the noise it
+  passes from above (the noise of two crossing lines is independent): a noise model that
+  predicts significantly more FIR noise than the crossovers allow over-states it.
 * :func:`flattening_ratio` — along-line variance of an estimate against the anomaly
   variance the FIR estimate shows beyond its own noise.  A Kalman smoother whose anomaly
   level collapsed draws a straight line: its variance falls far below what the data
@@ -50,6 +53,73 @@ def fir_noise_variance_mgal2(noise, level: float, dt_s: float, cutoff_period_s: 
     f = np.fft.rfftfreq(nfft, dt_s)
     s = noise.psd(f, level)                        # two-sided, mGal²/Hz
     return float(2.0 * np.trapezoid(np.abs(H) ** 2 * s, f))
+
+
+@dataclass(frozen=True)
+class NoiseBound:
+    """Result of :func:`noise_overstated`.
+
+    Attributes
+    ----------
+    n : int
+        Crossovers used.
+    crossover_ms_mgal2 : float
+        Mean square of the FIR estimate's crossover differences.
+    predicted_ms_mgal2 : float
+        Mean of the predicted ``σ_a² + σ_b²`` (the noise of the two lines' FIR estimates).
+    bound_mgal2 : float
+        One-sided upper confidence bound of the true mean square difference.
+    overstated : bool
+        ``predicted_ms_mgal2 > bound_mgal2``.
+    """
+
+    n: int
+    crossover_ms_mgal2: float
+    predicted_ms_mgal2: float
+    bound_mgal2: float
+    overstated: bool
+
+
+def noise_overstated(diff_mgal, pred_var_mgal2, alpha: float = 0.05, min_n: int = 4) -> NoiseBound:
+    """Does a noise model predict more FIR noise than the crossovers allow?
+
+    At a crossover the difference of the two lines' FIR estimates is ``e_a − e_b``; the noise
+    parts of ``e_a`` and ``e_b`` are independent (other line, other time), so
+    ``E(d²) ≥ σ_a² + σ_b²`` whatever else the errors hold (the smoothing error they share
+    cancels and only lowers ``E(d²)`` towards the noise).  With ``d`` Gaussian, ``Σd²/E(d²)``
+    is χ² with n degrees of freedom, so ``n·mean(d²)/χ²_α(n)`` bounds ``E(d²)`` from above
+    with confidence ``1 − α``; a mean prediction above that bound over-states the noise.
+    Line offsets (drift) in the differences only widen the bound: the test is one-sided.
+
+    Parameters
+    ----------
+    diff_mgal : array_like, shape (n,)
+        FIR crossover differences (mGal).
+    pred_var_mgal2 : array_like, shape (n,)
+        Predicted ``σ_a² + σ_b²`` at each crossover (mGal²).
+    alpha : float
+        One-sided level.
+    min_n : int
+        Fewer usable crossovers: never over-stated.
+
+    Returns
+    -------
+    NoiseBound
+    """
+    d = np.asarray(diff_mgal, dtype=float)
+    v = np.asarray(pred_var_mgal2, dtype=float)
+    if d.shape != v.shape:
+        raise ValueError(f"diff_mgal and pred_var_mgal2 differ in shape: {d.shape} vs {v.shape}")
+    if not 0 < alpha < 0.5:
+        raise ValueError("alpha must lie in (0, 0.5)")
+    ok = np.isfinite(d) & np.isfinite(v) & (v >= 0)
+    n = int(ok.sum())
+    if n < max(1, min_n):
+        return NoiseBound(n, float("nan"), float("nan"), float("nan"), False)
+    ms = float(np.mean(d[ok] ** 2))
+    pred = float(np.mean(v[ok]))
+    bound = ms * n / float(stats.chi2.ppf(alpha, n))
+    return NoiseBound(n, ms, pred, bound, bool(pred > bound))
 
 
 @dataclass(frozen=True)

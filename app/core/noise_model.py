@@ -432,6 +432,9 @@ class NoiseFit:
     candidates: list
     n_bins: int
     fmax_hz: float
+    unmoved: NoiseFit | None = None
+    """When corners were moved below the data (``hidden_corners_hz``): the fit with the
+    corners where the spectra put them (else None)."""
 
 
 def _unpack(theta, spec, phi_min: float = 0.0):
@@ -524,9 +527,18 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         # below twice the anomaly/noise crossover, it was decided where the anomaly hides the
         # noise — and a corner guessed too high lets noise through as anomaly.  Such corners are
         # moved below the data (the noise keeps its slope down to the lowest frequency) and the
-        # families are fitted again.
+        # families are fitted again.  The fit as it was is kept beside (``unmoved``): where the
+        # move over-states the noise, crossovers can say so (app.core.model_check).
+        unmoved = _finished_fit(prob, chosen, m, spectra, [], fmax_hz)
         prob.phi_min = phi_low
         chosen = prob.select(families, m, bic_margin, prefer_height)
+        return replace(_finished_fit(prob, chosen, m, spectra, hidden, fmax_hz), unmoved=unmoved)
+    return _finished_fit(prob, chosen, m, spectra, hidden, fmax_hz)
+
+
+def _finished_fit(prob, chosen: dict, m: int, spectra, hidden: list, fmax_hz: float) -> NoiseFit:
+    """The chosen family refitted over the orders m = 1, 2, 3 and packed as a :class:`NoiseFit`."""
+    dt_s = prob.dt_s
     orders = prob.orders(chosen, m)
     m_best = min(orders, key=lambda mm: orders[mm][0])
     Q_best, comps_best = _unpack(orders[m_best][1], chosen["_spec"], prob.phi_min)

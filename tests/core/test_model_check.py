@@ -7,6 +7,7 @@ from scipy import stats
 from app.core.model_check import (
     crossover_comparison,
     disagreement_ratio,
+    noise_overstated,
     paired_decrease_p,
     paired_rank_p,
     smooth_error_bound_mgal2,
@@ -126,3 +127,37 @@ def test_smooth_error_bound_holds_for_a_conditional_mean():
     assert np.var(xh - x) == pytest.approx(3.2, rel=0.01) and np.var(xh - x) < b
     assert smooth_error_bound_mgal2(np.zeros(n), fir) == pytest.approx(5.0, rel=0.01)
     assert np.isnan(smooth_error_bound_mgal2(np.full(9, 1.0), np.arange(9.0)))
+
+
+def _crossovers(rng, n, noise_var_a, noise_var_b, shared_var=0.0, offsets_var=0.0):
+    """FIR crossover differences of two lines: independent noise, a shared smoothing error
+    (cancels) and, optionally, line offsets (drift)."""
+    shared = rng.normal(0.0, np.sqrt(shared_var), n) if shared_var else 0.0
+    ea = shared + rng.normal(0.0, np.sqrt(noise_var_a), n) + rng.normal(0.0, np.sqrt(offsets_var), n)
+    eb = shared + rng.normal(0.0, np.sqrt(noise_var_b), n)
+    return ea - eb
+
+
+def test_noise_overstated_holds_its_level_and_detects_a_3x_overstatement():
+    """Differences of independent Gaussian noises: with the true noise predicted, the test
+    says "over-stated" at its level α (binomial: ≤ 0.065 of 2000 at α = 0.05); with 3× the
+    variance predicted it says so (≥ 95 % with 30 crossovers).  A shared error cancels in the
+    differences and does not change that; line offsets only make the test more cautious."""
+    rng = np.random.default_rng(11)
+    n, va, vb, reps = 30, 4.0, 9.0, 2000
+    pred = np.full(n, va + vb)
+    fa = np.mean([noise_overstated(_crossovers(rng, n, va, vb, shared_var=25.0), pred).overstated
+                  for _ in range(reps)])
+    assert 0.035 < fa < 0.065
+    hit = np.mean([noise_overstated(_crossovers(rng, n, va, vb, shared_var=25.0), 3.0 * pred).overstated
+                   for _ in range(reps)])
+    assert hit > 0.95
+    hit_drift = np.mean([noise_overstated(_crossovers(rng, n, va, vb, offsets_var=13.0), 3.0 * pred).overstated
+                         for _ in range(reps)])
+    assert hit_drift < hit
+    b = noise_overstated(_crossovers(rng, n, va, vb), pred)
+    assert b.bound_mgal2 == pytest.approx(b.crossover_ms_mgal2 * n / stats.chi2.ppf(0.05, n))
+    # too few crossovers: never
+    assert not noise_overstated(np.array([0.1, -0.1, 0.2]), np.full(3, 1e6)).overstated
+    with pytest.raises(ValueError):
+        noise_overstated(np.zeros(5), np.zeros(4))

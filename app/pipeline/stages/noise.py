@@ -16,6 +16,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from app.core.leveling import LineTrack, find_crossovers
+from app.core.model_check import fir_noise_variance_mgal2, noise_overstated
 from app.core.noise_level import band_noise_variance_cm2s2, local_noise_variance_cm2s2
 from app.core.noise_model import FAMILIES, fit_noise_model, pass_difference
 from app.pipeline.stages.lines import LineData, finite_segments
@@ -134,13 +136,18 @@ class NoiseStage:
     r_local: dict
     scale: float
     level_note: str = ""
+    unmoved: NoiseStage | None = None
+    corner_check: dict | None = None
 
     def describe(self) -> dict:
         """The report's ``noise_model`` section."""
-        return {**self.model.describe(), "level_band_hz": list(self.band_hz), "level_scale": self.scale,
-                "level_note": self.level_note,
-                "candidates": self.fit.candidates, "n_bins": self.fit.n_bins, "fit_fmax_hz": self.fit.fmax_hz,
-                "Q_whittle_mgal2": self.fit.Q_mgal2, "m_whittle": self.fit.m}
+        out = {**self.model.describe(), "level_band_hz": list(self.band_hz), "level_scale": self.scale,
+               "level_note": self.level_note,
+               "candidates": self.fit.candidates, "n_bins": self.fit.n_bins, "fit_fmax_hz": self.fit.fmax_hz,
+               "Q_whittle_mgal2": self.fit.Q_mgal2, "m_whittle": self.fit.m}
+        if self.corner_check is not None:
+            out["corner_check"] = self.corner_check
+        return out
 
 
 def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt_s: float, p,
@@ -152,6 +159,15 @@ def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt
     fit, model = fit_noise(lines, dt_s, p, heights_only)
     band = level_band(p, dt_s)
     r_local = noise_levels(flights, dt_s, p)
+    stage = _noise_stage(fit, model, band, lines, r_local, n_crossovers, p)
+    if fit.unmoved is not None:
+        stage.unmoved = _noise_stage(fit.unmoved, fit.unmoved.model.normalized(band), band, lines, r_local,
+                                     n_crossovers, p)
+    return stage
+
+
+def _noise_stage(fit, model, band, lines: list[LineData], r_local: dict, n_crossovers: int, p) -> NoiseStage:
+    """The stage's result for one fit: the level scale and the scaled local levels."""
     white_lower = bool(p.white_level_fitted and p.fir_guard and n_crossovers >= p.fir_guard_min_crossovers)
     scale = level_scale(fit, band, lines, r_local, white_lower)
     if not model.is_white_velocity:
@@ -164,3 +180,57 @@ def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt
                 (f" (the fitted level is not used: {n_crossovers} crossovers < {p.fir_guard_min_crossovers} "
                  "cannot check it)" if p.white_level_fitted else ""))
     return NoiseStage(fit, model, band, {k: v * scale for k, v in r_local.items()}, scale, note)
+
+
+def check_noise_corners(stage: NoiseStage, lines: list[LineData], fir: dict[str, np.ndarray], dt_s: float,
+                        p) -> NoiseStage:
+    """Keep the noise fit's AR corners where the spectra put them when moving them below the
+    data over-states the noise the crossovers allow (``noise_corner_check``).
+
+    A corner between the lowest fitted frequency and twice the anomaly/noise crossover is
+    moved below the data (:func:`app.core.noise_model.fit_noise_model`): on most surveys a
+    corner there was guessed too high and let noise through.  But where the corner was right
+    the move over-states the noise in the anomaly band, and the estimate is flattened.  The
+    FIR estimate's crossover differences bound the noise it passes from above
+    (:func:`app.core.model_check.noise_overstated`); when the moved model's predicted FIR
+    noise exceeds that bound significantly, the fit as it was is used.  Returns the stage
+    used, with the evidence in ``corner_check``."""
+    if stage.unmoved is None:
+        return stage
+    rec: dict = {"hidden_corners_hz": stage.model.info.get("hidden_corners_hz", []), "applied": False}
+    if not p.noise_corner_check:
+        stage.corner_check = {**rec, "reason": "off (noise_corner_check)"}
+        return stage
+    # The survey's typical level (median over the lines' epochs): the question is the shape
+    # below the data, and a noise episode's level — measured at 0.1–0.5 Hz — need not hold in
+    # FIR's band; episodes in the differences only widen the bound.
+    if not stage.r_local:
+        stage.corner_check = {**rec, "n": 0, "reason": "no local noise level"}
+        return stage
+    level = float(np.median(np.concatenate([stage.r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)]
+                                            for ln in lines])))
+    sd = float(np.sqrt(fir_noise_variance_mgal2(stage.model, level, dt_s, p.fir_cutoff_period_s)))
+    tr = {ln.line: LineTrack(ln.easting_km, ln.northing_km, ln.t_s, fir[ln.flight][ln.sl],
+                             np.full(ln.t_s.size, sd), ln.kind)
+          for ln in lines if ln.t_s.size >= 2}
+    try:
+        cx = find_crossovers(tr, include_repeat=p.leveling_include_repeat) if len(tr) > 1 else None
+    except ValueError:
+        cx = None
+    if cx is None or len(cx) == 0:
+        stage.corner_check = {**rec, "n": 0, "reason": "no crossovers to check the moved corners"}
+        return stage
+    b = noise_overstated((cx["dg_a"] - cx["dg_b"]).to_numpy(float),
+                         (cx["std_a"] ** 2 + cx["std_b"] ** 2).to_numpy(float), alpha=p.noise_corner_alpha)
+    rec.update(n=b.n, fir_crossover_ms_mgal2=b.crossover_ms_mgal2, predicted_ms_mgal2=b.predicted_ms_mgal2,
+               bound_mgal2=b.bound_mgal2)
+    if not b.overstated:
+        stage.corner_check = rec
+        return stage
+    used = stage.unmoved
+    rec.update(applied=True, reason=(
+        f"the corners moved below the data predict {b.predicted_ms_mgal2:.3g} mGal² of FIR noise at the "
+        f"crossovers, above the {b.bound_mgal2:.3g} mGal² their FIR differences allow ({b.n} crossovers, "
+        f"one-sided {p.noise_corner_alpha:g}): the fit's own corners are kept"))
+    used.corner_check = rec
+    return used

@@ -83,3 +83,59 @@ def test_white_level_never_raised():
     st = model_noise(lines, flights, DT_S, ProcessingParams(noise_family="white velocity"), n_crossovers=10)
     assert 0.8 < st.scale <= 1.0
     assert _level(st, lines) == pytest.approx(R_TRUE_CM2S2, rel=0.2)
+
+
+# --- check_noise_corners: the FIR crossovers bound the noise a moved-corner model predicts
+
+def _grid_survey(fir_std_mgal: float, seed: int = 2):
+    """Six east–west and six north–south 20 km lines (36 crossovers) whose FIR estimates are
+    independent smooth noises of std ``fir_std_mgal`` (no anomaly: the FIR error is its noise)."""
+    rng = np.random.default_rng(seed)
+    n = 2000                                   # 200 s at 0.1 s, 10 m steps
+    lines, fir = [], {}
+    for k in range(12):
+        f = f"F{k}"
+        s = np.linspace(0.0, 20.0, n)
+        c = 2.0 + 3.0 * (k % 6)
+        e, nn = (s, np.full(n, c)) if k < 6 else (np.full(n, c), s)
+        w = np.convolve(rng.standard_normal(n + 199), np.ones(200) / 200, mode="valid")
+        fir[f] = w / w.std() * fir_std_mgal
+        t = 1000.0 * k + 0.1 * np.arange(n)
+        lines.append(LineData(f"L{k}", f, "main" if k < 6 else "tie", None, slice(0, n), t, np.zeros(n),
+                              np.zeros(n), np.full(n, 500.0), e, nn, np.zeros(n), 100.0))
+    return lines, fir
+
+
+def _stage_pair(level_cm2s2: float):
+    """A white-velocity 'moved' stage at ``level_cm2s2`` everywhere, with an 'unmoved' twin."""
+    from app.core.model_check import fir_noise_variance_mgal2
+    from app.core.noise_model import NoiseComponent, NoiseModel
+    from app.pipeline.stages.noise import NoiseStage
+
+    model = NoiseModel((NoiseComponent(1, 0.0, 1.0),), DT_S, "white velocity", info={"hidden_corners_hz": [0.02]})
+    fit = SimpleNamespace(candidates=[], n_bins=0, fmax_hz=0.2, Q_mgal2=0.0, m=2)
+    r = {f"F{k}": np.full(2000, level_cm2s2) for k in range(12)}
+    moved = NoiseStage(fit, model, (0.1, 0.5), r, 1.0)
+    moved.unmoved = NoiseStage(fit, model, (0.1, 0.5), {k: v * 0.1 for k, v in r.items()}, 0.1)
+    return moved, fir_noise_variance_mgal2(model, level_cm2s2, DT_S, 100.0)
+
+
+def test_corner_check_keeps_the_fit_when_the_move_overstates_fir_noise():
+    from app.pipeline.stages.noise import check_noise_corners
+
+    p = ProcessingParams()
+    lines, fir = _grid_survey(fir_std_mgal=3.0)
+    moved, var1 = _stage_pair(1.0)
+    level_right = 9.0 / var1                   # predicts the FIR noise the crossovers show
+    moved, pred = _stage_pair(level_right)
+    used = check_noise_corners(moved, lines, fir, DT_S, p)
+    assert used is moved and not used.corner_check["applied"]
+    assert used.corner_check["n"] == 36
+    assert used.corner_check["predicted_ms_mgal2"] == pytest.approx(2 * pred)
+    moved, _ = _stage_pair(4.0 * level_right)  # 4x the noise variance the crossovers allow
+    used = check_noise_corners(moved, lines, fir, DT_S, p)
+    assert used is moved.unmoved and used.corner_check["applied"]
+    assert "kept" in used.corner_check["reason"]
+    off = check_noise_corners(_stage_pair(4.0 * level_right)[0], lines, fir, DT_S,
+                              p.model_copy(update={"noise_corner_check": False}))
+    assert not off.corner_check["applied"]
