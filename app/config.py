@@ -253,6 +253,9 @@ class ProcessingParams(_Strict):
                                           "line's stationary replacement; with flatten_check)")
     fir_guard: bool = Field(True, description="Use FIR 100 s when the chosen estimate disagrees significantly more "
                             "at the crossovers than FIR does")
+    fir_guard_smoothing_std: bool = Field(True, description="When the FIR guard switches to FIR, add to FIR's std "
+                                          "the anomaly it clips as the adaptive estimate sees it (var(a − FIR(a)) "
+                                          "per line): an error crossing lines share, invisible at the crossovers")
     fir_guard_min_crossovers: int = Field(4, ge=2, le=1_000_000, description="Crossovers needed for the FIR "
                                           "guard's paired test (its p-value accounts for how few there are)")
     fir_guard_p: float = Field(0.05, gt=0, lt=0.5, description="Significance of those tests (one-sided p of the "

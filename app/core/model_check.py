@@ -30,6 +30,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from app.core.baselines import fir_kernel, fir_lowpass_mgal
+
 
 def fir_noise_variance_mgal2(noise, level: float, dt_s: float, cutoff_period_s: float = 100.0) -> float:
     """Variance (mGal²) of the noise of z after the FIR low-pass of :mod:`app.core.baselines`.
@@ -45,8 +47,6 @@ def fir_noise_variance_mgal2(noise, level: float, dt_s: float, cutoff_period_s: 
     cutoff_period_s : float
         The FIR's cut-off period (s).
     """
-    from app.core.baselines import fir_kernel
-
     h = fir_kernel(dt_s, cutoff_period_s)
     nfft = 1 << int(np.ceil(np.log2(max(8 * h.size, 1 << 14))))
     H = np.fft.rfft(h, nfft)
@@ -163,6 +163,33 @@ def flattening_ratio(estimate_mgal, fir_mgal, fir_noise_var_mgal2: float, min_sn
     detectable = sig > min_snr * fir_noise_var_mgal2 and sig > 0
     ratio = float(np.var(e[ok]) / sig) if sig > 0 else float("nan")
     return Flattening(ratio, sig, bool(detectable))
+
+
+def fir_smoothing_variance_mgal2(estimate_mgal, dt_s: float, cutoff_period_s: float = 100.0) -> float:
+    """Variance (mGal²) of what the FIR low-pass removes from an estimate along a line:
+    ``var(a − FIR(a))``.
+
+    Where the estimate ``a`` resolves anomaly above the FIR's cut-off, this is the FIR
+    estimate's smoothing error — the anomaly it clips, an error two crossing lines largely
+    share, so the FIR's crossover differences cannot show it.  Whatever noise ``a`` carries
+    above the cut-off adds to it: as an addition to the FIR's error variance it errs on the
+    wide side.
+
+    Parameters
+    ----------
+    estimate_mgal : array_like, shape (n,)
+        The estimate along one line (mGal); NaN = missing.
+    dt_s : float
+        Step (s).
+    cutoff_period_s : float
+        The FIR's cut-off period (s), as in :func:`app.core.baselines.fir_lowpass_mgal`.
+    """
+    a = np.asarray(estimate_mgal, dtype=float)
+    if a.ndim != 1:
+        raise ValueError(f"estimate_mgal must be 1-D, got shape {a.shape}")
+    if not np.isfinite(a).any():
+        return float("nan")
+    return float(np.nanvar(a - fir_lowpass_mgal(a, dt_s, cutoff_period_s)))
 
 
 def smooth_error_bound_mgal2(estimate_mgal, fir_mgal) -> float:

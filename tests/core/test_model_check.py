@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 from scipy import stats
 
+from app.core.baselines import fir_kernel, fir_lowpass_mgal
 from app.core.model_check import (
     crossover_comparison,
     disagreement_ratio,
+    fir_smoothing_variance_mgal2,
     noise_overstated,
     paired_decrease_p,
     paired_rank_p,
@@ -161,3 +163,23 @@ def test_noise_overstated_holds_its_level_and_detects_a_3x_overstatement():
     assert not noise_overstated(np.array([0.1, -0.1, 0.2]), np.full(3, 1e6)).overstated
     with pytest.raises(ValueError):
         noise_overstated(np.zeros(5), np.zeros(4))
+
+
+def test_fir_smoothing_variance_of_sinusoids_follows_the_kernel_response():
+    """var(a − FIR(a)) of a sinusoid of amplitude A is A²/2 · |1 − H(f)|², H the FIR kernel's
+    frequency response (computed here from its taps): nearly all of a 30 s period, nearly none
+    of a 2000 s period, about half the amplitude near the 100 s cut-off."""
+    dt, A = 0.1, 5.0
+    t = np.arange(0, 6000.0, dt)
+    h = fir_kernel(dt, 100.0)
+    k = np.arange(h.size) - h.size // 2
+    for period in (30.0, 100.0, 2000.0):
+        f = 1.0 / period
+        H = np.abs(np.sum(h * np.exp(-2j * np.pi * f * k * dt)))
+        a = A * np.sin(2 * np.pi * t / period)
+        inner = slice(h.size, -h.size)       # away from the renormalised ends
+        assert np.var((a - fir_lowpass_mgal(a, dt, 100.0))[inner]) == pytest.approx(A ** 2 / 2 * (1 - H) ** 2,
+                                                                                  rel=0.02, abs=1e-3)
+    v = fir_smoothing_variance_mgal2(A * np.sin(2 * np.pi * t / 30.0), dt)
+    assert v == pytest.approx(A ** 2 / 2, rel=0.02)
+    assert np.isnan(fir_smoothing_variance_mgal2(np.full(10, np.nan), dt))
