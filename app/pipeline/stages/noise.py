@@ -201,27 +201,10 @@ def check_noise_corners(stage: NoiseStage, lines: list[LineData], fir: dict[str,
     if not p.noise_corner_check:
         stage.corner_check = {**rec, "reason": "off (noise_corner_check)"}
         return stage
-    # The survey's typical level (median over the lines' epochs): the question is the shape
-    # below the data, and a noise episode's level — measured at 0.1–0.5 Hz — need not hold in
-    # FIR's band; episodes in the differences only widen the bound.
-    if not stage.r_local:
-        stage.corner_check = {**rec, "n": 0, "reason": "no local noise level"}
+    b = fir_noise_bound(stage, lines, fir, dt_s, p)
+    if b is None:
+        stage.corner_check = {**rec, "n": 0, "reason": "no crossovers (or no local noise level) to check the moved corners"}
         return stage
-    level = float(np.median(np.concatenate([stage.r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)]
-                                            for ln in lines])))
-    sd = float(np.sqrt(fir_noise_variance_mgal2(stage.model, level, dt_s, p.fir_cutoff_period_s)))
-    tr = {ln.line: LineTrack(ln.easting_km, ln.northing_km, ln.t_s, fir[ln.flight][ln.sl],
-                             np.full(ln.t_s.size, sd), ln.kind)
-          for ln in lines if ln.t_s.size >= 2}
-    try:
-        cx = find_crossovers(tr, include_repeat=p.leveling_include_repeat) if len(tr) > 1 else None
-    except ValueError:
-        cx = None
-    if cx is None or len(cx) == 0:
-        stage.corner_check = {**rec, "n": 0, "reason": "no crossovers to check the moved corners"}
-        return stage
-    b = noise_overstated((cx["dg_a"] - cx["dg_b"]).to_numpy(float),
-                         (cx["std_a"] ** 2 + cx["std_b"] ** 2).to_numpy(float), alpha=p.noise_corner_alpha)
     rec.update(n=b.n, fir_crossover_ms_mgal2=b.crossover_ms_mgal2, predicted_ms_mgal2=b.predicted_ms_mgal2,
                bound_mgal2=b.bound_mgal2)
     if not b.overstated:
@@ -234,3 +217,29 @@ def check_noise_corners(stage: NoiseStage, lines: list[LineData], fir: dict[str,
         f"one-sided {p.noise_corner_alpha:g}): the fit's own corners are kept"))
     used.corner_check = rec
     return used
+
+
+def fir_noise_bound(stage: NoiseStage, lines: list[LineData], fir: dict[str, np.ndarray], dt_s: float, p):
+    """The stage's predicted FIR noise at the crossovers against the bound their FIR differences
+    set (:func:`app.core.model_check.noise_overstated`); None without crossovers or levels.
+
+    The prediction is at the survey's typical level (median over the lines' epochs): the
+    question is the model's shape and level in FIR's band, and a noise episode's level —
+    measured at 0.1–0.5 Hz — need not hold there; episodes in the differences only widen the
+    bound."""
+    if not stage.r_local:
+        return None
+    level = float(np.median(np.concatenate([stage.r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)]
+                                            for ln in lines])))
+    sd = float(np.sqrt(fir_noise_variance_mgal2(stage.model, level, dt_s, p.fir_cutoff_period_s)))
+    tr = {ln.line: LineTrack(ln.easting_km, ln.northing_km, ln.t_s, fir[ln.flight][ln.sl],
+                             np.full(ln.t_s.size, sd), ln.kind)
+          for ln in lines if ln.t_s.size >= 2}
+    try:
+        cx = find_crossovers(tr, include_repeat=p.leveling_include_repeat) if len(tr) > 1 else None
+    except ValueError:
+        cx = None
+    if cx is None or len(cx) == 0:
+        return None
+    return noise_overstated((cx["dg_a"] - cx["dg_b"]).to_numpy(float),
+                            (cx["std_a"] ** 2 + cx["std_b"] ** 2).to_numpy(float), alpha=p.noise_corner_alpha)
