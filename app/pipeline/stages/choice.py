@@ -57,7 +57,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from app.core.leveling import LineTrack, find_crossovers
+from app.core.leveling import find_crossovers
 from app.core.model_check import (
     crossover_comparison,
     crossover_rms_mgal,
@@ -69,6 +69,7 @@ from app.core.model_check import (
     smooth_error_bound_mgal2,
 )
 from app.pipeline.stages.leveling import STD_FLOOR, tracks
+from app.pipeline.stages.lines import line_crossovers
 
 
 @dataclass
@@ -114,12 +115,7 @@ def crossover_differences(table: pd.DataFrame, col: str, include_repeat: bool) -
 
 def count_crossovers(lines: list, include_repeat: bool) -> int:
     """Crossovers between the survey lines (geometry only), as leveling will find them."""
-    tr = {ln.line: LineTrack(ln.easting_km, ln.northing_km, ln.t_s, np.zeros(ln.t_s.size), np.ones(ln.t_s.size),
-                             ln.kind) for ln in lines if ln.t_s.size >= 2}
-    try:
-        return int(len(find_crossovers(tr, include_repeat=include_repeat)))
-    except ValueError:
-        return 0
+    return int(len(line_crossovers(lines, include_repeat)))
 
 
 def choose_order(candidates: dict, p) -> tuple[int, dict]:

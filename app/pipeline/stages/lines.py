@@ -11,6 +11,7 @@ import pandas as pd
 
 from app.config import SurveyConfig
 from app.core import geodesy
+from app.core.leveling import LineTrack, find_crossovers
 from app.pipeline.stages.measurement import FlightMeasurement
 
 
@@ -100,3 +101,18 @@ def survey_lines(survey, measurement) -> SurveyLines:
     lines = cut_lines(survey.lines, measurement.flights, crs)
     check_grid_size(lines, survey.config.processing)
     return SurveyLines(crs, lines)
+
+
+def line_crossovers(lines: list[LineData], include_repeat: bool, values=None, std_mgal: float = 0.0) -> pd.DataFrame:
+    """Crossovers between the survey lines, as leveling will find them
+    (:func:`app.core.leveling.find_crossovers`), carrying ``values(line)`` — an array on the
+    line's epochs (zeros when None) — and a constant ``std_mgal``; an empty frame when there
+    are none or the geometry gives none."""
+    tr = {ln.line: LineTrack(ln.easting_km, ln.northing_km, ln.t_s,
+                             np.zeros(ln.t_s.size) if values is None else values(ln),
+                             np.full(ln.t_s.size, float(std_mgal)), ln.kind)
+          for ln in lines if ln.t_s.size >= 2}
+    try:
+        return find_crossovers(tr, include_repeat=include_repeat) if len(tr) > 1 else pd.DataFrame()
+    except ValueError:
+        return pd.DataFrame()

@@ -16,11 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.core.leveling import LineTrack, find_crossovers
 from app.core.model_check import fir_noise_variance_mgal2, noise_overstated
 from app.core.noise_level import band_noise_variance_cm2s2, local_noise_variance_cm2s2
 from app.core.noise_model import FAMILIES, fit_noise_model, pass_difference
-from app.pipeline.stages.lines import LineData, finite_segments
+from app.pipeline.stages.lines import LineData, finite_segments, line_crossovers
 from app.pipeline.stages.measurement import FlightMeasurement
 
 
@@ -197,6 +196,7 @@ def check_noise_corners(stage: NoiseStage, lines: list[LineData], fir: dict[str,
     used, with the evidence in ``corner_check``."""
     if stage.unmoved is None:
         return stage
+    unmoved, stage.unmoved = stage.unmoved, None   # decided here: not stored twice
     rec: dict = {"hidden_corners_hz": stage.model.info.get("hidden_corners_hz", []), "applied": False}
     if not p.noise_corner_check:
         stage.corner_check = {**rec, "reason": "off (noise_corner_check)"}
@@ -210,7 +210,7 @@ def check_noise_corners(stage: NoiseStage, lines: list[LineData], fir: dict[str,
     if not b.overstated:
         stage.corner_check = rec
         return stage
-    used = stage.unmoved
+    used = unmoved
     rec.update(applied=True, reason=(
         f"the corners moved below the data predict {b.predicted_ms_mgal2:.3g} mGal² of FIR noise at the "
         f"crossovers, above the {b.bound_mgal2:.3g} mGal² their FIR differences allow ({b.n} crossovers, "
@@ -232,14 +232,8 @@ def fir_noise_bound(stage: NoiseStage, lines: list[LineData], fir: dict[str, np.
     level = float(np.median(np.concatenate([stage.r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)]
                                             for ln in lines])))
     sd = float(np.sqrt(fir_noise_variance_mgal2(stage.model, level, dt_s, p.fir_cutoff_period_s)))
-    tr = {ln.line: LineTrack(ln.easting_km, ln.northing_km, ln.t_s, fir[ln.flight][ln.sl],
-                             np.full(ln.t_s.size, sd), ln.kind)
-          for ln in lines if ln.t_s.size >= 2}
-    try:
-        cx = find_crossovers(tr, include_repeat=p.leveling_include_repeat) if len(tr) > 1 else None
-    except ValueError:
-        cx = None
-    if cx is None or len(cx) == 0:
+    cx = line_crossovers(lines, p.leveling_include_repeat, lambda ln: fir[ln.flight][ln.sl], sd)
+    if len(cx) == 0:
         return None
     return noise_overstated((cx["dg_a"] - cx["dg_b"]).to_numpy(float),
                             (cx["std_a"] ** 2 + cx["std_b"] ** 2).to_numpy(float), alpha=p.noise_corner_alpha)
