@@ -307,9 +307,11 @@ class ProcessingParams(_Strict):
                           "white + coloured height", "coloured velocity + height"] = Field(
         "auto", description="Shape of the error of z in the smoother (app.core.noise_model): 'auto' fits every "
         "family to the lines' spectra and keeps the best by BIC; 'white velocity' is seed 000's model")
-    noise_corner_check: bool = Field(True, description="Keep the noise fit's AR corners where the spectra put "
-                                     "them when moving them below the data predicts more FIR noise than the FIR "
-                                     "crossover differences allow (one-sided test at noise_corner_alpha)")
+    noise_corner_check: bool = Field(True, description="Keep the noise fit's own shape below the data (AR "
+                                     "corners where the spectra put them; a bare white height without the "
+                                     "random-walk height part the nesting family adds) when the cautious shape "
+                                     "predicts more FIR noise than the FIR crossover differences allow (one-sided "
+                                     "test at noise_corner_alpha)")
     noise_corner_alpha: float = Field(0.05, gt=0, lt=0.5, description="Level of that test (χ² bound of the "
                                       "crossovers' mean square difference)")
     white_level_fitted: bool = Field(True, description="With the white-velocity family, lower the noise level "

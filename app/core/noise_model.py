@@ -520,6 +520,11 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     if knee_max_fraction is not None:
         prob.phi_min = float(np.clip(1.0 - 2.0 * np.pi * dt_s * knee_max_fraction * f_low, 0.0, PHI_MAX - 1e-6))
     chosen = prob.select(families, m, bic_margin, prefer_height)
+    # A bare white height was replaced by the family that nests it (Whittle.select); the bare
+    # fit is kept beside (``unmoved``), as for moved corners below: where the added random-walk
+    # part over-states the noise, crossovers can say so (app.core.model_check).
+    unmoved = (_finished_fit(prob, prob.white_height_bare, m, spectra, [], fmax_hz)
+               if prob.white_height_bare is not None else None)
     hidden = prob.hidden_corners(chosen, m) if hidden_knees else []
     phi_low = float(np.clip(1.0 - 2.0 * np.pi * dt_s * f_low, 0.0, PHI_MAX - 1e-6))
     if hidden and prob.phi_min < phi_low:
@@ -532,8 +537,7 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         unmoved = _finished_fit(prob, chosen, m, spectra, [], fmax_hz)
         prob.phi_min = phi_low
         chosen = prob.select(families, m, bic_margin, prefer_height)
-        return replace(_finished_fit(prob, chosen, m, spectra, hidden, fmax_hz), unmoved=unmoved)
-    return _finished_fit(prob, chosen, m, spectra, hidden, fmax_hz)
+    return replace(_finished_fit(prob, chosen, m, spectra, hidden, fmax_hz), unmoved=unmoved)
 
 
 def _finished_fit(prob, chosen: dict, m: int, spectra, hidden: list, fmax_hz: float) -> NoiseFit:
@@ -549,6 +553,8 @@ def _finished_fit(prob, chosen: dict, m: int, spectra, hidden: list, fmax_hz: fl
                              "hidden_corners_hz": hidden,
                              # the velocity family the heights-only rule replaced (None: not applied)
                              "height_family_preferred": prob.height_replaced,
+                             # a bare white height replaced by the family that nests it
+                             "white_height_nested": chosen is prob.white_height_nest,
                              "max_corner_hz": knee_hz(prob.phi_min, dt_s) if prob.phi_min > 0 else None,
                              "nll_by_m": {str(k): float(v[0]) for k, v in orders.items()}})
     cands = [{k: v for k, v in c.items() if not k.startswith("_")} for c in prob.candidates]
@@ -732,12 +738,34 @@ class _Whittle:
         best_bic = min(c["bic"] for c in self.candidates)
         near = [c for c in sorted(self.candidates, key=lambda c: c["n_params"]) if c["bic"] <= best_bic + bic_margin]
         self.height_replaced = None
-        if prefer_height and all(order == 1 for order, _ in near[0]["_spec"]):
+        chosen = near[0]
+        if prefer_height and all(order == 1 for order, _ in chosen["_spec"]):
             heights = [c for c in near if all(order == 2 for order, _ in c["_spec"])]
             if heights:
-                self.height_replaced = near[0]["family"]
-                return heights[0]
-        return near[0]
+                self.height_replaced = chosen["family"]
+                chosen = heights[0]
+        return self._no_bare_white_height(chosen)
+
+    def _no_bare_white_height(self, chosen: dict) -> dict:
+        """A bare white height error is replaced by the family that nests it, white height plus a
+        random-walk height part (``velocity + height``), whenever that fits at least as well.
+
+        Of all the families, white height puts the least noise below the fitted band: its
+        acceleration spectrum falls as f⁴ all the way down.  GNSS height errors are correlated
+        over tens of seconds to minutes (multipath, troposphere, orbits), and that part shows
+        in z as an f² slope that the anomaly hides at the frequencies where it matters; when
+        the fitted band is dominated by the white part, the BIC margin cannot see it and the
+        simplest family would call the anomaly band noise-free.  The nesting family fits the
+        level of the f² part (zero where the data say so), so the spectra decide it, not the
+        choice of family."""
+        self.white_height_bare = self.white_height_nest = None
+        if chosen["family"] != "white height":
+            return chosen
+        nest = [c for c in self.candidates if c["family"] == "velocity + height"]
+        if nest and nest[0]["nll"] <= chosen["nll"] + 1e-6 * abs(chosen["nll"]):
+            self.white_height_bare, self.white_height_nest = chosen, nest[0]
+            return nest[0]
+        return chosen
 
     def hidden_corners(self, chosen: dict, m: int) -> list:
         """Corners (Hz) of the chosen family's AR components that lie between the lowest fitted

@@ -183,27 +183,30 @@ def _noise_stage(fit, model, band, lines: list[LineData], r_local: dict, n_cross
 
 def check_noise_corners(stage: NoiseStage, lines: list[LineData], fir: dict[str, np.ndarray], dt_s: float,
                         p) -> NoiseStage:
-    """Keep the noise fit's AR corners where the spectra put them when moving them below the
-    data over-states the noise the crossovers allow (``noise_corner_check``).
+    """Keep the noise fit's own shape below the data when the more cautious one over-states
+    the noise the crossovers allow (``noise_corner_check``).
 
-    A corner between the lowest fitted frequency and twice the anomaly/noise crossover is
-    moved below the data (:func:`app.core.noise_model.fit_noise_model`): on most surveys a
-    corner there was guessed too high and let noise through.  But where the corner was right
-    the move over-states the noise in the anomaly band, and the estimate is flattened.  The
-    FIR estimate's crossover differences bound the noise it passes from above
-    (:func:`app.core.model_check.noise_overstated`); when the moved model's predicted FIR
+    Two decisions of :func:`app.core.noise_model.fit_noise_model` put more noise below the
+    fitted band than the spectra show: a corner between the lowest fitted frequency and twice
+    the anomaly/noise crossover is moved below the data, and a bare white height error gets a
+    random-walk height part (the family that nests it).  On most surveys the spectra's own
+    shape there let noise through as anomaly.  But where it was right, the cautious shape
+    over-states the noise in the anomaly band, and the estimate is flattened.  The FIR
+    estimate's crossover differences bound the noise it passes from above
+    (:func:`app.core.model_check.noise_overstated`); when the cautious model's predicted FIR
     noise exceeds that bound significantly, the fit as it was is used.  Returns the stage
     used, with the evidence in ``corner_check``."""
     if stage.unmoved is None:
         return stage
     unmoved, stage.unmoved = stage.unmoved, None   # decided here: not stored twice
-    rec: dict = {"hidden_corners_hz": stage.model.info.get("hidden_corners_hz", []), "applied": False}
+    rec: dict = {"hidden_corners_hz": stage.model.info.get("hidden_corners_hz", []),
+                 "white_height_nested": bool(stage.model.info.get("white_height_nested", False)), "applied": False}
     if not p.noise_corner_check:
         stage.corner_check = {**rec, "reason": "off (noise_corner_check)"}
         return stage
     b = fir_noise_bound(stage, lines, fir, dt_s, p)
     if b is None:
-        stage.corner_check = {**rec, "n": 0, "reason": "no crossovers (or no local noise level) to check the moved corners"}
+        stage.corner_check = {**rec, "n": 0, "reason": "no crossovers (or no local noise level) to check the cautious shape"}
         return stage
     rec.update(n=b.n, fir_crossover_ms_mgal2=b.crossover_ms_mgal2, predicted_ms_mgal2=b.predicted_ms_mgal2,
                bound_mgal2=b.bound_mgal2)
@@ -212,9 +215,10 @@ def check_noise_corners(stage: NoiseStage, lines: list[LineData], fir: dict[str,
         return stage
     used = unmoved
     rec.update(applied=True, reason=(
-        f"the corners moved below the data predict {b.predicted_ms_mgal2:.3g} mGal² of FIR noise at the "
-        f"crossovers, above the {b.bound_mgal2:.3g} mGal² their FIR differences allow ({b.n} crossovers, "
-        f"one-sided {p.noise_corner_alpha:g}): the fit's own corners are kept"))
+        f"the {'corners moved below the data' if rec['hidden_corners_hz'] else 'random-walk height part'} "
+        f"predict {b.predicted_ms_mgal2:.3g} mGal² of FIR noise at the crossovers, above the "
+        f"{b.bound_mgal2:.3g} mGal² their FIR differences allow ({b.n} crossovers, one-sided "
+        f"{p.noise_corner_alpha:g}): the fit's own shape is kept"))
     used.corner_check = rec
     return used
 
