@@ -106,13 +106,15 @@ def _grid_survey(fir_std_mgal: float, seed: int = 2):
     return lines, fir
 
 
-def _stage_pair(level_cm2s2: float):
-    """A white-velocity 'moved' stage at ``level_cm2s2`` everywhere, with an 'unmoved' twin."""
+def _stage_pair(level_cm2s2: float, info=None):
+    """A white-velocity 'moved' stage at ``level_cm2s2`` everywhere, with an 'unmoved' twin
+    (``info``: the model's record of the cautious decision; default a moved corner)."""
     from app.core.model_check import fir_noise_variance_mgal2
     from app.core.noise_model import NoiseComponent, NoiseModel
     from app.pipeline.stages.noise import NoiseStage
 
-    model = NoiseModel((NoiseComponent(1, 0.0, 1.0),), DT_S, "white velocity", info={"hidden_corners_hz": [0.02]})
+    model = NoiseModel((NoiseComponent(1, 0.0, 1.0),), DT_S, "white velocity",
+                       info=info if info is not None else {"hidden_corners_hz": [0.02]})
     fit = SimpleNamespace(candidates=[], n_bins=0, fmax_hz=0.2, Q_mgal2=0.0, m=2)
     r = {f"F{k}": np.full(2000, level_cm2s2) for k in range(12)}
     moved = NoiseStage(fit, model, (0.1, 0.5), r, 1.0)
@@ -120,25 +122,31 @@ def _stage_pair(level_cm2s2: float):
     return moved, fir_noise_variance_mgal2(model, level_cm2s2, DT_S, 100.0)
 
 
-def test_corner_check_keeps_the_fit_when_the_move_overstates_fir_noise():
+@pytest.mark.parametrize("info,what", [({"hidden_corners_hz": [0.02]}, "corners moved below the data"),
+                                       ({"hidden_corners_hz": [], "white_height_nested": True},
+                                        "random-walk height part")])
+def test_corner_check_keeps_the_fit_when_the_move_overstates_fir_noise(info, what):
+    """Both cautious decisions of the noise fit (a corner moved below the data, a bare white
+    height given its random-walk part) are undone by the same crossover bound."""
     from app.pipeline.stages.noise import check_noise_corners
 
     p = ProcessingParams()
     lines, fir = _grid_survey(fir_std_mgal=3.0)
-    moved, var1 = _stage_pair(1.0)
+    moved, var1 = _stage_pair(1.0, info)
     level_right = 9.0 / var1                   # predicts the FIR noise the crossovers show
-    moved, _ = _stage_pair(level_right)
+    moved, _ = _stage_pair(level_right, info)
     used = check_noise_corners(moved, lines, fir, DT_S, p)
     assert used is moved and not used.corner_check["applied"]
     assert used.corner_check["n"] == 36
     # the FIR noise variance is linear in the level: 9 mGal² per line, 18 per crossover
     assert used.corner_check["predicted_ms_mgal2"] == pytest.approx(18.0)
     assert used.unmoved is None                 # decided: the alternative is not kept
-    moved, _ = _stage_pair(4.0 * level_right)  # 4x the noise variance the crossovers allow
+    moved, _ = _stage_pair(4.0 * level_right, info)  # 4x the noise variance the crossovers allow
     alternative = moved.unmoved
     used = check_noise_corners(moved, lines, fir, DT_S, p)
     assert used is alternative and used.corner_check["applied"]
-    assert "kept" in used.corner_check["reason"]
-    off = check_noise_corners(_stage_pair(4.0 * level_right)[0], lines, fir, DT_S,
+    assert "kept" in used.corner_check["reason"] and what in used.corner_check["reason"]
+    assert used.corner_check["white_height_nested"] == bool(info.get("white_height_nested"))
+    off = check_noise_corners(_stage_pair(4.0 * level_right, info)[0], lines, fir, DT_S,
                               p.model_copy(update={"noise_corner_check": False}))
     assert not off.corner_check["applied"]
