@@ -433,8 +433,9 @@ class NoiseFit:
     n_bins: int
     fmax_hz: float
     unmoved: NoiseFit | None = None
-    """When corners were moved below the data (``hidden_corners_hz``): the fit with the
-    corners where the spectra put them (else None)."""
+    """The fit before a decision that puts more noise below the fitted band than the spectra
+    show — AR corners moved below the data (``hidden_corners_hz``), or a bare white height given
+    its random-walk part (``white_height_nested``) — for the crossovers to check; else None."""
 
 
 def _unpack(theta, spec, phi_min: float = 0.0):
@@ -520,7 +521,7 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     if knee_max_fraction is not None:
         prob.phi_min = float(np.clip(1.0 - 2.0 * np.pi * dt_s * knee_max_fraction * f_low, 0.0, PHI_MAX - 1e-6))
     chosen = prob.select(families, m, bic_margin, prefer_height)
-    # A bare white height was replaced by the family that nests it (Whittle.select); the bare
+    # A bare white height was replaced by the family that nests it (_Whittle.select); the bare
     # fit is kept beside (``unmoved``), as for moved corners below: where the added random-walk
     # part over-states the noise, crossovers can say so (app.core.model_check).
     unmoved = (_finished_fit(prob, prob.white_height_bare, m, spectra, [], fmax_hz)
@@ -656,6 +657,9 @@ class _Whittle:
         self.d_anom = {mm: np.abs(1.0 - np.exp(-2j * np.pi * self.nu)) ** (2 * mm) for mm in (1, 2, 3)}
         self.level = float(np.median(sp.psd / dt_s))
         self.phi_min = 0.0
+        # set by select(): the velocity family the heights-only rule replaced, and a bare white
+        # height with the candidate that replaced it (_no_bare_white_height)
+        self.height_replaced = self.white_height_bare = self.white_height_nest = None
         self.candidates: list = []
 
     def nll(self, theta, spec, mm) -> float:
