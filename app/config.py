@@ -334,6 +334,9 @@ class ProcessingParams(_Strict):
                                            "counts like the lowest one")
     noise_fit_fmax_hz: float = Field(0.2, gt=0, le=500, description="Highest frequency (Hz) of the spectra the noise "
                                      "model is fitted to (clipped to 0.8 × the GNSS Nyquist frequency)")
+    noise_fit_min_s: tuple[float, float] = Field((120.0, 60.0), description="Shortest stretch of z (s) the noise "
+                                                 "model is fitted on; the second value is used, with a warning, "
+                                                 "when no line has a stretch as long as the first (short lines)")
     refine_max_epochs: int = Field(100_000, ge=1000, le=10_000_000, description="Cap on epochs used by the level "
                                    "refinement (a subset of lines covering every state; ~3 h of 10 Hz data is "
                                    "enough to see a collapsed level, which is all the refinement now corrects)")
@@ -343,6 +346,13 @@ class ProcessingParams(_Strict):
     def _band_increasing(cls, v):
         if not 0 < v[0] < v[1] <= 500:
             raise ValueError("noise_band_hz must be (f1, f2) with 0 < f1 < f2 ≤ 500 (Hz)")
+        return v
+
+    @field_validator("noise_fit_min_s")
+    @classmethod
+    def _stretches_decreasing(cls, v):
+        if not 0 < v[1] <= v[0] <= 100_000:
+            raise ValueError("noise_fit_min_s must be (s1, s2) with 0 < s2 ≤ s1 ≤ 100000 (s)")
         return v
     recognition_pool_h_per_km: float = Field(0.7, ge=0, le=100, description="Decay of the weights with which neighbouring "
                                              "lines' evidence about the anomaly intensity enters each line's recognition")

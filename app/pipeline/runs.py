@@ -126,6 +126,8 @@ def run_identify(survey, tr: Tracker) -> Identified:
     fir = {name: fir_baseline(m, p.fir_cutoff_period_s) for name, m in meas.flights.items()}
     noise = check_noise_corners(noise, sl.lines, fir, meas.dt_s, p)
     warnings = list(meas.warnings)
+    if noise.warning:
+        warnings.append(noise.warning)
     extra: dict = {}
     if p.m is None and p.model_order == "likelihood":
         order = choose_model_order(sl.lines, meas.dt_s, noise.model, noise.r_local)

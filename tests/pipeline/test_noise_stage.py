@@ -150,3 +150,38 @@ def test_corner_check_keeps_the_fit_when_the_move_overstates_fir_noise(info, wha
     off = check_noise_corners(_stage_pair(4.0 * level_right, info)[0], lines, fir, DT_S,
                               p.model_copy(update={"noise_corner_check": False}))
     assert not off.corner_check["applied"]
+
+
+def _short_lines(seconds: float, seed: int = 5):
+    """Four lines of ``seconds`` each of white GNSS velocity noise (R_TRUE_CM2S2) on one flight."""
+    rng = np.random.default_rng(seed)
+    n_line = int(round(seconds / DT_S))
+    z = np.diff(SIGMA_V_MS * rng.standard_normal(N_LINES * n_line + 1)) / DT_S * 1e5
+    t = np.arange(z.size) * DT_S
+    flights = {"F1": SimpleNamespace(z_mgal=z, heights_only=False)}
+    lines = []
+    for k in range(N_LINES):
+        sl = slice(k * n_line, (k + 1) * n_line)
+        lines.append(LineData(f"L{k}", "F1", "main", None, sl, t[sl], np.zeros(n_line), np.zeros(n_line),
+                              np.full(n_line, 500.0), np.linspace(0, 9, n_line), np.full(n_line, 2.0 * k),
+                              z[sl].copy(), 100.0))
+    return lines, flights
+
+
+def test_short_lines_fit_on_shorter_stretches_and_say_so():
+    """Lines of 90 s (a 12 km line at 130 m/s) have no 120 s stretch: the fit uses the
+    60 s ones, finds the true white-velocity level, and the report and a warning say so; lines
+    of 45 s are refused with the longest stretch named.  600 s lines use 120 s stretches."""
+    p = ProcessingParams()
+    lines, flights = _short_lines(90.0)
+    stage = model_noise(lines, flights, DT_S, p)
+    assert stage.fit_min_stretch_s == 60.0 and stage.describe()["fit_min_stretch_s"] == 60.0
+    assert "fitted on stretches of 60-120 s" in stage.warning
+    # the error of z the smoother is given, against the true white-velocity PSD (two-sided, mGal²/Hz)
+    f = np.array([0.02, 0.05, 0.1, 0.2])
+    true_psd = (1e5 * SIGMA_V_MS) ** 2 / DT_S * (2.0 * np.sin(np.pi * f * DT_S)) ** 2
+    assert np.allclose(stage.model.psd(f, _level(stage, lines)), true_psd, rtol=0.3)
+    with pytest.raises(ValueError, match="the longest is 45 s"):
+        model_noise(*_short_lines(45.0), DT_S, p)
+    long_stage = model_noise(*_survey(bump_factor=0.0), DT_S, p)
+    assert long_stage.fit_min_stretch_s == 120.0 and long_stage.warning == ""

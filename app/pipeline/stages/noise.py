@@ -35,15 +35,25 @@ def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False)
     finite stretches of every line; returns (NoiseFit, model normalised so that a level R is
     the equivalent white velocity noise in :func:`level_band`).  ``heights_only``: every
     flight's vu was derived from its heights, so among the families the spectra cannot tell
-    apart (within the BIC margin) a height family is preferred (:func:`fit_noise_model`)."""
+    apart (within the BIC margin) a height family is preferred (:func:`fit_noise_model`).
+    Also returns the shortest stretch used (s): ``noise_fit_min_s[0]``, or ``[1]`` when no line
+    is that long."""
     fams = FAMILIES if p.noise_family == "auto" else tuple(f for f in FAMILIES if f[0] == p.noise_family)
     segs = [ln.z_mgal[a:b] for ln in lines for a, b in finite_segments(ln.z_mgal)]
     fmax = min(float(p.noise_fit_fmax_hz), 0.8 * 0.5 / dt_s)
     diffs = repeat_differences(lines, dt_s, min(2.0 * fmax, 0.45 / dt_s)) if p.noise_fit_repeats else []
+    longest_s = max((s.size * dt_s for s in segs), default=0.0)
+    min_s = float(p.noise_fit_min_s[0])
+    if longest_s < min_s:  # short lines: the shorter stretches, with a warning (the fit's lowest
+        min_s = min(min_s, float(p.noise_fit_min_s[1]))  # frequency rises to ~4.5/min_s Hz)
+        if longest_s < min_s:
+            raise ValueError(f"no line has a stretch of z of at least {min_s:g} s to fit the noise model on "
+                             f"(the longest is {longest_s:.0f} s): the lines are too short for this survey's "
+                             "noise model (processing.noise_fit_min_s)")
     fit = fit_noise_model(segs, dt_s, m=2, fmax_hz=fmax, families=fams, differences=diffs,
                           octave_weights=p.noise_fit_octave_weights, knee_max_fraction=p.noise_knee_max_fraction,
-                          prefer_height=heights_only)
-    return fit, fit.model.normalized(level_band(p, dt_s))
+                          prefer_height=heights_only, min_duration_s=min_s)
+    return fit, fit.model.normalized(level_band(p, dt_s)), min_s
 
 
 def repeat_differences(lines: list[LineData], dt_s: float, lowpass_hz: float) -> list:
@@ -137,13 +147,16 @@ class NoiseStage:
     level_note: str = ""
     unmoved: NoiseStage | None = None
     corner_check: dict | None = None
+    fit_min_stretch_s: float | None = None
+    warning: str = ""
 
     def describe(self) -> dict:
         """The report's ``noise_model`` section."""
         out = {**self.model.describe(), "level_band_hz": list(self.band_hz), "level_scale": self.scale,
                "level_note": self.level_note,
                "candidates": self.fit.candidates, "n_bins": self.fit.n_bins, "fit_fmax_hz": self.fit.fmax_hz,
-               "Q_whittle_mgal2": self.fit.Q_mgal2, "m_whittle": self.fit.m}
+               "Q_whittle_mgal2": self.fit.Q_mgal2, "m_whittle": self.fit.m,
+               "fit_min_stretch_s": self.fit_min_stretch_s}
         if self.corner_check is not None:
             out["corner_check"] = self.corner_check
         return out
@@ -155,13 +168,21 @@ def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt
     ``n_crossovers`` (geometry) decides whether a white-velocity level may be lowered to
     its fitted value (``white_level_fitted``: only where the FIR guard can check it)."""
     heights_only = bool(flights) and all(getattr(f, "heights_only", False) for f in flights.values())
-    fit, model = fit_noise(lines, dt_s, p, heights_only)
+    fit, model, min_s = fit_noise(lines, dt_s, p, heights_only)
     band = level_band(p, dt_s)
     r_local = noise_levels(flights, dt_s, p)
     stage = _noise_stage(fit, model, band, lines, r_local, n_crossovers, p)
     if fit.unmoved is not None:
         stage.unmoved = _noise_stage(fit.unmoved, fit.unmoved.model.normalized(band), band, lines, r_local,
                                      n_crossovers, p)
+    warning = ""
+    if min_s < float(p.noise_fit_min_s[0]):
+        warning = (f"the noise model was fitted on stretches of {min_s:g}-{p.noise_fit_min_s[0]:g} s (no line "
+                   f"is {p.noise_fit_min_s[0]:g} s long): its shape is seen only above "
+                   f"about {4.5 / min_s:.3f} Hz and is weak in the anomaly band")
+    for st in (stage, stage.unmoved):
+        if st is not None:
+            st.fit_min_stretch_s, st.warning = min_s, warning
     return stage
 
 
