@@ -292,6 +292,12 @@ class ProcessingParams(_Strict):
     q_from_posteriors: bool = Field(True, description="Q(t) for filtering: the Q levels' geometric mean weighted "
                                     "by the smoothed map's probabilities, interpolated between decimated points "
                                     "(False: the held state's level, jumping at the hold boundaries)")
+    std_level_factor: float = Field(10.0, ge=1, le=1000, description="On a survey with one anomaly level (too few "
+                                    "decimated points for two), dg_std_mgal also carries the level's uncertainty: "
+                                    "the larger difference between the estimate at Q and at Q/f or f·Q (f = this) "
+                                    "is added in quadrature; 1 = off.  The data do not fix Q there within a decade "
+                                    "(held-out small layouts: the RMS-optimal Q 6-34x above the estimate on some, "
+                                    "below it on others; 2-sigma coverage 0.81-0.89 on average without it)")
     std_state_mixture: bool = Field(True, description="dg_std_mgal as the std of a mixture of levels where the map is "
                                     "unsure: the larger of the smoother under the probability-weighted arithmetic "
                                     "mean of the Q levels and the law of total variance over each level's smoother "

@@ -51,7 +51,7 @@ measurements", Int. J. Control 18(1); Rauch, Tung & Striebel (1965), AIAA J.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from math import comb
 from typing import NamedTuple
 
@@ -1248,3 +1248,41 @@ def mixture_std_mgal(center_mgal, means_mgal, stds_mgal, weights) -> np.ndarray:
     if np.any(tot <= 0):
         raise ValueError("the weights of some epoch sum to zero")
     return np.sqrt(np.sum(w * (sd ** 2 + (mu - c) ** 2), axis=0) / tot)
+
+
+def level_spread_std_mgal(z_mgal, Q_mgal2, R_cm2s2, dt_s, factor: float, m: int = 2, method: str = "bf",
+                          noise=None) -> SmootherResult:
+    """Smoother at ``Q_mgal2`` whose std also carries an uncertain anomaly level.
+
+    Where the data cannot fix the level ``Q`` better than a factor ``factor`` either way,
+    the estimate at ``Q`` may be off by as much as it differs from the estimates at
+    ``Q/factor`` and ``factor·Q``.  The returned std adds the larger of those two
+    differences in quadrature to the posterior std at ``Q``:
+    ``sqrt(σ_Q² + max((x_{Q/f} − x_Q)², (x_{f·Q} − x_Q)²))`` per epoch; the mean is ``x_Q``.
+
+    Parameters
+    ----------
+    z_mgal, Q_mgal2, R_cm2s2, dt_s, m, method, noise
+        As in :func:`kalman_smooth` (``Q_mgal2`` may vary along the line; it is scaled as a
+        whole).
+    factor : float
+        ≥ 1; 1 gives :func:`kalman_smooth` unchanged.
+
+    Returns
+    -------
+    SmootherResult
+        ``dg_mgal`` at ``Q``; ``dg_std_mgal`` widened as above (mGal), shape (T,).
+    """
+    f = float(factor)
+    if not np.isfinite(f) or f < 1.0:
+        raise ValueError(f"factor must be a finite number ≥ 1, got {factor!r}")
+    Q = np.asarray(Q_mgal2, dtype=float)
+    mid = kalman_smooth(z_mgal, Q, R_cm2s2, dt_s, m=m, method=method, noise=noise)
+    if f == 1.0:
+        return mid
+    x = np.asarray(mid.dg_mgal)
+    d2 = np.zeros_like(x)
+    for q in (Q / f, Q * f):
+        other = np.asarray(kalman_smooth(z_mgal, q, R_cm2s2, dt_s, m=m, method=method, noise=noise).dg_mgal)
+        d2 = np.maximum(d2, (other - x) ** 2)
+    return replace(mid, dg_std_mgal=np.sqrt(np.asarray(mid.dg_std_mgal) ** 2 + d2))

@@ -12,6 +12,7 @@ from app.core.smoother import (
     SmootherResult,
     kalman_loglik,
     kalman_smooth,
+    level_spread_std_mgal,
     mixture_std_mgal,
     rts_smooth,
     smooth_many,
@@ -322,3 +323,30 @@ def test_mixture_std_matches_sampled_mixture():
         mixture_std_mgal(c[:2], mu, sd, w)
     with pytest.raises(ValueError, match="sum to zero"):
         mixture_std_mgal(c, mu, sd, np.zeros_like(w))
+
+
+def test_level_spread_std_covers_a_level_a_decade_off():
+    """Simulation with known truth (the model's own anomaly, white velocity noise): smoothed
+    at a level 10x too low, the posterior std covers the error on about half the epochs; with
+    the spread of the estimates at Q/10 and 10 Q added it covers ≥ 85 %, and at the right
+    level it widens the std only a little (coverage ≤ 0.99).  The mean is the smoother's at Q;
+    factor 1 is the plain smoother."""
+    dt, T, Q_true, R = 0.1, 20000, 1e-7, 1.0
+    cov = {"low": [[], []], "right": [[], []]}
+    for seed in range(3):
+        z, dg = _simulate(np.random.default_rng(seed), T, 2, np.full(T, Q_true), np.full(T, R), dt)
+        for key, Q in (("low", Q_true / 10), ("right", Q_true)):
+            plain = kalman_smooth(z, np.full(T, Q), np.full(T, R), dt, m=2)
+            wide = level_spread_std_mgal(z, np.full(T, Q), np.full(T, R), dt, 10.0, m=2)
+            np.testing.assert_array_equal(wide.dg_mgal, plain.dg_mgal)
+            inner = slice(1000, T - 1000)
+            e = np.abs(plain.dg_mgal - dg)[inner]
+            cov[key][0].append(np.mean(e < 2 * plain.dg_std_mgal[inner]))
+            cov[key][1].append(np.mean(e < 2 * wide.dg_std_mgal[inner]))
+    assert np.mean(cov["low"][0]) < 0.7 and np.mean(cov["low"][1]) > 0.85
+    assert 0.9 < np.mean(cov["right"][0]) and np.mean(cov["right"][1]) < 0.99
+    same = level_spread_std_mgal(z, np.full(T, Q_true), np.full(T, R), dt, 1.0, m=2)
+    np.testing.assert_array_equal(same.dg_std_mgal, kalman_smooth(z, np.full(T, Q_true), np.full(T, R), dt,
+                                                                   m=2).dg_std_mgal)
+    with pytest.raises(ValueError, match="factor"):
+        level_spread_std_mgal(z, np.full(T, Q_true), np.full(T, R), dt, 0.5)

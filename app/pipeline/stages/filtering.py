@@ -13,7 +13,7 @@ import pandas as pd
 
 from app.core.baselines import fir_lowpass_mgal
 from app.core.level_ml import refine_levels
-from app.core.smoother import kalman_smooth, mixture_std_mgal
+from app.core.smoother import kalman_smooth, level_spread_std_mgal, mixture_std_mgal
 from app.pipeline.stages.lines import LineData
 from app.pipeline.stages.measurement import FlightMeasurement
 
@@ -150,6 +150,7 @@ class Filtered:
     Q_stationary: float = float("nan")
     r_lines: list | None = None
     n_r: int = 1
+    std_level_factor: float | None = None
 
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
@@ -159,7 +160,25 @@ class Filtered:
         return {"Q_mgal2": np.asarray(self.Q_levels).tolist(), "Q_full_rate_ml_mgal2": np.asarray(f.Q_mgal2).tolist(),
                 "lift_only": bool(p.refine_lift_only), "R_local_scale": self.r_scale, "noise_model": p.noise_model,
                 "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations,
-                "Q_stationary_mgal2": self.Q_stationary}
+                "Q_stationary_mgal2": self.Q_stationary, "std_level_factor": self.std_level_factor}
+
+    def level_spread_std(self, dt_s: float, m: int, method: str, noise, factor: float) -> None:
+        """One anomaly level only (too few decimated points for two): widen ``dg_std_mgal`` by the
+        spread of the estimates at Q/f and f·Q (:func:`app.core.smoother.level_spread_std_mgal`,
+        ``std_level_factor``); the report's ``level_refinement.std_level_factor`` says so.
+        Run for the order that is used only."""
+        if len(self.Q_levels) != 1 or factor <= 1.0 or not self.prepared or self.r_lines is None:
+            return
+        col = self.table["dg_std_mgal"].to_numpy().copy()
+        off = 0
+        for pr, r in zip(self.prepared, self.r_lines):
+            n = pr.inner.stop - pr.inner.start
+            q = np.full(pr.z_ext.size, float(self.Q_levels[0]))
+            res = level_spread_std_mgal(pr.z_ext, q, r, dt_s, factor, m=m, method=method, noise=noise)
+            col[off:off + n] = np.maximum(col[off:off + n], np.asarray(res.dg_std_mgal)[pr.inner])
+            off += n
+        self.table["dg_std_mgal"] = col
+        self.std_level_factor = float(factor)
 
     def mixture_std(self, dt_s: float, m: int, method: str, noise) -> None:
         """Replace ``dg_std_mgal`` by the std of the mixture of levels (``std_state_mixture``),
