@@ -9,7 +9,7 @@ import pytest
 from app.config import ProcessingParams
 from app.core.baselines import fir_lowpass_mgal
 from app.core.noise_model import white_velocity
-from app.pipeline.stages.choice import check_lines, choose_model, noisy_check
+from app.pipeline.stages.choice import check_lines, choose_model, noisy_check, stationary_check
 from app.pipeline.stages.leveling import STD_FLOOR, level_survey
 
 DT_S = 0.1           # 10 Hz GNSS
@@ -269,3 +269,20 @@ def test_order_choice_is_not_blinded_by_one_wild_crossover():
     assert rep["n_crossovers"] == 6
     assert rep["p_m2_worse_than_m1"] > 0.05 and rep["p_rank_m2_worse_than_m1"] < 0.05
     assert m == 1 and rep["m"] == 1
+
+
+def test_a_stationary_baseline_that_passes_noise_is_reported():
+    """The stationary column = truth + noise of 2× the anomaly's std on every line (a level
+    that ran away): the check reports it and warns, the column itself is left as computed;
+    the same column at 0.2× the anomaly's std is not reported."""
+    for factor, expected in ((2.0, True), (0.2, False)):
+        rng = np.random.default_rng(8)
+        table, _ = _table(rng, 1.0)
+        sd = float(table["dg_true_mgal"].std())
+        table["dg_stationary_mgal"] = table["dg_true_mgal"] + rng.normal(0.0, factor * sd, len(table))
+        before = table["dg_stationary_mgal"].to_numpy().copy()
+        warnings: list = []
+        rep = stationary_check(table, ProcessingParams(), warnings)
+        assert rep["passes_noise"] is expected
+        assert any("stationary baseline" in w for w in warnings) is expected
+        assert np.array_equal(table["dg_stationary_mgal"].to_numpy(), before)

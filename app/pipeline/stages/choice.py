@@ -327,6 +327,27 @@ def fir_guard(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dic
     return rep
 
 
+def stationary_check(table: pd.DataFrame, p, warnings: list) -> dict:
+    """The stationary baseline column is only shown, never used for ``dg_mgal``; where its one
+    full-rate ML level runs away (tiny surveys: the level absorbs noise the model misses) it
+    passes noise, and the report says so by the disagreement with FIR of the noisy check
+    (:func:`app.core.model_check.disagreement_ratio`, median over the lines)."""
+    if "dg_stationary_mgal" not in table or not table["dg_stationary_mgal"].notna().any():
+        return {"reason": "no stationary column"}
+    dis = np.array([disagreement_ratio(g["dg_stationary_mgal"].to_numpy(), g["dg_fir_mgal"].to_numpy())
+                    for _, g in table.groupby("line", sort=False)], float)
+    dis = dis[np.isfinite(dis)]
+    if not dis.size:
+        return {"reason": "no line to compare with FIR"}
+    rep = {"median_disagreement": float(np.median(dis)), "max_disagreement": p.noisy_max_disagreement}
+    rep["passes_noise"] = bool(rep["median_disagreement"] > p.noisy_max_disagreement)
+    if rep["passes_noise"]:
+        warnings.append(f"the stationary baseline (dg_stationary_mgal) differs from FIR 100 s by "
+                        f"{rep['median_disagreement']:.1f}x FIR's along-line std (median of {dis.size} lines): its "
+                        "one full-rate ML level likely passes noise; the column is kept as computed, for comparison only")
+    return rep
+
+
 def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=None) -> ModelChoice:
     """Stage 9 over the filtered candidates ``{m: Candidate}`` (``order``: the result of
     :func:`choose_order` when already made)."""
@@ -349,5 +370,6 @@ def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=
            f"one anomaly level: {candidates[m].ident.n_points} decimated points "
            f"(< {p.min_points_adaptive}) cannot tell two apart" if p.n_q is None else "n_q = 1 set")
     rep = {"chosen": chosen, "m": m, "order": order_rep, "anomaly_levels": n_q, "anomaly_levels_reason": why,
-           "lines": lines, "noisy_check": noisy, "fir_guard": guard}
+           "lines": lines, "noisy_check": noisy, "fir_guard": guard,
+           "stationary_check": stationary_check(table, p, warnings)}
     return ModelChoice(m, table, rep)
