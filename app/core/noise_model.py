@@ -278,8 +278,9 @@ def multitaper_psd(z_mgal, dt_s: float, fmax_hz: float, nw: float = 3.0, n_taper
     The error of z spans ~10 orders of magnitude between the anomaly band and the
     turbulence band; any taper leaks that much.  So z is first low-passed (Kaiser FIR,
     pass band to 1.25·fmax, stop band from 1.7·fmax with ``attenuation_db``; from 2.2 or
-    3·fmax when the stretch is too short for that filter) and decimated as far as that allows; a straight line is removed; an AR(``ar_order``) prediction-error
-    filter fitted by least squares whitens what is left (still 5–8 decades inside the pass
+    3·fmax when the stretch is too short for that filter) and decimated as far as that
+    allows; a straight line is removed; an AR(``ar_order``) prediction-error filter fitted
+    by least squares whitens what is left (still 5–8 decades inside the pass
     band); DPSS tapers (``nw``, ``n_tapers`` = 2·nw − 1 by default) give the residual's
     spectrum, which is divided by the gains of both filters.
 
@@ -305,8 +306,9 @@ def multitaper_psd(z_mgal, dt_s: float, fmax_hz: float, nw: float = 3.0, n_taper
     fmax = min(float(fmax_hz), 0.8 * 0.5 * fs)
     # Anti-alias low-pass before decimating by q.  Its length is set by the transition width in
     # Hz (110 dB over 0.45·fmax = 0.09 Hz takes ~80 s whatever the rate), so a stretch too short
-    # for it gets a wider transition (2.2·fmax: ~40 s; 3·fmax: ~20 s): the pass band (≤ 1.25·fmax) is the same, and the decimation keeps every
-    # frequency that folds onto [0, fmax] above the stop band (fs/q − fmax ≥ 2·f_stop − fmax).
+    # for it gets a wider transition (2.2·fmax: ~40 s; 3·fmax: ~20 s).  The pass band
+    # (≤ 1.25·fmax) is the same, and every frequency that folds onto [0, fmax] after the
+    # decimation lies above the stop band (fs/q − fmax ≥ 2·f_stop − fmax ≥ f_stop).
     f_pass = 1.25 * fmax
     for stop_ratio in (1.7, 2.2, 3.0):
         f_stop = stop_ratio * fmax

@@ -155,8 +155,8 @@ class Filtered:
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
         f = self.level_fit
-        if f is None:
-            return None
+        if f is None:   # no refinement (refine_levels off): still say how the std was widened
+            return {"std_level_factor": self.std_level_factor} if self.std_level_factor else None
         return {"Q_mgal2": np.asarray(self.Q_levels).tolist(), "Q_full_rate_ml_mgal2": np.asarray(f.Q_mgal2).tolist(),
                 "lift_only": bool(p.refine_lift_only), "R_local_scale": self.r_scale, "noise_model": p.noise_model,
                 "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations,
