@@ -293,7 +293,9 @@ class ProcessingParams(_Strict):
                                     "by the smoothed map's probabilities, interpolated between decimated points "
                                     "(False: the held state's level, jumping at the hold boundaries)")
     std_level_factor: float = Field(10.0, ge=1, le=1000, description="On a survey with one anomaly level (too few "
-                                    "decimated points for two), dg_std_mgal also carries the level's uncertainty: "
+                                    "decimated points for two), or n_q levels learned from fewer than "
+                                    "n_q x min_points_adaptive decimated points, dg_std_mgal also carries the "
+                                    "levels' uncertainty: "
                                     "the larger difference between the estimate at Q and at Q/f or f·Q (f = this) "
                                     "is added in quadrature; 1 = off.  The data do not fix Q there within a decade "
                                     "(held-out small layouts: the RMS-optimal Q 6-34x above the estimate on some, "

@@ -211,8 +211,11 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
         cands[m_best].filtered.add_stationary(idf.dt_s, m_best, p.smoother, idf.noise.model, p)
     if p.std_state_mixture:  # and the std of the mixture of levels
         cands[m_best].filtered.mixture_std(idf.dt_s, m_best, p.smoother, idf.noise.model)
-    # one level: the std also carries the level's uncertainty
-    cands[m_best].filtered.level_spread_std(idf.dt_s, m_best, p.smoother, idf.noise.model, p.std_level_factor)
+    # levels from too few points (one level, or two from < 2 x min_points_adaptive): the std
+    # also carries the levels' uncertainty
+    cands[m_best].filtered.level_spread_std(idf.dt_s, m_best, p.smoother, idf.noise.model, p.std_level_factor,
+                                            n_points=cands[m_best].ident.n_points,
+                                            min_points=p.min_points_adaptive, q_from_posteriors=p.q_from_posteriors)
     choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings, order=(m_best, order_rep))
     best = cands[choice.m]
     table = choice.table

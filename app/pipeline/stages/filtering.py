@@ -151,34 +151,49 @@ class Filtered:
     r_lines: list | None = None
     n_r: int = 1
     std_level_factor: float | None = None
+    std_level_reason: str | None = None
 
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
         f = self.level_fit
         if f is None:   # no refinement (refine_levels off): still say how the std was widened
-            return {"std_level_factor": self.std_level_factor} if self.std_level_factor else None
+            return ({"std_level_factor": self.std_level_factor, "std_level_reason": self.std_level_reason}
+                    if self.std_level_factor else None)
         return {"Q_mgal2": np.asarray(self.Q_levels).tolist(), "Q_full_rate_ml_mgal2": np.asarray(f.Q_mgal2).tolist(),
                 "lift_only": bool(p.refine_lift_only), "R_local_scale": self.r_scale, "noise_model": p.noise_model,
                 "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations,
-                "Q_stationary_mgal2": self.Q_stationary, "std_level_factor": self.std_level_factor}
+                "Q_stationary_mgal2": self.Q_stationary, "std_level_factor": self.std_level_factor,
+                "std_level_reason": self.std_level_reason}
 
-    def level_spread_std(self, dt_s: float, m: int, method: str, noise, factor: float) -> None:
-        """One anomaly level only (too few decimated points for two): widen ``dg_std_mgal`` by the
-        spread of the estimates at Q/f and f·Q (:func:`app.core.smoother.level_spread_std_mgal`,
-        ``std_level_factor``); the report's ``level_refinement.std_level_factor`` says so.
-        Run for the order that is used only."""
-        if len(self.Q_levels) != 1 or factor <= 1.0 or not self.prepared or self.r_lines is None:
+    def level_spread_std(self, dt_s: float, m: int, method: str, noise, factor: float,
+                         n_points: int | None = None, min_points: int | None = None,
+                         q_from_posteriors: bool = True) -> None:
+        """Levels learned from too few points: widen ``dg_std_mgal`` by the spread of the
+        estimates with the Q levels scaled by 1/f and f (:func:`app.core.smoother.level_spread_std_mgal`,
+        ``std_level_factor`` = f); the report's ``level_refinement.std_level_factor`` and
+        ``std_level_reason`` say so.  It applies with one anomaly level (too few decimated
+        points for two), and with ``n_q`` levels when the EM learned them from fewer than
+        ``n_q × min_points`` decimated points (``n_points``): fewer points per level than one
+        level needs.  Q(t) is the estimate's (the levels' geometric mean under the map's
+        probabilities with ``q_from_posteriors``), scaled as a whole.  Run for the order that
+        is used only."""
+        n_q = len(self.Q_levels)
+        few = n_q > 1 and n_points is not None and min_points is not None and n_points < n_q * min_points
+        if (n_q != 1 and not few) or factor <= 1.0 or not self.prepared or self.r_lines is None:
             return
         col = self.table["dg_std_mgal"].to_numpy().copy()
         off = 0
         for pr, r in zip(self.prepared, self.r_lines):
             n = pr.inner.stop - pr.inner.start
-            q = np.full(pr.z_ext.size, float(self.Q_levels[0]))
+            q = (np.full(pr.z_ext.size, float(self.Q_levels[0])) if n_q == 1
+                 else q_series(pr, self.Q_levels, self.n_r, q_from_posteriors))
             res = level_spread_std_mgal(pr.z_ext, q, r, dt_s, factor, m=m, method=method, noise=noise)
             col[off:off + n] = np.maximum(col[off:off + n], np.asarray(res.dg_std_mgal)[pr.inner])
             off += n
         self.table["dg_std_mgal"] = col
         self.std_level_factor = float(factor)
+        self.std_level_reason = ("one anomaly level" if n_q == 1 else
+                                 f"{n_q} anomaly levels from {n_points} decimated points (< {n_q} x {min_points})")
 
     def mixture_std(self, dt_s: float, m: int, method: str, noise) -> None:
         """Replace ``dg_std_mgal`` by the std of the mixture of levels (``std_state_mixture``),
