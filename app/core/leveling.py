@@ -678,6 +678,60 @@ def _weighted_min_norm(A: np.ndarray, obs: _Observations, layout: _ColumnLayout,
     return scale * z
 
 
+def keep_mean_level(correction_mgal, unit, crossing_units) -> tuple[np.ndarray, list[float]]:
+    """Drift corrections without the common level the crossovers cannot see.
+
+    Crossover differences fix the drifts of connected drift units only up to one constant per
+    connected group; the constant the solution's gauge leaves in (the weighted minimum norm of
+    the coefficients, which is not the mean over the epochs once units have slopes and their
+    lines sit unevenly in time) moves the group's mean level, which no crossover measured.
+    Per group, the epoch-weighted mean correction over its epochs is subtracted, so leveling
+    keeps each group's mean level; differences within a group — and so every crossover
+    residual — are unchanged.
+
+    Parameters
+    ----------
+    correction_mgal : array_like, shape (n,)
+        Correction per epoch (mGal; subtracted from ``dg``).
+    unit : array_like, shape (n,)
+        Drift unit of each epoch's line (any hashable label).
+    crossing_units : iterable of (label, label)
+        The two units of every crossover used.
+
+    Returns
+    -------
+    (ndarray, list of float)
+        The corrections (shape (n,)) and the constant removed from each group (mGal).
+    """
+    c = np.array(correction_mgal, dtype=float)
+    u = np.asarray(unit, dtype=object)
+    if c.shape != u.shape or c.ndim != 1:
+        raise ValueError(f"correction_mgal and unit must be 1-D of one length, got {c.shape} and {u.shape}")
+    parent: dict = {}
+
+    def find(a):
+        parent.setdefault(a, a)
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    for a, b in crossing_units:
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            parent[max(ra, rb, key=str)] = min(ra, rb, key=str)
+    roots = {k: find(k) for k in list(parent)}
+    removed = []
+    for root in sorted(set(roots.values()), key=str):
+        members = [k for k, r in roots.items() if r == root]
+        sel = np.isin(u, np.array(members, dtype=object)) & np.isfinite(c)
+        if sel.any():
+            shift = float(np.mean(c[sel]))
+            c[np.isin(u, np.array(members, dtype=object))] -= shift
+            removed.append(shift)
+    return c, removed
+
+
 def crossover_table(crossovers: pd.DataFrame, result: LevelingResult) -> pd.DataFrame:
     """The ``crossovers.csv`` table of SPEC §5: ``line_a, line_b, easting_km,
     northing_km, diff_before_mgal, diff_after_mgal``."""

@@ -336,3 +336,21 @@ def test_drift_is_not_extrapolated_to_lines_without_crossings():
     t_mid = 0.5 * (ranges["M3"][0] + ranges["M3"][1])
     tau = 2 * (t_mid - t0) / (t1 - t0) - 1
     np.testing.assert_allclose(res.correction("M3", [t_mid])[0], res.coefs["F1"][0] + res.coefs["F1"][1] * tau)
+
+
+def test_keep_mean_level_per_connected_group():
+    """Hand-computed: two connected groups of drift units and one unit without crossings.
+    Each group's epoch-weighted mean correction is removed; differences inside a group (what
+    the crossovers see) and the unconnected unit are unchanged."""
+    from app.core.leveling import keep_mean_level
+
+    unit = np.array(["a", "a", "b", "b", "b", "c", "d", "d", "e"], dtype=object)
+    corr = np.array([1.0, 3.0, 5.0, 5.0, 5.0, 10.0, -2.0, 4.0, 7.0])
+    out, removed = keep_mean_level(corr, unit, [("a", "b"), ("b", "a"), ("d", "e")])
+    m_ab = (1 + 3 + 5 + 5 + 5) / 5.0
+    m_de = (-2 + 4 + 7) / 3.0
+    np.testing.assert_allclose(out, corr - np.array([m_ab] * 5 + [0.0] + [m_de] * 3))
+    assert sorted(removed) == sorted([m_ab, m_de])
+    assert out[5] == 10.0
+    with pytest.raises(ValueError, match="1-D"):
+        keep_mean_level(corr[:3], unit, [])

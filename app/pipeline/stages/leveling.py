@@ -1,6 +1,7 @@
 """Stage 10, leveling (SPEC §3): crossovers of main and tie lines, one drift polynomial per
-flight fitted to them, applied only when an F-test says the crossovers support it; the
-crossovers also check the lines' posterior std.
+flight fitted to them, applied only when an F-test says the crossovers support it and
+without moving the map's mean level (the crossovers cannot see it); the crossovers also
+check the lines' posterior std.
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import pandas as pd
 from scipy.stats import f as f_dist
 
 from app.core.accuracy import crossover_std_factor
-from app.core.leveling import LineTrack, cross_validated_leveling, find_crossovers, level_lines
+from app.core.leveling import LineTrack, cross_validated_leveling, find_crossovers, keep_mean_level, level_lines
 
 #: Per-epoch lower bound of ``dg_std_mgal`` that stage 9 sets on lines that do not resolve the
 #: anomaly (:func:`app.pipeline.stages.choice.check_lines`); :func:`level_survey` applies it
@@ -93,9 +94,14 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFr
     corr = np.zeros(len(table))
     for line, g in table.groupby("line", sort=False):
         corr[g.index.to_numpy()] = res.correction(str(line), g["time"].to_numpy())
+    # the crossovers see differences only: leveling keeps each connected group's mean level
+    unit = table["line"].astype(str).map(lambda ln: res.unit_of.get(ln, ln)).to_numpy(object)
+    pairs = [(res.unit_of.get(a, a), res.unit_of.get(b, b))
+             for a, b, ok_k in zip(cx["line_a"].astype(str), cx["line_b"].astype(str), ok) if ok_k]
+    corr, removed = keep_mean_level(corr, unit, pairs)
     table["dg_mgal"] = table["dg_unleveled_mgal"].to_numpy() - corr
     cx = cx.assign(diff_before_mgal=before, diff_after_mgal=after)
-    rep.update(status="leveled", rms_after_mgal=float(res.rms_after))
+    rep.update(status="leveled", rms_after_mgal=float(res.rms_after), mean_level_removed_mgal=removed)
     rep["std_check"] = std_check(after, pred_var, p)
     return cx[cols], rep
 
