@@ -723,11 +723,11 @@ def keep_mean_level(correction_mgal, unit, crossing_units) -> tuple[np.ndarray, 
     roots = {k: find(k) for k in list(parent)}
     removed = []
     for root in sorted(set(roots.values()), key=str):
-        members = [k for k, r in roots.items() if r == root]
-        sel = np.isin(u, np.array(members, dtype=object)) & np.isfinite(c)
+        group = np.isin(u, np.array([k for k, r in roots.items() if r == root], dtype=object))
+        sel = group & np.isfinite(c)
         if sel.any():
             shift = float(np.mean(c[sel]))
-            c[np.isin(u, np.array(members, dtype=object))] -= shift
+            c[group] -= shift
             removed.append(shift)
     return c, removed
 
