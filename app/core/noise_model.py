@@ -501,7 +501,9 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         Corners of the AR(1) components at most this × the lowest fitted frequency.
     hidden_knees : bool
         Move corners that fall between the lowest fitted frequency and twice the
-        anomaly/noise crossover below the data and refit (see the code comment).
+        anomaly/noise crossover below the data and refit (see the code comment); so too
+        any corner inside the fitted band of a height family ``prefer_height`` put in place
+        of the velocity family the BIC chose.
     prefer_height : bool
         The error is known to come from GNSS heights (no velocity in the file): when the
         family chosen is a pure *velocity* family, the simplest height family within
@@ -537,6 +539,17 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     unmoved = (_finished_fit(prob, prob.white_height_bare, m, spectra, [], fmax_hz)
                if prob.white_height_bare is not None else None)
     hidden = prob.hidden_corners(chosen, m) if hidden_knees else []
+    fitted = None
+    if hidden_knees and not hidden and prob.height_replaced is not None:
+        # The heights-only rule preferred this height family to the velocity family the BIC
+        # chose, so its corner is not the data's: the corner-free f² shape fitted as well.
+        # Inside the fitted band such a corner still takes the f² slope away below it, and
+        # where it was placed — after the order refit too, above twice the crossover — is
+        # chance (a 4-line heights-only layout: corner 0.04 Hz, 1.45x FIR; moved, 0.99x).  It
+        # is moved below the data like the corners above.
+        fitted = _finished_fit(prob, chosen, m, spectra, [], fmax_hz)
+        hidden = [knee_hz(c.phi, dt_s) for c in fitted.model.components
+                  if c.phi > 0 and knee_hz(c.phi, dt_s) > f_low]
     phi_low = float(np.clip(1.0 - 2.0 * np.pi * dt_s * f_low, 0.0, PHI_MAX - 1e-6))
     if hidden and prob.phi_min < phi_low:
         # An AR corner lowers the noise below it.  Placed above the lowest fitted frequency but
@@ -545,7 +558,7 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         # moved below the data (the noise keeps its slope down to the lowest frequency) and the
         # families are fitted again.  The fit as it was is kept beside (``unmoved``): where the
         # move over-states the noise, crossovers can say so (app.core.model_check).
-        unmoved = _finished_fit(prob, chosen, m, spectra, [], fmax_hz)
+        unmoved = fitted if fitted is not None else _finished_fit(prob, chosen, m, spectra, [], fmax_hz)
         prob.phi_min = phi_low
         chosen = prob.select(families, m, bic_margin, prefer_height)
     return replace(_finished_fit(prob, chosen, m, spectra, hidden, fmax_hz), unmoved=unmoved)
