@@ -286,3 +286,24 @@ def test_a_stationary_baseline_that_passes_noise_is_reported():
         assert rep["passes_noise"] is expected
         assert any("stationary baseline" in w for w in warnings) is expected
         assert np.array_equal(table["dg_stationary_mgal"].to_numpy(), before)
+
+
+def test_fir_std_after_the_noisy_check_covers_the_anomaly_fir_clips():
+    """The anomaly plus a 5 km component (50 s at 100 m/s, under FIR's 100 s cutoff): FIR
+    clips it, and crossing lines share that error (the same place), so FIR's crossover
+    differences are small while its error against the truth is not.  After the noisy check
+    FIR's std must not be only the crossovers' share: against the truth its 2σ coverage is
+    below 0.5 with that floor, and at least 0.9 with FIR's along-line spread as the lower bound."""
+    rng = np.random.default_rng(6)
+    table, noise = _table(rng, 45.0)
+    short = 10.0 * np.sin(2 * np.pi * table["easting_km"] / 5.0 + 0.7) * np.cos(2 * np.pi * table["northing_km"] / 5.0 + 0.3)
+    table["dg_true_mgal"] = table["dg_true_mgal"] + short
+    p = ProcessingParams()
+    warnings: list = []
+    lines = check_lines(table, noise, DT_S, p, warnings)
+    rep = noisy_check(table, lines, noise, DT_S, p, warnings)
+    assert rep["applied"]
+    err = np.abs(table["dg_mgal"] - table["dg_true_mgal"]).to_numpy()
+    assert np.mean(err < 2 * rep["fir_crossover_std_mgal"]) < 0.5, rep      # the crossovers' share alone
+    assert rep["fir_std_floor_mgal"] == pytest.approx(max(rep["fir_spread_mgal"], rep["fir_crossover_std_mgal"]))
+    assert np.mean(err < 2 * table["dg_std_mgal"].to_numpy()) >= 0.9

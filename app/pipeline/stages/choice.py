@@ -274,16 +274,21 @@ def noisy_check(table: pd.DataFrame, lines: dict, noise, dt_s: float, p, warning
     if not (ratios.size or dis.size):
         rep["reason"] = "no line to compare with FIR"
     if rep["applied"]:
+        # an estimate that passes noise means the fitted model misjudges the noise, in FIR's band
+        # too, so its FIR noise std means little (a tiny heights-only survey: 2σ coverage 0.07).
+        # What is known without the model: FIR's error does not exceed its own along-line spread,
+        # and what its crossovers show.  The crossovers see only the error two crossing lines do
+        # not share, and the anomaly FIR clips is shared (the same place): on a 4-line heights-only
+        # layout they gave 1.2 mGal against an error of 12 (2σ coverage 0.13).  So the floor is
+        # the larger of the two.
+        spread = float(np.nanmedian([float(np.nanstd(g["dg_fir_mgal"]))
+                                     for _, g in table.groupby("line", sort=False)]))
         d_fir = crossover_differences(table, "dg_fir_mgal", p.leveling_include_repeat)
+        floor = spread
         if d_fir.size >= 4:
-            floor = crossover_rms_mgal(d_fir) / np.sqrt(2.0)
-        else:
-            # an estimate that passes noise means the fitted model misjudges the noise, in FIR's
-            # band too, so its FIR noise std means little (a tiny heights-only survey: 2σ
-            # coverage 0.07); without crossovers what is known is that FIR's error does not
-            # exceed its own along-line spread
-            spread = [float(np.nanstd(g["dg_fir_mgal"])) for _, g in table.groupby("line", sort=False)]
-            floor = float(np.nanmedian(spread))
+            rep["fir_crossover_std_mgal"] = float(crossover_rms_mgal(d_fir) / np.sqrt(2.0))
+            floor = max(spread, rep["fir_crossover_std_mgal"])
+        rep["fir_spread_mgal"] = spread
         _use_fir(table, noise, dt_s, p, floor)
         rep["fir_std_floor_mgal"] = floor
         why = (f"has {rep['median_variance_ratio']:.1f}x the along-line variance of the anomaly FIR 100 s shows "
