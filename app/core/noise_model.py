@@ -538,9 +538,14 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     # part over-states the noise, crossovers can say so (app.core.model_check).
     unmoved = (_finished_fit(prob, prob.white_height_bare, m, spectra, [], fmax_hz)
                if prob.white_height_bare is not None else None)
+    if prob.best_fit_over is not None:
+        # velocity + height, the best fit, in place of the margin's choice on heights-only GNSS:
+        # that choice is kept beside, for the crossovers to restore where the f² part over-states
+        # the FIR noise they allow
+        unmoved = _finished_fit(prob, prob.best_fit_over, m, spectra, [], fmax_hz)
     hidden = prob.hidden_corners(chosen, m) if hidden_knees else []
     fitted = None
-    if hidden_knees and not hidden and prob.height_replaced is not None:
+    if hidden_knees and not hidden and prob.height_replaced is not None and prob.best_fit_over is None:
         # The heights-only rule preferred this height family to the velocity family the BIC
         # chose, so its corner is not the data's: the corner-free f² shape fitted as well.
         # Inside the fitted band such a corner still takes the f² slope away below it, and
@@ -579,6 +584,9 @@ def _finished_fit(prob, chosen: dict, m: int, spectra, hidden: list, fmax_hz: fl
                              "height_family_preferred": prob.height_replaced,
                              # a bare white height replaced by the family that nests it
                              "white_height_nested": chosen is prob.white_height_nest,
+                             # heights only: the margin's choice velocity + height (best BIC) replaced
+                             "best_fit_replaced": (prob.best_fit_over["family"]
+                                                   if prob.best_fit_over is not None else None),
                              "max_corner_hz": knee_hz(prob.phi_min, dt_s) if prob.phi_min > 0 else None,
                              "nll_by_m": {str(k): float(v[0]) for k, v in orders.items()}})
     cands = [{k: v for k, v in c.items() if not k.startswith("_")} for c in prob.candidates]
@@ -683,6 +691,7 @@ class _Whittle:
         # set by select(): the velocity family the heights-only rule replaced, and a bare white
         # height with the candidate that replaced it (_no_bare_white_height)
         self.height_replaced = self.white_height_bare = self.white_height_nest = None
+        self.best_fit_over = None
         self.candidates: list = []
 
     def nll(self, theta, spec, mm) -> float:
@@ -751,7 +760,9 @@ class _Whittle:
         must be strongly supported (ΔBIC > 10), because its behaviour below the noise-dominated
         band — where the data cannot check it — decides how the smoother separates anomaly
         from noise.  ``prefer_height``: a pure velocity choice gives way to the simplest
-        height-only family within the margin, when there is one (:func:`fit_noise_model`)."""
+        height-only family within the margin, when there is one (:func:`fit_noise_model`);
+        and when velocity + height has the best BIC it is used: with heights only, the
+        margin's simpler choice is not the cautious one below the band."""
         self.candidates = []
         for name, spec in families:
             best = self.fit(spec, m, self.random_starts(spec) + self.warm_starts(spec))
@@ -764,14 +775,21 @@ class _Whittle:
                 "_theta": best.x, "_spec": spec})
         best_bic = min(c["bic"] for c in self.candidates)
         near = [c for c in sorted(self.candidates, key=lambda c: c["n_params"]) if c["bic"] <= best_bic + bic_margin]
-        self.height_replaced = None
+        self.height_replaced = self.best_fit_over = None
         chosen = near[0]
         if prefer_height and all(order == 1 for order, _ in chosen["_spec"]):
             heights = [c for c in near if all(order == 2 for order, _ in c["_spec"])]
             if heights:
                 self.height_replaced = chosen["family"]
                 chosen = heights[0]
-        return self._no_bare_white_height(chosen)
+        chosen = self._no_bare_white_height(chosen)
+        top = min(self.candidates, key=lambda c: c["bic"])
+        if prefer_height and top["family"] == "velocity + height" and chosen["family"] != top["family"]:
+            # Heights only: the margin's simpler choice puts less noise below the band than
+            # velocity + height (the f² of a correlated height error carried down), which fits best.
+            self.best_fit_over = chosen
+            return top
+        return chosen
 
     def _no_bare_white_height(self, chosen: dict) -> dict:
         """A bare white height error is replaced by the family that nests it, white height plus a

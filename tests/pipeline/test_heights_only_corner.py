@@ -1,5 +1,7 @@
-"""Heights-only GNSS on a small survey: the height family the heights-only rule prefers keeps
-no AR corner inside the fitted band (simulation with known truth).
+"""Heights-only GNSS on small surveys: the noise shape below the fitted band (simulations with
+known truth).
+
+First: the height family the heights-only rule prefers keeps no AR corner inside the fitted band.
 
 The survey is the random layout 117 of ``benchmarks/bench_unseen.py --geometry``: two 40 km
 lines and two ties, 2 Hz GNSS heights with a 3 cm, 30 s Gauss–Markov error (its z error rises
@@ -9,7 +11,12 @@ family's corner landed at 0.04 Hz, inside the band and above twice the anomaly/n
 crossover, where the corner rule did not look.  Below it the model's noise fell as f⁴ while
 the truth's keeps falling as f²: the smoother let the noise through as anomaly, 1.5x the RMS
 of the FIR 100 s low-pass.  With the corner moved below the data the estimate is level with
-FIR (0.99x)."""
+FIR (0.99x).
+
+Second: where velocity + height fits best it is used, not the margin's simpler choice.  Layout
+167 (three 40 km lines at 129 m/s, 20 Hz heights with the same error, no crossings): the
+simplest family within the BIC margin was a coloured height with its corner at 0.079 Hz,
+1.67x FIR; velocity + height, 5.5 lower in BIC, carries the f² down and gives 0.75x."""
 
 import numpy as np
 import pandas as pd
@@ -22,6 +29,19 @@ LAYOUT_117 = dict(n_main=2, main_length_km=40.0, main_spacing_km=2.0, n_tie=2, n
                   speed_ms=75.3, height_m=2165.0, crs="EPSG:32657", normal_gravity="Helmert1901",
                   gnss_rate_hz=2.0, wind_ms=0.07, episode_rate_per_h=3.46, mountain_std_mgal=22.1,
                   plain_std_mgal=4.9, gnss_velocity=False, sigma_h_m=0.005, h_colored_m=0.03)
+
+
+LAYOUT_167 = dict(n_main=3, main_length_km=40.0, main_spacing_km=8.0, n_tie=0, n_flights=1, n_repeat=0,
+                  speed_ms=128.7, height_m=2799.0, crs="EPSG:32657", normal_gravity="WGS84", gnss_rate_hz=20.0,
+                  wind_ms=9.73, episode_rate_per_h=0.58, mountain_std_mgal=37.7, plain_std_mgal=10.0,
+                  gnss_velocity=False, sigma_h_m=0.005, h_colored_m=0.03)
+
+
+def _line_rms(survey, out) -> dict:
+    """Line-demeaned RMS against the truth of the estimate and FIR, 10 km in from the line ends."""
+    m = merge_truth(pd.read_parquet(out / "lines.parquet"), pd.read_parquet(survey / "truth" / "lines.parquet"))
+    core = m[(m["along_km"] >= 10.0) & (m["along_km"] <= m.groupby("line")["along_km"].transform("max") - 10.0)]
+    return {c: rms_vs_reference(core[c], core["dg_true_mgal"], line=core["line"]) for c in ("dg_mgal", "dg_fir_mgal")}
 
 
 def test_preferred_height_family_keeps_no_corner_in_the_data(tmp_path):
@@ -37,8 +57,19 @@ def test_preferred_height_family_keeps_no_corner_in_the_data(tmp_path):
     corners = [(1.0 - c["phi"]) / (2.0 * np.pi * nm["dt_s"]) for c in nm["components"] if c["phi"] > 0]
     assert all(k <= f_low * (1 + 1e-9) for k in corners), (corners, f_low)
 
-    m = merge_truth(pd.read_parquet(out / "lines.parquet"), pd.read_parquet(survey / "truth" / "lines.parquet"))
-    core = m[(m["along_km"] >= 10.0) & (m["along_km"] <= m.groupby("line")["along_km"].transform("max") - 10.0)]
-    rms = {c: rms_vs_reference(core[c], core["dg_true_mgal"], line=core["line"])
-           for c in ("dg_mgal", "dg_fir_mgal")}
+    rms = _line_rms(survey, out)
     assert rms["dg_mgal"] <= 1.1 * rms["dg_fir_mgal"], rms   # 1.53x with the corner at 0.04 Hz
+
+
+def test_velocity_and_height_is_used_where_it_fits_best(tmp_path):
+    from app.simulate import simulate_survey
+
+    survey = simulate_survey("omolon-mini", tmp_path / "survey", seed=167, **LAYOUT_167)
+    out = tmp_path / "out"
+    report = process_survey(survey, out)
+    nm = report["noise_model"]
+    best = min(nm["candidates"], key=lambda c: c["bic"])
+    assert best["family"] == "velocity + height" and nm["family"] == "velocity + height"
+    assert nm["best_fit_replaced"] is not None
+    rms = _line_rms(survey, out)
+    assert rms["dg_mgal"] <= 0.9 * rms["dg_fir_mgal"], rms   # 1.67x with the margin's coloured height
