@@ -276,18 +276,18 @@ def noisy_check(table: pd.DataFrame, lines: dict, noise, dt_s: float, p, warning
     if rep["applied"]:
         # an estimate that passes noise means the fitted model misjudges the noise, in FIR's band
         # too, so its FIR noise std means little (a tiny heights-only survey: 2σ coverage 0.07).
-        # What is known without the model: FIR's error does not exceed its own along-line spread,
-        # and what its crossovers show.  The crossovers see only the error two crossing lines do
-        # not share, and the anomaly FIR clips is shared (the same place): on a 4-line heights-only
-        # layout they gave 1.2 mGal against an error of 12 (2σ coverage 0.13).  So the floor is
-        # the larger of the two.
+        # Two scales need no model: FIR's own along-line spread (where the estimate was rejected
+        # the anomaly FIR leaves out is of that order) and its crossovers' share.  The crossovers
+        # see only the error two crossing lines do not share, and the anomaly FIR clips is shared
+        # (the same place): on a 4-line heights-only layout they gave 1.2 mGal against an error
+        # of 12 (2σ coverage 0.13).  So the floor is the larger of the two (a NaN one ignored).
         spread = float(np.nanmedian([float(np.nanstd(g["dg_fir_mgal"]))
                                      for _, g in table.groupby("line", sort=False)]))
         d_fir = crossover_differences(table, "dg_fir_mgal", p.leveling_include_repeat)
         floor = spread
         if d_fir.size >= 4:
             rep["fir_crossover_std_mgal"] = float(crossover_rms_mgal(d_fir) / np.sqrt(2.0))
-            floor = max(spread, rep["fir_crossover_std_mgal"])
+            floor = float(np.fmax(spread, rep["fir_crossover_std_mgal"]))
         rep["fir_spread_mgal"] = spread
         _use_fir(table, noise, dt_s, p, floor)
         rep["fir_std_floor_mgal"] = floor
