@@ -4,7 +4,12 @@ import numpy as np
 import pytest
 from scipy.signal import butter, sosfreqz
 
-from app.core.noise_level import band_noise_variance_cm2s2, local_noise_variance_cm2s2, white_band_gain
+from app.core.noise_level import (
+    band_noise_variance_cm2s2,
+    band_rms_mgal,
+    local_noise_variance_cm2s2,
+    white_band_gain,
+)
 
 DT = 0.1
 
@@ -65,3 +70,19 @@ def test_band_level_bad_input():
         band_noise_variance_cm2s2(np.ones(1000), DT, band_hz=(0.3, 6.0))
     with pytest.raises(ValueError):
         band_noise_variance_cm2s2(np.full(1000, np.nan), DT)
+
+
+def test_band_rms_of_a_sine_in_band_and_out():
+    """A sine inside the band keeps its RMS A/√2, sines outside it (and a gap) do not count."""
+    t = np.arange(0.0, 3600.0, 0.5)
+    z = 3.0 * np.sin(2 * np.pi * 0.03 * t) + 50.0 * np.sin(2 * np.pi * 0.002 * t) + 10.0 * np.sin(2 * np.pi * 0.3 * t)
+    rms, n = band_rms_mgal(z, 0.5, (0.02, 0.05))
+    assert rms == pytest.approx(3.0 / np.sqrt(2.0), rel=2e-3) and n == t.size - 2 * 200
+    usable = np.ones(t.size, bool)
+    usable[3000:3100] = False                                  # two stretches, each trimmed at both ends
+    z[3050] = np.nan
+    rms2, n2 = band_rms_mgal(z, 0.5, (0.02, 0.05), usable=usable)
+    assert rms2 == pytest.approx(3.0 / np.sqrt(2.0), rel=5e-3) and n2 == t.size - 100 - 4 * 200
+    assert np.isnan(band_rms_mgal(z[:400], 0.5, (0.02, 0.05))[0])          # shorter than 3 × 100 s
+    with pytest.raises(ValueError, match="band_hz"):
+        band_rms_mgal(z, 0.5, (0.02, 1.5))
