@@ -1,0 +1,45 @@
+"""The in-flight lag check applies a τ only where it makes z better in the band the smoother
+works in (simulations with known truth; stage 1 only, no smoother).
+
+Over 321 simulated surveys the τ-only calibration moved τ by more than 0.05 s on 10, every
+time with survey.toml's τ the true one: it absorbs the difference between the records'
+response (interval means, heights differentiated twice) and a first-order lag near the top
+of its band.  On random layout 177 of ``benchmarks/bench_unseen.py --geometry`` (a GT-1A
+with its true τ = 2.0 s declared, 2 Hz GNSS heights, 4.4 km up) it found 2.093 s, and with it
+the estimate's error was 1.75x the FIR 100 s low-pass's (1.08x with τ = 2.0).  That τ raises
+z's RMS at 0.02–0.05 Hz by 41 %; a real lag error lowers it (declared 2.0, true 2.15 s: −36 %).
+"""
+
+import numpy as np
+
+from app.io.survey import read_survey
+from app.pipeline.stages.measurement import check_lag
+from app.simulate import simulate_survey
+
+LAYOUT_177 = dict(n_main=8, main_length_km=25.0, main_spacing_km=4.0, n_tie=0, n_flights=1, n_repeat=4,
+                  speed_ms=112.0, height_m=4358.0, crs="EPSG:32657", normal_gravity="Helmert1901",
+                  gnss_rate_hz=2.0, wind_ms=16.6, episode_rate_per_h=2.1, mountain_std_mgal=18.9,
+                  plain_std_mgal=8.0, gnss_velocity=False, sigma_h_m=0.005, h_colored_m=0.03)
+
+
+def test_in_flight_lag_that_worsens_z_is_not_applied(tmp_path):
+    survey_dir = simulate_survey("omolon-mini", tmp_path / "s", seed=177, **LAYOUT_177)
+    survey = read_survey(survey_dir)
+    assert survey.config.gravimeter.tau_s == 2.0                   # declared = true
+    warnings = []
+    tau, info = check_lag(survey, survey.config, warnings)
+    est = float(np.median(info["estimated_tau_s"]))
+    assert abs(est - 2.0) > survey.config.processing.lag_check_s   # the calibration is off ...
+    assert info["band_rms_estimated_mgal"] > info["band_rms_declared_mgal"]   # ... and z says so
+    assert tau is None and info["applied"] is False and "kept" in info["reason"]
+    assert not any("gravimeter lag" in w for w in warnings)
+
+
+def test_small_real_lag_error_is_still_applied(tmp_path):
+    survey_dir = simulate_survey("tiny", tmp_path / "s", seed=7, tau_true_s=2.15)
+    survey = read_survey(survey_dir)
+    warnings = []
+    tau, info = check_lag(survey, survey.config, warnings)
+    assert info["applied"] and abs(tau - 2.15) < 0.02
+    assert info["band_rms_improvement"] > 0.2
+    assert any("gravimeter lag" in w for w in warnings)
