@@ -272,7 +272,7 @@ def _ar_least_squares(y: np.ndarray, p: int) -> np.ndarray:
 
 
 def multitaper_psd(z_mgal, dt_s: float, fmax_hz: float, nw: float = 3.0, n_tapers: int | None = None,
-                   attenuation_db: float = 110.0, ar_order: int = 6) -> Spectrum:
+                   attenuation_db: float = 110.0, ar_order: int = 6, need_bins: bool = False) -> Spectrum:
     """Prewhitened multitaper PSD of one NaN-free stretch of z up to ``fmax_hz``.
 
     The error of z spans ~10 orders of magnitude between the anomaly band and the
@@ -292,6 +292,10 @@ def multitaper_psd(z_mgal, dt_s: float, fmax_hz: float, nw: float = 3.0, n_taper
         Step (s).
     fmax_hz : float
         Highest frequency wanted (Hz), below 0.5/(1.7·dt_s)... clipped to 0.8 Nyquist.
+    need_bins : bool
+        Take the sharpest filter that also leaves bins below ``fmax_hz`` (the taper bandwidth
+        of what is left after the filter); by default the sharpest the stretch is long enough
+        for, whose spectrum can then be empty (a 97 s stretch at 2 Hz keeps 18 s).
 
     Returns
     -------
@@ -320,9 +324,10 @@ def multitaper_psd(z_mgal, dt_s: float, fmax_hz: float, nw: float = 3.0, n_taper
         else:
             h = np.ones(1)
             q = 1
-        if z.size >= h.size + 16 * q:
+        n_e = (z.size - h.size + 1) // q - ar_order
+        if z.size >= h.size + 16 * q and (not need_bins or (n_e > 0 and 1.5 * nw / (n_e * q * dt_s) < fmax)):
             break
-    if z.size < h.size + 16 * q:
+    else:
         raise ValueError(f"stretch of {z.size} samples too short for a spectrum up to {fmax:g} Hz")
     y = np.convolve(z, h, mode="valid")[::q]
     t = np.arange(y.size)
@@ -630,6 +635,16 @@ def _collect_spectra(z_segments, differences, dt_s, fmax_hz, nw, min_duration_s)
             except ValueError:
                 pass
     items = [it for it in items if it[0].f_hz.size > 0]
+    if not any(not diff for _, diff, _ in items):
+        # no stretch left a bin after the sharpest anti-alias filter it is long enough for (the
+        # lines of a 12 km layout at 117 m/s and 2 Hz: refused): the wider transitions instead
+        for z in z_segments:
+            z = np.asarray(z, dtype=float)
+            if z.size * dt_s >= min_duration_s:
+                try:
+                    items.append((multitaper_psd(z, dt_s, fmax_hz, nw=nw, need_bins=True), False, (1.0, 1.0)))
+                except ValueError:
+                    pass
     if not any(not diff for _, diff, _ in items):
         raise ValueError(f"no stretch of z of at least {min_duration_s:g} s to fit the noise model on")
 

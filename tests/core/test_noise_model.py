@@ -252,3 +252,24 @@ def test_coloured_noise_smoother_beats_the_white_model_on_height_noise():
     rms_w = np.sqrt(np.mean((est_w - truth)[core] ** 2))
     assert rms < 1.5 and rms < 0.3 * rms_w
     assert np.var(est[core]) > 0.8 * np.var(truth[core])
+
+
+def test_multitaper_leaves_bins_on_a_97_s_stretch_at_2_hz():
+    """At 2 Hz the sharpest anti-alias filter takes 79 s of a 97 s stretch, and the 18 s left
+    have a taper bandwidth above fmax: no bin (a layout of 12 km lines at 117 m/s was refused).
+    With ``need_bins`` the next filter is taken, and its spectrum of white velocity noise is the
+    true one (pooled over 60 stretches); the noise fit then runs on such lines."""
+    dt = 0.5
+    comp = NoiseComponent(1, 0.0, 1e6)
+    rng = np.random.default_rng(7)
+    x = _simulate_component(rng, 194, comp)
+    assert multitaper_psd(x, dt, 0.2).f_hz.size == 0
+    ratios = []
+    for _ in range(60):
+        spec = multitaper_psd(_simulate_component(rng, 194, comp), dt, 0.2, need_bins=True)
+        assert spec.f_hz.size > 0 and spec.f_hz.max() <= 0.2
+        ratios.append(spec.psd / NoiseModel((comp,), dt, "v").psd(spec.f_hz))
+    assert 0.8 < np.mean(np.concatenate(ratios)) < 1.25
+    fit = fit_noise_model([_simulate_component(rng, 194, comp) for _ in range(6)], dt, m=2, fmax_hz=0.2,
+                          min_duration_s=60.0)
+    assert fit.model.components
