@@ -335,6 +335,10 @@ class ProcessingParams(_Strict):
                                       "EM's level on the regularized band (where anomaly and noise meet); this "
                                       "bounds the factor from below (1 = only ever scale up, as before the noise "
                                       "shape was fitted)")
+    noise_height_tau_min_s: float = Field(20.0, gt=0, le=10_000, description="Shortest correlation time (s) of a "
+                                          "GNSS height error: with heights-only GNSS, the corner of a height family "
+                                          "preferred to a velocity one is kept below 1/(2π·this) (0.008 Hz) as well "
+                                          "as below the lowest fitted frequency")
     noise_knee_max_fraction: float | None = Field(None, gt=0, le=100, description="Corner frequencies of the "
                                                   "AR(1) noise components at most this × the lowest fitted "
                                                   "frequency (None: anywhere)")

@@ -477,7 +477,7 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                     n_starts: int = 4, seed: int = 0, bic_margin: float = 10.0,
                     differences=(), octave_weights: bool = False,
                     knee_max_fraction: float | None = None, hidden_knees: bool = True,
-                    prefer_height: bool = False) -> NoiseFit:
+                    prefer_height: bool = False, height_tau_min_s: float = 20.0) -> NoiseFit:
     """Fit the error of z by the Whittle likelihood of prewhitened multitaper spectra.
 
     Model of z's spectrum: ``S(f) = S_anomaly(f; Q, m) + Σ_c S_c(f)``; each family of
@@ -517,6 +517,14 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         do) from a coloured height error whose corner lies in the anomaly band, yet the two
         put very different noise there.  A chosen family with a height component is kept:
         the data have already said the error is partly a height error.
+    height_tau_min_s : float
+        Shortest correlation time (s) of a GNSS height error (multipath, troposphere and
+        satellite geometry change over tens of seconds to minutes).  The corner of a height
+        family ``prefer_height`` put in place is kept at or below ``1/(2π·height_tau_min_s)``
+        (0.008 Hz for 20 s) as well as below the lowest fitted frequency: on short lines the
+        spectra start at 0.03–0.06 Hz, and a corner guessed between there and the anomaly
+        band took the noise out of it (random layout 489, 12 km lines at 74 m/s: corner
+        0.034 Hz, 1.44x the FIR 100 s error; at 0.008 Hz, 0.82x).
     differences : sequence of PassDifference
         Differences of two passes of one repeat track on a common along-track grid: the
         anomaly cancels, so their spectra show the noise alone — also where it hides under
@@ -550,17 +558,22 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         unmoved = _finished_fit(prob, prob.best_fit_over, m, spectra, [], fmax_hz)
     hidden = prob.hidden_corners(chosen, m) if hidden_knees else []
     fitted = None
-    if hidden_knees and not hidden and prob.height_replaced is not None and prob.best_fit_over is None:
+    preferred = hidden_knees and prob.height_replaced is not None and prob.best_fit_over is None
+    # where corners are moved to: below the data, and for a preferred height family (its
+    # corner is not the data's) also below what a GNSS height error's correlation allows
+    f_move = min(f_low, 1.0 / (2.0 * np.pi * height_tau_min_s)) if preferred else f_low
+    if preferred and not hidden:
         # The heights-only rule preferred this height family to the velocity family the BIC
         # chose, so its corner is not the data's: the corner-free f² shape fitted as well.
         # Inside the fitted band such a corner still takes the f² slope away below it, and
         # where it was placed — after the order refit too, above twice the crossover — is
         # chance (a 4-line heights-only layout: corner 0.04 Hz, 1.45x FIR; moved, 0.99x).  It
-        # is moved below the data like the corners above.
+        # is moved below the data like the corners above — and below 1/(2π·height_tau_min_s),
+        # since on short lines "below the data" can still be the anomaly band (0.03–0.06 Hz).
         fitted = _finished_fit(prob, chosen, m, spectra, [], fmax_hz)
         hidden = [knee_hz(c.phi, dt_s) for c in fitted.model.components
-                  if c.phi > 0 and knee_hz(c.phi, dt_s) > f_low]
-    phi_low = float(np.clip(1.0 - 2.0 * np.pi * dt_s * f_low, 0.0, PHI_MAX - 1e-6))
+                  if c.phi > 0 and knee_hz(c.phi, dt_s) > f_move]
+    phi_low = float(np.clip(1.0 - 2.0 * np.pi * dt_s * f_move, 0.0, PHI_MAX - 1e-6))
     if hidden and prob.phi_min < phi_low:
         # An AR corner lowers the noise below it.  Placed above the lowest fitted frequency but
         # below twice the anomaly/noise crossover, it was decided where the anomaly hides the

@@ -52,7 +52,8 @@ def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False)
                              "noise model (processing.noise_fit_min_s)")
     fit = fit_noise_model(segs, dt_s, m=2, fmax_hz=fmax, families=fams, differences=diffs,
                           octave_weights=p.noise_fit_octave_weights, knee_max_fraction=p.noise_knee_max_fraction,
-                          prefer_height=heights_only, min_duration_s=min_s)
+                          prefer_height=heights_only, min_duration_s=min_s,
+                          height_tau_min_s=p.noise_height_tau_min_s)
     return fit, fit.model.normalized(level_band(p, dt_s)), min_s
 
 
