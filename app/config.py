@@ -383,8 +383,8 @@ class ProcessingParams(_Strict):
                                       "first three flights) and use the median when it differs from survey.toml's "
                                       "by more than this (s) and the flights agree within it; None trusts "
                                       "survey.toml")
-    lag_check_min_improvement: float = Field(0.01, ge=0, lt=1, description="… and only when the in-flight τ "
-                                             "lowers the RMS of z by at least this share in the band just above "
+    lag_check_min_improvement: float = Field(0.01, ge=0, lt=1, description="The in-flight τ of lag_check_s is used only "
+                                             "when it also lowers the RMS of z by at least this share in the band just above "
                                              "FIR's cutoff (2–5 × 1/fir_cutoff_period_s), where the estimate "
                                              "separates anomaly from noise")
     leveling_degree: int = Field(1, ge=0, le=2)
