@@ -52,6 +52,12 @@ _LOG2PI = float(np.log(2.0 * np.pi))
 # MA); RMS within ±1 % on 29 of them, the others moved by reaching another EM end point or
 # order choice (-11 % to +3 %; benchmarks/bench_regimes.py, bench_unseen.py).
 _MSTEP_MAXITER = 5
+# The variance M-step evaluates its objective only on the (window class, super-state) pairs whose
+# posterior weight exceeds this fraction of the total; the rest change the per-sample objective
+# by less than that.  With a long noise MA most pairs carry none: a class below p holds only
+# the first samples of each line, and most switch positions are never visited (held-out layout
+# 515, a 20-term MA: 2604 of 5124 pairs exactly zero, ~1100 above 1e-12; that EM 48.7 -> 17.6 s).
+_MSTEP_MIN_WEIGHT = 1e-12
 
 
 def single_thread_blas():
@@ -228,6 +234,16 @@ class WindowModel:
         S = np.einsum("muixy,i->muxy", self.BQ, Q) + np.einsum("mujxy,j->muxy", self.BR, R)
         return S + self.pad[:, None]
 
+    def subset(self, mask: np.ndarray) -> WindowSubset:
+        """The window covariances of the (class, super-state) pairs selected by ``mask``
+        (bool, shape (p+1, U)), laid out as one class of K pairs (see :class:`WindowSubset`)."""
+        mask = np.asarray(mask, bool)
+        if mask.shape != self.BQ.shape[:2]:
+            raise ValueError(f"mask must have shape {self.BQ.shape[:2]}, got {mask.shape}")
+        m_idx = np.nonzero(mask)[0]
+        return WindowSubset(self.n_q, self.p, self.BQ[mask][None], self.BR[mask][None],
+                            self.pad[m_idx][None])
+
     def conditional(self, Q, R) -> tuple[np.ndarray, np.ndarray]:
         """Regression of ``x_k`` on its window past: ``beta`` (p+1, U, p), ``var`` (p+1, U)."""
         S = self.covariance(np.asarray(Q, float), np.asarray(R, float))
@@ -242,6 +258,24 @@ class WindowModel:
             raise FloatingPointError("window covariance is singular") from exc
         var = S[..., p, p] - np.einsum("mux,mux->mu", s, beta)
         return beta, var
+
+
+@dataclass
+class WindowSubset:
+    """Some (class, super-state) pairs of a :class:`WindowModel`, shaped as a single class of
+    K pairs: ``BQ`` (1, K, n_q, p+1, p+1), ``BR`` (1, K, n_r, p+1, p+1), ``pad`` (1, K, p+1, p+1).
+    Enough for the variance M-step (:func:`_qr_objective`), which sums over pairs."""
+
+    n_q: int
+    p: int
+    BQ: np.ndarray
+    BR: np.ndarray
+    pad: np.ndarray
+
+    def covariance(self, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """Window covariances Σ of the selected pairs, shape (1, K, p+1, p+1)."""
+        S = np.einsum("muixy,i->muxy", self.BQ, Q) + np.einsum("mujxy,j->muxy", self.BR, R)
+        return S + self.pad
 
 
 # --------------------------------------------------------------------------- data layout
@@ -355,10 +389,11 @@ def _spd_inverse_from_cholesky(L: np.ndarray) -> np.ndarray:
     return np.swapaxes(X, -1, -2) @ X
 
 
-def _qr_objective(theta, model: WindowModel, S: np.ndarray, n: np.ndarray):
+def _qr_objective(theta, model: WindowModel | WindowSubset, S: np.ndarray, n: np.ndarray):
     """Expected emission log-likelihood and its gradient in log-variances.
 
-    ``S`` (p+1, U, p+1, p+1) weighted window scatter, ``n`` (p+1, U) weights.
+    ``S`` (p+1, U, p+1, p+1) weighted window scatter, ``n`` (p+1, U) weights — or, with a
+    :class:`WindowSubset` of K pairs, (1, K, p+1, p+1) and (1, K).
     Returns (value, grad) of the *negative* objective (for minimisation).
     """
     nq = model.n_q
@@ -742,8 +777,10 @@ def _fit_em(x_list, c, d, n_q, n_r, Q_init, R_init, transition_init, max_iter, t
         S, n = _window_stats(data, gamma, p)
         scale = 1.0 / max(float(n.sum()), 1.0)  # objective per sample: O(1) gradients
         S, n = S * scale, n * scale
-        f0, _ = _qr_objective(theta, model, S, n)
-        res = minimize(_qr_objective, theta, args=(model, S, n), jac=True, method="L-BFGS-B",
+        keep = n > _MSTEP_MIN_WEIGHT * float(n.sum())
+        sub, S, n = model.subset(keep), S[keep][None], n[keep][None]
+        f0, _ = _qr_objective(theta, sub, S, n)
+        res = minimize(_qr_objective, theta, args=(sub, S, n), jac=True, method="L-BFGS-B",
                        bounds=[(t - 25.0, t + 25.0) for t in theta],
                        options={"maxiter": _MSTEP_MAXITER, "ftol": 1e-12, "gtol": 1e-8})
         if np.all(np.isfinite(res.x)) and res.fun < f0:

@@ -187,3 +187,34 @@ def test_mstep_gradient_matches_finite_differences():
     num = np.array([(_qr_objective(theta + eps * e, model, S, n)[0]
                      - _qr_objective(theta - eps * e, model, S, n)[0]) / (2 * eps) for e in np.eye(4)])
     np.testing.assert_allclose(g, num, rtol=1e-5, atol=1e-6 * abs(f))
+
+
+def test_mstep_on_weighted_pairs_only_equals_full_objective():
+    """The M-step evaluates only the (class, super-state) pairs that carry weight; pairs of
+    zero weight contribute nothing, so value and gradient must equal the full sum's."""
+    from app.core.mjls_em import WindowModel, _layout, _qr_objective, _window_stats
+
+    rng = np.random.default_rng(5)
+    c, d = np.array([2.0, 1.0, 0.5, 0.2]), np.array([0.1, -0.2, 0.05])
+    model = WindowModel(c, d, 2, 2)
+    xs = [rng.standard_normal(n) for n in (25, 40, 31)]
+    data = _layout(xs, model.p)
+    U = model.chain.n_super
+    gamma = rng.dirichlet(np.ones(U), size=(3, 40))
+    gamma[..., rng.random(U) < 0.5] = 0.0          # half the super-states never visited
+    gamma /= gamma.sum(-1, keepdims=True)
+    S, n = _window_stats(data, gamma, model.p)
+    keep = n > 0
+    assert 0 < keep.sum() < keep.size
+    theta = np.log([0.05, 0.4, 1.0, 3.0])
+    f_full, g_full = _qr_objective(theta, model, S, n)
+    f_sub, g_sub = _qr_objective(theta, model.subset(keep), S[keep][None], n[keep][None])
+    np.testing.assert_allclose(f_sub, f_full, rtol=1e-12)
+    np.testing.assert_allclose(g_sub, g_full, rtol=1e-10, atol=1e-12 * abs(f_full))
+    # a wrong selection (one weighted pair left out) is seen
+    drop = keep.copy()
+    drop[np.argwhere(keep)[0][0], np.argwhere(keep)[0][1]] = False
+    f_bad, _ = _qr_objective(theta, model.subset(drop), S[drop][None], n[drop][None])
+    assert abs(f_bad - f_full) > 1e-6 * abs(f_full)
+    with pytest.raises(ValueError, match="mask must have shape"):
+        model.subset(keep[:, :-1])
