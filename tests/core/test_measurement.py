@@ -124,3 +124,57 @@ def test_spikes_at_a_tenth_of_a_percent_are_found_in_turbulence(rate_hz, turbule
     assert found >= 0.9, found
     assert (mask & ~hit).sum() <= 1e-3 * n
     assert spike_mask(z_clean, dt).mean() <= 1e-3                 # the clean record: false alarms only
+
+
+def test_height_spikes_and_steps_are_removed_through_the_spline():
+    """Heights-only GNSS: vu is the derivative of the spline through h, so a height spike
+    (one bad epoch) or a step (a cycle slip: every later height off) reaches z as a pattern
+    ringing over several epochs.  The flags cover only its core; replacing that core by its
+    mean (the velocity-spike repair) leaves the tails unbalanced, an error at 100 s.  The
+    height-outlier repair must recover the clean record's FIR 100 s low-pass and say what
+    it removed."""
+    from app.core.baselines import fir_lowpass_mgal
+    from app.core.measurement import repair_height_outliers, repair_spikes
+
+    rng = np.random.default_rng(3)
+    dt = 0.5
+    t = 5000.0 + np.arange(7200) * dt                     # one hour at 2 Hz
+    h = 3000.0 + sum(a * np.sin(2 * np.pi * t / p + rng.uniform(0, 6.3))   # aircraft heave
+                     for a, p in ((0.02, 3.0), (0.1, 7.0), (0.5, 19.0), (2.0, 60.0)))
+    anomaly = 20.0 * np.sin(2 * np.pi * t / 900.0)         # mGal
+    fbar = np.r_[np.nan, np.diff(geodesy.vertical_velocity_from_heights_ms(t, h)) / dt]
+    fbar = fbar + (anomaly + rng.normal(0, 500.0, t.size)) * 1e-5   # gravimeter: motion + anomaly + noise
+    zero = np.zeros(t.size)
+
+    def z_of(heights):
+        return anomaly_measurement_mgal(fbar, t, geodesy.vertical_velocity_from_heights_ms(t, heights), zero, zero)
+
+    bad = h.copy()
+    truth = {1500: ("spike", 0.25), 3100: ("spike", -0.15), 4777: ("step", 0.30), 6000: ("spike", 0.40)}
+    for j, (kind, size) in truth.items():
+        if kind == "spike":
+            bad[j] += size
+        else:
+            bad[j:] += size
+    z0, z1 = z_of(h)[1:], z_of(bad)[1:]
+    tt = t[1:]
+    # the detector flags the pattern's core, often not all of it (spike_mask's local scale
+    # sees the ringing): flag the largest departure from the clean record and one neighbour
+    mask = np.zeros(z1.size, bool)
+    for j in truth:
+        k = j - 1 - 4 + int(np.argmax(np.abs(z1 - z0)[j - 1 - 4:j - 1 + 5]))
+        mask[k:k + 2] = True
+    fixed, fixes = repair_height_outliers(z1, tt, mask)
+    found = {f["epoch"] + 1: (f["kind"], f["size_m"]) for f in fixes}   # z index -> epoch of t
+    assert set(found) == set(truth)
+    for j, (kind, size) in truth.items():
+        assert found[j][0] == kind and abs(found[j][1] - size) < 0.01
+
+    def fir_err(z):
+        return float(np.sqrt(np.mean((fir_lowpass_mgal(z, dt) - fir_lowpass_mgal(z0, dt))[300:-300] ** 2)))
+
+    assert fir_err(fixed) < 0.05                                      # mGal
+    assert fir_err(repair_spikes(z1, mask)) > 1.0                     # the run-mean repair's tails
+    assert fir_err(z1) > 1.0                                          # the step, left in
+    with pytest.raises(ValueError, match="same shape"):
+        repair_height_outliers(z1, tt[:-1], mask)

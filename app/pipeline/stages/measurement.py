@@ -23,7 +23,7 @@ from app.config import SurveyConfig
 from app.core import geodesy
 from app.core import gravimeter as gm
 from app.core.calibration import CalibrationSpectra, calibrate
-from app.core.measurement import anomaly_measurement_mgal, repair_spikes, spike_mask
+from app.core.measurement import anomaly_measurement_mgal, repair_height_outliers, repair_spikes, spike_mask
 from app.core.noise_level import band_rms_mgal, local_noise_variance_cm2s2
 
 
@@ -92,7 +92,7 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     fbar = gm.interval_means(series, t, tau, k, time_offset_s=offset if applied else 0.0)
     z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
     mask_gaps(z, t, gr["time"].to_numpy(float) + (offset if applied else 0.0), p.gravimeter_gap_margin_s, notes)
-    z, despike = despike_z(z, float(np.median(np.diff(t))), p, notes)
+    z, despike = despike_z(z, t, p, notes, bool(getattr(flight, "vu_derived_from_h", False)))
     return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
                              float(offset), float(offset_info.get("correlation", np.nan)), applied, notes,
                              despike, offset_info, bool(getattr(flight, "vu_derived_from_h", False)))
@@ -160,11 +160,17 @@ def mask_gaps(z, t, t_grav, margin_s: float, notes: list) -> None:
                          "of z left without measurement")
 
 
-def despike_z(z, dt_s: float, p, notes: list):
+def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False):
     """Repair isolated spikes of z (:func:`app.core.measurement.spike_mask`); stand down when
-    more than ``despike_max_fraction`` of the epochs would be flagged.  Returns (z, evidence)."""
+    more than ``despike_max_fraction`` of the epochs would be flagged.  Where ``vu`` was
+    derived from the heights a flag is a height spike or step seen through the spline, and
+    is removed as one (:func:`app.core.measurement.repair_height_outliers`, the report lists
+    each: epoch time, kind, size in m); otherwise each flagged run is replaced by its mean
+    (:func:`app.core.measurement.repair_spikes`).  Returns (z, evidence)."""
+    t = np.asarray(t_s, float)
+    dt_s = float(np.median(np.diff(t)))
     despike = {"threshold": p.despike_threshold, "flagged": 0, "epochs": int(np.isfinite(z).sum()),
-               "applied": False}
+               "applied": False, "repair": "height outliers" if vu_from_heights else "run mean"}
     if p.despike_threshold is None:
         return z, despike
     spikes = spike_mask(z, dt_s, p.despike_threshold)
@@ -177,6 +183,16 @@ def despike_z(z, dt_s: float, p, notes: list):
         despike["reason"] = "stood down: too many flags"
         notes.append(f"spike repair stood down: {n_flag} of {despike['epochs']} epochs ({100 * frac:.2f} %) "
                      f"would be flagged, more than {100 * p.despike_max_fraction:g} % — z left as measured")
+    elif n_flag and vu_from_heights:
+        z, fixes = repair_height_outliers(z, t, spikes)
+        despike["applied"] = True
+        despike["height_outliers"] = [{"time": float(t[f["epoch"]]), "kind": f["kind"], "size_m": f["size_m"]}
+                                      for f in fixes]
+        kinds = [f["kind"] for f in fixes if f["kind"]]
+        notes.append(f"{n_flag} epochs of z ({100 * frac:.3f} %) flagged as spikes (> {p.despike_threshold:g} local "
+                     f"robust std from the neighbours' mean); vu comes from the heights, so they were removed as "
+                     f"{kinds.count('spike')} height spike(s) and {kinds.count('step')} height step(s) "
+                     f"(report spike_repair.height_outliers)")
     elif n_flag:
         z = repair_spikes(z, spikes)
         despike["applied"] = True
