@@ -296,3 +296,76 @@ def repair_height_outliers(z_mgal, t_s, mask, half_width: int = 16, search: int 
         z[idx] -= size * tpl
         fixes.append({"epoch": int(j), "kind": kind, "size_m": size})
     return z, fixes
+
+
+def height_outlier_mask(z_mgal, t_s, threshold: float = 6.0, half_width: int = 16,
+                        scale_s: tuple[float, float] = (10.0, 60.0), search: int = 2) -> np.ndarray:
+    """Epochs of z hit by a height spike or step, where ``vu`` was derived from the heights.
+
+    Through the spline such an outlier is a pattern of ~12 epochs, not an isolated value:
+    :func:`spike_mask`'s local scale, taken over a window the pattern fills, rises with it
+    (ten 50 cm spikes in a 2 Hz heights-only record: none flagged).  Here z is correlated with
+    the two patterns (:func:`height_outlier_templates_mgal` on the median step), giving at
+    each epoch the least-squares size of a spike and of a step there; an epoch is flagged
+    where either size exceeds ``threshold`` robust scales of its own series (1.4826 × the
+    running median of its magnitude, the larger of the two windows ``scale_s``) and is the
+    largest within ±``search`` epochs.  Only epochs whose whole window is finite are tested.
+    The patterns sum to zero, so z's level does not matter.
+
+    Parameters
+    ----------
+    z_mgal : ndarray, shape (n,)
+    t_s : ndarray, shape (n,)
+        GNSS times (s), increasing.
+    threshold : float
+        Flag level in robust scales.
+    half_width, search : int
+        Pattern half-width and local-maximum neighbourhood (epochs).
+    scale_s : (float, float)
+        Windows (s) of the robust scale.
+
+    Returns
+    -------
+    ndarray of bool, shape (n,)
+    """
+    from scipy.ndimage import maximum_filter1d, median_filter
+
+    z = np.asarray(z_mgal, dtype=float)
+    t = np.asarray(t_s, dtype=float)
+    if z.ndim != 1 or t.shape != z.shape:
+        raise ValueError("z_mgal and t_s must be one-dimensional and of the same shape")
+    if not threshold > 0:
+        raise ValueError("threshold must be positive")
+    mask = np.zeros(z.shape, bool)
+    if z.size < 4 * half_width + 2:
+        return mask
+    dt = float(np.median(np.diff(t)))
+    idx, spike, step = height_outlier_templates_mgal(np.arange(2 * half_width + 1) * dt, half_width, half_width)
+    off = idx - half_width                                   # z epochs relative to the outlier's
+    ok = np.isfinite(z)
+    zi = np.where(ok, z, 0.0)
+    n = z.size
+
+    def shifted(x, o, fill):
+        """x[j + o] at every j (``fill`` beyond the ends)."""
+        y = np.full(n, fill, dtype=x.dtype)
+        if o >= 0:
+            y[:n - o] = x[o:]
+        else:
+            y[-o:] = x[:n + o]
+        return y
+
+    full = np.ones(n, bool)
+    for o in off:
+        full &= shifted(ok, int(o), False)
+    for tpl in (spike, step):
+        w = tpl / np.sum(tpl ** 2)
+        size = np.zeros(n)                                   # least-squares size at each epoch (m)
+        for o, wk in zip(off, w):
+            size += wk * shifted(zi, int(o), 0.0)
+        a = np.where(full, np.abs(size), 0.0)
+        scale = 1.4826 * np.maximum(*(median_filter(a, size=max(3, int(round(s / dt))) | 1, mode="reflect")
+                                      for s in scale_s))
+        big = a > threshold * np.maximum(scale, 1e-12 + 1e-9 * float(np.median(scale)))
+        mask |= big & (a >= maximum_filter1d(a, 2 * search + 1)) & full
+    return mask

@@ -178,3 +178,34 @@ def test_height_spikes_and_steps_are_removed_through_the_spline():
     assert fir_err(z1) > 1.0                                          # the step, left in
     with pytest.raises(ValueError, match="same shape"):
         repair_height_outliers(z1, tt[:-1], mask)
+
+
+def test_height_outliers_are_found_where_the_spike_mask_misses_them():
+    """A 50 cm height spike reaches z through the spline as ~12 epochs of ±100 000 mGal: the
+    spike mask's local scale rises with the pattern and misses it; the matched patterns
+    find it, and on a clean record flag nothing."""
+    from app.core.measurement import height_outlier_mask, spike_mask
+
+    rng = np.random.default_rng(11)
+    dt = 0.5
+    t = np.arange(14400) * dt                               # two hours at 2 Hz
+    h = 3000.0 + 0.5 * np.sin(2 * np.pi * t / 19.0) + 2.0 * np.sin(2 * np.pi * t / 60.0)
+    fbar = np.r_[np.nan, np.diff(geodesy.vertical_velocity_from_heights_ms(t, h)) / dt]
+    fbar = fbar + rng.normal(0, 18000.0, t.size) * 1e-5    # 18 000 mGal of noise: a turbulent 2 Hz record
+    zero = np.zeros(t.size)
+
+    def z_of(heights):
+        return anomaly_measurement_mgal(fbar, t, geodesy.vertical_velocity_from_heights_ms(t, heights), zero, zero)
+
+    clean = z_of(h)
+    assert not height_outlier_mask(clean, t).any()
+    bad = h.copy()
+    where = np.arange(500, 14000, 1350)                      # ten spikes of ±50 cm
+    bad[where] += 0.5 * np.where(np.arange(where.size) % 2, 1.0, -1.0)
+    z = z_of(bad)
+    found = np.flatnonzero(height_outlier_mask(z, t))
+    assert all(np.min(np.abs(found - j)) <= 2 for j in where)
+    assert np.sum(np.diff(found) > 3) + 1 == where.size            # one cluster per spike, no other
+    assert spike_mask(z, dt).sum() < where.size              # what the spike mask alone finds
+    with pytest.raises(ValueError, match="same shape"):
+        height_outlier_mask(z, t[:-1])

@@ -23,7 +23,13 @@ from app.config import SurveyConfig
 from app.core import geodesy
 from app.core import gravimeter as gm
 from app.core.calibration import CalibrationSpectra, calibrate
-from app.core.measurement import anomaly_measurement_mgal, repair_height_outliers, repair_spikes, spike_mask
+from app.core.measurement import (
+    anomaly_measurement_mgal,
+    height_outlier_mask,
+    repair_height_outliers,
+    repair_spikes,
+    spike_mask,
+)
 from app.core.noise_level import band_rms_mgal, local_noise_variance_cm2s2
 
 
@@ -163,8 +169,8 @@ def mask_gaps(z, t, t_grav, margin_s: float, notes: list) -> None:
 def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False):
     """Repair isolated spikes of z (:func:`app.core.measurement.spike_mask`); stand down when
     more than ``despike_max_fraction`` of the epochs would be flagged.  Where ``vu`` was
-    derived from the heights a flag is a height spike or step seen through the spline, and
-    is removed as one (:func:`app.core.measurement.repair_height_outliers`, the report lists
+    derived from the heights the spline's response to a height spike or step is also looked
+    for (:func:`app.core.measurement.height_outlier_mask`), and a flag is removed as one (:func:`app.core.measurement.repair_height_outliers`, the report lists
     each: epoch time, kind, size in m); otherwise each flagged run is replaced by its mean
     (:func:`app.core.measurement.repair_spikes`).  Returns (z, evidence)."""
     t = np.asarray(t_s, float)
@@ -174,6 +180,8 @@ def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False):
     if p.despike_threshold is None:
         return z, despike
     spikes = spike_mask(z, dt_s, p.despike_threshold)
+    if vu_from_heights:  # a height outlier rings through the spline: the matched patterns see it
+        spikes |= height_outlier_mask(z, t, p.despike_threshold)
     n_flag = int(spikes.sum())
     frac = n_flag / max(1, despike["epochs"])
     despike.update(flagged=n_flag, fraction=frac)
