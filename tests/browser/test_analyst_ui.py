@@ -108,6 +108,8 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
                 "model_choice", "future_section", "counts"):
         assert page.locator(f"#report-sec-{key}").count() == 1, key
     assert "stood down" not in page.inner_text("#report-sec-spike_repair") and "repaired" in page.inner_text("#report-sec-spike_repair")
+    assert "1 height spike(s) and 1 height step(s): spike 20 cm at 1234.5 s; step -5 cm at 1300 s" in \
+        page.inner_text("#report-sec-spike_repair")
     # a section the page does not know: shown generically, its JSON one click away, markup as text
     sec = page.locator("#report-sec-future_section")
     assert "<b>not markup</b>" in sec.inner_text() and sec.locator("b").count() == 0

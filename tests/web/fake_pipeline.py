@@ -42,7 +42,12 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                              "reason": "significant and improves the fit" if i == 0 else
                              "improves the fit by less than 1 %"} for i, f in enumerate(flights)},
         "spike_repair": {f: {"threshold": 6.0, "flagged": 3, "epochs": int((df["flight"] == f).sum()),
-                             "applied": True, "fraction": 0.00019} for f in flights},
+                             "applied": True, "fraction": 0.00019,
+                             # the last flight as a heights-only one: flags removed as height outliers
+                             **({"repair": "height outliers", "height_outliers": [
+                                 {"time": 1234.5, "kind": "spike", "size_m": 0.2},
+                                 {"time": 1300.0, "kind": "step", "size_m": -0.05}]} if i == len(flights) - 1 else {})}
+                         for i, f in enumerate(flights)},
         "crossovers": {"degree": 1, "per_flight": True, "n_crossovers": 1, "rms_before_mgal": 1.2,
                        "n_drift_parameters": 4, "p_value": 0.004,
                        "cross_validation": {"rms_before_mgal": 1.2, "rms_cv_mgal": 1.31, "p_value": 0.83,

@@ -87,6 +87,18 @@ function summary(r) {
   return el("ul", { id: "report-summary", class: "decisions" }, items.map((i) => el("li", { class: i.cls }, i.text)));
 }
 
+function spikeOutcome(d) {
+  if (!d.applied) return d.flagged ? "stood down: z left as measured" : "none found";
+  const ho = d.height_outliers;
+  if (!Array.isArray(ho)) return "repaired";
+  // heights-only GNSS: each flag removed as a height spike or step seen through the spline
+  const done = ho.filter((o) => o.kind);
+  const list = done.map((o) => `${o.kind} ${fmt(100 * o.size_m, 2)} cm at ${fmt(o.time, 1)} s`).join("; ");
+  const spikes = done.filter((o) => o.kind === "spike").length;
+  return `repaired as ${spikes} height spike(s) and ${done.length - spikes} height step(s)` +
+    (ho.length > done.length ? ` (${ho.length - done.length} left: no finite window)` : "") + (list ? `: ${list}` : "");
+}
+
 const RENDER = {
   base_ties: (v) => [perFlight(v, ["Tie applied", "Absolute", "Drift (mGal/h)", "Static periods", "Reading error (mGal)"], (b) => [
     yes(b.applied), yes(b.absolute), fmt(b.drift_mgal_per_h, 3), String((b.static_periods || []).length),
@@ -97,7 +109,7 @@ const RENDER = {
     [[fmt(v.declared_tau_s, 4), (v.estimated_tau_s || []).map((x) => fmt(x, 4)).join(", "), yes(v.applied)]])],
   spike_repair: (v) => [perFlight(v, ["Flagged epochs", "Fraction", "Epochs", "Threshold (robust σ)", "Outcome"], (d) => [
     String(d.flagged ?? "—"), pct(d.fraction), String(d.epochs ?? "—"), fmt(d.threshold, 3),
-    d.applied ? "repaired" : d.flagged ? "stood down: z left as measured" : "none found"])],
+    spikeOutcome(d)])],
   crossovers: (v, r) => {
     const out = [table(["Status", "F-test p", "Crossovers", "Drift parameters", "RMS before (mGal)", "RMS after (mGal)", "RMS if leveled (mGal)"],
       [[v.status ?? "—", fmt(v.p_value, 3), String(v.n_crossovers ?? "—"), String(v.n_drift_parameters ?? "—"),
@@ -144,7 +156,7 @@ const RENDER = {
 
 const TITLES = {
   base_ties: "Base ties", time_offsets: "Gravimeter–GNSS time offsets", lag_check: "Lag check (τ in flight)",
-  spike_repair: "GNSS velocity spike repair", crossovers: "Leveling at crossovers", repeat_lines: "Repeat-line internal accuracy",
+  spike_repair: "GNSS spike repair (velocity spikes; height spikes and steps where vu comes from the heights)", crossovers: "Leveling at crossovers", repeat_lines: "Repeat-line internal accuracy",
   noise_model: "Noise model", model_order: "Model order", model_choice: "Model choice", identification: "Identification (EM)",
   counts: "Counts", timings_s: "Stage timings (s)", grid: "Grid", level_refinement: "Level refinement",
   calibration: "In-flight calibration", grid_std_cross_validation: "Grid σ cross-validation",
