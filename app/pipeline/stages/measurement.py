@@ -170,9 +170,11 @@ def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False):
     """Repair isolated spikes of z (:func:`app.core.measurement.spike_mask`); stand down when
     more than ``despike_max_fraction`` of the epochs would be flagged.  Where ``vu`` was
     derived from the heights the spline's response to a height spike or step is also looked
-    for (:func:`app.core.measurement.height_outlier_mask`), and a flag is removed as one (:func:`app.core.measurement.repair_height_outliers`, the report lists
-    each: epoch time, kind, size in m); otherwise each flagged run is replaced by its mean
-    (:func:`app.core.measurement.repair_spikes`).  Returns (z, evidence)."""
+    for (:func:`app.core.measurement.height_outlier_mask`), and a flag is removed as one
+    (:func:`app.core.measurement.repair_height_outliers`; the report lists each: epoch time
+    in s, kind, size in m); otherwise each flagged run is replaced by its mean
+    (:func:`app.core.measurement.repair_spikes`).  ``t_s``: the GNSS times (s).
+    Returns (z, evidence)."""
     t = np.asarray(t_s, float)
     dt_s = float(np.median(np.diff(t)))
     despike = {"threshold": p.despike_threshold, "flagged": 0, "epochs": int(np.isfinite(z).sum()),
