@@ -31,7 +31,7 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import savgol_filter
 
 
-def dejitter_times_s(t_s, max_jitter_s: float = 1.5e-3, window: int = 401) -> np.ndarray:
+def dejitter_times_s(t_s, max_jitter_s: float | None = None, window: int = 401) -> np.ndarray:
     """Remove the rounding jitter of sample time stamps of a uniformly clocked instrument.
 
     The file's stamps are rounded (e.g. to 1 ms), so consecutive intervals are
@@ -42,12 +42,20 @@ def dejitter_times_s(t_s, max_jitter_s: float = 1.5e-3, window: int = 401) -> np
     segment is left untouched when its stamps deviate from the fit by more
     than ``max_jitter_s`` (real irregular sampling is not "jitter").
 
+    The default bound is the larger of 1.5 ms (a millisecond rounding) and 2.5 % of the
+    median step: a logging computer's stamps on a 2 Hz record scatter by several
+    milliseconds while the instrument's clock is uniform, and integrating the samples over
+    the stamped intervals then multiplies the aircraft's acceleration by the stamps'
+    relative error — on the simulated 2 Hz test line, ±5 ms of stamp jitter put 26 mGal
+    into the FIR 100 s estimate (1.9 without), left untouched by a 1.5 ms bound.
+
     Parameters
     ----------
     t_s : ndarray, shape (n,)
         Strictly increasing sample time stamps (s).
-    max_jitter_s : float
-        Largest deviation from a uniform clock accepted as rounding (s).
+    max_jitter_s : float, optional
+        Largest deviation from a uniform clock accepted as stamp jitter (s); default
+        ``max(1.5e-3, 0.025 × median step)``.
     window : int
         Fit window in samples (odd).
 
@@ -66,6 +74,8 @@ def dejitter_times_s(t_s, max_jitter_s: float = 1.5e-3, window: int = 401) -> np
     med = np.median(dt)
     if not med > 0:
         raise ValueError("time stamps must be strictly increasing")
+    if max_jitter_s is None:
+        max_jitter_s = max(1.5e-3, 0.025 * float(med))
     breaks = np.flatnonzero(np.abs(dt - med) > 0.5 * med) + 1
     edges = np.concatenate([[0], breaks, [n]])
     out = t.copy()

@@ -59,6 +59,22 @@ def test_dejitter_recovers_uniform_clock():
     assert fixed2[5000] == pytest.approx(true[6000], abs=1e-3)
 
 
+def test_dejitter_takes_logging_jitter_but_not_irregular_sampling():
+    """A 2 Hz record stamped by a logging computer (±5 ms around a uniform clock) is put back
+    on the clock; a record that really alternates 0.45/0.55 s steps is not touched."""
+    rng = np.random.default_rng(4)
+    n = 7200
+    true = 5000.0 + np.arange(n) * 0.5
+    stamped = np.round(true + rng.uniform(-0.005, 0.005, n), 3)
+    fixed = gm.dejitter_times_s(stamped)
+    assert np.max(np.abs(stamped - true)) > 4e-3
+    assert np.max(np.abs(fixed[300:-300] - true[300:-300])) < 1e-3
+    irregular = 5000.0 + np.cumsum(np.where(np.arange(n) % 2, 0.55, 0.45))
+    np.testing.assert_array_equal(gm.dejitter_times_s(irregular), irregular)
+    # an explicit bound still rules
+    np.testing.assert_array_equal(gm.dejitter_times_s(stamped, max_jitter_s=1.5e-3), stamped)
+
+
 def _sin_lagged(amps, omegas, phases, tau, k):
     """Specific force f(t) = 9.8 + Σ A sin(ωt+φ) through τ·ẏ + k·y = f (steady state)."""
     def f_true_mean(a, b):

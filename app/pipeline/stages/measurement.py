@@ -87,8 +87,15 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     eot = geodesy.eotvos_mgal(lat, h, ve, vn)
 
     gr = flight.gravimeter
-    series = gm.integrate_samples(gr["time"].to_numpy(float), gr["f_z"].to_numpy(float))
     notes = []
+    stamps = gr["time"].to_numpy(float)
+    uniform = gm.dejitter_times_s(stamps)
+    jitter = float(np.max(np.abs(uniform - stamps))) if stamps.size else 0.0
+    if jitter > 1.5e-3:  # beyond a millisecond rounding: say so
+        notes.append(f"gravimeter time stamps scatter up to {1e3 * jitter:.1f} ms about a uniform clock: the "
+                     "samples were integrated on the clock (the instrument's sampling is uniform; the stamps' "
+                     "scatter times the aircraft's acceleration would otherwise enter z)")
+    series = gm.integrate_samples(uniform, gr["f_z"].to_numpy(float), dejitter=False)
     if getattr(flight, "vu_derived_from_h", False):
         notes.append("vu derived from the GNSS heights (the file has no vu column): derivative of the not-a-knot "
                      "cubic spline through h, per contiguous run")
