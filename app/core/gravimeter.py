@@ -30,6 +30,10 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.signal import savgol_filter
 
+#: Stamp deviation (s) from a uniform clock that a millisecond rounding explains; the default
+#: bound of :func:`dejitter_times_s` is the larger of this and 2.5 % of the step.
+ROUNDING_JITTER_S = 1.5e-3
+
 
 def dejitter_times_s(t_s, max_jitter_s: float | None = None, window: int = 401) -> np.ndarray:
     """Remove the rounding jitter of sample time stamps of a uniformly clocked instrument.
@@ -75,7 +79,7 @@ def dejitter_times_s(t_s, max_jitter_s: float | None = None, window: int = 401) 
     if not med > 0:
         raise ValueError("time stamps must be strictly increasing")
     if max_jitter_s is None:
-        max_jitter_s = max(1.5e-3, 0.025 * float(med))
+        max_jitter_s = max(ROUNDING_JITTER_S, 0.025 * float(med))
     breaks = np.flatnonzero(np.abs(dt - med) > 0.5 * med) + 1
     edges = np.concatenate([[0], breaks, [n]])
     out = t.copy()

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from app.core.geodesy import MGAL_PER_MS2
+from app.core.geodesy import MGAL_PER_MS2, vertical_velocity_from_heights_ms
 
 
 def gnss_acceleration_ms2(t_s, vu_ms) -> np.ndarray:
@@ -208,8 +208,6 @@ def height_outlier_templates_mgal(t_s, j: int, half_width: int = 16):
         The epochs of z that the outlier reaches and the two templates there (mGal per m).
         Empty when the stretch around ``j`` has fewer than 4 epochs.
     """
-    from scipy.interpolate import CubicSpline
-
     t = np.asarray(t_s, dtype=float)
     n = t.size
     if not 0 <= j < n:
@@ -226,11 +224,10 @@ def height_outlier_templates_mgal(t_s, j: int, half_width: int = 16):
         b += 1
     if b - a < 4:
         return np.zeros(0, int), np.zeros(0), np.zeros(0)
-    x = t[a:b] - t[a]
     out = []
     for e in (np.eye(b - a)[j - a], (np.arange(a, b) >= j).astype(float)):
-        dv = CubicSpline(x, e, bc_type="not-a-knot")(x, 1)
-        out.append(-np.diff(dv) / np.diff(x) * MGAL_PER_MS2)
+        dv = vertical_velocity_from_heights_ms(t[a:b], e)          # the pipeline's own vu from h
+        out.append(-gnss_acceleration_ms2(t[a:b], dv)[1:] * MGAL_PER_MS2)
     return np.arange(a + 1, b), out[0], out[1]
 
 

@@ -151,6 +151,11 @@ def build_chain(n_states: int, p: int) -> WindowChain:
 
 
 # --------------------------------------------------------------------------- covariance basis
+def _window_covariance(BQ, BR, pad, Q, R) -> np.ndarray:
+    """``Σ = Σ_i Q_i BQ[..., i] + Σ_j R_j BR[..., j] + pad`` over (class, pair) axes."""
+    return np.einsum("muixy,i->muxy", BQ, Q) + np.einsum("mujxy,j->muxy", BR, R) + pad
+
+
 def _as_block(coef) -> np.ndarray:
     """Coefficients as a (K+1, r) array: column ``i`` multiplies the ``i``-th of ``r``
     independent unit sub-noises of each step (``r = 1`` for a scalar MA)."""
@@ -231,8 +236,7 @@ class WindowModel:
 
     def covariance(self, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
         """Window covariances Σ, shape (p+1, U, p+1, p+1)."""
-        S = np.einsum("muixy,i->muxy", self.BQ, Q) + np.einsum("mujxy,j->muxy", self.BR, R)
-        return S + self.pad[:, None]
+        return _window_covariance(self.BQ, self.BR, self.pad[:, None], Q, R)
 
     def subset(self, mask: np.ndarray) -> WindowSubset:
         """The window covariances of the (class, super-state) pairs selected by ``mask``
@@ -274,8 +278,7 @@ class WindowSubset:
 
     def covariance(self, Q: np.ndarray, R: np.ndarray) -> np.ndarray:
         """Window covariances Σ of the selected pairs, shape (1, K, p+1, p+1)."""
-        S = np.einsum("muixy,i->muxy", self.BQ, Q) + np.einsum("mujxy,j->muxy", self.BR, R)
-        return S + self.pad
+        return _window_covariance(self.BQ, self.BR, self.pad, Q, R)
 
 
 # --------------------------------------------------------------------------- data layout

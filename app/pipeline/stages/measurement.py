@@ -91,7 +91,7 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     stamps = gr["time"].to_numpy(float)
     uniform = gm.dejitter_times_s(stamps)
     jitter = float(np.max(np.abs(uniform - stamps))) if stamps.size else 0.0
-    if jitter > 1.5e-3:  # beyond a millisecond rounding: say so
+    if jitter > gm.ROUNDING_JITTER_S:  # beyond a millisecond rounding: say so
         notes.append(f"gravimeter time stamps scatter up to {1e3 * jitter:.1f} ms about a uniform clock: the "
                      "samples were integrated on the clock (the instrument's sampling is uniform; the stamps' "
                      "scatter times the aircraft's acceleration would otherwise enter z)")
@@ -100,6 +100,8 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
         notes.append("vu derived from the GNSS heights (the file has no vu column): derivative of the not-a-knot "
                      "cubic spline through h, per contiguous run")
     offset_info = time_offset(series, t, vu, tau, k, p, notes)
+    # the report's time_offsets section: the stamps the samples were integrated on
+    offset_info["gravimeter_stamp_jitter_ms"] = 1e3 * jitter
     offset = offset_info.get("offset_s", 0.0)
     applied = bool(offset_info.get("applied", False))
     fbar = gm.interval_means(series, t, tau, k, time_offset_s=offset if applied else 0.0)

@@ -103,8 +103,10 @@ const RENDER = {
   base_ties: (v) => [perFlight(v, ["Tie applied", "Absolute", "Drift (mGal/h)", "Static periods", "Reading error (mGal)"], (b) => [
     yes(b.applied), yes(b.absolute), fmt(b.drift_mgal_per_h, 3), String((b.static_periods || []).length),
     (b.static_periods || []).map((p) => fmt(p.reading_error_mgal, 2)).join(", ") || "—"])],
-  time_offsets: (v) => [perFlight(v, ["Offset (s)", "Std. error (s)", "Correlation", "Residual reduction", "Applied", "Reason"], (o) => [
-    fmt(o.offset_s, 4), fmt(o.se_s, 2), fmt(o.correlation, 4), pct(o.residual_reduction), yes(o.applied), o.reason || "—"])],
+  time_offsets: (v) => [perFlight(v, ["Offset (s)", "Std. error (s)", "Correlation", "Residual reduction", "Applied", "Reason",
+    "Gravimeter stamp scatter (ms)"], (o) => [
+    fmt(o.offset_s, 4), fmt(o.se_s, 2), fmt(o.correlation, 4), pct(o.residual_reduction), yes(o.applied), o.reason || "—",
+    fmt(o.gravimeter_stamp_jitter_ms, 2)])],
   lag_check: (v) => [table(["Declared τ (s)", "Estimated τ per flight (s)", "Applied"],
     [[fmt(v.declared_tau_s, 4), (v.estimated_tau_s || []).map((x) => fmt(x, 4)).join(", "), yes(v.applied)]])],
   spike_repair: (v) => [perFlight(v, ["Flagged epochs", "Fraction", "Epochs", "Threshold (robust σ)", "Outcome"], (d) => [
