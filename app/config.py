@@ -322,6 +322,15 @@ class ProcessingParams(_Strict):
                                      "test at noise_corner_alpha)")
     noise_corner_alpha: float = Field(0.05, gt=0, lt=0.5, description="Level of that test (χ² bound of the "
                                       "crossovers' mean square difference)")
+    noise_family_check: bool = Field(True, description="When the noise fit chose a coloured (Gauss-Markov) "
+                                     "velocity error, fall back on the best family without one if the chosen model "
+                                     "predicts more FIR noise than the FIR differences at the crossovers and between "
+                                     "repeat passes allow (one-sided test at noise_family_alpha) and the fallback does not "
+                                     "predict significantly less: a flat acceleration noise carried down into the "
+                                     "anomaly band flattens the estimate")
+    noise_family_alpha: float = Field(0.05, gt=0, lt=0.5, description="Level of that test (and of the check that "
+                                      "the fallback does not predict significantly less FIR noise than the "
+                                      "differences show)")
     white_level_fitted: bool = Field(True, description="With the white-velocity family, lower the noise level "
                                      "from the band measurement (noise_band_hz) to the level fitted to the lines' "
                                      "spectra when that is lower — on surveys with at least "

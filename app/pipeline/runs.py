@@ -25,7 +25,7 @@ from app.pipeline.stages.leveling import level_survey
 from app.pipeline.stages.lines import survey_lines
 from app.pipeline.stages.measurement import measure
 from app.pipeline.stages.model_order import candidate_orders, choose_model_order
-from app.pipeline.stages.noise import check_noise_corners, model_noise
+from app.pipeline.stages.noise import check_noise_corners, check_noise_family, model_noise
 from app.pipeline.stages.outputs import build_report, identification_json, write_outputs
 from app.pipeline.stages.products import apply_products, flight_height_table, refresh_bouguer
 from app.pipeline.stages.recognition import state_map
@@ -124,6 +124,7 @@ def run_identify(survey, tr: Tracker) -> Identified:
     noise = model_noise(sl.lines, meas.flights, meas.dt_s, p, n_cx)
     tr.start("fir")
     fir = {name: fir_baseline(m, p.fir_cutoff_period_s) for name, m in meas.flights.items()}
+    noise = check_noise_family(noise, sl.lines, fir, meas.dt_s, p)
     noise = check_noise_corners(noise, sl.lines, fir, meas.dt_s, p)
     warnings = list(meas.warnings)
     if noise.warning:

@@ -7,11 +7,13 @@ from scipy import stats
 from app.core.baselines import fir_kernel, fir_lowpass_mgal
 from app.core.model_check import (
     crossover_comparison,
+    difference_nll,
     disagreement_ratio,
     fir_smoothing_variance_mgal2,
     noise_overstated,
     paired_decrease_p,
     paired_rank_p,
+    repeat_contrasts,
     smooth_error_bound_mgal2,
 )
 
@@ -183,3 +185,57 @@ def test_fir_smoothing_variance_of_sinusoids_follows_the_kernel_response():
     v = fir_smoothing_variance_mgal2(A * np.sin(2 * np.pi * t / 30.0), dt)
     assert v == pytest.approx(A ** 2 / 2, rel=0.02)
     assert np.isnan(fir_smoothing_variance_mgal2(np.full(10, np.nan), dt))
+
+
+def test_repeat_contrasts_cancel_the_anomaly_and_keep_each_pass_offset():
+    """Passes flown both ways over one anomaly, each with its own constant offset: the
+    anomaly cancels and the contrasts are the Helmert contrasts of the offsets (analytic)."""
+    s = np.linspace(0.0, 40_000.0, 801)
+    anomaly = 20.0 * np.sin(s / 3000.0)
+    offsets = np.array([1.0, -2.0, 0.5, 3.0])
+    along = [s, s[::-1], s + 7.0, s[::-1] - 3.0]
+    values = [np.interp(a, s, anomaly) + c for a, c in zip(along, offsets)]
+    got = repeat_contrasts(along, values, 5000.0).reshape(3, -1)
+    for k in (1, 2, 3):
+        expect = (offsets[:k].sum() - k * offsets[k]) / np.sqrt(k * (k + 1))
+        np.testing.assert_allclose(got[k - 1], expect, atol=0.02)   # linear interpolation of the sine
+    values[2][100:110] = np.nan                                     # a gap drops its positions only
+    assert repeat_contrasts(along, values, 5000.0).size == got.size - 3
+    assert repeat_contrasts([s, s + 50_000.0], values[:2], 5000.0).size == 0   # no common interval
+    with pytest.raises(ValueError):
+        repeat_contrasts(along, values, 0.0)
+
+
+@pytest.mark.parametrize("order", [0, 1, 2])
+def test_repeat_contrasts_every_cutoff_period_hold_the_chi2_level(order):
+    """Four 600 s passes whose FIR 100 s noise is white, f² or f⁴ z noise behind the filter
+    (known variance): contrasts sampled every 100 s of flight keep noise_overstated near its
+    level α = 0.05 (binomial band for 400 draws), and a 3x over-statement is seen ≥ 85 %."""
+    rng = np.random.default_rng(5 + order)
+    dt, n, v = 0.5, 1200, 100.0
+
+    def fir_noise():
+        x = np.diff(rng.standard_normal(n + 800 + order), order)
+        return fir_lowpass_mgal(x, dt, 100.0)[400:-400]      # a stretch cut out of a flight
+
+    var = np.mean([np.mean(fir_noise() ** 2) for _ in range(300)])
+    s = np.arange(n) * dt * v
+    fa = hit = 0
+    for _ in range(400):
+        c = repeat_contrasts([s, s[::-1], s, s[::-1]], [fir_noise() for _ in range(4)], 100.0 * v)
+        fa += noise_overstated(c, np.full(c.size, var)).overstated
+        hit += noise_overstated(c, np.full(c.size, 3.0 * var)).overstated
+    assert c.size == 18
+    assert 0.02 <= fa / 400 <= 0.085
+    assert hit / 400 >= 0.85
+
+
+def test_difference_nll_is_the_gaussian_log_density():
+    rng = np.random.default_rng(2)
+    d = rng.normal(0.0, 2.0, 50)
+    v = rng.uniform(1.0, 5.0, 50)
+    assert difference_nll(d, v) == pytest.approx(-np.mean(stats.norm.logpdf(d, scale=np.sqrt(v))))
+    # the variance that explains the differences best is their mean square
+    grid = np.geomspace(0.5, 20.0, 400)
+    best = grid[np.argmin([difference_nll(d, np.full(50, g)) for g in grid])]
+    assert best == pytest.approx(np.mean(d ** 2), rel=0.02)

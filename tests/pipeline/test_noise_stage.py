@@ -185,3 +185,69 @@ def test_short_lines_fit_on_shorter_stretches_and_say_so():
         model_noise(*_short_lines(45.0), DT_S, p)
     long_stage = model_noise(*_survey(bump_factor=0.0), DT_S, p)
     assert long_stage.fit_min_stretch_s == 120.0 and long_stage.warning == ""
+
+
+# --- check_noise_family: crossovers and repeat passes bound the FIR noise a coloured velocity predicts
+
+def _repeat_track(fir_std_mgal: float, seed: int = 4):
+    """One 60 km track flown four times, both ways, at 100 m/s (0.5 s steps); the FIR estimate
+    of every pass is a shared anomaly plus its own smooth noise of std ``fir_std_mgal``."""
+    rng = np.random.default_rng(seed)
+    n, dt = 1200, 0.5
+    s_km = np.linspace(0.0, 60.0, n)
+    lines, fir = [], {}
+    for k in range(4):
+        e = s_km if k % 2 == 0 else s_km[::-1]
+        w = np.convolve(rng.standard_normal(n + 199), np.ones(200) / 200, mode="valid")
+        fir[f"F{k}"] = 15.0 * np.sin(e / 7.0) + w / w.std() * fir_std_mgal
+        t = 1000.0 * k + dt * np.arange(n)
+        lines.append(LineData(f"R{k}", f"F{k}", "repeat", "T1", slice(0, n), t, np.zeros(n), np.zeros(n),
+                              np.full(n, 500.0), e, np.full(n, 3.0), np.zeros(n), 100.0))
+    return lines, fir
+
+
+def _family_pair(chosen_var_mgal2: float, alternative_var_mgal2: float):
+    """A 'coloured velocity' stage predicting ``chosen_var_mgal2`` of FIR noise per pass, with
+    an alternative predicting ``alternative_var_mgal2``."""
+    from app.core.model_check import fir_noise_variance_mgal2
+    from app.core.noise_model import NoiseComponent, NoiseModel
+    from app.pipeline.stages.noise import NoiseStage
+
+    fit = SimpleNamespace(candidates=[], n_bins=0, fmax_hz=0.2, Q_mgal2=0.0, m=2)
+    model = NoiseModel((NoiseComponent(1, 0.0, 1.0),), 0.5, "white velocity")
+    unit = fir_noise_variance_mgal2(model, 1.0, 0.5, 100.0)
+    coloured = NoiseModel((NoiseComponent(1, 0.0, 1.0),), 0.5, "Gauss-Markov velocity")
+
+    def stage(m, var):
+        return NoiseStage(fit, m, (0.1, 0.5), {f"F{k}": np.full(1200, var / unit) for k in range(4)}, 1.0)
+
+    chosen = stage(coloured, chosen_var_mgal2)
+    chosen.alternative = stage(model, alternative_var_mgal2)
+    return chosen
+
+
+def test_family_check_falls_back_when_the_repeats_show_less_fir_noise():
+    """The 4 passes give 3 contrasts at each of 7 positions (one every 100 s of flight); FIR
+    noise 1.5 mGal per pass.  A model predicting 4x that
+    variance gives way to the alternative that predicts it; one predicting it is kept; and an
+    alternative that misses by more the other way (1/10 of it) does not replace a 2.5x one."""
+    from app.pipeline.stages.noise import check_noise_family
+
+    p = ProcessingParams()
+    lines, fir = _repeat_track(fir_std_mgal=1.5)
+    st = _family_pair(4.0 * 2.25, 2.25)
+    alt = st.alternative
+    used = check_noise_family(st, lines, fir, 0.5, p)
+    assert used is alt and used.family_check["applied"] and used.family_check["n"] == 21
+    assert used.family_check["predicted_ms_mgal2"] == pytest.approx(9.0)
+    assert "white velocity used" in used.family_check["reason"]
+    assert "family_check" in used.describe()
+    st = _family_pair(2.25, 0.5)
+    used = check_noise_family(st, lines, fir, 0.5, p)
+    assert used is st and not used.family_check["applied"] and used.alternative is None
+    st = _family_pair(2.5 * 2.25, 0.225)
+    used = check_noise_family(st, lines, fir, 0.5, p)
+    assert used is st and not used.family_check["applied"] and "no better" in used.family_check["reason"]
+    off = _family_pair(4.0 * 2.25, 2.25)
+    off_used = check_noise_family(off, lines, fir, 0.5, p.model_copy(update={"noise_family_check": False}))
+    assert off_used is off and off_used.family_check is None and off_used.alternative is None

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.core.model_check import fir_noise_variance_mgal2, noise_overstated
+from app.core.model_check import difference_nll, fir_noise_variance_mgal2, noise_overstated, repeat_contrasts
 from app.core.noise_level import band_noise_variance_cm2s2, local_noise_variance_cm2s2
 from app.core.noise_model import FAMILIES, fit_noise_model, pass_difference
 from app.pipeline.stages.lines import LineData, finite_segments, line_crossovers
@@ -30,15 +30,17 @@ def level_band(p, dt_s: float) -> tuple[float, float]:
     return (min(float(p.noise_band_hz[0]), 0.5 * f2), f2)
 
 
-def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False):
+def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False, families=None):
     """The error of z as a coloured process (:mod:`app.core.noise_model`), fitted on the
     finite stretches of every line; returns (NoiseFit, model normalised so that a level R is
     the equivalent white velocity noise in :func:`level_band`).  ``heights_only``: every
     flight's vu was derived from its heights, so among the families the spectra cannot tell
     apart (within the BIC margin) a height family is preferred (:func:`fit_noise_model`).
     Also returns the shortest stretch used (s): ``noise_fit_min_s[0]``, or ``[1]`` when no line
-    is that long."""
-    fams = FAMILIES if p.noise_family == "auto" else tuple(f for f in FAMILIES if f[0] == p.noise_family)
+    is that long.  ``families``: the candidates (default: every family, or
+    ``p.noise_family`` when set)."""
+    fams = families if families is not None else (
+        FAMILIES if p.noise_family == "auto" else tuple(f for f in FAMILIES if f[0] == p.noise_family))
     segs = [ln.z_mgal[a:b] for ln in lines for a, b in finite_segments(ln.z_mgal)]
     fmax = min(float(p.noise_fit_fmax_hz), 0.8 * 0.5 / dt_s)
     diffs = repeat_differences(lines, dt_s, min(2.0 * fmax, 0.45 / dt_s)) if p.noise_fit_repeats else []
@@ -81,6 +83,30 @@ def repeat_differences(lines: list[LineData], dt_s: float, lowpass_hz: float) ->
             if d is not None:
                 out.append(d)
     return out
+
+
+def repeat_fir_contrasts(lines: list[LineData], fir: dict[str, np.ndarray], spacing_s: float) -> np.ndarray:
+    """Contrasts of the FIR estimates of the passes of every repeat track
+    (:func:`app.core.model_check.repeat_contrasts`), every ``spacing_s`` of flight along the
+    track (at the passes' mean speed).  The anomaly cancels; each contrast has the variance of
+    one pass's FIR noise, plus whatever differs between the passes (drift, height), which only
+    adds: they bound the FIR noise as crossover differences do."""
+    tracks: dict = {}
+    for ln in lines:
+        if ln.kind == "repeat" and ln.track is not None:
+            tracks.setdefault(ln.track, []).append(ln)
+    out = []
+    for passes in tracks.values():
+        if len(passes) < 2:
+            continue
+        e = np.concatenate([ln.easting_km for ln in passes])
+        n = np.concatenate([ln.northing_km for ln in passes])
+        axis = np.linalg.svd(np.column_stack([e - e.mean(), n - n.mean()]), full_matrices=False)[2][0]
+        along = [1000.0 * ((ln.easting_km - e.mean()) * axis[0] + (ln.northing_km - n.mean()) * axis[1])
+                 for ln in passes]
+        step_m = float(np.mean([ln.speed_ms for ln in passes])) * spacing_s
+        out.append(repeat_contrasts(along, [fir[ln.flight][ln.sl] for ln in passes], step_m))
+    return np.concatenate(out) if out else np.zeros(0)
 
 
 def noise_levels(flights: dict[str, FlightMeasurement], dt_s: float, p) -> dict[str, np.ndarray]:
@@ -148,6 +174,8 @@ class NoiseStage:
     level_note: str = ""
     unmoved: NoiseStage | None = None
     corner_check: dict | None = None
+    alternative: NoiseStage | None = None
+    family_check: dict | None = None
     fit_min_stretch_s: float | None = None
     warning: str = ""
 
@@ -160,6 +188,8 @@ class NoiseStage:
                "fit_min_stretch_s": self.fit_min_stretch_s}
         if self.corner_check is not None:
             out["corner_check"] = self.corner_check
+        if self.family_check is not None:
+            out["family_check"] = self.family_check
         return out
 
 
@@ -176,12 +206,20 @@ def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt
     if fit.unmoved is not None:
         stage.unmoved = _noise_stage(fit.unmoved, fit.unmoved.model.normalized(band), band, lines, r_local,
                                      n_crossovers, p)
+    plain = tuple(f for f in FAMILIES if not coloured_velocity(f[1]))
+    if p.noise_family == "auto" and p.noise_family_check and coloured_velocity(dict(FAMILIES)[fit.model.family]):
+        # the family a check against the FIR differences may fall back on (check_noise_family)
+        alt_fit, alt_model, _ = fit_noise(lines, dt_s, p, heights_only, families=plain)
+        stage.alternative = _noise_stage(alt_fit, alt_model, band, lines, r_local, n_crossovers, p)
+        if alt_fit.unmoved is not None:
+            stage.alternative.unmoved = _noise_stage(alt_fit.unmoved, alt_fit.unmoved.model.normalized(band), band,
+                                                     lines, r_local, n_crossovers, p)
     warning = ""
     if min_s < float(p.noise_fit_min_s[0]):
         warning = (f"the noise model was fitted on stretches of {min_s:g}-{p.noise_fit_min_s[0]:g} s (no line "
                    f"is {p.noise_fit_min_s[0]:g} s long): its shape is seen only above "
                    f"about {4.5 / min_s:.3f} Hz and is weak in the anomaly band")
-    for st in (stage, stage.unmoved):
+    for st in (stage, stage.unmoved, stage.alternative, stage.alternative and stage.alternative.unmoved):
         if st is not None:
             st.fit_min_stretch_s, st.warning = min_s, warning
     return stage
@@ -201,6 +239,60 @@ def _noise_stage(fit, model, band, lines: list[LineData], r_local: dict, n_cross
                 (f" (the fitted level is not used: {n_crossovers} crossovers < {p.fir_guard_min_crossovers} "
                  "cannot check it)" if p.white_level_fitted else ""))
     return NoiseStage(fit, model, band, {k: v * scale for k, v in r_local.items()}, scale, note)
+
+
+def coloured_velocity(spec) -> bool:
+    """Does a family's spec ((order, φ free?), ...) hold a coloured (AR) velocity component?"""
+    return any(order == 1 and free for order, free in spec)
+
+
+def check_noise_family(stage: NoiseStage, lines: list[LineData], fir: dict[str, np.ndarray], dt_s: float,
+                       p) -> NoiseStage:
+    """Fall back from a coloured-velocity family to the best family without one when the
+    chosen model predicts significantly more FIR noise than the FIR differences at the
+    crossovers and between repeat passes allow (``noise_family_check``).
+
+    A coloured velocity error has a corner below which its acceleration spectrum is flat:
+    it puts as much noise at 0.005 Hz as at 0.1 Hz.  On heights-only GNSS the spectra can
+    choose it for what are defects above the anomaly band — a gravimeter's stamps scattered
+    by ±5 ms on a 2 Hz record, undetected height outliers — and carry that level down into the
+    anomaly band, where the smoother then calls the anomaly noise: the simulated 2 Hz test
+    line's estimate was flattened to 0.53 of the truth's variance, 1.4x the FIR error, while
+    its passes' FIR differences showed 1.7 mGal of FIR noise against the 3.0 the model
+    predicted.  Those differences need no model: each bounds ``σ_a² + σ_b²`` from above
+    (:func:`app.core.model_check.noise_overstated`, one-sided ``noise_family_alpha``).  A
+    Gauss–Markov velocity error that is really there (a receiver's correlated velocity
+    noise) predicts the FIR noise the differences show and is kept."""
+    alt, stage.alternative = stage.alternative, None
+    if alt is None or not p.noise_family_check:
+        return stage
+    rec: dict = {"chosen": stage.model.family, "alternative": alt.model.family, "applied": False}
+    b = fir_noise_bound(stage, lines, fir, dt_s, p, alpha=p.noise_family_alpha)
+    if b is None:
+        stage.family_check = {**rec, "n": 0, "reason": "no crossovers or repeat passes to check the coloured velocity"}
+        return stage
+    rec.update(n=b.n, fir_difference_ms_mgal2=b.crossover_ms_mgal2, predicted_ms_mgal2=b.predicted_ms_mgal2,
+               bound_mgal2=b.bound_mgal2)
+    if not b.overstated:
+        stage.family_check = rec
+        return stage
+    d, v = fir_differences(stage, lines, fir, dt_s, p)
+    d_alt, v_alt = fir_differences(alt, lines, fir, dt_s, p)
+    nll, nll_alt = difference_nll(d, v), difference_nll(d_alt, v_alt)
+    rec.update(alternative_predicted_ms_mgal2=float(np.mean(v_alt)), nll=nll, alternative_nll=nll_alt)
+    if not nll_alt < nll:
+        # the alternative misses the differences by more the other way (a real Gauss-Markov
+        # velocity error whose differences fell low by chance: the white family predicts far less)
+        stage.family_check = {**rec, "reason": (
+            f"{stage.model.family} predicts more FIR noise than the differences allow, but {alt.model.family} "
+            f"({float(np.mean(v_alt)):.3g} mGal²) explains them no better: kept")}
+        return stage
+    rec.update(applied=True, reason=(
+        f"{stage.model.family} predicts {b.predicted_ms_mgal2:.3g} mGal² of FIR noise in the differences at the "
+        f"crossovers and between repeat passes, above the {b.bound_mgal2:.3g} mGal² their FIR differences allow "
+        f"({b.n} samples, one-sided {p.noise_family_alpha:g}): {alt.model.family} used"))
+    alt.family_check = rec
+    return alt
 
 
 def check_noise_corners(stage: NoiseStage, lines: list[LineData], fir: dict[str, np.ndarray], dt_s: float,
@@ -245,21 +337,34 @@ def check_noise_corners(stage: NoiseStage, lines: list[LineData], fir: dict[str,
     return used
 
 
-def fir_noise_bound(stage: NoiseStage, lines: list[LineData], fir: dict[str, np.ndarray], dt_s: float, p):
-    """The stage's predicted FIR noise at the crossovers against the bound their FIR differences
-    set (:func:`app.core.model_check.noise_overstated`); None without crossovers or levels.
+def fir_noise_bound(stage: NoiseStage, lines: list[LineData], fir: dict[str, np.ndarray], dt_s: float, p,
+                    alpha: float | None = None):
+    """The stage's predicted FIR noise at the crossovers and between the passes of repeat
+    tracks (:func:`repeat_fir_contrasts`, every FIR cut-off period of flight) against the bound their FIR
+    differences set (:func:`app.core.model_check.noise_overstated`, one-sided ``alpha``,
+    default ``noise_corner_alpha``); None without such differences or levels.
 
     The prediction is at the survey's typical level (median over the lines' epochs): the
     question is the model's shape and level in FIR's band, and a noise episode's level —
     measured at 0.1–0.5 Hz — need not hold there; episodes in the differences only widen the
     bound."""
-    if not stage.r_local:
+    d, v = fir_differences(stage, lines, fir, dt_s, p)
+    if d is None or d.size == 0:
         return None
+    return noise_overstated(d, v, alpha=p.noise_corner_alpha if alpha is None else alpha)
+
+
+def fir_differences(stage: NoiseStage, lines: list[LineData], fir: dict[str, np.ndarray], dt_s: float, p):
+    """The FIR estimates' differences at the crossovers and contrasts between repeat passes
+    (:func:`repeat_fir_contrasts`, every FIR cut-off period of flight), with the variance the
+    stage predicts for each (mGal, mGal²); (None, None) without local levels."""
+    if not stage.r_local:
+        return None, None
     level = float(np.median(np.concatenate([stage.r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)]
                                             for ln in lines])))
     sd = float(np.sqrt(fir_noise_variance_mgal2(stage.model, level, dt_s, p.fir_cutoff_period_s)))
     cx = line_crossovers(lines, p.leveling_include_repeat, lambda ln: fir[ln.flight][ln.sl], sd)
-    if len(cx) == 0:
-        return None
-    return noise_overstated((cx["dg_a"] - cx["dg_b"]).to_numpy(float),
-                            (cx["std_a"] ** 2 + cx["std_b"] ** 2).to_numpy(float), alpha=p.noise_corner_alpha)
+    d = (cx["dg_a"] - cx["dg_b"]).to_numpy(float) if len(cx) else np.zeros(0)
+    c = repeat_fir_contrasts(lines, fir, p.fir_cutoff_period_s)
+    # a crossover difference holds two lines' FIR noise, a repeat contrast one pass's
+    return np.concatenate([d, c]), np.concatenate([np.full(d.size, 2.0), np.ones(c.size)]) * sd ** 2

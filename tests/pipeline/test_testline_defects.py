@@ -1,0 +1,53 @@
+"""The 4-pass test line (simulation with known truth: ``testline-2hz``, one 40 km line flown
+four times, a 2 Hz platform gravimeter, 0.4 m/s² turbulence, GNSS heights only) with a defect
+real records have: the gravimeter's stamps scattered by ±5 ms about its uniform clock (a
+logging computer's time).
+
+The stamps are put back on the clock (``dejitter_times_s``), but what is left changed the
+noise spectrum enough that the fit chose a coloured velocity error, whose flat acceleration
+noise, carried down into the anomaly band, flattened the estimate: 0.53 of the truth's
+along-line variance, 1.4x the FIR 100 s error, and nothing said so (the flattening check
+used the same over-stated FIR noise).  The passes' FIR differences show 1.7 mGal of FIR noise
+where that model predicted 3.0: the family check falls back on velocity + height, and the
+issue's acceptance for the test line holds again — RMS and pass-to-pass repeatability at most
+FIR's, along-line variance at least 0.8 of the truth's.
+"""
+
+import json
+
+import numpy as np
+import pandas as pd
+
+from app.pipeline.evaluate import merge_truth
+from app.pipeline.process import process_survey
+
+
+def _jitter_gravimeter_stamps(survey, jitter_s: float, seed: int = 7) -> None:
+    rng = np.random.default_rng(seed)
+    for f in sorted((survey / "flights").glob("*/gravimeter.csv")):
+        g = pd.read_csv(f)
+        g["time"] = g["time"] + rng.uniform(-jitter_s, jitter_s, len(g))
+        g.to_csv(f, index=False, float_format="%.10g")
+
+
+def test_testline_with_stamp_jitter_is_not_flattened(tmp_path):
+    from app.simulate import simulate_survey
+
+    survey = simulate_survey("testline-2hz", tmp_path / "survey", seed=1)
+    _jitter_gravimeter_stamps(survey, 0.005)
+    out = tmp_path / "out"
+    report = process_survey(survey, out)
+    fc = report["noise_model"]["family_check"]
+    assert fc["applied"] and fc["predicted_ms_mgal2"] > fc["bound_mgal2"]
+    assert report["noise_model"]["family"] == "velocity + height"
+
+    m = merge_truth(pd.read_parquet(out / "lines.parquet"), pd.read_parquet(survey / "truth" / "lines.parquet"))
+    err = {c: m[c] - m["dg_true_mgal"] for c in ("dg_mgal", "dg_fir_mgal")}
+    rms = {c: float(np.sqrt(np.mean((e - e.groupby(m["line"]).transform("mean")) ** 2))) for c, e in err.items()}
+    assert rms["dg_mgal"] <= rms["dg_fir_mgal"]
+    est = m["dg_mgal"] - m.groupby("line")["dg_mgal"].transform("mean")
+    true = m["dg_true_mgal"] - m.groupby("line")["dg_true_mgal"].transform("mean")
+    assert np.var(est) >= 0.8 * np.var(true)
+    rep = json.loads((out / "report.json").read_text())["repeat_lines"]
+    acc = next(iter(rep.values()))["internal_accuracy_mgal"]
+    assert acc["dg_mgal"] <= acc["dg_fir_mgal"]
