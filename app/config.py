@@ -322,6 +322,10 @@ class ProcessingParams(_Strict):
                                      "test at noise_corner_alpha)")
     noise_corner_alpha: float = Field(0.05, gt=0, lt=0.5, description="Level of that test (χ² bound of the "
                                       "crossovers' mean square difference)")
+    fir_gap_max_error_mgal: float | None = Field(1.0, gt=0, description="FIR 100 s is left out (NaN) where missing "
+                                                 "samples inside the record could move it by more than this (mGal; "
+                                                 "robust std of z × the kernel weight on them): one missing sample of "
+                                                 "a 2 Hz platform record moved it by up to 150 mGal. None = never")
     noise_family_check: bool = Field(True, description="When the noise fit chose a coloured (Gauss-Markov) "
                                      "velocity error, fall back on the best family without one if the chosen model "
                                      "predicts more FIR noise than the FIR differences at the crossovers and between "

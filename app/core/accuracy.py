@@ -101,7 +101,8 @@ def repeat_line_accuracy(easting_km, northing_km=None, dg_mgal=None, step_km: fl
     Every repeat is projected on the principal axis of all the repeats' points
     (so repeats flown in opposite directions line up), sorted along it and
     linearly interpolated onto common positions every ``step_km`` over the
-    interval all repeats cover.
+    interval all repeats cover; positions where a repeat has no value (NaN) are
+    left out.
 
     Parameters
     ----------
@@ -153,6 +154,10 @@ def repeat_line_accuracy(easting_km, northing_km=None, dg_mgal=None, step_km: fl
     for k, (a, g) in enumerate(zip(along, gs)):
         o = np.argsort(a, kind="stable")
         vals[k] = np.interp(pos, a[o], g[o])
+    keep = np.all(np.isfinite(vals), axis=0)   # a repeat without a value there (NaN) leaves the point out
+    if not keep.any():
+        raise ValueError("no common point where every repeat has a value")
+    pos, vals = pos[keep], vals[:, keep]
     return RepeatAccuracy(internal_accuracy(vals), pos - lo, vals, vals.mean(axis=0))
 
 

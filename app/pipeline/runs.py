@@ -87,6 +87,7 @@ class FlightSeries:
     time_offset_applied: bool
     time_offset: dict
     despike: dict
+    gnss_filled: int = 0
 
 
 @dataclass
@@ -123,10 +124,18 @@ def run_identify(survey, tr: Tracker) -> Identified:
     tr.start("noise")
     noise = model_noise(sl.lines, meas.flights, meas.dt_s, p, n_cx)
     tr.start("fir")
-    fir = {name: fir_baseline(m, p.fir_cutoff_period_s) for name, m in meas.flights.items()}
+    fir = {name: fir_baseline(m, p.fir_cutoff_period_s, p.fir_gap_max_error_mgal) for name, m in meas.flights.items()}
     noise = check_noise_family(noise, sl.lines, fir, meas.dt_s, p)
     noise = check_noise_corners(noise, sl.lines, fir, meas.dt_s, p)
     warnings = list(meas.warnings)
+    for name in meas.flights:
+        lost = sum(int(np.sum(np.isfinite(ln.z_mgal) & ~np.isfinite(fir[name][ln.sl])))
+                   for ln in sl.lines if ln.flight == name)
+        if lost:
+            warnings.append(f"flight {name}: FIR {p.fir_cutoff_period_s:g} s left out over {lost} line epochs near missing "
+                            f"samples inside the record (their values could move it by more than "
+                            f"{p.fir_gap_max_error_mgal:g} mGal there; processing.fir_gap_max_error_mgal); the model "
+                            "checks use FIR elsewhere")
     if noise.warning:
         warnings.append(noise.warning)
     extra: dict = {}
@@ -148,7 +157,7 @@ def run_identify(survey, tr: Tracker) -> Identified:
         idents[m] = identify(sl.lines, meas.dt_s, noise.model, cfg, m, callback=em_cb, progress=tr.start)
         warnings.extend(w for w in idents[m].warnings if w not in warnings)
     flights = {n: FlightSeries(n, f.t_s, f.z_mgal, f.time_offset_s, f.time_offset_corr, f.time_offset_applied,
-                               f.time_offset, f.despike) for n, f in meas.flights.items()}
+                               f.time_offset, f.despike, f.gnss_filled) for n, f in meas.flights.items()}
     mrep = {"base_ties": meas.base_ties, "lag_check": meas.lag_check, "calibration": meas.calibration,
             "model_order_candidates": orders, **({"model_order_likelihood": extra["likelihood"]} if extra else {})}
     return Identified(cfg.model_dump(mode="json"), sl.crs, meas.dt_s, sl.lines, flights, fir, noise, idents, n_cx,

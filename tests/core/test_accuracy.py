@@ -218,3 +218,19 @@ def test_points_in_hull_of_many_points_and_edges():
     probe_n = np.array([5.0, 5.0, 3.0, 10.0, 5.0, 5.0, -1.0])
     np.testing.assert_array_equal(points_in_hull(probe_e, probe_n, e, n),
                                   [True, True, True, True, False, False, False])
+
+
+def test_repeat_line_accuracy_leaves_out_points_without_a_value():
+    """Two repeats 1 mGal apart everywhere: ε = 1/√2 (analytic), whatever stretch of one of
+    them is missing (NaN); a repeat missing everywhere leaves no common point."""
+    from app.core.accuracy import repeat_line_accuracy
+
+    e = np.linspace(0.0, 20.0, 401)
+    a = np.sin(e)
+    b = np.sin(e) + 1.0
+    b[100:180] = np.nan
+    res = repeat_line_accuracy([e, e[::-1]], [np.zeros(401)] * 2, [a, b[::-1]])
+    assert float(res) == pytest.approx(1.0 / np.sqrt(2.0))
+    assert res.n_points < 201 - 30
+    with pytest.raises(ValueError):
+        repeat_line_accuracy([e, e], [np.zeros(401)] * 2, [a, np.full(401, np.nan)])

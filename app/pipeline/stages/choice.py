@@ -149,7 +149,15 @@ def choose_order(candidates: dict, p) -> tuple[int, dict]:
                   f"p_m{hi}_worse_than_m{lo}": cmp.p_value, f"p_rank_m{hi}_worse_than_m{lo}": cmp.p_rank, "m": best}
 
 
-def _use(table: pd.DataFrame, rows: np.ndarray, values, std) -> None:
+def _use(table: pd.DataFrame, rows, values, std) -> None:
+    """Another estimate on ``rows`` — where it has a value: where it has none (FIR left out
+    near missing samples, :func:`app.pipeline.stages.filtering.fir_baseline`) the estimate
+    stays as it was."""
+    values = np.asarray(values, dtype=float)
+    ok = np.isfinite(values)
+    rows = np.asarray(rows)[ok]
+    values = values[ok]
+    std = np.broadcast_to(np.asarray(std, dtype=float), ok.shape)[ok]
     table.loc[rows, "dg_mgal"] = values
     table.loc[rows, "dg_unleveled_mgal"] = values
     table.loc[rows, "dg_std_mgal"] = std

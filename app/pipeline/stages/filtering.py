@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from app.core.baselines import fir_lowpass_mgal
+from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
 from app.core.level_ml import refine_levels
 from app.core.smoother import kalman_smooth, level_spread_std_mgal, mixture_std_mgal
 from app.pipeline.stages.lines import LineData
@@ -21,11 +21,17 @@ from app.pipeline.stages.measurement import FlightMeasurement
 MARGIN_S = 60.0
 
 
-def fir_baseline(m: FlightMeasurement, cutoff_period_s: float) -> np.ndarray:
+def fir_baseline(m: FlightMeasurement, cutoff_period_s: float, max_gap_error_mgal: float | None = None) -> np.ndarray:
     """FIR 100 s low-pass (seed 004) of ``z`` over the whole flight (mGal), so line edges
-    see the run-in data as in industry practice."""
+    see the run-in data as in industry practice.  Left out (NaN) where missing samples inside
+    the record (a gravimeter dropout) can move it by more than ``max_gap_error_mgal``
+    (:func:`app.core.baselines.fir_gap_error_mgal`): a renormalised low-pass across them is
+    not an estimate of anything there, and the model checks compare with it."""
     dt = float(np.median(np.diff(m.t_s)))
-    return fir_lowpass_mgal(m.z_mgal, dt, cutoff_period_s)
+    fir = fir_lowpass_mgal(m.z_mgal, dt, cutoff_period_s)
+    if max_gap_error_mgal is not None:
+        fir[fir_gap_error_mgal(m.z_mgal, dt, cutoff_period_s) > max_gap_error_mgal] = np.nan
+    return fir
 
 
 def hold_states(n_epochs: int, idx: np.ndarray, states: np.ndarray) -> np.ndarray:

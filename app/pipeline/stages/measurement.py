@@ -18,9 +18,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+import pandas as pd
 
 from app.config import SurveyConfig
-from app.core import geodesy
+from app.core import epochs, geodesy
 from app.core import gravimeter as gm
 from app.core.calibration import CalibrationSpectra, calibrate
 from app.core.measurement import (
@@ -31,6 +32,7 @@ from app.core.measurement import (
     spike_mask,
 )
 from app.core.noise_level import band_rms_mgal, local_noise_variance_cm2s2
+from app.io.survey import gnss_runs
 
 
 @dataclass
@@ -56,6 +58,7 @@ class FlightMeasurement:
     despike: dict = field(default_factory=dict)
     time_offset: dict = field(default_factory=dict)
     heights_only: bool = False        # the GNSS file had no vu (derived from the heights)
+    gnss_filled: int = 0              # missing GNSS epochs put back (fill_gnss_epochs)
 
 
 def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
@@ -72,7 +75,13 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     p = cfg.processing
     tau = cfg.gravimeter.tau_s if tau_s is None else tau_s
     k = cfg.gravimeter.scale if scale is None else scale
-    gn = flight.gnss
+    notes = []
+    gn, filled = fill_gnss_epochs(flight.gnss, p.max_gap_s, bool(getattr(flight, "vu_derived_from_h", False)))
+    n_filled = int(filled.sum())
+    if n_filled:
+        notes.append(f"{n_filled} missing GNSS epoch(s) put back on the receiver's clock (steps that are a whole "
+                     f"multiple of the median step, at most {p.max_gap_s:g} s long): positions and velocities there "
+                     "from the cubic spline through the record (report gnss_filled_epochs)")
     t = gn["time"].to_numpy(float)
     lat = gn["lat"].to_numpy(float)
     lon = gn["lon"].to_numpy(float)
@@ -87,7 +96,6 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     eot = geodesy.eotvos_mgal(lat, h, ve, vn)
 
     gr = flight.gravimeter
-    notes = []
     stamps = gr["time"].to_numpy(float)
     uniform = gm.dejitter_times_s(stamps)
     jitter = float(np.max(np.abs(uniform - stamps))) if stamps.size else 0.0
@@ -107,10 +115,42 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     fbar = gm.interval_means(series, t, tau, k, time_offset_s=offset if applied else 0.0)
     z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
     mask_gaps(z, t, gr["time"].to_numpy(float) + (offset if applied else 0.0), p.gravimeter_gap_margin_s, notes)
-    z, despike = despike_z(z, t, p, notes, bool(getattr(flight, "vu_derived_from_h", False)))
+    z, despike = despike_z(z, t, p, notes, bool(getattr(flight, "vu_derived_from_h", False)), filled)
     return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
                              float(offset), float(offset_info.get("correlation", np.nan)), applied, notes,
-                             despike, offset_info, bool(getattr(flight, "vu_derived_from_h", False)))
+                             despike, offset_info, bool(getattr(flight, "vu_derived_from_h", False)), n_filled)
+
+
+def fill_gnss_epochs(gn: pd.DataFrame, max_step_s: float, vu_from_h: bool) -> tuple[pd.DataFrame, np.ndarray]:
+    """The GNSS table with its missing epochs put back on the receiver's clock
+    (:func:`app.core.epochs.uniform_epochs`: steps of a whole number of median steps, at most
+    ``max_step_s``), every column there from the cubic spline through the record
+    (:func:`app.core.epochs.fill_at`, per run between record gaps; longitude unwrapped).  A
+    ``vu`` derived from the heights is derived again on the filled epochs: the spline through
+    the filled heights is the record's own, so ``vu`` is unchanged at the recorded epochs.
+    Returns the table and a mask of the inserted epochs."""
+    t = gn["time"].to_numpy(float)
+    t_new, ins = epochs.uniform_epochs(t, max_step_s)
+    if not ins.any():
+        return gn, ins
+    runs = gnss_runs(t, max_step_s)
+    out = {"time": t_new}
+    for c in gn.columns:
+        if c == "time" or (c == "vu" and vu_from_h):
+            continue
+        v = gn[c].to_numpy(float)
+        if c == "lon":   # across ±180°: the spline on the unwrapped longitude, only the new ones wrapped
+            u = epochs.fill_at(t, np.rad2deg(np.unwrap(np.deg2rad(v))), t_new, ins, runs)
+            out[c] = np.where(ins, (u + 180.0) % 360.0 - 180.0, 0.0)
+            out[c][~ins] = v
+        else:
+            out[c] = epochs.fill_at(t, v, t_new, ins, runs)
+    if vu_from_h:
+        vu = np.empty(t_new.size)
+        for a, b in gnss_runs(t_new, max_step_s):
+            vu[a:b] = geodesy.vertical_velocity_from_heights_ms(t_new[a:b], out["h"][a:b])
+        out["vu"] = vu
+    return pd.DataFrame(out, columns=list(gn.columns)), ins
 
 
 def time_offset(series, t, vu, tau: float, k: float, p, notes: list) -> dict:
@@ -175,14 +215,23 @@ def mask_gaps(z, t, t_grav, margin_s: float, notes: list) -> None:
                          "of z left without measurement")
 
 
-def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False):
+#: Epochs on either side of a filled GNSS epoch where the spike repair raises no flag (the
+#: half-width of the height-outlier templates, app.core.measurement.height_outlier_mask).
+FILL_GUARD = 16
+
+
+def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False, filled=None):
     """Repair isolated spikes of z (:func:`app.core.measurement.spike_mask`); stand down when
     more than ``despike_max_fraction`` of the epochs would be flagged.  Where ``vu`` was
     derived from the heights the spline's response to a height spike or step is also looked
     for (:func:`app.core.measurement.height_outlier_mask`), and a flag is removed as one
     (:func:`app.core.measurement.repair_height_outliers`; the report lists each: epoch time
     in s, kind, size in m); otherwise each flagged run is replaced by its mean
-    (:func:`app.core.measurement.repair_spikes`).  ``t_s``: the GNSS times (s).
+    (:func:`app.core.measurement.repair_spikes`).  ``t_s``: the GNSS times (s).  ``filled``:
+    the GNSS epochs put back on the clock (:func:`fill_gnss_epochs`); the spline that bridges
+    them smooths the aircraft's motion there, which the detector can take for a height step
+    (a 3.5 s fill on the 2 Hz test line: a 26 cm "step"), so no flag is raised within
+    :data:`FILL_GUARD` epochs of them (``ignored_near_filled`` in the evidence).
     Returns (z, evidence)."""
     t = np.asarray(t_s, float)
     dt_s = float(np.median(np.diff(t)))
@@ -193,6 +242,10 @@ def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False):
     spikes = spike_mask(z, dt_s, p.despike_threshold)
     if vu_from_heights:  # a height outlier rings through the spline: the matched patterns see it
         spikes |= height_outlier_mask(z, t, p.despike_threshold)
+    if filled is not None and np.any(filled):
+        near = np.convolve(np.asarray(filled, float), np.ones(2 * FILL_GUARD + 1), mode="same") > 0.5
+        despike["ignored_near_filled"] = int(np.sum(spikes & near))
+        spikes &= ~near
     n_flag = int(spikes.sum())
     frac = n_flag / max(1, despike["epochs"])
     despike.update(flagged=n_flag, fraction=frac)
