@@ -422,6 +422,71 @@ def pass_difference(s_a_m, z_a, s_b_m, z_b, dt_s: float, lowpass_hz: float) -> P
     return PassDifference(za - zb, (speeds[0] / v_bar, speeds[1] / v_bar))
 
 
+def pass_differences(s_a_m, z_a, s_b_m, z_b, dt_s: float, lowpass_hz: float,
+                     min_steps: int = 64) -> list[PassDifference]:
+    """:func:`pass_difference` for passes with missing values (NaN): each finite run of a pass
+    (at least ``min_steps`` samples) is low-passed and interpolated on its own, and the
+    difference is returned as its finite stretches of at least ``min_steps`` grid steps.  A
+    pass with one hole (a gravimeter dropout) then still gives its pair's noise spectrum on
+    either side of it, where :func:`pass_difference` gives nothing; without holes the result
+    is :func:`pass_difference`'s.
+
+    Returns
+    -------
+    list of PassDifference
+        Possibly empty (no overlap, positions not increasing, nothing long enough).
+    """
+    from scipy.interpolate import CubicSpline
+    from scipy.signal import butter, sosfiltfilt
+
+    pieces, speeds, extent = [], [], []
+    fs = 1.0 / dt_s
+    sos = butter(8, lowpass_hz, fs=fs, output="sos") if lowpass_hz < 0.45 * fs else None
+    for s, z in ((s_a_m, z_a), (s_b_m, z_b)):
+        s = np.asarray(s, dtype=float)
+        z = np.asarray(z, dtype=float)
+        if s.size < min_steps or not np.all(np.isfinite(s)):
+            return []
+        if s[-1] < s[0]:
+            s, z = s[::-1], z[::-1]
+        if np.any(np.diff(s) <= 0):
+            return []
+        runs = []
+        ok = np.concatenate([[False], np.isfinite(z), [False]])
+        starts = np.flatnonzero(ok[1:] & ~ok[:-1])
+        ends = np.flatnonzero(~ok[1:] & ok[:-1])
+        for a, b in zip(starts, ends):
+            if b - a < min_steps:
+                continue
+            zz = z[a:b]
+            if sos is not None:
+                zz = sosfiltfilt(sos, zz - np.mean(zz)) + np.mean(zz)
+            runs.append(CubicSpline(s[a:b], zz))
+        pieces.append(runs)
+        speeds.append((s[-1] - s[0]) / ((s.size - 1) * dt_s))
+        extent.append((s[0], s[-1]))
+    v_bar = 0.5 * (speeds[0] + speeds[1])
+    lo = max(extent[0][0], extent[1][0])
+    hi = min(extent[0][1], extent[1][1])
+    n = int(np.floor((hi - lo) / (v_bar * dt_s)))
+    if n < min_steps:
+        return []
+    grid = lo + np.arange(n) * v_bar * dt_s
+    vals = []
+    for runs in pieces:
+        v = np.full(n, np.nan)
+        for sp in runs:
+            inside = (grid >= sp.x[0]) & (grid <= sp.x[-1])
+            v[inside] = sp(grid[inside])
+        vals.append(v)
+    d = vals[0] - vals[1]
+    ok = np.concatenate([[False], np.isfinite(d), [False]])
+    starts = np.flatnonzero(ok[1:] & ~ok[:-1])
+    ends = np.flatnonzero(~ok[1:] & ok[:-1])
+    ratios = (speeds[0] / v_bar, speeds[1] / v_bar)
+    return [PassDifference(d[a:b], ratios) for a, b in zip(starts, ends) if b - a >= min_steps]
+
+
 @dataclass
 class NoiseFit:
     """Result of :func:`fit_noise_model`.

@@ -273,3 +273,33 @@ def test_multitaper_leaves_bins_on_a_97_s_stretch_at_2_hz():
     fit = fit_noise_model([_simulate_component(rng, 194, comp) for _ in range(6)], dt, m=2, fmax_hz=0.2,
                           min_duration_s=60.0)
     assert fit.model.components
+
+
+def test_pass_differences_keep_both_sides_of_a_hole():
+    """Without holes pass_differences is pass_difference; with a hole (NaN) in one pass it
+    returns the stretches on either side, equal to the hole-free difference away from the
+    hole's edges (the not-a-knot spline of each run differs from the whole pass's only near its
+    ends), where pass_difference returns nothing."""
+    from app.core.noise_model import pass_difference, pass_differences
+
+    rng = np.random.default_rng(9)
+    dt, n = 0.5, 1200
+    s = 50.0 * np.arange(n)                    # 100 m/s
+    za, zb = rng.normal(0.0, 1.0, n), rng.normal(0.0, 1.0, n)
+    for lp in (1.0, 0.3):                      # no low-pass (≥ 0.45 fs) and a low-pass
+        whole = pass_difference(s, za, s[::-1], zb[::-1], dt, lp)
+        got = pass_differences(s, za, s[::-1], zb[::-1], dt, lp)
+        assert len(got) == 1
+        np.testing.assert_array_equal(got[0].d_mgal, whole.d_mgal)
+    holed = za.copy()
+    holed[500:510] = np.nan
+    assert pass_difference(s, holed, s, zb, dt, 1.0) is None
+    parts = pass_differences(s, holed, s, zb, dt, 1.0)
+    assert len(parts) == 2
+    clean = pass_difference(s, za, s, zb, dt, 1.0).d_mgal
+    assert parts[0].d_mgal.size + parts[1].d_mgal.size < clean.size
+    np.testing.assert_allclose(parts[0].d_mgal[:480], clean[:480], atol=1e-9)
+    np.testing.assert_allclose(parts[1].d_mgal[-(clean.size - 530):], clean[530:], atol=1e-9)
+    short = za.copy()
+    short[40:] = np.nan                        # nothing long enough on one pass
+    assert pass_differences(s, short, s, zb, dt, 1.0) == []

@@ -18,7 +18,7 @@ import numpy as np
 
 from app.core.model_check import difference_nll, fir_noise_variance_mgal2, noise_overstated, repeat_contrasts
 from app.core.noise_level import band_noise_variance_cm2s2, local_noise_variance_cm2s2
-from app.core.noise_model import FAMILIES, fit_noise_model, pass_difference
+from app.core.noise_model import FAMILIES, fit_noise_model, pass_differences
 from app.pipeline.stages.lines import LineData, finite_segments, line_crossovers
 from app.pipeline.stages.measurement import FlightMeasurement
 
@@ -61,7 +61,8 @@ def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False,
 
 def repeat_differences(lines: list[LineData], dt_s: float, lowpass_hz: float) -> list:
     """Differences of the passes of every repeat track (disjoint consecutive pairs, so the
-    differences are independent), on a common along-track grid (:func:`app.core.noise_model.pass_difference`).
+    differences are independent), on a common along-track grid, in finite stretches around
+    holes (:func:`app.core.noise_model.pass_differences`).
     The along-track coordinate is the projection on the track's principal axis."""
     tracks: dict = {}
     for ln in lines:
@@ -79,9 +80,7 @@ def repeat_differences(lines: list[LineData], dt_s: float, lowpass_hz: float) ->
         for a, b in zip(passes[0::2], passes[1::2]):
             sa = 1000.0 * ((a.easting_km - e.mean()) * axis[0] + (a.northing_km - n.mean()) * axis[1])
             sb = 1000.0 * ((b.easting_km - e.mean()) * axis[0] + (b.northing_km - n.mean()) * axis[1])
-            d = pass_difference(sa, a.z_mgal, sb, b.z_mgal, dt_s, lowpass_hz)
-            if d is not None:
-                out.append(d)
+            out.extend(pass_differences(sa, a.z_mgal, sb, b.z_mgal, dt_s, lowpass_hz))
     return out
 
 
