@@ -322,6 +322,12 @@ class ProcessingParams(_Strict):
                                      "test at noise_corner_alpha)")
     noise_corner_alpha: float = Field(0.05, gt=0, lt=0.5, description="Level of that test (χ² bound of the "
                                       "crossovers' mean square difference)")
+    gnss_fill_max_error_mgal: float | None = Field(5.0, gt=0, description="A hole of missing GNSS epochs is put "
+                                                   "back on the receiver's clock (spline) when, with as many epochs "
+                                                   "taken out of the record elsewhere, the bridge moves FIR 100 s by "
+                                                   "at most this (mGal, peak, RMS over 40 places): 1-6 missing epochs "
+                                                   "of a 2 Hz record 0.1-3.6, 25+ of a 10 Hz one in turbulence 41-210. "
+                                                   "None = any hole up to max_gap_s")
     fir_gap_max_error_mgal: float | None = Field(1.0, gt=0, description="FIR 100 s is left out (NaN) where missing "
                                                  "samples inside the record could move it by more than this (mGal; "
                                                  "robust std of z × the kernel weight on them): one missing sample of "

@@ -423,7 +423,9 @@ def gap_rows_in_windows(t: np.ndarray, t_start: np.ndarray, t_end: np.ndarray,
     """Index of the first sample after a too-long gap inside each window (−1 if none).
 
     A gap (t_i, t_{i+1}) counts for window [a, b] when it overlaps it:
-    ``t_{i+1} > a`` and ``t_i < b``.
+    ``t_{i+1} > a`` and ``t_i < b``.  A step counts as a gap when it exceeds ``max_gap_s`` by
+    more than 5 % of the median step: stamps scattered about the clock (a logger's time, up to
+    2.5 % of the step) do not turn an allowed step into a refused one.
 
     Parameters
     ----------
@@ -440,7 +442,9 @@ def gap_rows_in_windows(t: np.ndarray, t_start: np.ndarray, t_end: np.ndarray,
         longer than ``max_gap_s`` that overlaps the window, or −1.
     """
     t = np.asarray(t, dtype=float)
-    big = np.flatnonzero(np.diff(t) > max_gap_s)  # gap between big[k] and big[k]+1
+    dt = np.diff(t)
+    slack = 0.05 * float(np.median(dt)) if dt.size else 0.0
+    big = np.flatnonzero(dt > max_gap_s + slack)  # gap between big[k] and big[k]+1
     out = np.full(len(t_start), -1, dtype=np.int64)
     if big.size == 0:
         return out

@@ -46,3 +46,28 @@ def test_fill_is_the_cubic_through_the_record_and_keeps_recorded_values():
     assert got[7] == pytest.approx(1.0 + 3.5)
     with pytest.raises(ValueError):
         fill_at(t, y[:-1], t_new, ins)
+
+
+def test_fill_error_is_nil_for_a_smooth_record_and_grows_with_the_hole():
+    """Heights on a cubic trajectory: the spline bridge is exact, so the low-pass does not move.
+    A vertical motion with 0.2–0.9 Hz content (turbulence): the bridge misses what happens inside
+    the hole, more the longer it is."""
+    from app.core.baselines import fir_kernel
+    from app.core.epochs import fill_error_mgal
+
+    dt = 0.5
+    t = 1000.0 + dt * np.arange(4000)
+    x = t - t[0]
+    h_smooth = 300.0 + 2.0 * x - 1e-3 * x ** 2 + 1e-7 * x ** 3
+    k = fir_kernel(dt, 100.0)
+    assert fill_error_mgal(t, h_smooth, 4, k, derivative=True) < 1e-6
+    rng = np.random.default_rng(2)
+    w = rng.uniform(2 * np.pi * 0.2, 2 * np.pi * 0.9, 30)
+    ph = rng.uniform(0, 2 * np.pi, 30)
+    h_turb = h_smooth + 0.2 * np.sin(np.outer(x, w) + ph).sum(axis=1)
+    errs = [fill_error_mgal(t, h_turb, m, k, derivative=True) for m in (1, 2, 4, 8)]
+    assert all(b > a for a, b in zip(errs, errs[1:]))
+    assert errs[-1] > 10 * errs[0]
+    with pytest.raises(ValueError):
+        fill_error_mgal(t, h_turb, 0, k, derivative=True)
+    assert np.isnan(fill_error_mgal(t[:20], h_turb[:20], 4, k, derivative=True))

@@ -89,3 +89,35 @@ def test_static_segments_found_in_velocities_differenced_from_noisy_positions():
     assert len(segs) == 1
     a, b = segs[0]
     assert t[a] == pytest.approx(10.0, abs=3.0) and 285.0 < t[b - 1] <= 300.0
+
+
+def test_gnss_stamp_jitter_is_undone_but_a_drifting_receiver_clock_is_kept():
+    """Heights on a cubic trajectory (the not-a-knot spline's derivative is then exact):
+    stamps scattered by ±2 ms, uncorrelated, go back on the clock and vu derived from the heights
+    is derived again there (= the trajectory's derivative); a ±0.5 ms sawtooth (a receiver clock
+    that drifts and jumps 1 ms, stamping its true epochs) is kept as it is."""
+    from app.pipeline.stages.measurement import dejitter_gnss
+
+    rng = np.random.default_rng(4)
+    t = 1000.0 + 0.5 * np.arange(2000)
+    x = t - 1000.0
+
+    def heights(tt):
+        xx = tt - 1000.0
+        return 500.0 + 0.5 * xx - 1e-4 * xx ** 2 + 1e-8 * xx ** 3
+
+    stamps = t + rng.uniform(-0.002, 0.002, t.size)
+    gn = pd.DataFrame({"time": stamps, "lat": 60.0, "lon": 20.0, "h": heights(t), "vu": np.nan})
+    notes: list = []
+    out, info = dejitter_gnss(gn, 1.0, True, notes)
+    assert info["gnss_stamps_dejittered"] and abs(info["gnss_stamp_jitter_lag1"]) < 0.2
+    # back on the clock: steps equal within 50 µs (they scattered by ±4 ms), the clock's phase,
+    # averaged out of the scatter, within 0.5 ms
+    assert np.ptp(np.diff(out["time"])) < 5e-5 and np.max(np.abs(out["time"] - t)) < 5e-4
+    np.testing.assert_allclose(out["vu"], 0.5 - 2e-4 * x + 3e-8 * x ** 2, atol=2e-4)
+    assert any("put back on the clock" in n for n in notes)
+    c = ((t - t[0]) * 1e-5) % 1e-3 - 5e-4
+    gn = pd.DataFrame({"time": t + c, "lat": 60.0, "lon": 20.0, "h": heights(t + c), "vu": 0.0})
+    out, info = dejitter_gnss(gn, 1.0, True, [])
+    assert not info["gnss_stamps_dejittered"] and info["gnss_stamp_jitter_lag1"] > 0.9
+    assert out is gn
