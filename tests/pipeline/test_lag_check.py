@@ -13,7 +13,7 @@ z's RMS at 0.02–0.05 Hz by 41 %; a real lag error lowers it (declared 2.0, tru
 import numpy as np
 
 from app.io.survey import read_survey
-from app.pipeline.stages.measurement import check_lag
+from app.pipeline.stages.measurement import check_lag, lag_band_check
 from app.simulate import simulate_survey
 
 LAYOUT_177 = dict(n_main=8, main_length_km=25.0, main_spacing_km=4.0, n_tie=0, n_flights=1, n_repeat=4,
@@ -23,15 +23,18 @@ LAYOUT_177 = dict(n_main=8, main_length_km=25.0, main_spacing_km=4.0, n_tie=0, n
 
 
 def test_in_flight_lag_that_worsens_z_is_not_applied(tmp_path):
+    """Layout 177's flight has three short gravimeter holes; fitted across them the in-flight τ
+    was 2.093 s.  Fitted away from them it is the true 2.0 (within lag_check_s), so nothing
+    moves; and the τ the holes gave is still rejected by the band check (z's band RMS rises)."""
     survey_dir = simulate_survey("omolon-mini", tmp_path / "s", seed=177, **LAYOUT_177)
     survey = read_survey(survey_dir)
     assert survey.config.gravimeter.tau_s == 2.0                   # declared = true
     warnings = []
     tau, info = check_lag(survey, survey.config, warnings)
     est = float(np.median(info["estimated_tau_s"]))
-    assert abs(est - 2.0) > survey.config.processing.lag_check_s   # the calibration is off ...
-    assert info["band_rms_estimated_mgal"] > info["band_rms_declared_mgal"]   # ... and z says so
-    assert tau is None and info["applied"] is False and "kept" in info["reason"]
+    assert abs(est - 2.0) < 0.02 and tau is None and info["applied"] is False
+    band = lag_band_check(list(survey.flights.values()), survey.config, 2.093)
+    assert band["band_rms_estimated_mgal"] > 1.2 * band["band_rms_declared_mgal"]
     assert not any("gravimeter lag" in w for w in warnings)
 
 

@@ -600,7 +600,7 @@ def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float) -> dict:
     the records (interval means, an internal filter, heights differentiated twice) differs
     from a first-order lag's; a τ that absorbs that mismatch changes z in the band the
     smoother works in — just above FIR's cutoff — for the worse (a GT-1A with its declared,
-    true τ = 2.0 s and 2 Hz heights: 2.093 s in flight, z's RMS at 0.02–0.05 Hz 43 → 61
+    true τ = 2.0 s and 2 Hz heights: 2.093 s in flight when fitted across record holes, z's RMS at 0.02–0.05 Hz 43 → 61
     mGal, the estimate's error 3.2 → 6.6 mGal).  A real lag error lowers it there (τ 2.4 s
     declared 2.0: 78 → 33 mGal).  Compared on the flights the τ was estimated on, each with
     the time offset re-estimated for its τ: the RMS of z in 2–5 × 1/``fir_cutoff_period_s``
