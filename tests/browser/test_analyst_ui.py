@@ -104,6 +104,12 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     assert page.locator("#report-crossover-table tbody tr").count() == 1
     assert page.locator("#report-em-selection tr.chosen").inner_text().startswith("2x1")
     assert page.locator("#report-noise-candidates tbody tr").count() == 2
+    # the time stamps and the noise family's check against the FIR differences, with their evidence
+    offsets = page.locator("#report-time-offsets tbody tr")
+    assert "\t1.9\t" in offsets.nth(0).inner_text() and offsets.nth(0).locator("td").last.inner_text() == "yes"
+    assert page.locator("#report-gnss-filled tbody tr").first.locator("td").last.inner_text() == "2"
+    fc = page.inner_text("#report-family-check")
+    assert fc.startswith("Coloured velocity checked against the FIR differences: changed — 21 differences")
     for key in ("base_ties", "time_offsets", "lag_check", "spike_repair", "crossovers", "noise_model", "model_order",
                 "model_choice", "future_section", "counts"):
         assert page.locator(f"#report-sec-{key}").count() == 1, key

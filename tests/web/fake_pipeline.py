@@ -40,7 +40,12 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
         "time_offsets": {f: {"offset_s": -0.0503, "correlation": 0.9957, "applied": i == 0, "estimated": True,
                              "se_s": 0.0003, "residual_reduction": 0.70 if i == 0 else 0.004,
                              "reason": "significant and improves the fit" if i == 0 else
-                             "improves the fit by less than 1 %"} for i, f in enumerate(flights)},
+                             "improves the fit by less than 1 %",
+                             # the stamps: the first flight's scattered like a logger's, the others a drifting clock
+                             "gravimeter_stamp_jitter_ms": 0.0, "gnss_stamp_jitter_ms": 1.9 if i == 0 else 0.74,
+                             "gnss_stamps_dejittered": i == 0, "gnss_stamp_jitter_lag1": -0.03 if i == 0 else 0.97}
+                         for i, f in enumerate(flights)},
+        "gnss_filled_epochs": {f: (2 if i == 0 else 0) for i, f in enumerate(flights)},
         "spike_repair": {f: {"threshold": 6.0, "flagged": 3, "epochs": int((df["flight"] == f).sum()),
                              "applied": True, "fraction": 0.00019,
                              # the last flight as a heights-only one: flags removed as height outliers
@@ -73,7 +78,11 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                         "candidates": [{"family": "white velocity", "nll": 12512.1, "n_params": 2, "bic": 25038.0},
                                        {"family": "Gauss-Markov velocity", "nll": 12511.9, "n_params": 4,
                                         "bic": 25052.4}],
-                        "n_bins": 1198, "fit_fmax_hz": 0.2},
+                        "n_bins": 1198, "fit_fmax_hz": 0.2,
+                        "family_check": {"chosen": "Gauss-Markov velocity", "alternative": "white velocity",
+                                         "applied": True, "n": 21, "predicted_ms_mgal2": 9.01, "bound_mgal2": 5.32,
+                                         "reason": "Gauss-Markov velocity predicts 9.01 mGal² of FIR noise ...: "
+                                                   "white velocity used"}},
         "lag_check": {"declared_tau_s": 2.0, "estimated_tau_s": [1.9995, 1.9990, 1.9992], "applied": False},
         # as the real stage 9 writes it when the FIR guard fired (unseen seed 88's figures)
         "model_choice": {"chosen": "FIR", "m": 2, "noisy_check": {"applied": False},

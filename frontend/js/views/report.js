@@ -12,8 +12,8 @@ function card(key, title, ...body) {
     el("summary", {}, el("h3", {}, title)), ...body);
 }
 
-function perFlight(obj, headers, row) {
-  return table(["Flight", ...headers], Object.entries(obj || {}).map(([f, v]) => [f, ...row(v || {})]));
+function perFlight(obj, headers, row, attrs) {
+  return table(["Flight", ...headers], Object.entries(obj || {}).map(([f, v]) => [f, ...row(v ?? {})]), attrs);
 }
 
 function repeatRows(rep) {
@@ -104,9 +104,12 @@ const RENDER = {
     yes(b.applied), yes(b.absolute), fmt(b.drift_mgal_per_h, 3), String((b.static_periods || []).length),
     (b.static_periods || []).map((p) => fmt(p.reading_error_mgal, 2)).join(", ") || "—"])],
   time_offsets: (v) => [perFlight(v, ["Offset (s)", "Std. error (s)", "Correlation", "Residual reduction", "Applied", "Reason",
-    "Gravimeter stamp scatter (ms)"], (o) => [
+    "Gravimeter stamp scatter (ms)", "GNSS stamp scatter (ms)", "GNSS stamps put on the clock"], (o) => [
     fmt(o.offset_s, 4), fmt(o.se_s, 2), fmt(o.correlation, 4), pct(o.residual_reduction), yes(o.applied), o.reason || "—",
-    fmt(o.gravimeter_stamp_jitter_ms, 2)])],
+    fmt(o.gravimeter_stamp_jitter_ms, 2), fmt(o.gnss_stamp_jitter_ms, 2),
+    o.gnss_stamps_dejittered === undefined ? "—" : (o.gnss_stamps_dejittered ? "yes"
+      : (o.gnss_stamp_jitter_lag1 > 0.5 ? `no (correlated, lag-1 ${fmt(o.gnss_stamp_jitter_lag1, 2)}: a receiver clock)` : "no"))], { id: "report-time-offsets" })],
+  gnss_filled_epochs: (v) => [perFlight(v, ["Missing GNSS epochs put back on the clock"], (n) => [String(n)], { id: "report-gnss-filled" })],
   lag_check: (v) => [table(["Declared τ (s)", "Estimated τ per flight (s)", "Applied"],
     [[fmt(v.declared_tau_s, 4), (v.estimated_tau_s || []).map((x) => fmt(x, 4)).join(", "), yes(v.applied)]])],
   spike_repair: (v) => [perFlight(v, ["Flagged epochs", "Fraction", "Epochs", "Threshold (robust σ)", "Outcome"], (d) => [
@@ -143,6 +146,16 @@ const RENDER = {
     const out = [table(["Family", "Fit", "Level band (Hz)", "Level scale", "Fitted up to (Hz)"],
       [[v.family ?? "—", v.fit ?? "—", (v.level_band_hz || []).join("–"), fmt(v.level_scale, 3), fmt(v.fit_fmax_hz ?? v.fmax_hz, 3)]])];
     if (v.components) out.push(el("h4", {}, "Components"), genericView(v.components));
+    // the checks of the family and of its corners against the FIR differences (crossovers, repeat passes)
+    for (const [key, what] of [["family_check", "Coloured velocity checked against the FIR differences"],
+                               ["corner_check", "Noise corners checked against the FIR differences"]]) {
+      const c = v[key];
+      if (!c) continue;
+      const text = `${what}: ${c.applied ? "changed" : "kept"}` +
+        (c.n ? ` — ${c.n} differences, predicted ${fmt(c.predicted_ms_mgal2, 3)} mGal², bound ${fmt(c.bound_mgal2, 3)} mGal²` : "") +
+        (c.reason ? `; ${c.reason}` : "");
+      out.push(el("p", { class: c.applied ? "warnline" : "note", id: `report-${key.replace("_", "-")}` }, text));
+    }
     if (v.candidates && v.candidates.length) {
       const c = [...v.candidates].sort((a, b) => (a.bic ?? Infinity) - (b.bic ?? Infinity));
       out.push(el("h4", {}, "Candidates by BIC (the family used is marked)"), table(["Family", "−log L", "Parameters", "BIC", "ΔBIC", ""],
@@ -157,7 +170,7 @@ const RENDER = {
 };
 
 const TITLES = {
-  base_ties: "Base ties", time_offsets: "Gravimeter–GNSS time offsets", lag_check: "Lag check (τ in flight)",
+  base_ties: "Base ties", time_offsets: "Gravimeter–GNSS time offsets and time stamps", gnss_filled_epochs: "Missing GNSS epochs", lag_check: "Lag check (τ in flight)",
   spike_repair: "GNSS spike repair (velocity spikes; height spikes and steps where vu comes from the heights)", crossovers: "Leveling at crossovers", repeat_lines: "Repeat-line internal accuracy",
   noise_model: "Noise model", model_order: "Model order", model_choice: "Model choice", identification: "Identification (EM)",
   counts: "Counts", timings_s: "Stage timings (s)", grid: "Grid", level_refinement: "Level refinement",
@@ -201,7 +214,7 @@ export async function render(sec, ctx) {
     el("h4", {}, `Warnings (${r.warnings.length})`),
     r.warnings.length ? el("ul", { id: "report-warnings", class: "warnings" }, r.warnings.map((w) => el("li", {}, w)))
       : el("p", { class: "note", id: "report-warnings" }, "none")));
-  for (const key of ["base_ties", "time_offsets", "lag_check", "spike_repair", "crossovers", "repeat_lines"]) {
+  for (const key of ["base_ties", "time_offsets", "gnss_filled_epochs", "lag_check", "spike_repair", "crossovers", "repeat_lines"]) {
     if (rep[key] !== undefined && rep[key] !== null) parts.push(card(key, TITLES[key], ...RENDER[key](rep[key], r), jsonDetails(key, rep[key])));
   }
   if (r.adaptive_minus_fir.length) {
@@ -217,7 +230,7 @@ export async function render(sec, ctx) {
   parts.push(card("identification", TITLES.identification, ...identificationCard(r),
     rep.identification ? jsonDetails("identification", rep.identification) : null));
   if (rep.model_choice !== undefined) parts.push(card("model_choice", TITLES.model_choice, genericView(rep.model_choice), jsonDetails("model_choice", rep.model_choice)));
-  const shown = new Set(["base_ties", "time_offsets", "lag_check", "spike_repair", "crossovers", "repeat_lines", "noise_model", "model_order",
+  const shown = new Set(["base_ties", "time_offsets", "gnss_filled_epochs", "lag_check", "spike_repair", "crossovers", "repeat_lines", "noise_model", "model_order",
     "identification", "model_choice"]);
   for (const [key, v] of Object.entries(rep)) {
     if (shown.has(key) || SKIP.has(key)) continue;
