@@ -199,7 +199,11 @@ class ProcessingParams(_Strict):
     # --- ingest / validation
     gnss_rate_hz: float | None = Field(None, gt=0, le=1000, description="Declared GNSS rate (Hz); inferred when None")
     rate_tolerance: float = Field(0.25, gt=0, le=1, description="Allowed relative deviation of the median rate from the declared one")
-    max_gap_s: float = Field(1.0, gt=0, le=3600, description="Longest allowed gap between consecutive samples inside a line window (s)")
+    max_gap_s: float = Field(2.0, gt=0, le=3600, description="Longest allowed gap between consecutive samples inside "
+                             "a line window (s): one missing epoch of a 1 Hz record, three of a 2 Hz one.  Missing "
+                             "GNSS epochs are put back where the record shows a spline bridges them "
+                             "(gnss_fill_max_error_mgal); near missing gravimeter samples FIR 100 s is left out "
+                             "(fir_gap_max_error_mgal) and the smoother carries on")
     gravimeter_gap_margin_s: float = Field(2.0, ge=0, le=600, description="Epochs of z within this margin of a gap in "
                                            "the gravimeter record are treated as missing (the lag inversion "
                                            "spreads the unknown integral over ~τ)")

@@ -29,6 +29,16 @@ def test_gap_rows_in_windows_matches_brute_force():
         assert got.tolist() == ref
 
 
+def test_scattered_stamps_do_not_turn_an_allowed_step_into_a_gap():
+    """2 Hz stamps, one missing epoch (a 1 s step) with max_gap_s = 1: a step 20 ms longer (a
+    logger's scatter, within 5 % of the 0.5 s median) is no gap; 30 ms longer is."""
+    t = 0.5 * np.arange(100.0)
+    for extra, gap in ((0.0, False), (0.02, False), (0.03, True)):
+        tt = np.concatenate([t[:50], t[51:] + extra])
+        got = gap_rows_in_windows(tt, np.array([0.0]), np.array([49.0]), 1.0)
+        assert (got[0] == 50) == gap, extra
+
+
 def test_fill_short_nan_runs_linear_in_time():
     t = np.array([0.0, 1.0, 3.0, 4.0, 10.0])
     v = np.array([0.0, np.nan, np.nan, 8.0, 20.0])  # true line v = 2 t
