@@ -156,10 +156,16 @@ def dejitter_gnss(gn: pd.DataFrame, max_gap_s: float, vu_from_h: bool, notes: li
             notes.append(f"GNSS time stamps deviate up to {1e3 * jitter:.1f} ms from a uniform clock, correlated from "
                          f"epoch to epoch (lag-1 correlation {lag1:.2f}: a receiver clock, not stamp jitter): kept")
         return gn, info
+    runs = gnss_runs(u, max_gap_s)
+    if vu_from_h and min(b - a for a, b in runs) < 4:
+        # a step at the gap limit fell the other side of it: a run too short for the spline (the
+        # reader checked the stamps' runs) — keep the stamps rather than refuse the flight
+        info["reason"] = "kept: a run between gaps would be too short to derive vu from the heights"
+        return gn, info
     out = gn.copy()
     out["time"] = u
     if vu_from_h:
-        for a, b in gnss_runs(u, max_gap_s):
+        for a, b in runs:
             out.iloc[a:b, out.columns.get_loc("vu")] = geodesy.vertical_velocity_from_heights_ms(
                 u[a:b], out["h"].to_numpy(float)[a:b])
     info["gnss_stamps_dejittered"] = True
@@ -212,7 +218,9 @@ def fill_gnss_epochs(gn: pd.DataFrame, max_step_s: float, vu_from_h: bool, max_e
     if vu_from_h:
         vu = np.empty(t_new.size)
         for a, b in gnss_runs(t_new, max_step_s):
-            vu[a:b] = geodesy.vertical_velocity_from_heights_ms(t_new[a:b], out["h"][a:b])
+            # filling only joins runs, so each is at least as long as the reader's (≥ 4 samples)
+            vu[a:b] = (geodesy.vertical_velocity_from_heights_ms(t_new[a:b], out["h"][a:b]) if b - a >= 4
+                       else np.interp(t_new[a:b], t, gn["vu"].to_numpy(float)))
         out["vu"] = vu
     return pd.DataFrame(out, columns=list(gn.columns)), ins, info
 
