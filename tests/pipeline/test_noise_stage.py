@@ -251,3 +251,25 @@ def test_family_check_falls_back_when_the_repeats_show_less_fir_noise():
     off = _family_pair(4.0 * 2.25, 2.25)
     off_used = check_noise_family(off, lines, fir, 0.5, p.model_copy(update={"noise_family_check": False}))
     assert off_used is off and off_used.family_check is None and off_used.alternative is None
+
+
+def test_noise_fit_bridges_short_holes_only():
+    """A line's holes of at most BRIDGE_MAX_S inside it take the acceleration's prediction of z;
+    a longer hole, or missing values at the line's ends, stay missing (the fit splits there)."""
+    from app.pipeline.stages.noise import BRIDGE_MAX_S, bridged
+
+    dt = 0.5
+    n = 400
+    z = np.ones(n)
+    z[:3] = np.nan                                   # the line's start
+    z[100:104] = np.nan                              # 2 s: bridged
+    long = int(BRIDGE_MAX_S / dt) + 2
+    z[200:200 + long] = np.nan                       # longer than BRIDGE_MAX_S: kept
+    ln = LineData("L", "F", "main", None, slice(10, 10 + n), dt * np.arange(n), np.zeros(n), np.zeros(n),
+                  np.zeros(n), np.zeros(n), np.zeros(n), z, 100.0)
+    pred = {"F": np.arange(500, dtype=float)}
+    out = bridged(ln, pred, dt)
+    np.testing.assert_array_equal(out[100:104], np.arange(110, 114))
+    assert np.isnan(out[:3]).all() and np.isnan(out[200:200 + long]).all()
+    assert np.array_equal(out[np.isfinite(z)], z[np.isfinite(z)])
+    assert bridged(ln, {}, dt) is z

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from app.core.measurement import gnss_acceleration_ms2, response_prediction_mgal
 from app.core.model_check import difference_nll, fir_noise_variance_mgal2, noise_overstated, repeat_contrasts
 from app.core.noise_level import band_noise_variance_cm2s2, local_noise_variance_cm2s2
 from app.core.noise_model import FAMILIES, fit_noise_model, pass_differences
@@ -30,7 +31,7 @@ def level_band(p, dt_s: float) -> tuple[float, float]:
     return (min(float(p.noise_band_hz[0]), 0.5 * f2), f2)
 
 
-def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False, families=None):
+def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False, families=None, bridges=None):
     """The error of z as a coloured process (:mod:`app.core.noise_model`), fitted on the
     finite stretches of every line; returns (NoiseFit, model normalised so that a level R is
     the equivalent white velocity noise in :func:`level_band`).  ``heights_only``: every
@@ -41,7 +42,8 @@ def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False,
     ``p.noise_family`` when set)."""
     fams = families if families is not None else (
         FAMILIES if p.noise_family == "auto" else tuple(f for f in FAMILIES if f[0] == p.noise_family))
-    segs = [ln.z_mgal[a:b] for ln in lines for a, b in finite_segments(ln.z_mgal)]
+    zs = [bridged(ln, bridges, dt_s) for ln in lines]
+    segs = [z[a:b] for z in zs for a, b in finite_segments(z)]
     fmax = min(float(p.noise_fit_fmax_hz), 0.8 * 0.5 / dt_s)
     diffs = repeat_differences(lines, dt_s, min(2.0 * fmax, 0.45 / dt_s)) if p.noise_fit_repeats else []
     longest_s = max((s.size * dt_s for s in segs), default=0.0)
@@ -57,6 +59,28 @@ def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False,
                           prefer_height=heights_only, min_duration_s=min_s,
                           height_tau_min_s=p.noise_height_tau_min_s)
     return fit, fit.model.normalized(level_band(p, dt_s)), min_s
+
+
+#: Longest hole of z (s) the noise fit bridges with the acceleration's prediction of z.
+BRIDGE_MAX_S = 10.0
+
+
+def bridged(ln: LineData, bridges, dt_s: float) -> np.ndarray:
+    """The line's z with its short holes (at most :data:`BRIDGE_MAX_S`; a gravimeter dropout)
+    filled by ``bridges[flight]`` (:func:`app.core.measurement.response_prediction_mgal`), so
+    that the noise fit sees whole lines: split at a hole, a 600 s line's halves lose the lowest
+    frequencies, where the velocity part of the noise shows."""
+    z = ln.z_mgal
+    if not bridges or ln.flight not in bridges or np.all(np.isfinite(z)):
+        return z
+    pred = bridges[ln.flight][ln.sl]
+    out = z.copy()
+    bad = ~np.isfinite(z)
+    d = np.diff(np.concatenate([[0], bad.astype(np.int8), [0]]))
+    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+        if a > 0 and b < z.size and (b - a) * dt_s <= BRIDGE_MAX_S:
+            out[a:b] = pred[a:b]
+    return out
 
 
 def repeat_differences(lines: list[LineData], dt_s: float, lowpass_hz: float) -> list:
@@ -198,7 +222,9 @@ def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt
     ``n_crossovers`` (geometry) decides whether a white-velocity level may be lowered to
     its fitted value (``white_level_fitted``: only where the FIR guard can check it)."""
     heights_only = bool(flights) and all(getattr(f, "heights_only", False) for f in flights.values())
-    fit, model, min_s = fit_noise(lines, dt_s, p, heights_only)
+    bridges = {name: response_prediction_mgal(fm.z_mgal, gnss_acceleration_ms2(fm.t_s, fm.vu_ms))
+               for name, fm in flights.items() if not np.all(np.isfinite(fm.z_mgal[1:]))}
+    fit, model, min_s = fit_noise(lines, dt_s, p, heights_only, bridges=bridges)
     band = level_band(p, dt_s)
     r_local = noise_levels(flights, dt_s, p)
     stage = _noise_stage(fit, model, band, lines, r_local, n_crossovers, p)
@@ -208,7 +234,7 @@ def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt
     plain = tuple(f for f in FAMILIES if not coloured_velocity(f[1]))
     if p.noise_family == "auto" and p.noise_family_check and coloured_velocity(dict(FAMILIES)[fit.model.family]):
         # the family a check against the FIR differences may fall back on (check_noise_family)
-        alt_fit, alt_model, _ = fit_noise(lines, dt_s, p, heights_only, families=plain)
+        alt_fit, alt_model, _ = fit_noise(lines, dt_s, p, heights_only, families=plain, bridges=bridges)
         stage.alternative = _noise_stage(alt_fit, alt_model, band, lines, r_local, n_crossovers, p)
         if alt_fit.unmoved is not None:
             stage.alternative.unmoved = _noise_stage(alt_fit.unmoved, alt_fit.unmoved.model.normalized(band), band,
