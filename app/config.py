@@ -334,7 +334,7 @@ class ProcessingParams(_Strict):
                                                    "None = any hole up to max_gap_s")
     fir_gap_max_error_mgal: float | None = Field(1.0, gt=0, description="FIR 100 s is left out (NaN) where missing "
                                                  "samples inside the record could move it by more than this (mGal; "
-                                                 "robust std of z × the kernel weight on them): one missing sample of "
+                                                 "robust std of z next to the hole × the kernel weight on it): one missing sample of "
                                                  "a 2 Hz platform record moved it by up to 150 mGal. None = never")
     noise_family_check: bool = Field(True, description="When the noise fit chose a coloured (Gauss-Markov) "
                                      "velocity error, fall back on the best family without one if the chosen model "

@@ -119,8 +119,10 @@ def fir_gap_error_mgal(z_mgal, dt_s: float, cutoff_period_s: float = 100.0,
     neighbours (a 2 Hz platform record: lag-1 correlation 0.46).  The renormalised low-pass
     then misses it by about ``Σ_j |h_j|·|z_{k−j}|`` over the missing samples: one missing
     sample of a simulated 2 Hz test line moved FIR 100 s by up to 150 mGal.  This bound is
-    ``σ_z · Σ_j |h_j| (1 − w_{k−j})`` over the interior missing samples (leading and trailing
-    ones are the record's ends), with ``σ_z`` the robust std of z (1.4826 × MAD).
+    ``Σ_j σ_j |h_j| (1 − w_{k−j})`` over the interior missing samples (leading and trailing
+    ones are the record's ends), with ``σ_j`` the robust std of z (1.4826 × MAD) over half a
+    kernel either side of the hole (the whole record's where fewer than 10 values are there):
+    a flight's ground time is quiet, its turbulent air is not.
 
     Parameters
     ----------
@@ -146,11 +148,22 @@ def fir_gap_error_mgal(z_mgal, dt_s: float, cutoff_period_s: float = 100.0,
     gap[fin[-1] + 1:] = False
     if not gap.any():
         return out
-    v = x[fin]
-    sigma = 1.4826 * float(np.median(np.abs(v - np.median(v))))
     h = np.abs(fir_kernel(dt_s, cutoff_period_s, length_periods))
-    r = signal.oaconvolve(gap.astype(float), h, mode="same")
-    return sigma * np.where(r > 1e-9 * h.max(), r, 0.0)   # FFT round-off is no weight
+    w = h.size // 2
+    v = x[fin]
+    sigma_all = 1.4826 * float(np.median(np.abs(v - np.median(v))))
+    # each hole weighs with z's spread next to it (a flight's ground time is quiet, its air not)
+    d = np.diff(np.concatenate([[0], gap.astype(np.int8), [0]]))
+    starts, stops = np.flatnonzero(d == 1), np.flatnonzero(d == -1)
+    weight = gap.astype(float) * sigma_all
+    if starts.size <= 10_000:
+        for a, b in zip(starts, stops):
+            near = np.concatenate([x[max(0, a - w):a], x[b:b + w]])
+            near = near[np.isfinite(near)]
+            if near.size >= 10:
+                weight[a:b] = 1.4826 * float(np.median(np.abs(near - np.median(near))))
+    r = signal.oaconvolve(weight, h, mode="same")
+    return np.where(r > 1e-9 * h.max() * sigma_all, r, 0.0)   # FFT round-off is no weight
 
 
 def stationary_smooth(z_mgal, Q_mgal2: float, R_cm2s2: float, dt_s: float, m: int = 2,

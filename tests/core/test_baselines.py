@@ -133,3 +133,18 @@ def test_fir_gap_error_is_the_scale_of_what_a_missing_sample_moves():
     z_ends[:30] = np.nan
     z_ends[-30:] = np.nan
     assert not fir_gap_error_mgal(z_ends, dt, 100.0).any()
+
+
+def test_fir_gap_error_weighs_a_hole_with_the_spread_next_to_it():
+    """A record that is quiet for 70 % of its length (ground time, σ = 50 mGal) and turbulent
+    after (σ = 5000): a hole in the turbulent part is weighed with 5000 (the bound at the hole
+    is 5000·|h_0| within 10 %), not with the whole record's MAD, which the quiet part sets."""
+    from app.core.baselines import fir_gap_error_mgal, fir_kernel
+
+    rng = np.random.default_rng(5)
+    dt = 0.5
+    z = np.concatenate([rng.normal(0, 50.0, 2800), rng.normal(0, 5000.0, 1200)])
+    z[3400] = np.nan
+    h0 = abs(fir_kernel(dt, 100.0)).max()
+    bound = fir_gap_error_mgal(z, dt, 100.0)
+    assert bound[3400] == pytest.approx(5000.0 * h0, rel=0.1)

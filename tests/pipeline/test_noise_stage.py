@@ -267,9 +267,11 @@ def test_noise_fit_bridges_short_holes_only():
     z[200:200 + long] = np.nan                       # longer than BRIDGE_MAX_S: kept
     ln = LineData("L", "F", "main", None, slice(10, 10 + n), dt * np.arange(n), np.zeros(n), np.zeros(n),
                   np.zeros(n), np.zeros(n), np.zeros(n), z, 100.0)
-    pred = {"F": np.arange(500, dtype=float)}
+    pred = {"F": (np.arange(500, dtype=float), 1000)}
     out = bridged(ln, pred, dt)
     np.testing.assert_array_equal(out[100:104], np.arange(110, 114))
     assert np.isnan(out[:3]).all() and np.isnan(out[200:200 + long]).all()
     assert np.array_equal(out[np.isfinite(z)], z[np.isfinite(z)])
     assert bridged(ln, {}, dt) is z
+    short = bridged(ln, {"F": (np.arange(500, dtype=float), 3)}, dt)   # the flight allows 3 epochs
+    assert np.isnan(short[100:104]).all()

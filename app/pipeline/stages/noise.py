@@ -65,20 +65,44 @@ def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False,
 BRIDGE_MAX_S = 10.0
 
 
+def bridge_for(fm: FlightMeasurement, dt_s: float, band_hz) -> tuple[np.ndarray, int]:
+    """A flight's bridge for the noise fit: z as the GNSS acceleration predicts it
+    (:func:`app.core.measurement.response_prediction_mgal`) and the longest hole (epochs) it
+    may fill.  What the prediction misses adds, over a hole of n epochs, a velocity error of
+    about ``n·(σ_res·Δt)²`` in variance — a step whose flat spectrum competes with the velocity
+    noise at the lowest frequencies.  A hole is bridged only while that stays below one epoch's
+    velocity noise (the band level R, as equivalent white velocity noise): on the 2 Hz test line
+    (σ_res 3,500 mGal, loud heights-only GNSS) a 9-epoch mask is bridged; on a quiet 10 Hz GT-1A
+    record (σ_res 2,250 mGal, 0.5 cm/s GNSS) no hole is, and bridging 1–2 s holes there put a
+    Gauss–Markov velocity into the fit (1.94 → 7.31 mGal)."""
+    pred = response_prediction_mgal(fm.z_mgal, gnss_acceleration_ms2(fm.t_s, fm.vu_ms))
+    ok = np.isfinite(pred) & np.isfinite(fm.z_mgal)
+    if ok.sum() < 100:
+        return pred, 0
+    res = (fm.z_mgal - pred)[ok]
+    sigma_res_ms2 = 1.4826 * float(np.median(np.abs(res - np.median(res)))) * 1e-5
+    level = band_noise_variance_cm2s2(fm.z_mgal, dt_s, band_hz)
+    r_m2s2 = float(np.nanmedian(level)) * 1e-4 if np.any(np.isfinite(level)) else 0.0
+    if not (sigma_res_ms2 > 0 and r_m2s2 > 0):
+        return pred, 0
+    return pred, int(np.floor(r_m2s2 / (sigma_res_ms2 * dt_s) ** 2))
+
+
 def bridged(ln: LineData, bridges, dt_s: float) -> np.ndarray:
-    """The line's z with its short holes (at most :data:`BRIDGE_MAX_S`; a gravimeter dropout)
-    filled by ``bridges[flight]`` (:func:`app.core.measurement.response_prediction_mgal`), so
-    that the noise fit sees whole lines: split at a hole, a 600 s line's halves lose the lowest
+    """The line's z with its short holes (at most :data:`BRIDGE_MAX_S` and the flight's
+    :func:`bridge_for` length; a gravimeter dropout) filled by the flight's prediction, so that
+    the noise fit sees whole lines: split at a hole, a 600 s line's halves lose the lowest
     frequencies, where the velocity part of the noise shows."""
     z = ln.z_mgal
     if not bridges or ln.flight not in bridges or np.all(np.isfinite(z)):
         return z
-    pred = bridges[ln.flight][ln.sl]
+    pred, n_max = bridges[ln.flight]
+    pred = pred[ln.sl]
     out = z.copy()
     bad = ~np.isfinite(z)
     d = np.diff(np.concatenate([[0], bad.astype(np.int8), [0]]))
     for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
-        if a > 0 and b < z.size and (b - a) * dt_s <= BRIDGE_MAX_S:
+        if a > 0 and b < z.size and (b - a) * dt_s <= BRIDGE_MAX_S and b - a <= n_max:
             out[a:b] = pred[a:b]
     return out
 
@@ -222,8 +246,8 @@ def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt
     ``n_crossovers`` (geometry) decides whether a white-velocity level may be lowered to
     its fitted value (``white_level_fitted``: only where the FIR guard can check it)."""
     heights_only = bool(flights) and all(getattr(f, "heights_only", False) for f in flights.values())
-    bridges = {name: response_prediction_mgal(fm.z_mgal, gnss_acceleration_ms2(fm.t_s, fm.vu_ms))
-               for name, fm in flights.items() if not np.all(np.isfinite(fm.z_mgal[1:]))}
+    bridges = {name: bridge_for(fm, dt_s, level_band(p, dt_s)) for name, fm in flights.items()
+               if not np.all(np.isfinite(fm.z_mgal[1:]))}
     fit, model, min_s = fit_noise(lines, dt_s, p, heights_only, bridges=bridges)
     band = level_band(p, dt_s)
     r_local = noise_levels(flights, dt_s, p)
