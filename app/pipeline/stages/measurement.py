@@ -23,6 +23,7 @@ import pandas as pd
 from app.config import SurveyConfig
 from app.core import epochs, geodesy
 from app.core import gravimeter as gm
+from app.core.baselines import fir_kernel
 from app.core.calibration import CalibrationSpectra, calibrate
 from app.core.measurement import (
     anomaly_measurement_mgal,
@@ -228,8 +229,6 @@ def fill_gnss_epochs(gn: pd.DataFrame, max_step_s: float, vu_from_h: bool, max_e
 def _fillable(t, t_new, ins, y, derivative: bool, max_error_mgal: float, cutoff_period_s: float):
     """Keep the inserted epochs of the holes whose length the record can bridge
     (:func:`fill_gnss_epochs`)."""
-    from app.core.baselines import fir_kernel
-
     dt = float(np.median(np.diff(t)))
     kernel = fir_kernel(dt, cutoff_period_s)
     idx = np.flatnonzero(ins)

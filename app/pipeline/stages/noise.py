@@ -107,28 +107,36 @@ def bridged(ln: LineData, bridges, dt_s: float) -> np.ndarray:
     return out
 
 
-def repeat_differences(lines: list[LineData], dt_s: float, lowpass_hz: float) -> list:
-    """Differences of the passes of every repeat track (disjoint consecutive pairs, so the
-    differences are independent), on a common along-track grid, in finite stretches around
-    holes (:func:`app.core.noise_model.pass_differences`).
-    The along-track coordinate is the projection on the track's principal axis."""
+def repeat_tracks(lines: list[LineData]) -> list[tuple[list[LineData], list[np.ndarray]]]:
+    """Every repeat track with at least two passes: the passes in time order and their
+    along-track positions (m, the projection on the principal axis of all the track's points,
+    so passes flown in opposite directions line up)."""
     tracks: dict = {}
     for ln in lines:
         if ln.kind == "repeat" and ln.track is not None:
             tracks.setdefault(ln.track, []).append(ln)
     out = []
     for passes in tracks.values():
-        passes = sorted(passes, key=lambda ln: float(ln.t_s[0]))
         if len(passes) < 2:
             continue
+        passes = sorted(passes, key=lambda ln: float(ln.t_s[0]))
         e = np.concatenate([ln.easting_km for ln in passes])
         n = np.concatenate([ln.northing_km for ln in passes])
-        xy = np.column_stack([e - e.mean(), n - n.mean()])
-        axis = np.linalg.svd(xy, full_matrices=False)[2][0]
-        for a, b in zip(passes[0::2], passes[1::2]):
-            sa = 1000.0 * ((a.easting_km - e.mean()) * axis[0] + (a.northing_km - n.mean()) * axis[1])
-            sb = 1000.0 * ((b.easting_km - e.mean()) * axis[0] + (b.northing_km - n.mean()) * axis[1])
-            out.extend(pass_differences(sa, a.z_mgal, sb, b.z_mgal, dt_s, lowpass_hz))
+        axis = np.linalg.svd(np.column_stack([e - e.mean(), n - n.mean()]), full_matrices=False)[2][0]
+        out.append((passes, [1000.0 * ((ln.easting_km - e.mean()) * axis[0] + (ln.northing_km - n.mean()) * axis[1])
+                             for ln in passes]))
+    return out
+
+
+def repeat_differences(lines: list[LineData], dt_s: float, lowpass_hz: float) -> list:
+    """Differences of the passes of every repeat track (disjoint consecutive pairs, so the
+    differences are independent), on a common along-track grid, in finite stretches around
+    holes (:func:`app.core.noise_model.pass_differences`)."""
+    out = []
+    for passes, along in repeat_tracks(lines):
+        for i in range(0, len(passes) - 1, 2):
+            a, b = passes[i], passes[i + 1]
+            out.extend(pass_differences(along[i], a.z_mgal, along[i + 1], b.z_mgal, dt_s, lowpass_hz))
     return out
 
 
@@ -138,21 +146,9 @@ def repeat_fir_contrasts(lines: list[LineData], fir: dict[str, np.ndarray], spac
     track (at the passes' mean speed).  The anomaly cancels; each contrast has the variance of
     one pass's FIR noise, plus whatever differs between the passes (drift, height), which only
     adds: they bound the FIR noise as crossover differences do."""
-    tracks: dict = {}
-    for ln in lines:
-        if ln.kind == "repeat" and ln.track is not None:
-            tracks.setdefault(ln.track, []).append(ln)
-    out = []
-    for passes in tracks.values():
-        if len(passes) < 2:
-            continue
-        e = np.concatenate([ln.easting_km for ln in passes])
-        n = np.concatenate([ln.northing_km for ln in passes])
-        axis = np.linalg.svd(np.column_stack([e - e.mean(), n - n.mean()]), full_matrices=False)[2][0]
-        along = [1000.0 * ((ln.easting_km - e.mean()) * axis[0] + (ln.northing_km - n.mean()) * axis[1])
-                 for ln in passes]
-        step_m = float(np.mean([ln.speed_ms for ln in passes])) * spacing_s
-        out.append(repeat_contrasts(along, [fir[ln.flight][ln.sl] for ln in passes], step_m))
+    out = [repeat_contrasts(along, [fir[ln.flight][ln.sl] for ln in passes],
+                            float(np.mean([ln.speed_ms for ln in passes])) * spacing_s)
+           for passes, along in repeat_tracks(lines)]
     return np.concatenate(out) if out else np.zeros(0)
 
 
@@ -316,18 +312,18 @@ def check_noise_family(stage: NoiseStage, lines: list[LineData], fir: dict[str, 
     if alt is None or not p.noise_family_check:
         return stage
     rec: dict = {"chosen": stage.model.family, "alternative": alt.model.family, "applied": False}
-    b = fir_noise_bound(stage, lines, fir, dt_s, p, alpha=p.noise_family_alpha)
+    d, shares = fir_differences(lines, fir, p)
+    b = fir_noise_bound(stage, lines, dt_s, p, (d, shares), alpha=p.noise_family_alpha)
     if b is None:
         stage.family_check = {**rec, "n": 0, "reason": "no crossovers or repeat passes to check the coloured velocity"}
         return stage
-    rec.update(n=b.n, fir_difference_ms_mgal2=b.crossover_ms_mgal2, predicted_ms_mgal2=b.predicted_ms_mgal2,
-               bound_mgal2=b.bound_mgal2)
+    rec.update(_bound_fields(b, "fir_difference_ms_mgal2"))
     if not b.overstated:
         stage.family_check = rec
         return stage
-    d, v = fir_differences(stage, lines, fir, dt_s, p)
-    d_alt, v_alt = fir_differences(alt, lines, fir, dt_s, p)
-    nll, nll_alt = difference_nll(d, v), difference_nll(d_alt, v_alt)
+    v = shares * predicted_fir_variance_mgal2(stage, lines, dt_s, p)
+    v_alt = shares * predicted_fir_variance_mgal2(alt, lines, dt_s, p)
+    nll, nll_alt = difference_nll(d, v), difference_nll(d, v_alt)
     rec.update(alternative_predicted_ms_mgal2=float(np.mean(v_alt)), nll=nll, alternative_nll=nll_alt)
     if not nll_alt < nll:
         # the alternative misses the differences by more the other way (a real Gauss-Markov
@@ -367,12 +363,11 @@ def check_noise_corners(stage: NoiseStage, lines: list[LineData], fir: dict[str,
     if not p.noise_corner_check:
         stage.corner_check = {**rec, "reason": "off (noise_corner_check)"}
         return stage
-    b = fir_noise_bound(stage, lines, fir, dt_s, p)
+    b = fir_noise_bound(stage, lines, dt_s, p, fir_differences(lines, fir, p))
     if b is None:
         stage.corner_check = {**rec, "n": 0, "reason": "no crossovers (or no local noise level) to check the cautious shape"}
         return stage
-    rec.update(n=b.n, fir_crossover_ms_mgal2=b.crossover_ms_mgal2, predicted_ms_mgal2=b.predicted_ms_mgal2,
-               bound_mgal2=b.bound_mgal2)
+    rec.update(_bound_fields(b, "fir_crossover_ms_mgal2"))
     if not b.overstated:
         stage.corner_check = rec
         return stage
@@ -386,34 +381,46 @@ def check_noise_corners(stage: NoiseStage, lines: list[LineData], fir: dict[str,
     return used
 
 
-def fir_noise_bound(stage: NoiseStage, lines: list[LineData], fir: dict[str, np.ndarray], dt_s: float, p,
-                    alpha: float | None = None):
+def fir_noise_bound(stage: NoiseStage, lines: list[LineData], dt_s: float, p, diffs, alpha: float | None = None):
     """The stage's predicted FIR noise at the crossovers and between the passes of repeat
-    tracks (:func:`repeat_fir_contrasts`, every FIR cut-off period of flight) against the bound their FIR
-    differences set (:func:`app.core.model_check.noise_overstated`, one-sided ``alpha``,
-    default ``noise_corner_alpha``); None without such differences or levels.
+    tracks against the bound their FIR differences ``diffs`` (:func:`fir_differences`) set
+    (:func:`app.core.model_check.noise_overstated`, one-sided ``alpha``, default
+    ``noise_corner_alpha``); None without such differences or levels.
 
     The prediction is at the survey's typical level (median over the lines' epochs): the
     question is the model's shape and level in FIR's band, and a noise episode's level —
     measured at 0.1–0.5 Hz — need not hold there; episodes in the differences only widen the
     bound."""
-    d, v = fir_differences(stage, lines, fir, dt_s, p)
-    if d is None or d.size == 0:
+    d, shares = diffs
+    var = predicted_fir_variance_mgal2(stage, lines, dt_s, p)
+    if var is None or d.size == 0:
         return None
-    return noise_overstated(d, v, alpha=p.noise_corner_alpha if alpha is None else alpha)
+    return noise_overstated(d, shares * var, alpha=p.noise_corner_alpha if alpha is None else alpha)
 
 
-def fir_differences(stage: NoiseStage, lines: list[LineData], fir: dict[str, np.ndarray], dt_s: float, p):
+def _bound_fields(b, ms_key: str) -> dict:
+    """A :class:`app.core.model_check.NoiseBound`'s figures for the report (``ms_key``: the name of
+    the observed mean square)."""
+    return {"n": b.n, ms_key: b.crossover_ms_mgal2, "predicted_ms_mgal2": b.predicted_ms_mgal2,
+            "bound_mgal2": b.bound_mgal2}
+
+
+def fir_differences(lines: list[LineData], fir: dict[str, np.ndarray], p) -> tuple[np.ndarray, np.ndarray]:
     """The FIR estimates' differences at the crossovers and contrasts between repeat passes
-    (:func:`repeat_fir_contrasts`, every FIR cut-off period of flight), with the variance the
-    stage predicts for each (mGal, mGal²); (None, None) without local levels."""
-    if not stage.r_local:
-        return None, None
-    level = float(np.median(np.concatenate([stage.r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)]
-                                            for ln in lines])))
-    sd = float(np.sqrt(fir_noise_variance_mgal2(stage.model, level, dt_s, p.fir_cutoff_period_s)))
-    cx = line_crossovers(lines, p.leveling_include_repeat, lambda ln: fir[ln.flight][ln.sl], sd)
+    (:func:`repeat_fir_contrasts`, every FIR cut-off period of flight), mGal, and how many
+    lines' FIR noise each holds (2 at a crossover, 1 in a repeat contrast): with a model's FIR
+    noise variance σ² per line, the predicted variances are ``shares · σ²``."""
+    cx = line_crossovers(lines, p.leveling_include_repeat, lambda ln: fir[ln.flight][ln.sl])
     d = (cx["dg_a"] - cx["dg_b"]).to_numpy(float) if len(cx) else np.zeros(0)
     c = repeat_fir_contrasts(lines, fir, p.fir_cutoff_period_s)
-    # a crossover difference holds two lines' FIR noise, a repeat contrast one pass's
-    return np.concatenate([d, c]), np.concatenate([np.full(d.size, 2.0), np.ones(c.size)]) * sd ** 2
+    return np.concatenate([d, c]), np.concatenate([np.full(d.size, 2.0), np.ones(c.size)])
+
+
+def predicted_fir_variance_mgal2(stage: NoiseStage, lines: list[LineData], dt_s: float, p) -> float | None:
+    """One line's FIR noise variance (mGal²) under the stage's model at the survey's median
+    level; None without local levels."""
+    if not stage.r_local:
+        return None
+    level = float(np.median(np.concatenate([stage.r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)]
+                                            for ln in lines])))
+    return fir_noise_variance_mgal2(stage.model, level, dt_s, p.fir_cutoff_period_s)
