@@ -79,6 +79,8 @@ def test_testline_with_a_missing_gnss_epoch_and_gravimeter_sample(tmp_path):
     assert report["gnss_filled_epochs"] == {"F01": 1}
     assert report["time_offsets"]["F01"]["gnss_stamps_dejittered"]
     assert any("FIR 100 s left out" in w for w in report["warnings"])
+    hb = report["noise_model"]["holes_bridged"]["F01"]    # the noise fit's bridge, with its limit
+    assert 0 < hb["epochs_bridged"] <= 3 * hb["max_hole_epochs"]
     lines = pd.read_parquet(out / "lines.parquet")
     near = (lines["time"] > 14300.0 - 60) & (lines["time"] < 14300.0 + 60)
     assert lines.loc[near, "dg_fir_mgal"].isna().all() and lines["dg_fir_mgal"].notna().mean() > 0.5

@@ -219,6 +219,7 @@ class NoiseStage:
     corner_check: dict | None = None
     alternative: NoiseStage | None = None
     family_check: dict | None = None
+    holes_bridged: dict | None = None
     fit_min_stretch_s: float | None = None
     warning: str = ""
 
@@ -233,6 +234,8 @@ class NoiseStage:
             out["corner_check"] = self.corner_check
         if self.family_check is not None:
             out["family_check"] = self.family_check
+        if self.holes_bridged:
+            out["holes_bridged"] = self.holes_bridged
         return out
 
 
@@ -264,9 +267,13 @@ def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt
         warning = (f"the noise model was fitted on stretches of {min_s:g}-{p.noise_fit_min_s[0]:g} s (no line "
                    f"is {p.noise_fit_min_s[0]:g} s long): its shape is seen only above "
                    f"about {4.5 / min_s:.3f} Hz and is weak in the anomaly band")
+    bridged_rep = {name: {"max_hole_epochs": n_max,
+                          "epochs_bridged": sum(int(np.sum(np.isnan(ln.z_mgal) & np.isfinite(bridged(ln, bridges, dt_s))))
+                                                for ln in lines if ln.flight == name)}
+                   for name, (_, n_max) in bridges.items()}
     for st in (stage, stage.unmoved, stage.alternative, stage.alternative and stage.alternative.unmoved):
         if st is not None:
-            st.fit_min_stretch_s, st.warning = min_s, warning
+            st.fit_min_stretch_s, st.warning, st.holes_bridged = min_s, warning, bridged_rep
     return stage
 
 
