@@ -304,6 +304,12 @@ class ProcessingParams(_Strict):
                                     "is added in quadrature; 1 = off.  The data do not fix Q there within a decade "
                                     "(held-out small layouts: the RMS-optimal Q 6-34x above the estimate on some, "
                                     "below it on others; 2-sigma coverage 0.81-0.89 on average without it)")
+    std_repeat_min_samples: float = Field(8.0, ge=0, description="Where std_level_factor would widen the std and "
+                                          "repeat passes measure the error instead (the passes' scatter: the noise "
+                                          "part; their common difference from the estimate at std_level_factor x Q: "
+                                          "the smoothing part), dg_std_mgal is scaled to that error, given at least "
+                                          "this many independent stretches (fir_cutoff_period_s of flight x "
+                                          "(passes - 1), summed over the repeat tracks); 0 = off")
     std_state_mixture: bool = Field(True, description="dg_std_mgal as the std of a mixture of levels where the map is "
                                     "unsure: the larger of the smoother under the probability-weighted arithmetic "
                                     "mean of the Q levels and the law of total variance over each level's smoother "

@@ -62,6 +62,62 @@ def internal_accuracy(values_mgal) -> float:
     return float(np.sqrt(np.sum((g - g.mean(axis=0)) ** 2) / (n * (k - 1))))
 
 
+@dataclass(frozen=True)
+class RepeatErrorParts:
+    """Result of :func:`repeat_error_parts` (mGal², per repeat).
+
+    Attributes
+    ----------
+    noise_var_mgal2 : float
+        Variance of one repeat's error that differs between repeats (ε²): the noise part.
+    smoothing_var_mgal2 : float
+        Mean square of the repeats' common difference from the less-smoothed estimate, its
+        own noise taken out (≥ 0): the smoothing part, which repeats share.
+    n_points : int
+    n_repeats : int
+    """
+
+    noise_var_mgal2: float
+    smoothing_var_mgal2: float
+    n_points: int
+    n_repeats: int
+
+
+def repeat_error_parts(values_mgal, diff_mgal) -> RepeatErrorParts:
+    """The two parts of an estimate's error that K repeats of one track show.
+
+    The noise part differs from repeat to repeat: its variance is the repeats' scatter
+    ``ε²`` (:func:`internal_accuracy`).  The smoothing part (the anomaly's detail the
+    estimate smooths away) is the same in every repeat and cancels in their scatter; the
+    difference ``d`` from a less-smoothed estimate of the same data carries it, plus noise
+    that again differs from repeat to repeat.  Averaged over the repeats, ``d̄`` keeps the
+    smoothing part and 1/K of that noise, whose variance the scatter of ``d`` gives:
+    ``S = mean_j(d̄_j²) − mean_j(s_j²)/K`` (``s_j²`` the unbiased variance over the repeats
+    at point j), clipped at 0.  ``S`` misses what the less-smoothed estimate also smooths
+    away.
+
+    Parameters
+    ----------
+    values_mgal, diff_mgal : array_like, shape (K, n)
+        K ≥ 2 repeats at n ≥ 1 common points of the estimate and of its difference from a
+        less-smoothed one (mGal), finite.
+
+    Returns
+    -------
+    RepeatErrorParts
+    """
+    g = np.asarray(values_mgal, dtype=float)
+    d = np.asarray(diff_mgal, dtype=float)
+    if g.ndim != 2 or g.shape[0] < 2 or g.shape[1] < 1 or d.shape != g.shape:
+        raise ValueError(f"need two arrays of the same shape (K ≥ 2, n ≥ 1), got {g.shape} and {d.shape}")
+    if not (np.all(np.isfinite(g)) and np.all(np.isfinite(d))):
+        raise ValueError("repeat values must be finite")
+    k, n = g.shape
+    noise = float(np.mean(np.var(g, axis=0, ddof=1)))
+    smooth = float(np.mean(d.mean(axis=0) ** 2) - np.mean(np.var(d, axis=0, ddof=1)) / k)
+    return RepeatErrorParts(noise, max(0.0, smooth), n, k)
+
+
 @dataclass
 class RepeatAccuracy:
     """Result of :func:`repeat_line_accuracy`.

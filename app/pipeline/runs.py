@@ -225,7 +225,9 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     # also carries the levels' uncertainty
     cands[m_best].filtered.level_spread_std(idf.dt_s, m_best, p.smoother, idf.noise.model, p.std_level_factor,
                                             n_points=cands[m_best].ident.n_points,
-                                            min_points=p.min_points_adaptive, q_from_posteriors=p.q_from_posteriors)
+                                            min_points=p.min_points_adaptive, q_from_posteriors=p.q_from_posteriors,
+                                            repeat_min_samples=p.std_repeat_min_samples or None,
+                                            fir_period_s=p.fir_cutoff_period_s)
     choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings, order=(m_best, order_rep))
     best = cands[choice.m]
     table = choice.table

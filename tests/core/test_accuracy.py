@@ -14,6 +14,7 @@ from app.core.accuracy import (
     line_demeaned,
     mean_error_vs_reference,
     points_in_hull,
+    repeat_error_parts,
     repeat_line_accuracy,
     rms_vs_reference,
     std_calibration,
@@ -234,3 +235,32 @@ def test_repeat_line_accuracy_leaves_out_points_without_a_value():
     assert res.n_points < 201 - 30
     with pytest.raises(ValueError):
         repeat_line_accuracy([e, e], [np.zeros(401)] * 2, [a, np.full(401, np.nan)])
+
+
+def test_repeat_error_parts_recovers_the_noise_and_the_shared_smoothing_error():
+    """Simulation with known parts: K repeats share a smoothing error b (what every pass's
+    estimate smooths away) and carry their own noise; the less-smoothed estimate has the
+    same truth plus other, larger noise of its own."""
+    rng = np.random.default_rng(3)
+    k, n = 6, 20000
+    b = _smooth_noise(rng, n, 0.8, 50)              # shared: 0.64 mGal²
+    x = np.array([b + _smooth_noise(rng, n, 1.2, 50) for _ in range(k)])   # noise 1.44 mGal²
+    hi = np.array([_smooth_noise(rng, n, 2.0, 20) for _ in range(k)])      # the less-smoothed one's own noise
+    parts = repeat_error_parts(x, x - hi)
+    assert (parts.n_repeats, parts.n_points) == (k, n)
+    assert parts.noise_var_mgal2 == pytest.approx(1.44, rel=0.1)
+    # d = b + noise_x − noise_hi: the mean over repeats keeps b and 1/K of the noise, which
+    # the repeats' scatter of d gives
+    assert parts.smoothing_var_mgal2 == pytest.approx(0.64, rel=0.2)
+    # nothing shared: the smoothing part is about 0 (clipped at 0, never negative)
+    none = repeat_error_parts(x - b, x - b - hi)
+    assert 0.0 <= none.smoothing_var_mgal2 < 0.05
+
+
+def test_repeat_error_parts_errors():
+    with pytest.raises(ValueError, match="same shape"):
+        repeat_error_parts(np.zeros((1, 5)), np.zeros((1, 5)))
+    with pytest.raises(ValueError, match="same shape"):
+        repeat_error_parts(np.zeros((3, 5)), np.zeros((3, 4)))
+    with pytest.raises(ValueError, match="finite"):
+        repeat_error_parts(np.full((3, 5), np.nan), np.zeros((3, 5)))

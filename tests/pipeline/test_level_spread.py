@@ -12,7 +12,7 @@ std is left as the smoother gave it."""
 import numpy as np
 import pandas as pd
 
-from app.core.smoother import kalman_smooth
+from app.core.smoother import kalman_smooth, level_spread_std_mgal
 from app.pipeline.stages.filtering import Filtered, PreparedLine
 
 
@@ -61,3 +61,105 @@ def test_levels_from_few_points_carry_their_uncertainty():
     assert np.mean(cov["plain"]) < 0.7, cov
     assert np.mean(cov["spread"]) > 0.8, cov
     assert all(kept)
+
+
+def _repeat_passes(rng, n_pass, T, dt, q, R, speed_ms):
+    """One track flown ``n_pass`` times in alternating directions: the same random-walk
+    anomaly, white velocity noise of its own on each pass."""
+    from types import SimpleNamespace
+
+    dg = np.cumsum(np.cumsum(rng.normal(size=T) * np.sqrt(q))) + 30.0
+    s_km = np.arange(T) * dt * speed_ms / 1000.0
+    lines, zs, truths = [], [], []
+    for k in range(n_pass):
+        o = slice(None) if k % 2 == 0 else slice(None, None, -1)
+        r = rng.normal(size=T + 1) * np.sqrt(R)
+        zs.append(dg[o] - 1000.0 * (r[1:] - r[:-1]) / dt)
+        truths.append(dg[o])
+        lines.append(SimpleNamespace(kind="repeat", track="T1", easting_km=500.0 + s_km[o],
+                                     northing_km=np.full(T, 7000.0), speed_ms=speed_ms))
+    return lines, zs, truths
+
+
+def test_repeat_passes_size_the_std_instead_of_the_level_spread():
+    """A one-level survey of repeat passes (the test-line case): the std is sized by the
+    error the passes show, never narrowed below the posterior; the level spread (a decade
+    either way) would cover nearly every epoch.  With the level a decade too low the
+    posterior is too narrow and the passes widen it."""
+    dt, T, R, speed = 0.5, 3000, 1.0, 60.0      # 4 passes of 1500 s, 90 km: 45 stretches of 100 s
+    q_true = 2e-5
+    cov = {"repeat": [], "spread": [], "low_posterior": [], "low_repeat": []}
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        lines, zs, truths = _repeat_passes(rng, 4, T, dt, q_true, R, speed)
+        for case, q_used in (("ok", q_true), ("low", q_true / 10)):
+            sms = [kalman_smooth(z, np.full(T, q_used), np.full(T, R), dt, m=2) for z in zs]
+            table = pd.DataFrame({"dg_mgal": np.concatenate([s.dg_mgal for s in sms]),
+                                  "dg_std_mgal": np.concatenate([s.dg_std_mgal for s in sms])})
+            prepared = [PreparedLine(ln, np.zeros(T, int), np.zeros(T, int), z, slice(0, T), None, None, None)
+                        for ln, z in zip(lines, zs)]
+            inner = np.concatenate([np.arange(k * T + 300, (k + 1) * T - 300) for k in range(4)])
+            err = np.abs(table["dg_mgal"].to_numpy() - np.concatenate(truths))[inner]
+            runs = {}
+            for rule, min_samples in (("repeat", 8.0), ("spread", None)):
+                f = Filtered(table.copy(), np.array([q_used]), None, 1.0, prepared=prepared,
+                             r_lines=[np.full(T, R)] * 4, n_r=1)
+                f.level_spread_std(dt, 2, "bf", None, 10.0, repeat_min_samples=min_samples, fir_period_s=100.0)
+                np.testing.assert_array_equal(f.table["dg_mgal"].to_numpy(), table["dg_mgal"].to_numpy())
+                runs[rule] = f
+            rep = runs["repeat"]
+            assert rep.std_level_factor is None and "repeat tracks" in rep.std_level_reason
+            assert rep.std_repeat_tracks["T1"]["scale"] >= 1.0
+            assert runs["spread"].std_level_factor == 10.0
+            std = {k: f.table["dg_std_mgal"].to_numpy()[inner] for k, f in runs.items()}
+            if case == "ok":
+                cov["repeat"].append(np.mean(err < 2 * std["repeat"]))
+                cov["spread"].append(np.mean(err < 2 * std["spread"]))
+            else:
+                cov["low_posterior"].append(np.mean(err < 2 * table["dg_std_mgal"].to_numpy()[inner]))
+                cov["low_repeat"].append(np.mean(err < 2 * std["repeat"]))
+                assert rep.std_repeat_tracks["T1"]["scale"] > 1.2
+    assert 0.92 < np.mean(cov["repeat"]) < 0.98, cov
+    assert np.mean(cov["spread"]) > np.mean(cov["repeat"]) + 0.02, cov
+    assert np.mean(cov["low_repeat"]) > np.mean(cov["low_posterior"]) + 0.1, cov
+
+
+def test_too_few_repeat_stretches_keep_the_level_spread():
+    dt, T, R = 0.5, 600, 1.0       # 2 passes of 300 s: 3 stretches of 100 s
+    rng = np.random.default_rng(0)
+    lines, zs, _ = _repeat_passes(rng, 2, T, dt, 2e-5, R, 60.0)
+    sms = [kalman_smooth(z, np.full(T, 2e-5), np.full(T, R), dt, m=2) for z in zs]
+    table = pd.DataFrame({"dg_mgal": np.concatenate([s.dg_mgal for s in sms]),
+                          "dg_std_mgal": np.concatenate([s.dg_std_mgal for s in sms])})
+    prepared = [PreparedLine(ln, np.zeros(T, int), np.zeros(T, int), z, slice(0, T), None, None, None)
+                for ln, z in zip(lines, zs)]
+    f = Filtered(table, np.array([2e-5]), None, 1.0, prepared=prepared, r_lines=[np.full(T, R)] * 2, n_r=1)
+    f.level_spread_std(dt, 2, "bf", None, 10.0, repeat_min_samples=8.0, fir_period_s=100.0)
+    assert f.std_level_factor == 10.0 and f.std_repeat_tracks is None
+
+
+def test_lines_off_the_repeat_track_keep_the_level_spread():
+    """A repeat track says little about the rest of a survey: a main line beside it gets the
+    spread, the passes their own scale."""
+    from types import SimpleNamespace
+
+    dt, T, R, q = 0.5, 3000, 1.0, 2e-5
+    rng = np.random.default_rng(1)
+    lines, zs, _ = _repeat_passes(rng, 4, T, dt, q, R, 60.0)
+    main = SimpleNamespace(kind="main", track=None, easting_km=np.arange(T) * 0.03, northing_km=np.zeros(T),
+                           speed_ms=60.0)
+    lines.append(main)
+    zs.append(zs[0][::-1] + 5.0)
+    sms = [kalman_smooth(z, np.full(T, q), np.full(T, R), dt, m=2) for z in zs]
+    table = pd.DataFrame({"dg_mgal": np.concatenate([s.dg_mgal for s in sms]),
+                          "dg_std_mgal": np.concatenate([s.dg_std_mgal for s in sms])})
+    prepared = [PreparedLine(ln, np.zeros(T, int), np.zeros(T, int), z, slice(0, T), None, None, None)
+                for ln, z in zip(lines, zs)]
+    f = Filtered(table.copy(), np.array([q]), None, 1.0, prepared=prepared, r_lines=[np.full(T, R)] * 5, n_r=1)
+    f.level_spread_std(dt, 2, "bf", None, 10.0, repeat_min_samples=8.0, fir_period_s=100.0)
+    std = f.table["dg_std_mgal"].to_numpy()
+    c = f.std_repeat_tracks["T1"]["scale"]
+    np.testing.assert_allclose(std[:4 * T], c * table["dg_std_mgal"].to_numpy()[:4 * T])
+    spread = level_spread_std_mgal(zs[4], np.full(T, q), np.full(T, R), dt, 10.0, m=2).dg_std_mgal
+    np.testing.assert_allclose(std[4 * T:], np.maximum(sms[4].dg_std_mgal, spread))
+    assert f.std_level_factor == 10.0 and "repeat tracks" in f.std_level_reason

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from app.core.accuracy import repeat_error_parts, repeat_line_accuracy
 from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
 from app.core.level_ml import refine_levels
 from app.core.smoother import kalman_smooth, level_spread_std_mgal, mixture_std_mgal
@@ -158,22 +159,25 @@ class Filtered:
     n_r: int = 1
     std_level_factor: float | None = None
     std_level_reason: str | None = None
+    std_repeat_tracks: dict | None = None
 
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
         f = self.level_fit
         if f is None:   # no refinement (refine_levels off): still say how the std was widened
-            return ({"std_level_factor": self.std_level_factor, "std_level_reason": self.std_level_reason}
-                    if self.std_level_factor else None)
+            return ({"std_level_factor": self.std_level_factor, "std_level_reason": self.std_level_reason,
+                     "std_repeat_tracks": self.std_repeat_tracks}
+                    if self.std_level_reason else None)
         return {"Q_mgal2": np.asarray(self.Q_levels).tolist(), "Q_full_rate_ml_mgal2": np.asarray(f.Q_mgal2).tolist(),
                 "lift_only": bool(p.refine_lift_only), "R_local_scale": self.r_scale, "noise_model": p.noise_model,
                 "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations,
                 "Q_stationary_mgal2": self.Q_stationary, "std_level_factor": self.std_level_factor,
-                "std_level_reason": self.std_level_reason}
+                "std_level_reason": self.std_level_reason, "std_repeat_tracks": self.std_repeat_tracks}
 
     def level_spread_std(self, dt_s: float, m: int, method: str, noise, factor: float,
                          n_points: int | None = None, min_points: int | None = None,
-                         q_from_posteriors: bool = True) -> None:
+                         q_from_posteriors: bool = True, repeat_min_samples: float | None = None,
+                         fir_period_s: float = 100.0) -> None:
         """Levels learned from too few points: widen ``dg_std_mgal`` by the spread of the
         estimates with the Q levels scaled by 1/f and f (:func:`app.core.smoother.level_spread_std_mgal`,
         ``std_level_factor`` = f); the report's ``level_refinement.std_level_factor`` and
@@ -187,19 +191,92 @@ class Filtered:
         few = n_q > 1 and n_points is not None and min_points is not None and n_points < n_q * min_points
         if (n_q != 1 and not few) or factor <= 1.0 or not self.prepared or self.r_lines is None:
             return
+        reason = ("one anomaly level" if n_q == 1 else
+                  f"{n_q} anomaly levels from {n_points} decimated points (< {n_q} x {min_points})")
+        done = (self.repeat_calibrated_std(dt_s, m, method, noise, factor, q_from_posteriors,
+                                           repeat_min_samples, fir_period_s)
+                if repeat_min_samples is not None else {})
         col = self.table["dg_std_mgal"].to_numpy().copy()
         off = 0
-        for pr, r in zip(self.prepared, self.r_lines):
+        spread = False
+        for i, (pr, r) in enumerate(zip(self.prepared, self.r_lines)):
             n = pr.inner.stop - pr.inner.start
-            q = (np.full(pr.z_ext.size, float(self.Q_levels[0])) if n_q == 1
-                 else q_series(pr, self.Q_levels, self.n_r, q_from_posteriors))
-            res = level_spread_std_mgal(pr.z_ext, q, r, dt_s, factor, m=m, method=method, noise=noise)
-            col[off:off + n] = np.maximum(col[off:off + n], np.asarray(res.dg_std_mgal)[pr.inner])
+            if i not in done:
+                q = (np.full(pr.z_ext.size, float(self.Q_levels[0])) if n_q == 1
+                     else q_series(pr, self.Q_levels, self.n_r, q_from_posteriors))
+                res = level_spread_std_mgal(pr.z_ext, q, r, dt_s, factor, m=m, method=method, noise=noise)
+                col[off:off + n] = np.maximum(col[off:off + n], np.asarray(res.dg_std_mgal)[pr.inner])
+                spread = True
             off += n
         self.table["dg_std_mgal"] = col
-        self.std_level_factor = float(factor)
-        self.std_level_reason = ("one anomaly level" if n_q == 1 else
-                                 f"{n_q} anomaly levels from {n_points} decimated points (< {n_q} x {min_points})")
+        self.std_level_factor = float(factor) if spread else None
+        self.std_level_reason = reason
+        if done:
+            self.std_level_reason += ("; the repeat tracks' std sized by their passes' error "
+                                      "(level_refinement.std_repeat_tracks)" + ("" if spread else " alone"))
+
+    def repeat_calibrated_std(self, dt_s: float, m: int, method: str, noise, factor: float,
+                              q_from_posteriors: bool, min_samples: float, period_s: float) -> set:
+        """Where repeat passes measure their error, their ``dg_std_mgal`` widened to it
+        (never narrowed: the measure is noisy and misses what the less-smoothed estimate
+        also smooths away) instead of by the levels' spread.  Per repeat track: the passes'
+        scatter of the estimate (the noise part) and of its difference from the estimate at
+        ``factor`` × Q (:func:`app.core.accuracy.repeat_error_parts`: the smoothing part,
+        which the passes share); the passes' std is multiplied by
+        ``c = max(1, sqrt((noise + smoothing) / mean σ²))`` (σ the posterior std at the
+        passes' common points), so it keeps its shape (wider at line ends and holes).  A
+        track needs ``min_samples`` independent stretches (``period_s`` of flight each,
+        times passes − 1).  Lines off the tracks are left to the spread: a track says little
+        about the rest of a survey (one repeat line in the plains of a mountain survey).
+        Returns the indices of the prepared lines done; ``std_repeat_tracks`` gives the
+        figures per track for the report."""
+        tracks: dict = {}
+        off = 0
+        for i, pr in enumerate(self.prepared):
+            n = pr.inner.stop - pr.inner.start
+            if pr.line is not None and pr.line.kind == "repeat" and pr.line.track is not None:
+                tracks.setdefault(pr.line.track, []).append((i, off, n))
+            off += n
+        std = self.table["dg_std_mgal"].to_numpy().copy()
+        n_q = len(self.Q_levels)
+        done, figures = set(), {}
+        for track, passes in tracks.items():
+            if len(passes) < 2:
+                continue
+            xs, ds, ss, geo = [], [], [], []
+            for i, off, n in passes:
+                pr, r = self.prepared[i], self.r_lines[i]
+                q = (np.full(pr.z_ext.size, float(self.Q_levels[0])) if n_q == 1
+                     else q_series(pr, self.Q_levels, self.n_r, q_from_posteriors))
+                x_lo = filter_line(pr.z_ext, q, r, dt_s, m, method, noise)[0][pr.inner]
+                x_hi = filter_line(pr.z_ext, factor * q, r, dt_s, m, method, noise)[0][pr.inner]
+                xs.append(x_lo)
+                ds.append(x_lo - x_hi)
+                ss.append(std[off:off + n] ** 2)
+                geo.append((pr.line.easting_km, pr.line.northing_km))
+            try:
+                acc = [repeat_line_accuracy([(e, nn, v) for (e, nn), v in zip(geo, vals)])
+                       for vals in (xs, ds, ss)]
+            except ValueError:
+                continue
+            parts = repeat_error_parts(acc[0].values_mgal, acc[1].values_mgal)
+            length_m = 1000.0 * float(acc[0].along_km[-1] - acc[0].along_km[0])
+            speed = float(np.mean([self.prepared[i].line.speed_ms for i, _, _ in passes]))
+            samples = length_m / (speed * period_s) * (parts.n_repeats - 1)
+            post_v = float(np.mean(acc[2].values_mgal))
+            if samples < min_samples or not post_v > 0:
+                continue
+            c = max(1.0, float(np.sqrt((parts.noise_var_mgal2 + parts.smoothing_var_mgal2) / post_v)))
+            for i, off, n in passes:
+                std[off:off + n] *= c
+                done.add(i)
+            figures[str(track)] = {"scale": c, "noise_part_mgal": float(np.sqrt(parts.noise_var_mgal2)),
+                                   "smoothing_part_mgal": float(np.sqrt(parts.smoothing_var_mgal2)),
+                                   "posterior_mgal": float(np.sqrt(post_v)), "passes": parts.n_repeats,
+                                   "independent_stretches": float(samples), "versus_q_factor": float(factor)}
+        self.table["dg_std_mgal"] = std
+        self.std_repeat_tracks = figures or None
+        return done
 
     def mixture_std(self, dt_s: float, m: int, method: str, noise) -> None:
         """Replace ``dg_std_mgal`` by the std of the mixture of levels (``std_state_mixture``),
