@@ -811,7 +811,9 @@ def _check_line_windows(name: str, fs: _FlightSeries, lines: pd.DataFrame, origi
                              f"gap of {t[j] - t[j - 1]:.3f} s before this row (from {t[j - 1]:.3f} to "
                              f"{t[j]:.3f} s) inside line {lines['line'].iloc[sel[k]]} "
                              f"({ts[k]:.3f}–{te[k]:.3f} s); at most {max_gap_s:g} s allowed "
-                             f"(processing.max_gap_s)")
+                             f"(processing.max_gap_s): split the line at the gap in lines.csv (two windows), "
+                             f"or raise max_gap_s — holes that cut a line into stretches of a few minutes "
+                             f"hide the low frequencies the noise model is fitted on (docs/METHOD.md, gaps)")
 
 
 # --------------------------------------------------------------------------- QC summary

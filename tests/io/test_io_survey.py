@@ -170,7 +170,8 @@ def test_override_relaxes_gap(tmp_path):
     gnss = gnss.drop(index=range(1000, 1015)).reset_index(drop=True)  # 1.6 s hole inside line 0001
     tabs["F1"] = (grav, gnss)
     root = write_survey(tmp_path / "s", lines, tabs)
-    expect_error(root, "flights/F1/gnss.csv", 1002, "time", match="gap of 1.600 s")
+    err = expect_error(root, "flights/F1/gnss.csv", 1002, "time", match="gap of 1.600 s")
+    assert "split the line at the gap in lines.csv" in str(err) and "processing.max_gap_s" in str(err)
     s = read_survey(root, {"max_gap_s": 2.0})
     assert len(s.flights["F1"].gnss) == len(gnss)
 
