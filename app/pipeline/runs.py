@@ -18,7 +18,7 @@ import numpy as np
 from app.config import SurveyConfig
 from app.pipeline.stages import storage
 from app.pipeline.stages.choice import Candidate, choose_model, choose_order, count_crossovers
-from app.pipeline.stages.filtering import filter_survey, fir_baseline
+from app.pipeline.stages.filtering import filter_survey, fir_baseline, fir_loss_warnings
 from app.pipeline.stages.gridding import grid_survey
 from app.pipeline.stages.identification import Identification, identify
 from app.pipeline.stages.leveling import level_survey
@@ -127,15 +127,7 @@ def run_identify(survey, tr: Tracker) -> Identified:
     fir = {name: fir_baseline(m, p.fir_cutoff_period_s, p.fir_gap_max_error_mgal) for name, m in meas.flights.items()}
     noise = check_noise_family(noise, sl.lines, fir, meas.dt_s, p)
     noise = check_noise_corners(noise, sl.lines, fir, meas.dt_s, p)
-    warnings = list(meas.warnings)
-    for name in meas.flights:
-        lost = sum(int(np.sum(np.isfinite(ln.z_mgal) & ~np.isfinite(fir[name][ln.sl])))
-                   for ln in sl.lines if ln.flight == name)
-        if lost:
-            warnings.append(f"flight {name}: FIR {p.fir_cutoff_period_s:g} s left out over {lost} line epochs near missing "
-                            f"samples inside the record (their values could move it by more than "
-                            f"{p.fir_gap_max_error_mgal:g} mGal there; processing.fir_gap_max_error_mgal); the model "
-                            "checks use FIR elsewhere")
+    warnings = list(meas.warnings) + fir_loss_warnings(sl.lines, fir, p)
     if noise.warning:
         warnings.append(noise.warning)
     extra: dict = {}

@@ -44,3 +44,30 @@ def test_gravimeter_and_gnss_gaps_inside_lines(tmp_path):
     # bridging the gravimeter gaps gave ~20× the clean error, filling z in the
     # regularization ~4×
     assert gap < 1.3 * clean, (gap, clean)
+
+
+def test_fir_lost_near_holes_is_said_and_when_the_checks_go_blind():
+    """White z (2 Hz, the test line's spread) on four 600 s lines: one missing sample per line
+    leaves FIR out near it only (the per-flight warning); three 10 s holes per line leave it
+    out on most of the line epochs, and the warning says the FIR checks see too little."""
+    from types import SimpleNamespace
+
+    from app.pipeline.stages.filtering import fir_baseline, fir_loss_warnings
+
+    dt, n_line, gap = 0.5, 1200, 200
+    p = SimpleNamespace(fir_cutoff_period_s=100.0, fir_gap_max_error_mgal=1.0)
+    rng = np.random.default_rng(0)
+    for holes, blind in ((((600, 601),), False), (((300, 320), (600, 620), (900, 920)), True)):
+        n = 4 * (n_line + gap) + gap
+        z = rng.normal(0.0, 3500.0, n)
+        lines = []
+        for k in range(4):
+            a = gap + k * (n_line + gap)
+            for h0, h1 in holes:
+                z[a + h0:a + h1] = np.nan
+            lines.append(SimpleNamespace(flight="F01", sl=slice(a, a + n_line), z_mgal=z[a:a + n_line]))
+        fir = {"F01": fir_baseline(SimpleNamespace(t_s=np.arange(n) * dt, z_mgal=z), 100.0, 1.0)}
+        w = fir_loss_warnings(lines, fir, p)
+        lost = sum(int(np.sum(np.isfinite(ln.z_mgal) & ~np.isfinite(fir["F01"][ln.sl]))) for ln in lines)
+        assert lost > 0 and w[0].startswith(f"flight F01: FIR 100 s left out over {lost} line epochs")
+        assert any("see too little of the survey" in x for x in w) == blind, (lost, w)

@@ -35,6 +35,38 @@ def fir_baseline(m: FlightMeasurement, cutoff_period_s: float, max_gap_error_mga
     return fir
 
 
+#: Share of the line epochs with z above which FIR's absence near holes blinds the model checks.
+FIR_LOSS_BLIND = 0.5
+
+
+def fir_loss_warnings(lines: list[LineData], fir: dict[str, np.ndarray], p) -> list[str]:
+    """Warnings where FIR 100 s was left out near missing samples (:func:`fir_baseline`):
+    per flight, the line epochs lost; and when more than :data:`FIR_LOSS_BLIND` of all line
+    epochs with z lack it, that the checks comparing with FIR see too little of the survey
+    (holes that cut lines into stretches of a few minutes also hide the low frequencies the
+    noise model is fitted on: docs/METHOD.md, stage 1, gaps)."""
+    out = []
+    lost_all = with_z = 0
+    for name in fir:
+        lost = sum(int(np.sum(np.isfinite(ln.z_mgal) & ~np.isfinite(fir[name][ln.sl])))
+                   for ln in lines if ln.flight == name)
+        with_z += sum(int(np.sum(np.isfinite(ln.z_mgal))) for ln in lines if ln.flight == name)
+        lost_all += lost
+        if lost:
+            out.append(f"flight {name}: FIR {p.fir_cutoff_period_s:g} s left out over {lost} line epochs near missing "
+                       f"samples inside the record (their values could move it by more than "
+                       f"{p.fir_gap_max_error_mgal:g} mGal there; processing.fir_gap_max_error_mgal); the model "
+                       "checks use FIR elsewhere")
+    if with_z and lost_all > FIR_LOSS_BLIND * with_z:
+        out.append(f"FIR {p.fir_cutoff_period_s:g} s is left out on {100 * lost_all / with_z:.0f} % of the line "
+                   "epochs (holes in the gravimeter record): the checks that compare with it (noise family and "
+                   "corners, FIR guard, flattening) see too little of the survey to catch a wrong noise model, "
+                   "and stretches of a few minutes between holes hide the low frequencies it is fitted on — "
+                   "treat the estimate with caution (on a test line with three 4-10 s holes per pass it was "
+                   "4-7x the error without them)")
+    return out
+
+
 def hold_states(n_epochs: int, idx: np.ndarray, states: np.ndarray) -> np.ndarray:
     """Hold decimated states on the full-rate grid: each epoch takes the state of the
     nearest decimated point (by index)."""
