@@ -307,9 +307,10 @@ class ProcessingParams(_Strict):
     std_repeat_min_samples: float = Field(8.0, ge=0, description="Where std_level_factor would widen the std and "
                                           "repeat passes measure the error instead (the passes' scatter: the noise "
                                           "part; their common difference from the estimate at std_level_factor x Q: "
-                                          "the smoothing part), dg_std_mgal is scaled to that error, given at least "
-                                          "this many independent stretches (fir_cutoff_period_s of flight x "
-                                          "(passes - 1), summed over the repeat tracks); 0 = off")
+                                          "the smoothing part), a repeat track's dg_std_mgal is widened (never "
+                                          "narrowed) to that error, given at least this many independent stretches "
+                                          "on the track (fir_cutoff_period_s of flight x (passes - 1)); lines off "
+                                          "the tracks keep the spread; 0 = off")
     std_state_mixture: bool = Field(True, description="dg_std_mgal as the std of a mixture of levels where the map is "
                                     "unsure: the larger of the smoother under the probability-weighted arithmetic "
                                     "mean of the Q levels and the law of total variance over each level's smoother "

@@ -82,6 +82,15 @@ class RepeatErrorParts:
     n_points: int
     n_repeats: int
 
+    def std_scale(self, posterior_var_mgal2: float) -> float:
+        """Factor ≥ 1 that widens a posterior std (mean variance ``posterior_var_mgal2``,
+        mGal², at the same points) to the error the repeats show,
+        ``max(1, sqrt((noise + smoothing) / posterior))``.  Never below 1: the measure is
+        noisy and misses what the less-smoothed estimate also smooths away."""
+        if not posterior_var_mgal2 > 0:
+            raise ValueError(f"posterior variance must be positive, got {posterior_var_mgal2!r}")
+        return max(1.0, float(np.sqrt((self.noise_var_mgal2 + self.smoothing_var_mgal2) / posterior_var_mgal2)))
+
 
 def repeat_error_parts(values_mgal, diff_mgal) -> RepeatErrorParts:
     """The two parts of an estimate's error that K repeats of one track show.

@@ -252,6 +252,12 @@ def test_repeat_error_parts_recovers_the_noise_and_the_shared_smoothing_error():
     # d = b + noise_x − noise_hi: the mean over repeats keeps b and 1/K of the noise, which
     # the repeats' scatter of d gives
     assert parts.smoothing_var_mgal2 == pytest.approx(0.64, rel=0.2)
+    # the scale to a posterior: sqrt((1.44 + 0.64) / 1.04) = sqrt(2) by hand; never below 1
+    assert parts.std_scale(1.04) == pytest.approx(np.sqrt((parts.noise_var_mgal2 + parts.smoothing_var_mgal2) / 1.04))
+    assert parts.std_scale(1.04) == pytest.approx(np.sqrt(2.0), rel=0.12)
+    assert parts.std_scale(100.0) == 1.0
+    with pytest.raises(ValueError, match="positive"):
+        parts.std_scale(0.0)
     # nothing shared: the smoothing part is about 0 (clipped at 0, never negative)
     none = repeat_error_parts(x - b, x - b - hi)
     assert 0.0 <= none.smoothing_var_mgal2 < 0.05

@@ -206,6 +206,13 @@ class Filtered:
                 "Q_stationary_mgal2": self.Q_stationary, "std_level_factor": self.std_level_factor,
                 "std_level_reason": self.std_level_reason, "std_repeat_tracks": self.std_repeat_tracks}
 
+    def estimate_q(self, pr: PreparedLine, q_from_posteriors: bool) -> np.ndarray:
+        """Q(t) over the extended line as the estimate uses it: the one level, or
+        :func:`q_series` of the levels."""
+        if len(self.Q_levels) == 1:
+            return np.full(pr.z_ext.size, float(self.Q_levels[0]))
+        return q_series(pr, self.Q_levels, self.n_r, q_from_posteriors)
+
     def level_spread_std(self, dt_s: float, m: int, method: str, noise, factor: float,
                          n_points: int | None = None, min_points: int | None = None,
                          q_from_posteriors: bool = True, repeat_min_samples: float | None = None,
@@ -217,8 +224,10 @@ class Filtered:
         points for two), and with ``n_q`` levels when the EM learned them from fewer than
         ``n_q × min_points`` decimated points (``n_points``): fewer points per level than one
         level needs.  Q(t) is the estimate's (the levels' geometric mean under the map's
-        probabilities with ``q_from_posteriors``), scaled as a whole.  Run for the order that
-        is used only."""
+        probabilities with ``q_from_posteriors``), scaled as a whole.  With
+        ``repeat_min_samples``, repeat tracks that measure their own error get
+        :meth:`repeat_calibrated_std` instead (``fir_period_s``: the length of one independent
+        stretch).  Run for the order that is used only."""
         n_q = len(self.Q_levels)
         few = n_q > 1 and n_points is not None and min_points is not None and n_points < n_q * min_points
         if (n_q != 1 and not few) or factor <= 1.0 or not self.prepared or self.r_lines is None:
@@ -234,8 +243,7 @@ class Filtered:
         for i, (pr, r) in enumerate(zip(self.prepared, self.r_lines)):
             n = pr.inner.stop - pr.inner.start
             if i not in done:
-                q = (np.full(pr.z_ext.size, float(self.Q_levels[0])) if n_q == 1
-                     else q_series(pr, self.Q_levels, self.n_r, q_from_posteriors))
+                q = self.estimate_q(pr, q_from_posteriors)
                 res = level_spread_std_mgal(pr.z_ext, q, r, dt_s, factor, m=m, method=method, noise=noise)
                 col[off:off + n] = np.maximum(col[off:off + n], np.asarray(res.dg_std_mgal)[pr.inner])
                 spread = True
@@ -270,7 +278,6 @@ class Filtered:
                 tracks.setdefault(pr.line.track, []).append((i, off, n))
             off += n
         std = self.table["dg_std_mgal"].to_numpy().copy()
-        n_q = len(self.Q_levels)
         done, figures = set(), {}
         for track, passes in tracks.items():
             if len(passes) < 2:
@@ -278,8 +285,7 @@ class Filtered:
             xs, ds, ss, geo = [], [], [], []
             for i, off, n in passes:
                 pr, r = self.prepared[i], self.r_lines[i]
-                q = (np.full(pr.z_ext.size, float(self.Q_levels[0])) if n_q == 1
-                     else q_series(pr, self.Q_levels, self.n_r, q_from_posteriors))
+                q = self.estimate_q(pr, q_from_posteriors)
                 x_lo = filter_line(pr.z_ext, q, r, dt_s, m, method, noise)[0][pr.inner]
                 x_hi = filter_line(pr.z_ext, factor * q, r, dt_s, m, method, noise)[0][pr.inner]
                 xs.append(x_lo)
@@ -298,7 +304,7 @@ class Filtered:
             post_v = float(np.mean(acc[2].values_mgal))
             if samples < min_samples or not post_v > 0:
                 continue
-            c = max(1.0, float(np.sqrt((parts.noise_var_mgal2 + parts.smoothing_var_mgal2) / post_v)))
+            c = parts.std_scale(post_v)
             for i, off, n in passes:
                 std[off:off + n] *= c
                 done.add(i)
