@@ -72,7 +72,7 @@ def select_subset(lengths, states_per_line, n_states: int, max_epochs: int, seed
 def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
                   max_epochs: int = 300_000, max_evaluations: int | None = None,
                   log_bounds: float = 6.0, r_base_lines=None, fit_r: bool = True, noise=None,
-                  simplex_step: float = 1.0) -> LevelFit:
+                  simplex_step: float = 1.0, map_lines=map) -> LevelFit:
     """Maximise the full-rate Kalman likelihood over the level values.
 
     Parameters
@@ -106,6 +106,10 @@ def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
     simplex_step : float
         Size (in log units) of the initial Nelder–Mead simplex: 1 from EM's levels, smaller
         when the start values are already a refinement's (a filter run with new h, ρ).
+    map_lines : callable, default :func:`map`
+        ``map_lines(f, indices)`` evaluates the lines' log-likelihoods, in order (e.g. a thread
+        pool's ``map``: the Kalman kernels release the GIL); the sum is taken in line order, so
+        the result does not depend on it.
 
     Returns
     -------
@@ -152,10 +156,15 @@ def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
         if np.any(np.abs(th - th0) > log_bounds):
             return 1e300
         Q, R = unpack(th)
-        total = 0.0
-        for k, (z, s) in enumerate(zip(zs, ss)):
+
+        def line_loglik(k):
+            s = ss[k]
             r = R[s % n_r] if rb is None else R[0] * rb[k]
-            total += kalman_loglik(z, Q[s // n_r], r, dt_s, m=m, noise=noise)
+            return kalman_loglik(zs[k], Q[s // n_r], r, dt_s, m=m, noise=noise)
+
+        total = 0.0
+        for ll in map_lines(line_loglik, range(len(zs))):   # in line order: the same sum whatever the map
+            total += ll
         return -total
 
     f0 = nll(th0)

@@ -779,6 +779,13 @@ class _Whittle:
         self.n_eff = float(self.wt.sum())
         self.nu = sp.f_hz * dt_s
         self.d_anom = {mm: np.abs(1.0 - np.exp(-2j * np.pi * self.nu)) ** (2 * mm) for mm in (1, 2, 3)}
+        # the bins' e^{-2πiν} of both scalings and their |1 − e|^{2j}, computed once: the
+        # Nelder–Mead searches evaluate the components' spectra tens of thousands of times
+        # (the same arithmetic as _component_psd_per_sample, so the same numbers)
+        self._e = {1: np.exp(-2j * np.pi * np.asarray(self.nu * sp.r1, dtype=float))}
+        if sp.n_differences:
+            self._e[2] = np.exp(-2j * np.pi * np.asarray(self.nu * sp.r2, dtype=float))
+        self._num = {(v, j): np.abs(1.0 - e) ** (2 * j) for v, e in self._e.items() for j in (1, 2)}
         self.level = float(np.median(sp.psd / dt_s))
         self.phi_min = 0.0
         # set by select(): the velocity family the heights-only rule replaced, and a bare white
@@ -795,12 +802,19 @@ class _Whittle:
         with np.errstate(divide="ignore"):
             S = np.where(sp.is_line > 0, dt * Q / self.d_anom[mm], 0.0)
         for c in comps:
-            S = S + dt * _component_psd_per_sample(self.nu * sp.r1, c) / sp.r1
+            S = S + dt * self._component_psd(1, c) / sp.r1
             if sp.n_differences:
-                S = S + sp.is_diff * dt * _component_psd_per_sample(self.nu * sp.r2, c) / sp.r2
+                S = S + sp.is_diff * dt * self._component_psd(2, c) / sp.r2
         if not np.all(np.isfinite(S)) or np.any(S <= 0):
             return 1e300
         return float(np.sum(self.wt * (np.log(S) + sp.psd / S)))
+
+    def _component_psd(self, variant: int, c: NoiseComponent) -> np.ndarray:
+        """:func:`_component_psd_per_sample` at the bins of scaling ``variant`` (1: z's
+        spectra, 2: pass differences), from the cached e^{-2πiν}."""
+        e = self._e[variant]
+        num = self._num[(variant, c.order)] if c.order else 1.0
+        return c.weight * num / np.abs(1.0 - c.phi * e) ** 2
 
     def fit(self, spec, mm, starts):
         best = None

@@ -102,12 +102,12 @@ class SmootherResult:
 # ---------------------------------------------------------------------------
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, nogil=True, inline="always")
 def _cdot(v, m):
     return v[0] - v[m] + v[m + 1]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _predict(m, x, P, xp, Pp, T, Qk, Q0k, Rk):
     """xp = A x ; Pp = A P Aᵀ + W_k in the difference basis.
 
@@ -144,7 +144,7 @@ def _predict(m, x, P, xp, Pp, T, Qk, Q0k, Rk):
     Pp[m, m] += Rk
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _update(m, xp, Pp, zk, x, P, K, g, h):
     """Measurement update with C = e0 − e_m + e_{m+1}, no measurement noise.
 
@@ -176,7 +176,7 @@ def _update(m, xp, Pp, zk, x, P, K, g, h):
     return nu, s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _filter_state(x0, P0):
     """Working arrays of :func:`_filter_step`: x, P, xp, Pp (from the prior) and scratch."""
     n = x0.shape[0]
@@ -184,7 +184,7 @@ def _filter_state(x0, P0):
             np.empty(n))
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _filter_step(m, k, zk, Qk, Q0k, Rk, x, P, xp, Pp, T, K, g, h):
     """One Kalman filter step in place: predict (k > 0; at k = 0 ``xp``/``Pp`` hold the
     prior), then update with ``zk`` or, when it is missing (NaN), carry the prediction.
@@ -203,7 +203,7 @@ def _filter_step(m, k, zk, Qk, Q0k, Rk, x, P, xp, Pp, T, K, g, h):
     return 0.0, 0.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _forward_bf(z, Qs, Q0s, Rs, m, x0, P0, xf0, prow, Kst, nust, sinv):
     """Kalman filter storing what the modified Bryson–Frazier pass needs."""
     n = m + 2
@@ -223,7 +223,7 @@ def _forward_bf(z, Qs, Q0s, Rs, m, x0, P0, xf0, prow, Kst, nust, sinv):
     return ll
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _backward_bf(m, xf0, prow, Kst, nust, sinv, out_mean, out_var):
     """Modified Bryson–Frazier backward pass (no inverses).
 
@@ -320,7 +320,7 @@ def _backward_bf(m, xf0, prow, Kst, nust, sinv, out_mean, out_var):
             Lam[row, m + 1] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _smooth_bf(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt, out_innov):
     N = z.shape[0]
     n = m + 2
@@ -335,7 +335,7 @@ def _smooth_bf(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt, out_innov
     return ll
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _loglik_only(z, Qs, Q0s, Rs, m, x0, P0):
     N = z.shape[0]
     x, P, xp, Pp, T, K, g, h = _filter_state(x0, P0)
@@ -345,7 +345,7 @@ def _loglik_only(z, Qs, Q0s, Rs, m, x0, P0):
     return ll
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _mm(A, B, out):
     """out = A B."""
     n, k = A.shape
@@ -358,7 +358,7 @@ def _mm(A, B, out):
             out[i, j] = s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _mmT(A, B, out):
     """out = A Bᵀ."""
     n, k = A.shape
@@ -371,7 +371,7 @@ def _mmT(A, B, out):
             out[i, j] = s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _chol_solve_inplace(S, Bm):
     """Solve S X = Bm for symmetric positive definite S (n×n), Bm (n×p) overwritten."""
     n = S.shape[0]
@@ -401,7 +401,7 @@ def _chol_solve_inplace(S, Bm):
             Bm[i, c] = s / L[i, i]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _smooth_rts(z, Qs, Q0s, Rs, m, x0, P0, out_mean, out_var, out_filt):
     n = m + 2
     N = z.shape[0]
@@ -689,7 +689,7 @@ def smooth_many(z_lines: Sequence, Q_lines, R_lines, dt_s, m: int = 2,
 # The loops are dense (n ≤ m + 6), O(n³) per step.
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _gen_predict(A, x, P, Qk, Rk, Wa, Wb, xp, Pp, T):
     n = A.shape[0]
     for i in range(n):
@@ -704,7 +704,7 @@ def _gen_predict(A, x, P, Qk, Rk, Wa, Wb, xp, Pp, T):
             Pp[i, j] += Qk * Wa[i, j] + Rk * Wb[i, j]
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _gen_filter(z, Qs, Rs, A, Wa, Wb, c, x0, P0, store, xf, Pf, xpa, Ppa, Kst, nust, sinv, prow, xf0):
     """Kalman filter; with store = 1 keeps (K, ν, 1/s, P row 0, x0) for Bryson–Frazier,
     with store = 2 keeps full filtered/predicted moments for RTS; returns the log-likelihood."""
@@ -779,7 +779,7 @@ def _gen_filter(z, Qs, Rs, A, Wa, Wb, c, x0, P0, store, xf, Pf, xpa, Ppa, Kst, n
     return ll
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _gen_backward_bf(A, c, xf0, prow, Kst, nust, sinv, out_mean, out_var):
     """Modified Bryson–Frazier pass for a dense A (same recursions as :func:`_backward_bf`)."""
     n = A.shape[0]
@@ -851,7 +851,7 @@ def _gen_backward_bf(A, c, xf0, prow, Kst, nust, sinv, out_mean, out_var):
                 Lam[i, j] = s
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _gen_backward_rts(A, xf, Pf, xpa, Ppa, out_mean, out_var):
     N, n = xf.shape
     xsm = xf[N - 1].copy()

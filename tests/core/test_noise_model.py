@@ -303,3 +303,20 @@ def test_pass_differences_keep_both_sides_of_a_hole():
     short = za.copy()
     short[40:] = np.nan                        # nothing long enough on one pass
     assert pass_differences(s, short, s, zb, dt, 1.0) == []
+
+
+def test_whittle_cached_spectra_are_the_component_spectra():
+    """The Whittle likelihood's cached e^{-2πiν} give exactly the spectra of
+    _component_psd_per_sample (the same arithmetic), for every order, white and AR(1),
+    on z's bins and on pass-difference bins."""
+    from app.core.noise_model import _component_psd_per_sample, _Spectra, _Whittle
+
+    f = np.linspace(0.003, 0.2, 157)
+    n = f.size
+    sp = _Spectra(f, np.ones(n), np.ones(n), np.ones(n), np.full(n, 0.5), np.full(n, 2.0), np.ones(n), 1)
+    w = _Whittle(sp, 0.5, np.random.default_rng(0), 1, False)
+    for order in (0, 1, 2):
+        for phi in (0.0, 0.3, 0.97):
+            c = NoiseComponent(order, phi, 123.0)
+            for v, r in ((1, sp.r1), (2, sp.r2)):
+                assert np.array_equal(w._component_psd(v, c), _component_psd_per_sample(w.nu * r, c))

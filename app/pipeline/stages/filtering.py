@@ -15,6 +15,7 @@ from app.core.accuracy import repeat_error_parts, repeat_line_accuracy
 from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
 from app.core.level_ml import refine_levels
 from app.core.smoother import kalman_smooth, level_spread_std_mgal, mixture_std_mgal
+from app.pipeline.parallel import line_map
 from app.pipeline.stages.lines import LineData
 from app.pipeline.stages.measurement import FlightMeasurement
 
@@ -330,20 +331,26 @@ class Filtered:
             return
         col = self.table["dg_std_mgal"].to_numpy().copy()
         est = self.table["dg_mgal"].to_numpy()
-        off = 0
-        for pr, r in zip(self.prepared, self.r_lines):
-            n = pr.inner.stop - pr.inner.start
-            if pr.pq is not None:
-                q = q_series(pr, self.Q_levels, self.n_r, True, "arithmetic")
-                arith = filter_line(pr.z_ext, q, r, dt_s, m, method, noise)[1][pr.inner]
-                runs = [filter_line(pr.z_ext, np.full(pr.z_ext.size, qk), r, dt_s, m, method, noise)
-                        for qk in self.Q_levels]
-                pos = np.arange(n, dtype=float)
-                w = np.array([np.interp(pos, pr.idx, pr.pq[:, k]) for k in range(len(self.Q_levels))])
-                total = mixture_std_mgal(est[off:off + n], np.array([x[pr.inner] for x, _ in runs]),
-                                         np.array([s[pr.inner] for _, s in runs]), w)
-                col[off:off + n] = np.maximum(arith, total)
-            off += n
+        sizes = [pr.inner.stop - pr.inner.start for pr in self.prepared]
+        offsets = np.concatenate([[0], np.cumsum(sizes)[:-1]]).astype(int)
+
+        def line_std(i: int):
+            pr, r, off, n = self.prepared[i], self.r_lines[i], int(offsets[i]), sizes[i]
+            if pr.pq is None:
+                return None
+            q = q_series(pr, self.Q_levels, self.n_r, True, "arithmetic")
+            arith = filter_line(pr.z_ext, q, r, dt_s, m, method, noise)[1][pr.inner]
+            runs = [filter_line(pr.z_ext, np.full(pr.z_ext.size, qk), r, dt_s, m, method, noise)
+                    for qk in self.Q_levels]
+            pos = np.arange(n, dtype=float)
+            w = np.array([np.interp(pos, pr.idx, pr.pq[:, k]) for k in range(len(self.Q_levels))])
+            total = mixture_std_mgal(est[off:off + n], np.array([x[pr.inner] for x, _ in runs]),
+                                     np.array([s[pr.inner] for _, s in runs]), w)
+            return np.maximum(arith, total)
+
+        for k, std in enumerate(line_map()(line_std, range(len(self.prepared)))):
+            if std is not None:
+                col[offsets[k]:offsets[k] + sizes[k]] = std
         self.table["dg_std_mgal"] = col
 
     def add_stationary(self, dt_s: float, m: int, method: str, noise, p=None) -> None:
@@ -352,12 +359,11 @@ class Filtered:
         typical noise level R (:func:`stationary_level`)."""
         if not np.isfinite(self.Q_stationary):
             self.Q_stationary = stationary_level(self.prepared, self.Q_levels, self.r_stationary, dt_s, m, noise, p)
-        col = []
-        for pr in self.prepared:
+        def smooth(pr: PreparedLine) -> np.ndarray:
             q = np.full(pr.z_ext.size, self.Q_stationary)
-            dgs, _ = filter_line(pr.z_ext, q, np.full_like(q, self.r_stationary), dt_s, m, method, noise)
-            col.append(dgs[pr.inner])
-        self.table["dg_stationary_mgal"] = np.concatenate(col)
+            return filter_line(pr.z_ext, q, np.full_like(q, self.r_stationary), dt_s, m, method, noise)[0][pr.inner]
+
+        self.table["dg_stationary_mgal"] = np.concatenate(list(line_map()(smooth, self.prepared)))
 
 
 def stationary_level(prepared: list, Q_levels, r_stationary: float, dt_s: float, m: int, noise, p=None) -> float:
@@ -369,7 +375,8 @@ def stationary_level(prepared: list, Q_levels, r_stationary: float, dt_s: float,
     try:
         fit = refine_levels([pr.z_ext for pr in prepared], [np.zeros(pr.z_ext.size, int) for pr in prepared],
                             np.array([start]), np.array([r_stationary]), dt_s, m,
-                            max_epochs=p.refine_max_epochs if p is not None else 100_000, fit_r=False, noise=noise)
+                            max_epochs=p.refine_max_epochs if p is not None else 100_000, fit_r=False, noise=noise,
+                            map_lines=line_map())
         return float(fit.Q_mgal2[0])
     except (ValueError, FloatingPointError):
         return float(Qs[0])
@@ -396,7 +403,7 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
                                       ident.m, max_epochs=p.refine_max_epochs,
                                       r_base_lines=[r_scale * pr.r_ext for pr in prepared] if r_local else None,
                                       fit_r=False, noise=noise, simplex_step=0.3 if warm else 1.0,
-                                      max_evaluations=8 * len(Qs) if warm else None)
+                                      max_evaluations=8 * len(Qs) if warm else None, map_lines=line_map())
             Qs = np.asarray(level_fit.Q_mgal2, float)
             if p.refine_lift_only:
                 # a guard against a collapsed level, not a replacement of the EM's levels (config);
@@ -408,12 +415,14 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
         r_stationary = r_scale * float(np.median(np.concatenate([pr.r_ext for pr in prepared])))
     else:
         r_stationary = float(Rs[0])
-    frames, r_lines = [], []
-    for i, pr in enumerate(prepared):
-        ln, inner = pr.line, pr.inner
+    def smooth(pr: PreparedLine):
         q = q_series(pr, Qs, n_r, p.q_from_posteriors)
         r = Rs[pr.s_ext % n_r] if pr.r_ext is None else r_scale * pr.r_ext
-        dg, std = filter_line(pr.z_ext, q, r, dt_s, ident.m, p.smoother, noise)
+        return q, r, filter_line(pr.z_ext, q, r, dt_s, ident.m, p.smoother, noise)
+
+    frames, r_lines = [], []
+    for i, (pr, (q, r, (dg, std))) in enumerate(zip(prepared, line_map()(smooth, prepared))):
+        ln, inner = pr.line, pr.inner
         r_lines.append(r)
         # stationary baseline (seed 000 Fig. 8): one (Q₁, R₁) pair — the smooth state's Q
         # and the survey's typical noise level

@@ -1,0 +1,52 @@
+"""Threads for the per-line Kalman loops.
+
+The smoother's numba kernels release the GIL (``nogil``), so the lines of a survey can be
+filtered, and their likelihoods summed, on several cores at once.  Every use keeps the lines'
+order (results are gathered and reduced in line order), so the output is the same whatever the
+number of threads — ``AEROGRAV_THREADS`` changes only the wall time.
+
+``AEROGRAV_THREADS``: threads per process (default: the CPUs this process may use, at most 8;
+1 = run the lines one after another).
+"""
+
+from __future__ import annotations
+
+import os
+from concurrent.futures import ThreadPoolExecutor
+from functools import lru_cache
+
+#: Upper bound of the default thread count (beyond it the Python glue between kernels dominates).
+MAX_DEFAULT_THREADS = 8
+
+
+def thread_count() -> int:
+    """Threads for the line loops: ``AEROGRAV_THREADS`` when set (an integer ≥ 1), else the CPUs
+    available to this process, at most :data:`MAX_DEFAULT_THREADS`."""
+    raw = os.environ.get("AEROGRAV_THREADS", "").strip()
+    if raw:
+        try:
+            n = int(raw)
+        except ValueError:
+            raise ValueError(f"AEROGRAV_THREADS must be an integer ≥ 1, got {raw!r}") from None
+        if n < 1:
+            raise ValueError(f"AEROGRAV_THREADS must be an integer ≥ 1, got {raw!r}")
+        return n
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cpus = os.cpu_count() or 1
+    return max(1, min(cpus, MAX_DEFAULT_THREADS))
+
+
+@lru_cache(maxsize=4)
+def _pool(n: int, pid: int) -> ThreadPoolExecutor:
+    # keyed by the process id too: a process forked after the pool was made inherits the
+    # executor but not its threads, and would wait on them for ever
+    return ThreadPoolExecutor(max_workers=n, thread_name_prefix="aerograv-lines")
+
+
+def line_map():
+    """A ``map(f, items)`` returning results in the items' order: the builtin with one thread,
+    else a shared thread pool's (created once per process and thread count)."""
+    n = thread_count()
+    return map if n == 1 else _pool(n, os.getpid()).map
