@@ -14,6 +14,7 @@ from pathlib import Path
 
 from app.io import export
 from app.io.survey import read_survey
+from app.pipeline.parallel import thread_count
 from app.pipeline.runs import Progress, Tracker, run_filter, run_identify, save_identified
 
 
@@ -41,6 +42,7 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None, progress:
     dict
         The report (also written to ``report.json``).
     """
+    thread_count()  # a bad AEROGRAV_THREADS is an error before any work
     tr = Tracker(progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -73,6 +75,7 @@ def identify_survey(survey_dir, out_dir, overrides: dict | None = None, progress
     from app.pipeline.stages.outputs import identification_json
     from app.pipeline.stages.recognition import state_map
 
+    thread_count()  # a bad AEROGRAV_THREADS is an error before any work
     tr = Tracker(progress)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -110,6 +113,8 @@ def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress
 
     from app.config import SurveyConfig
     from app.pipeline.runs import IDENTIFIED_DIR, load_identified
+
+    thread_count()  # a bad AEROGRAV_THREADS is an error before any work
 
     tr = Tracker(progress)
     out = Path(out_dir)

@@ -289,3 +289,12 @@ def _map_in_child(q):
     from app.pipeline.parallel import line_map
 
     q.put(list(line_map()(abs, [-4, -5, -6])))
+
+
+def test_bad_thread_count_fails_before_any_work(tmp_path, monkeypatch, tiny_survey):
+    from app.pipeline.process import process_survey
+
+    monkeypatch.setenv("AEROGRAV_THREADS", "many")
+    with pytest.raises(ValueError, match="AEROGRAV_THREADS must be an integer"):
+        process_survey(tiny_survey, tmp_path / "out")
+    assert not (tmp_path / "out").exists()
