@@ -163,3 +163,36 @@ def test_lines_off_the_repeat_track_keep_the_level_spread():
     spread = level_spread_std_mgal(zs[4], np.full(T, q), np.full(T, R), dt, 10.0, m=2).dg_std_mgal
     np.testing.assert_allclose(std[4 * T:], np.maximum(sms[4].dg_std_mgal, spread))
     assert f.std_level_factor == 10.0 and "repeat tracks" in f.std_level_reason
+
+
+def test_repeat_passes_without_a_measured_shared_error_keep_the_level_spread():
+    """Where the passes' shared difference from the less-smoothed estimate is lost in their
+    noise (the smoothing part clipped at 0), the measure says nothing about the error the
+    passes share, so the track keeps the (wider) level spread; where it is measured, the
+    passes size the std.  On a nearly flat anomaly the shared part is pure noise and comes
+    out clipped on some seeds and not on others: both ways are checked."""
+    dt, T, R, speed = 0.5, 3000, 1.0, 60.0
+    seen = {"kept": 0, "sized": 0}
+    for seed in range(8):
+        rng = np.random.default_rng(100 + seed)
+        lines, zs, _ = _repeat_passes(rng, 4, T, dt, 1e-12, R, speed)
+        sms = [kalman_smooth(z, np.full(T, 2e-6), np.full(T, R), dt, m=2) for z in zs]
+        table = pd.DataFrame({"dg_mgal": np.concatenate([s.dg_mgal for s in sms]),
+                              "dg_std_mgal": np.concatenate([s.dg_std_mgal for s in sms])})
+        prepared = [PreparedLine(ln, np.zeros(T, int), np.zeros(T, int), z, slice(0, T), None, None, None)
+                    for ln, z in zip(lines, zs)]
+        runs = {}
+        for rule, min_samples in (("repeat", 8.0), ("spread", None)):
+            f = Filtered(table.copy(), np.array([2e-6]), None, 1.0, prepared=prepared,
+                         r_lines=[np.full(T, R)] * 4, n_r=1)
+            f.level_spread_std(dt, 2, "bf", None, 10.0, repeat_min_samples=min_samples, fir_period_s=100.0)
+            runs[rule] = f
+        track = runs["repeat"].std_repeat_tracks["T1"]
+        if track["smoothing_part_mgal"] == 0.0:
+            seen["kept"] += 1
+            assert track["scale"] is None and runs["repeat"].std_level_factor == 10.0
+            np.testing.assert_array_equal(runs["repeat"].table["dg_std_mgal"], runs["spread"].table["dg_std_mgal"])
+        else:
+            seen["sized"] += 1
+            assert track["scale"] >= 1.0 and runs["repeat"].std_level_factor is None
+    assert seen["kept"] and seen["sized"], seen

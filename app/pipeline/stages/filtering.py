@@ -267,7 +267,10 @@ class Filtered:
         ``c = max(1, sqrt((noise + smoothing) / mean σ²))`` (σ the posterior std at the
         passes' common points), so it keeps its shape (wider at line ends and holes).  A
         track needs ``min_samples`` independent stretches (``period_s`` of flight each,
-        times passes − 1).  Lines off the tracks are left to the spread: a track says little
+        times passes − 1), and a smoothing part above 0: where the passes' shared difference
+        is lost in their noise (clipped at 0) the measure says nothing of the error they share
+        and the track keeps the spread (test line, seed 3: 2σ coverage 0.75 sized by its passes,
+        0.90 with the spread).  Lines off the tracks are left to the spread: a track says little
         about the rest of a survey (one repeat line in the plains of a mountain survey).
         Returns the indices of the prepared lines done; ``std_repeat_tracks`` gives the
         figures per track for the report."""
@@ -304,6 +307,14 @@ class Filtered:
             samples = length_m / (speed * period_s) * (parts.n_repeats - 1)
             post_v = float(np.mean(acc[2].values_mgal))
             if samples < min_samples or not post_v > 0:
+                continue
+            if not parts.smoothing_var_mgal2 > 0:
+                # the passes' shared difference is lost in their noise: the measure says
+                # nothing of the error they share, and the level spread stays
+                figures[str(track)] = {"scale": None, "reason": "smoothing part lost in the passes' noise: level spread kept",
+                                       "noise_part_mgal": float(np.sqrt(parts.noise_var_mgal2)), "smoothing_part_mgal": 0.0,
+                                       "posterior_mgal": float(np.sqrt(post_v)), "passes": parts.n_repeats,
+                                       "independent_stretches": float(samples), "versus_q_factor": float(factor)}
                 continue
             c = parts.std_scale(post_v)
             for i, off, n in passes:
