@@ -214,7 +214,12 @@ def white_velocity(dt_s: float, R_cm2s2: float = 1.0) -> NoiseModel:
 def _component_psd_per_sample(nu, c: NoiseComponent) -> np.ndarray:
     """PSD per cycle/sample (variance = ∫_{−1/2}^{1/2}) of one component at R = 1."""
     e = np.exp(-2j * np.pi * np.asarray(nu, dtype=float))
-    num = np.abs(1.0 - e) ** (2 * c.order) if c.order else 1.0
+    return _component_psd_at(e, np.abs(1.0 - e) ** (2 * c.order) if c.order else 1.0, c)
+
+
+def _component_psd_at(e: np.ndarray, num, c: NoiseComponent) -> np.ndarray:
+    """:func:`_component_psd_per_sample` from ``e = e^{-2πiν}`` and ``num = |1 − e|^{2j}``
+    (1 for j = 0), which a fit evaluating many components on the same bins computes once."""
     return c.weight * num / np.abs(1.0 - c.phi * e) ** 2
 
 
@@ -812,9 +817,7 @@ class _Whittle:
     def _component_psd(self, variant: int, c: NoiseComponent) -> np.ndarray:
         """:func:`_component_psd_per_sample` at the bins of scaling ``variant`` (1: z's
         spectra, 2: pass differences), from the cached e^{-2πiν}."""
-        e = self._e[variant]
-        num = self._num[(variant, c.order)] if c.order else 1.0
-        return c.weight * num / np.abs(1.0 - c.phi * e) ** 2
+        return _component_psd_at(self._e[variant], self._num[(variant, c.order)] if c.order else 1.0, c)
 
     def fit(self, spec, mm, starts):
         best = None

@@ -306,9 +306,10 @@ def test_pass_differences_keep_both_sides_of_a_hole():
 
 
 def test_whittle_cached_spectra_are_the_component_spectra():
-    """The Whittle likelihood's cached e^{-2πiν} give exactly the spectra of
-    _component_psd_per_sample (the same arithmetic), for every order, white and AR(1),
-    on z's bins and on pass-difference bins."""
+    """The Whittle likelihood's cached e^{-2πiν} give the closed form of an AR(1) differenced
+    j times, w·(2 − 2 cos 2πν)^j / (1 − 2φ cos 2πν + φ²), for every order, white and AR(1), on
+    z's bins (ν = f·dt·r1) and on pass-difference bins (r2) — and exactly the numbers of
+    _component_psd_per_sample (the same arithmetic, so the fit is unchanged)."""
     from app.core.noise_model import _component_psd_per_sample, _Spectra, _Whittle
 
     f = np.linspace(0.003, 0.2, 157)
@@ -319,4 +320,7 @@ def test_whittle_cached_spectra_are_the_component_spectra():
         for phi in (0.0, 0.3, 0.97):
             c = NoiseComponent(order, phi, 123.0)
             for v, r in ((1, sp.r1), (2, sp.r2)):
+                cos = np.cos(2 * np.pi * w.nu * r)
+                closed = 123.0 * (2 - 2 * cos) ** order / (1 - 2 * phi * cos + phi ** 2)
+                np.testing.assert_allclose(w._component_psd(v, c), closed, rtol=1e-9)
                 assert np.array_equal(w._component_psd(v, c), _component_psd_per_sample(w.nu * r, c))

@@ -308,22 +308,20 @@ class Filtered:
             post_v = float(np.mean(acc[2].values_mgal))
             if samples < min_samples or not post_v > 0:
                 continue
+            fig = {"scale": None, "noise_part_mgal": float(np.sqrt(parts.noise_var_mgal2)),
+                   "smoothing_part_mgal": float(np.sqrt(parts.smoothing_var_mgal2)),
+                   "posterior_mgal": float(np.sqrt(post_v)), "passes": parts.n_repeats,
+                   "independent_stretches": float(samples), "versus_q_factor": float(factor)}
+            figures[str(track)] = fig
             if not parts.smoothing_var_mgal2 > 0:
                 # the passes' shared difference is lost in their noise: the measure says
                 # nothing of the error they share, and the level spread stays
-                figures[str(track)] = {"scale": None, "reason": "smoothing part lost in the passes' noise: level spread kept",
-                                       "noise_part_mgal": float(np.sqrt(parts.noise_var_mgal2)), "smoothing_part_mgal": 0.0,
-                                       "posterior_mgal": float(np.sqrt(post_v)), "passes": parts.n_repeats,
-                                       "independent_stretches": float(samples), "versus_q_factor": float(factor)}
+                fig["reason"] = "smoothing part lost in the passes' noise: level spread kept"
                 continue
-            c = parts.std_scale(post_v)
+            fig["scale"] = c = parts.std_scale(post_v)
             for i, off, n in passes:
                 std[off:off + n] *= c
                 done.add(i)
-            figures[str(track)] = {"scale": c, "noise_part_mgal": float(np.sqrt(parts.noise_var_mgal2)),
-                                   "smoothing_part_mgal": float(np.sqrt(parts.smoothing_var_mgal2)),
-                                   "posterior_mgal": float(np.sqrt(post_v)), "passes": parts.n_repeats,
-                                   "independent_stretches": float(samples), "versus_q_factor": float(factor)}
         self.table["dg_std_mgal"] = std
         self.std_repeat_tracks = figures or None
         return done
