@@ -35,7 +35,8 @@ def run(survey: Path, out: Path, threads: int) -> float:
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--survey", default=str(Path(__file__).resolve().parent.parent / "sample_surveys" / "omolon-mini"))
-    ap.add_argument("--threads", type=int, default=len(os.sched_getaffinity(0)))
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    ap.add_argument("--threads", type=int, default=cpus)
     ap.add_argument("--repeat", type=int, default=2)
     a = ap.parse_args()
     survey = Path(a.survey)
@@ -47,7 +48,9 @@ def main() -> int:
                 t = run(survey, out, n)
                 if t < best.get(n, np.inf):
                     best[n] = t
-                    stages[n] = json.loads((out / "report.json").read_text())["timings_s"]
+                    rep = json.loads((out / "report.json").read_text())
+                    stages[n] = rep["timings_s"]
+                    assert rep["threads"] == n, (rep["threads"], n)
         same = pd.read_parquet(Path(tmp) / "t1" / "lines.parquet").equals(
             pd.read_parquet(Path(tmp) / f"t{a.threads}" / "lines.parquet"))
     print(f"{survey.name}: threads=1 {best[1]:.2f} s, threads={a.threads} {best[a.threads]:.2f} s, "

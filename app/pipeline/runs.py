@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from app.config import SurveyConfig
+from app.pipeline.parallel import thread_count
 from app.pipeline.stages import storage
 from app.pipeline.stages.choice import Candidate, choose_model, choose_order, count_crossovers
 from app.pipeline.stages.filtering import filter_survey, fir_baseline, fir_loss_warnings
@@ -261,6 +262,7 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     if grid is not None and grid.cross_validation:
         report["grid_std_cross_validation"] = grid.cross_validation
     report["timings_s"] = {**idf.timings, **tr.timings}
+    report["threads"] = thread_count()  # the line loops' threads (the output does not depend on them)
     return report
 
 

@@ -56,8 +56,14 @@ def load_entry(entry: str) -> Callable:
 
 
 def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: str,
-                kind: str, params: dict[str, Any]) -> str:
-    """Run one job to completion (in a worker).  Returns the final status."""
+                kind: str, params: dict[str, Any], threads: int | None = None) -> str:
+    """Run one job to completion (in a worker).  Returns the final status.
+
+    ``threads``: the job process's share of the CPUs for the per-line loops
+    (``AEROGRAV_THREADS``, :mod:`app.pipeline.parallel`), set when the variable is not already
+    set; the output does not depend on it."""
+    if threads is not None and not os.environ.get("AEROGRAV_THREADS", "").strip():
+        os.environ["AEROGRAV_THREADS"] = str(max(1, int(threads)))
     Session = session_factory(db_url)
     with Session() as s:
         res = s.execute(update(Job).where(Job.id == job_id, Job.status == "queued")
@@ -249,6 +255,18 @@ class JobManager:
             self._client = Client(self.settings.dask_scheduler, set_as_default=False, timeout="20s")
         return self._client
 
+    def thread_share(self) -> int | None:
+        """Threads for a job process started now: the server's CPUs (:func:`app.pipeline.parallel.thread_count`)
+        shared among the local jobs running and this one, so that concurrent jobs do not
+        oversubscribe the cores; None when ``AEROGRAV_THREADS`` is set (every job then uses it).
+        Call under ``_lock``."""
+        if os.environ.get("AEROGRAV_THREADS", "").strip():
+            return None
+        from app.pipeline.parallel import thread_count
+
+        running = sum(1 for p in self._procs.values() if p.is_alive())
+        return max(1, thread_count() // (running + 1))
+
     def submit(self, job: Job) -> None:
         args = (job.id, self.settings.db_url, self.settings.pipeline_entry, job.input_dir, job.out_dir,
                 job.kind, dict(job.params or {}))
@@ -258,7 +276,7 @@ class JobManager:
                 self._futures[job.id] = fut
             else:
                 ctx = multiprocessing.get_context("spawn")
-                p = ctx.Process(target=execute_job, args=args, name=f"aerograv-job-{job.id}")
+                p = ctx.Process(target=execute_job, args=args + (self.thread_share(),), name=f"aerograv-job-{job.id}")
                 p.start()
                 self._procs[job.id] = p
 

@@ -250,6 +250,8 @@ def test_thread_count_does_not_change_the_outputs(tmp_path, monkeypatch, tiny_su
         assert np.array_equal(a["dg"].values, b["dg"].values, equal_nan=True)
         assert np.array_equal(a["dg_std"].values, b["dg_std"].values, equal_nan=True)
     assert json.loads((out / "identification.json").read_text()) == json.loads((ref / "identification.json").read_text())
+    # the report says how many threads ran the line loops
+    assert json.loads((out / "report.json").read_text())["threads"] == int(other)
 
 
 def test_thread_count_setting(monkeypatch):

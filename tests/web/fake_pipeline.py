@@ -185,6 +185,7 @@ def write_outputs(out: Path, lines_df: pd.DataFrame, crs: str = "EPSG:32657", se
         export.write_grid_csv(out / f"{stem}.csv", xs, ys, gg, ss)
     report = fake_report(df, base_gravity_mgal, crs)
     report["products"] = products
+    report["threads_env"] = os.environ.get("AEROGRAV_THREADS")  # what the job process was given
     (out / "report.json").write_text(json.dumps(report))
     return report
 

@@ -233,6 +233,29 @@ def test_process_job_and_result_views(client, tiny_zip):
     assert client.get(f"/api/surveys/{sid}/export", params={"format": "xls"}).status_code == 422
 
 
+def test_concurrent_jobs_share_the_cpus(make_client, tiny_survey, tmp_path, monkeypatch):
+    """Each local job process gets its share of the server's CPUs for the per-line loops
+    (AEROGRAV_THREADS = CPUs // jobs running, at least 1), so concurrent jobs do not
+    oversubscribe the cores; a server-wide AEROGRAV_THREADS is left to every job."""
+    from app.pipeline.parallel import thread_count
+
+    monkeypatch.delenv("AEROGRAV_THREADS", raising=False)
+    monkeypatch.setenv("AEROGRAV_FAKE_DELAY_S", "0.3")  # the first job still runs when the second starts
+    cpus = thread_count()
+    c = make_client()
+    first = import_zip(c, zip_dir(tiny_survey), name="a.zip").json()["id"]
+    second = import_zip(c, zip_dir(tiny_survey), name="b.zip").json()["id"]
+    jobs = [c.post(f"/api/surveys/{sid}/jobs", json={"kind": "process"}).json()["id"] for sid in (first, second)]
+    assert [wait_job(c, j)["status"] for j in jobs] == ["succeeded", "succeeded"]
+    given = [c.get(f"/api/surveys/{sid}/report").json()["report"]["threads_env"] for sid in (first, second)]
+    assert given == [str(cpus), str(max(1, cpus // 2))]
+
+    monkeypatch.setenv("AEROGRAV_THREADS", "3")
+    jid = c.post(f"/api/surveys/{first}/jobs", json={"kind": "process"}).json()["id"]
+    assert wait_job(c, jid)["status"] == "succeeded"
+    assert c.get(f"/api/surveys/{first}/report").json()["report"]["threads_env"] == "3"
+
+
 def test_frontend_and_docs_served(client):
     r = client.get("/")
     assert r.status_code == 200 and "<script type=\"module\"" in r.text
