@@ -791,6 +791,10 @@ class _Whittle:
         if sp.n_differences:
             self._e[2] = np.exp(-2j * np.pi * np.asarray(self.nu * sp.r2, dtype=float))
         self._num = {(v, j): np.abs(1.0 - e) ** (2 * j) for v, e in self._e.items() for j in (1, 2)}
+        self._variants = (1, 2) if sp.n_differences else (1,)
+        self._anom_positive = all(bool(np.all(d > 0)) for d in self.d_anom.values())
+        self._line_bins = sp.is_line > 0
+        self._diff_dt = sp.is_diff * self.dt_s
         self.level = float(np.median(sp.psd / dt_s))
         self.phi_min = 0.0
         # set by select(): the velocity family the heights-only rule replaced, and a bare white
@@ -800,17 +804,35 @@ class _Whittle:
         self.candidates: list = []
 
     def nll(self, theta, spec, mm) -> float:
-        if np.any(np.abs(theta) > 200):
+        """The weighted Whittle negative log-likelihood at θ (log Q, then per component log w
+        and, with a free φ, its logit).  Evaluated tens of thousands of times per fit, so it
+        works on θ directly (the arithmetic of :func:`_unpack` and :func:`_component_psd_at`,
+        term by term in the same order: the same numbers); a white component (φ = 0) skips
+        its |1 − φe|² = 1."""
+        th = np.asarray(theta, dtype=float)
+        if np.abs(th).max() > 200:
             return 1e300
-        Q, comps = _unpack(theta, spec, self.phi_min)
-        sp, dt = self.sp, self.dt_s
-        with np.errstate(divide="ignore"):
-            S = np.where(sp.is_line > 0, dt * Q / self.d_anom[mm], 0.0)
-        for c in comps:
-            S = S + dt * self._component_psd(1, c) / sp.r1
-            if sp.n_differences:
-                S = S + sp.is_diff * dt * self._component_psd(2, c) / sp.r2
-        if not np.all(np.isfinite(S)) or np.any(S <= 0):
+        ex = np.exp(th)
+        sp, dt, pm = self.sp, self.dt_s, self.phi_min
+        if self._anom_positive:
+            S = np.where(self._line_bins, dt * float(ex[0]) / self.d_anom[mm], 0.0)
+        else:
+            with np.errstate(divide="ignore"):
+                S = np.where(self._line_bins, dt * float(ex[0]) / self.d_anom[mm], 0.0)
+        k = 1
+        for order, free_phi in spec:
+            w = float(ex[k])
+            k += 1
+            phi = 0.0
+            if free_phi:
+                phi = float(pm + (PHI_MAX - pm) / (1.0 + np.exp(-th[k])))
+                k += 1
+            for variant in self._variants:
+                psd = w * self._num[(variant, order)] if order else w * 1.0
+                if phi != 0.0:
+                    psd = psd / np.abs(1.0 - phi * self._e[variant]) ** 2
+                S = S + (dt * psd / sp.r1 if variant == 1 else self._diff_dt * psd / sp.r2)
+        if not (S.min() > 0 and S.max() < np.inf):
             return 1e300
         return float(np.sum(self.wt * (np.log(S) + sp.psd / S)))
 
