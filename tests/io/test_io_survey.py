@@ -276,6 +276,24 @@ def test_time_backwards(survey_dir):
     expect_error(root, "flights/F1/gnss.csv", 703, "time", match="backwards")
 
 
+@pytest.mark.parametrize("period_s, what", [(86400.0, "crosses midnight"), (604800.0, "week's end")])
+def test_time_of_day_wrap_says_so(survey_dir, period_s, what):
+    """Times in seconds of day (or GPS seconds of week) wrap when a flight crosses midnight:
+    SPEC wants one monotonic scale, so it is an error, and the message says what happened
+    and how to put it right; a shuffled record gets no such hint."""
+    root, _, tabs = survey_dir
+    n = tabs["F1"][1].copy()
+    t = n["time"].to_numpy()
+    n["time"] = np.where(np.arange(t.size) >= 700, t - t[699] - 0.05, t + period_s - t[699] - 0.15)
+    n.to_csv(root / "flights/F1/gnss.csv", index=False, float_format="%.10g")
+    err = expect_error(root, "flights/F1/gnss.csv", 702, "time", match="wrapped")
+    assert what in str(err) and f"add {period_s:.0f} s" in str(err)
+    n = tabs["F1"][1].copy()
+    n.loc[[700, 701], "time"] = n.loc[[701, 700], "time"].to_numpy()
+    n.to_csv(root / "flights/F1/gnss.csv", index=False)
+    assert "wrapped" not in str(expect_error(root, "flights/F1/gnss.csv", 703, "time", match="backwards"))
+
+
 def test_gap_inside_line_is_error_outside_is_fine(tmp_path):
     lines, tabs = make_tables()
     grav, gnss = tabs["F1"]
