@@ -19,6 +19,14 @@ from functools import lru_cache
 MAX_DEFAULT_THREADS = 8
 
 
+def cpu_count() -> int:
+    """The CPUs this process may use (its affinity on Linux, else all of them), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
 def thread_count() -> int:
     """Threads for the line loops: ``AEROGRAV_THREADS`` when set (an integer ≥ 1), else the CPUs
     available to this process, at most :data:`MAX_DEFAULT_THREADS`."""
@@ -31,11 +39,7 @@ def thread_count() -> int:
         if n < 1:
             raise ValueError(f"AEROGRAV_THREADS must be an integer ≥ 1, got {raw!r}")
         return n
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cpus = os.cpu_count() or 1
-    return max(1, min(cpus, MAX_DEFAULT_THREADS))
+    return max(1, min(cpu_count(), MAX_DEFAULT_THREADS))
 
 
 @lru_cache(maxsize=4)

@@ -9,7 +9,9 @@ succeeded, switches the survey's result pointer in the same transaction that mar
 the job succeeded.  Every status change is a conditional update, so a job cancelled
 or declared dead by the server can never overwrite the survey's results afterwards.
 
-The server-side :class:`JobManager` starts workers, cancels them, and watches them:
+The server-side :class:`JobManager` starts workers (at most ``max_jobs`` local processes at once,
+default the CPUs; later jobs wait, queued, and start oldest first as slots free), cancels them,
+and watches them:
 a worker process that dies (killed, out of memory, segfault) turns its job into
 ``failed`` with the reason; the survey and its previous results are untouched.  That record
 is durable: when the store refuses the write (disk full, database locked) the death stays
@@ -32,6 +34,7 @@ import signal
 import threading
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -203,6 +206,7 @@ class JobManager:
         self._lock = threading.Lock()
         self._client = None
         self._pending: dict[int, str] = {}  # job id -> reason of a worker death not yet recorded
+        self._waiting: deque[tuple[int, tuple]] = deque()  # local jobs queued for a free slot (id, args)
         self._last_reconcile = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -233,6 +237,7 @@ class JobManager:
         with self._lock:
             procs = list(self._procs.values())
             self._procs.clear()
+            self._waiting.clear()  # still queued: the next start-up marks them "server restarted"
         for p in procs:  # the next start-up marks their jobs "server restarted"
             if p.is_alive():
                 p.terminate()
@@ -255,6 +260,19 @@ class JobManager:
             self._client = Client(self.settings.dask_scheduler, set_as_default=False, timeout="20s")
         return self._client
 
+    def max_local_jobs(self) -> int:
+        """Most local job processes at once: ``settings.max_jobs``, default the CPUs."""
+        n = getattr(self.settings, "max_jobs", None)
+        if n:
+            return int(n)
+        from app.pipeline.parallel import cpu_count
+
+        return cpu_count()
+
+    def _running(self) -> int:
+        """Live local job processes (call under ``_lock``)."""
+        return sum(1 for p in self._procs.values() if p.is_alive())
+
     def thread_share(self) -> int | None:
         """Threads for a job process started now: the server's CPUs (:func:`app.pipeline.parallel.thread_count`)
         shared among the local jobs running and this one, so that concurrent jobs do not
@@ -264,21 +282,47 @@ class JobManager:
             return None
         from app.pipeline.parallel import thread_count
 
-        running = sum(1 for p in self._procs.values() if p.is_alive())
-        return max(1, thread_count() // (running + 1))
+        return max(1, thread_count() // (self._running() + 1))
+
+    def _start_local(self, job_id: int, args: tuple) -> None:
+        """Spawn the job's worker process (call under ``_lock``)."""
+        ctx = multiprocessing.get_context("spawn")
+        p = ctx.Process(target=execute_job, args=args + (self.thread_share(),), name=f"aerograv-job-{job_id}")
+        p.start()
+        self._procs[job_id] = p
 
     def submit(self, job: Job) -> None:
+        """Start the job: on Dask, or in a process of its own — or, when ``max_local_jobs``
+        processes already run, keep it queued until one ends (the monitor starts it)."""
         args = (job.id, self.settings.db_url, self.settings.pipeline_entry, job.input_dir, job.out_dir,
                 job.kind, dict(job.params or {}))
+        waits = False
         with self._lock:
             if self.backend == "dask":
                 fut = self._dask_client().submit(execute_job, *args, pure=False, key=f"aerograv-job-{job.id}")
                 self._futures[job.id] = fut
+            elif self._waiting or self._running() >= self.max_local_jobs():
+                self._waiting.append((job.id, args))
+                waits = True
             else:
-                ctx = multiprocessing.get_context("spawn")
-                p = ctx.Process(target=execute_job, args=args + (self.thread_share(),), name=f"aerograv-job-{job.id}")
-                p.start()
-                self._procs[job.id] = p
+                self._start_local(job.id, args)
+        if waits:  # what the browser shows until a slot frees
+            with self.Session() as s:
+                s.execute(update(Job).where(Job.id == job.id, Job.status == "queued")
+                          .values(stage=f"waiting for a free worker ({self.max_local_jobs()} running)"))
+                s.commit()
+
+    def _start_waiting(self) -> None:
+        """Start queued local jobs while slots are free, oldest first."""
+        with self._lock:
+            while self._waiting and self._running() < self.max_local_jobs():
+                jid, args = self._waiting.popleft()
+                self._start_local(jid, args)
+
+    def waiting(self) -> list[int]:
+        """Ids of the local jobs queued for a free slot, oldest first."""
+        with self._lock:
+            return [jid for jid, _ in self._waiting]
 
     def cancel(self, job_id: int) -> bool:
         """Mark the job cancelled (if still active) and stop its worker."""
@@ -290,10 +334,15 @@ class JobManager:
         with self._lock:
             p = self._procs.get(job_id)
             fut = self._futures.get(job_id)
+            was_waiting = changed and any(jid == job_id for jid, _ in self._waiting)
+            if was_waiting:  # a job still waiting for a slot never starts
+                self._waiting = deque((jid, a) for jid, a in self._waiting if jid != job_id)
         if p is not None and p.is_alive():
             p.terminate()
         if fut is not None:
             fut.cancel()  # a running Dask task stops at its next progress report
+        if was_waiting:  # no worker will end: the job's files are pruned now
+            self._notify(job_id)
         return changed
 
     def worker_pid(self, job_id: int) -> int | None:
@@ -340,6 +389,7 @@ class JobManager:
                 reason = "job ended without reporting its result"
             self._pending[jid] = reason
         self._record_pending()
+        self._start_waiting()
         now = time.monotonic()
         if now - self._last_reconcile >= getattr(self.settings, "reconcile_interval_s", 10.0):
             self._last_reconcile = now
@@ -365,7 +415,7 @@ class JobManager:
 
         failed = []
         with self._lock:
-            watched = set(self._procs) | set(self._futures) | set(self._pending)
+            watched = set(self._procs) | set(self._futures) | set(self._pending) | {j for j, _ in self._waiting}
         with self.Session() as s:
             active = list(s.scalars(select(Job).where(Job.status.in_(ACTIVE_STATES), Job.backend == "local")))
         cutoff = utcnow() - dt.timedelta(seconds=queued_grace_s)

@@ -12,6 +12,8 @@
                            default 10 × the upload limit); reported in ``/api/health``
 ``AEROGRAV_ALLOWED_HOSTS`` comma-separated Host header values accepted (``*`` = any); default: the
                            bind address, ``localhost``, ``127.0.0.1`` and ``::1``
+``AEROGRAV_MAX_JOBS``      most local job processes running at once (default: the CPUs); later
+                           jobs wait, queued, for a free slot
 """
 
 from __future__ import annotations
@@ -46,6 +48,10 @@ class Settings(BaseSettings):
     allowed_hosts: str | None = Field(None, description="Comma-separated Host header values accepted ('*' = any); "
                                       "default the bind address, localhost, 127.0.0.1, ::1")
     bind_host: str | None = Field(None, description="The address `aerograv serve` binds (set by serve)")
+    max_jobs: int | None = Field(None, ge=1, le=1024, description="Most local job processes running at once "
+                                 "(default: the CPUs this server may use); later jobs wait, queued, for a free slot "
+                                 "— every job is a process of its own, so many surveys started at once would "
+                                 "otherwise take the machine's memory")
 
     @property
     def db_url(self) -> str:

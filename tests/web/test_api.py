@@ -256,6 +256,30 @@ def test_concurrent_jobs_share_the_cpus(make_client, tiny_survey, tmp_path, monk
     assert c.get(f"/api/surveys/{first}/report").json()["report"]["threads_env"] == "3"
 
 
+def test_local_jobs_beyond_max_jobs_wait_queued(make_client, tiny_survey, monkeypatch):
+    """Every job is a process of its own, so surveys started at once could take the machine's
+    memory: beyond AEROGRAV_MAX_JOBS the jobs wait, queued, and start oldest first as slots
+    free; a waiting job can be cancelled and then never starts."""
+    monkeypatch.setenv("AEROGRAV_FAKE_DELAY_S", "0.1")  # ~1.5 s per job
+    c = make_client(max_jobs=1)
+    sids = [import_zip(c, zip_dir(tiny_survey), name=f"{k}.zip").json()["id"] for k in range(3)]
+    jobs = [c.post(f"/api/surveys/{sid}/jobs", json={"kind": "process"}).json()["id"] for sid in sids]
+    manager = c.app.state.jobs
+    assert manager.waiting() == jobs[1:]  # one slot: the others wait, in order
+    waiting = [c.get(f"/api/jobs/{j}").json() for j in jobs[1:]]
+    assert [w["status"] for w in waiting] == ["queued", "queued"]
+    assert all(w["stage"].startswith("waiting for a free worker") for w in waiting)
+    assert c.post(f"/api/jobs/{jobs[2]}/cancel").status_code == 200
+    assert manager.waiting() == jobs[1:2]
+    done = [wait_job(c, j) for j in jobs[:2]]
+    assert [d["status"] for d in done] == ["succeeded", "succeeded"]
+    # the second started only after the first had finished
+    assert done[1]["started_at"] >= done[0]["finished_at"]
+    j3 = c.get(f"/api/jobs/{jobs[2]}").json()
+    assert j3["status"] == "cancelled" and j3["started_at"] is None
+    assert manager.waiting() == []
+
+
 def test_frontend_and_docs_served(client):
     r = client.get("/")
     assert r.status_code == 200 and "<script type=\"module\"" in r.text
