@@ -309,7 +309,7 @@ class JobManager:
         if waits:  # what the browser shows until a slot frees
             with self.Session() as s:
                 s.execute(update(Job).where(Job.id == job.id, Job.status == "queued")
-                          .values(stage=f"waiting for a free worker ({self.max_local_jobs()} running)"))
+                          .values(stage=f"waiting for a free worker (all {self.max_local_jobs()} busy)"))
                 s.commit()
 
     def _start_waiting(self) -> None:
