@@ -42,6 +42,7 @@ from typing import Any
 from sqlalchemy import update
 
 from app.jsonsafe import to_jsonable
+from app.pipeline.parallel import cpu_count, thread_count
 
 from .db import ACTIVE_STATES, Job, Result, Survey, session_factory, utcnow
 
@@ -263,11 +264,7 @@ class JobManager:
     def max_local_jobs(self) -> int:
         """Most local job processes at once: ``settings.max_jobs``, default the CPUs."""
         n = getattr(self.settings, "max_jobs", None)
-        if n:
-            return int(n)
-        from app.pipeline.parallel import cpu_count
-
-        return cpu_count()
+        return int(n) if n else cpu_count()
 
     def _running(self) -> int:
         """Live local job processes (call under ``_lock``)."""
@@ -280,8 +277,6 @@ class JobManager:
         Call under ``_lock``."""
         if os.environ.get("AEROGRAV_THREADS", "").strip():
             return None
-        from app.pipeline.parallel import thread_count
-
         return max(1, thread_count() // (self._running() + 1))
 
     def _start_local(self, job_id: int, args: tuple) -> None:
