@@ -23,6 +23,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from app.pipeline.parallel import cpu_count  # noqa: E402
+
 
 def run(survey: Path, out: Path, threads: int) -> float:
     env = {**os.environ, "AEROGRAV_THREADS": str(threads)}
@@ -35,8 +38,7 @@ def run(survey: Path, out: Path, threads: int) -> float:
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--survey", default=str(Path(__file__).resolve().parent.parent / "sample_surveys" / "omolon-mini"))
-    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    ap.add_argument("--threads", type=int, default=cpus)
+    ap.add_argument("--threads", type=int, default=cpu_count())
     ap.add_argument("--repeat", type=int, default=2)
     a = ap.parse_args()
     survey = Path(a.survey)
