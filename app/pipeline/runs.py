@@ -212,6 +212,10 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     m_best, order_rep = choose_order(cands, p)
     if len(cands) > 1:  # the baseline only for the order that is used
         cands[m_best].filtered.add_stationary(idf.dt_s, m_best, p.smoother, idf.noise.model, p)
+    for m in [k for k in cands if k != m_best]:
+        # the other order's filtered lines are not read after the order is chosen: freed before
+        # the std, leveling and gridding, a copy of every epoch's columns less at the peak
+        del cands[m]
     if p.std_state_mixture:  # and the std of the mixture of levels
         cands[m_best].filtered.mixture_std(idf.dt_s, m_best, p.smoother, idf.noise.model)
     # levels from too few points (one level, or two from < 2 x min_points_adaptive): the std
