@@ -418,6 +418,13 @@ class ProcessingParams(_Strict):
                                              "FIR's cutoff (2–5 × 1/fir_cutoff_period_s), where the estimate "
                                              "separates anomaly from noise")
     leveling_degree: int = Field(1, ge=0, le=2)
+    noise_velocity_bound: bool = Field(True, description="Bound the noise model's GNSS velocity error from above by "
+                                       "the spectrum of what the file's heights and velocities disagree on "
+                                       "(h − ∫vu), where the anomaly hides the noise in z (not for velocities "
+                                       "derived from the heights)")
+    noise_velocity_bound_fmax_hz: float = Field(0.01, gt=0, le=1, description="Highest frequency (Hz) of that "
+                                                "bound: below it the velocity error dominates the misfit and the "
+                                                "GNSS the error of z")
     std_unresolved_bound: bool = Field(True, description="On a line that does not resolve the anomaly (FIR shows "
                                        "none beyond its predicted noise and the estimate varies by less than its "
                                        "std), widen dg_std_mgal to Var(FIR) - Var(estimate), the error a smooth "

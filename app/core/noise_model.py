@@ -355,6 +355,93 @@ def multitaper_psd(z_mgal, dt_s: float, fmax_hz: float, nw: float = 3.0, n_taper
     return Spectrum(fd[sel], psd[sel], float(W), float(2 * K), float(N * q * dt_s))
 
 
+@dataclass(frozen=True)
+class VelocityBound:
+    """The spectrum of what GNSS heights and velocities disagree on
+    (:func:`app.core.measurement.height_velocity_misfit_m`), carried to z's units: an upper
+    bound on the GNSS velocity error in z at low frequencies (:func:`velocity_bound`).
+
+    Attributes
+    ----------
+    f_hz : ndarray, shape (G,)
+        Group frequencies (Hz, log-spaced groups, weighted geometric mean).
+    psd : ndarray, shape (G,)
+        Two-sided PSD (mGal²/Hz) of the misfit differenced as z differences the velocity.
+    weight : ndarray, shape (G,)
+        Whittle weight of each group (one χ² of 2K dof per resolution cell, summed).
+    slack : ndarray, shape (G,)
+        The group's ``quantile`` of χ²_ν/ν (ν = 2·weight, its degrees of freedom): the bound
+        binds from ``slack × psd`` on, so a group whose estimate fell low by chance does not
+        pull the model down (with the estimate itself the fit stated the low-band noise of a
+        simulated Gauss–Markov velocity error at half its value).
+    n_segments : int
+    """
+
+    f_hz: np.ndarray
+    psd: np.ndarray
+    weight: np.ndarray
+    slack: np.ndarray
+    n_segments: int
+
+
+def velocity_bound(d_segments_m, dt_s: float, fmax_hz: float = 0.05, nw: float = 3.0,
+                   n_groups: int = 16, quantile: float = 0.9) -> VelocityBound | None:
+    """Multitaper spectrum of the height–velocity misfit ``d`` (m, NaN-free stretches at
+    step ``dt_s``) expressed as the error it bounds in z.
+
+    z holds the velocity error differenced once, ``(r_k − r_{k−1})/Δt``; ``d`` holds its
+    trapezoid integral plus the height error, so the velocity part of z's error has the PSD
+    ``S_Δd · |1 − e^{−2πiν}|² / (Δt⁴ cos²(πν))`` with ``Δd`` the first difference of ``d``
+    (ν = fΔt; ``d`` in mGal·s²).  The height error only adds: the result bounds the velocity
+    error in z from above, tightly where the integral dominates (low frequencies).  ``Δd`` is
+    white for a white velocity error, so its DPSS spectrum has no leakage from the random
+    walk's power near zero frequency (``d`` itself biased the lowest bins up by 1.6×); its
+    mean is removed (a constant velocity bias is no error of z).  Estimates from ``1.5 W``
+    (W = nw/duration) to
+    ``fmax_hz`` are pooled in ``n_groups`` log-spaced groups (weights summed, PSD
+    weight-averaged).  Returns None when no stretch leaves a bin.
+    """
+    from scipy.signal.windows import dpss
+
+    K = max(1, int(2 * nw - 1))
+    fs, ws, ps = [], [], []
+    n_seg = 0
+    for d in d_segments_m:
+        d = np.asarray(d, dtype=float) * 1e5          # m → mGal·s²
+        if d.ndim != 1 or d.size < 64 or not np.all(np.isfinite(d)):
+            continue
+        # differenced once, d is white for a white velocity error: no leakage from the
+        # random walk's power at the lowest frequencies into the bins above them
+        x = np.diff(d)
+        x = x - x.mean()
+        N = x.size
+        X = np.fft.rfft(np.atleast_2d(dpss(N, nw, K)) * x[None, :], axis=1)
+        f = np.fft.rfftfreq(N, dt_s)
+        W = nw / (N * dt_s)
+        sel = (f >= 1.5 * W) & (f <= fmax_hz)
+        if not sel.any():
+            continue
+        nu = f[sel] * dt_s
+        gain = np.abs(1.0 - np.exp(-2j * np.pi * nu)) ** 2 / (dt_s ** 4 * np.cos(np.pi * nu) ** 2)
+        fs.append(f[sel])
+        ps.append(np.mean(np.abs(X[:, sel]) ** 2, axis=0) * dt_s * gain)
+        ws.append(np.full(int(sel.sum()), 0.5 * 2 * K / (2.0 * nw)))
+        n_seg += 1
+    if not fs:
+        return None
+    f, p, w = np.concatenate(fs), np.concatenate(ps), np.concatenate(ws)
+    edges = np.geomspace(f.min(), f.max() * (1 + 1e-9), n_groups + 1)
+    g = np.clip(np.searchsorted(edges, f, side="right") - 1, 0, n_groups - 1)
+    Wg = np.bincount(g, w, n_groups)
+    keep = Wg > 0
+    fg = np.exp(np.bincount(g, w * np.log(f), n_groups)[keep] / Wg[keep])
+    pg = np.bincount(g, w * p, n_groups)[keep] / Wg[keep]
+    from scipy.stats import chi2
+
+    nu = 2.0 * Wg[keep]
+    return VelocityBound(fg, pg, Wg[keep], chi2.ppf(quantile, nu) / nu, n_seg)
+
+
 # --------------------------------------------------------------------------- fit
 #: Candidate families: (name, [(order, phi free?)]).
 FAMILIES: tuple = (
@@ -547,7 +634,9 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                     n_starts: int = 4, seed: int = 0, bic_margin: float = 10.0,
                     differences=(), octave_weights: bool = False,
                     knee_max_fraction: float | None = None, hidden_knees: bool = True,
-                    prefer_height: bool = False, height_tau_min_s: float = 20.0) -> NoiseFit:
+                    prefer_height: bool = False, height_tau_min_s: float = 20.0,
+                    bound: VelocityBound | None = None, bound_fmax_hz: float = 0.01,
+                    bound_check_band_hz: tuple = (0.02, 0.05), bound_max_excess: float = 1.25) -> NoiseFit:
     """Fit the error of z by the Whittle likelihood of prewhitened multitaper spectra.
 
     Model of z's spectrum: ``S(f) = S_anomaly(f; Q, m) + Σ_c S_c(f)``; each family of
@@ -600,6 +689,21 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         anomaly cancels, so their spectra show the noise alone — also where it hides under
         the anomaly in a single line (the band where the smoother must cut).  They enter the
         likelihood with the noise-only model (each pass at its own speed).
+    bound : VelocityBound, optional
+        The height–velocity misfit's spectrum (:func:`velocity_bound`): an upper bound on the
+        velocity error in z where the anomaly hides it.  Each group enters the likelihood with
+        a free non-negative height error of its own, profiled out, so it binds only where the
+        model puts more error than the misfit shows (``_Whittle._bound_nll``).  Corners are
+        still moved below the data (``hidden_knees``), the cautious side, but the refit too
+        stays under the bound.  Only its groups up to ``bound_fmax_hz`` enter; and only when
+        the GNSS accounts for z's noise just above the anomaly band: the median ratio of z's
+        line spectra to the misfit's over ``bound_check_band_hz`` at most ``bound_max_excess``
+        (:func:`_bound_applies`: the misfit holds the velocity error plus the height error, so
+        where the GNSS makes z's noise, z exceeds it only by the estimates' scatter; a 1 Hz
+        interval-mean gravimeter's sampling error puts 13–28× the misfit into z there, and the
+        bound would have removed it).  The families are fitted without the bound first, and
+        again under it only where that fit exceeds it (``velocity_bound.refitted``): a slack
+        bound changes no number.
 
     Returns
     -------
@@ -611,7 +715,41 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         No stretch long enough.
     """
     spectra = _collect_spectra(z_segments, differences, dt_s, fmax_hz, nw, min_duration_s)
-    prob = _Whittle(spectra, dt_s, np.random.default_rng(seed), n_starts, octave_weights)
+    opts = dict(dt_s=dt_s, seed=seed, n_starts=n_starts, octave_weights=octave_weights, families=families, m=m,
+                bic_margin=bic_margin, prefer_height=prefer_height, hidden_knees=hidden_knees,
+                knee_max_fraction=knee_max_fraction, height_tau_min_s=height_tau_min_s, fmax_hz=fmax_hz)
+    fit = _fit_families(spectra, None, **opts)
+    if bound is None:
+        return fit
+    check = _bound_applies(spectra, bound, bound_check_band_hz, bound_max_excess)
+    keep = bound.f_hz <= bound_fmax_hz
+    if check["applied"] and keep.any():
+        bound = replace(bound, f_hz=bound.f_hz[keep], psd=bound.psd[keep], weight=bound.weight[keep],
+                        slack=bound.slack[keep])
+        over = _model_to_bound(fit.model, bound)
+        check.update(n_segments=bound.n_segments, groups=int(bound.f_hz.size),
+                     f_hz=[float(bound.f_hz.min()), float(bound.f_hz.max())], max_model_to_misfit=over,
+                     refitted=bool(over > 1.0))
+        if over > 1.0:
+            # the fit without the bound puts more velocity error below bound_fmax_hz than the
+            # heights and velocities disagree by: fitted again under it.  Where it is slack the
+            # fit is the one without it (the same numbers: a bound's excursions would move the
+            # Nelder–Mead searches to other local optima for nothing)
+            fit = _fit_families(spectra, bound, **opts)
+            check["max_model_to_misfit_after"] = _model_to_bound(fit.model, bound)
+    fit.model.info["velocity_bound"] = check
+    return fit
+
+
+def _model_to_bound(model: NoiseModel, bound: VelocityBound) -> float:
+    """The largest ratio of a model's velocity error in z to the bound (``slack × psd``)."""
+    return float(np.max(model.psd(bound.f_hz) / (bound.slack * bound.psd)))
+
+
+def _fit_families(spectra, bound, *, dt_s, seed, n_starts, octave_weights, families, m, bic_margin,
+                  prefer_height, hidden_knees, knee_max_fraction, height_tau_min_s, fmax_hz) -> NoiseFit:
+    """The body of :func:`fit_noise_model` on collected spectra, under ``bound`` (or none)."""
+    prob = _Whittle(spectra, dt_s, np.random.default_rng(seed), n_starts, octave_weights, bound)
     f_low = float(np.min(spectra.f_hz))
     if knee_max_fraction is not None:
         prob.phi_min = float(np.clip(1.0 - 2.0 * np.pi * dt_s * knee_max_fraction * f_low, 0.0, PHI_MAX - 1e-6))
@@ -657,6 +795,27 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     return replace(_finished_fit(prob, chosen, m, spectra, hidden, fmax_hz), unmoved=unmoved)
 
 
+def _bound_applies(spectra, bound: VelocityBound, band_hz, max_excess: float) -> dict:
+    """Whether the GNSS misfit bounds z's noise: the median ratio of z's line spectra to the
+    misfit's PSD over ``band_hz`` (above the anomaly band, where z's spectrum is its noise), at
+    most ``max_excess``.  Where it is larger, something other than the GNSS velocity error
+    (the gravimeter's sampling or response, its own noise) makes z's noise there, and may
+    below the band too: the bound, which sees only the GNSS, does not apply."""
+    line = spectra.is_line > 0
+    f, p = spectra.f_hz[line], spectra.psd[line]
+    sel = (f >= band_hz[0]) & (f <= band_hz[1]) & (f >= bound.f_hz.min()) & (f <= bound.f_hz.max())
+    if not sel.any():
+        return {"applied": False, "reason": f"no spectrum of z and of the misfit over {band_hz[0]:g}-{band_hz[1]:g} Hz "
+                                            "to compare"}
+    ratio = float(np.median(p[sel] / np.exp(np.interp(np.log(f[sel]), np.log(bound.f_hz), np.log(bound.psd)))))
+    out = {"applied": bool(ratio <= max_excess), "z_to_misfit": ratio,
+           "check_band_hz": [float(band_hz[0]), float(band_hz[1])]}
+    if not out["applied"]:
+        out["reason"] = (f"z's noise is {ratio:.1f}x the GNSS misfit's over {band_hz[0]:g}-{band_hz[1]:g} Hz "
+                         f"(> {max_excess:g}): not the GNSS alone, so the misfit does not bound it")
+    return out
+
+
 def _finished_fit(prob, chosen: dict, m: int, spectra, hidden: list, fmax_hz: float) -> NoiseFit:
     """The chosen family refitted over the orders m = 1, 2, 3 and packed as a :class:`NoiseFit`."""
     dt_s = prob.dt_s
@@ -676,6 +835,7 @@ def _finished_fit(prob, chosen: dict, m: int, spectra, hidden: list, fmax_hz: fl
                              "best_fit_replaced": (prob.best_fit_over["family"]
                                                    if prob.best_fit_over is not None else None),
                              "max_corner_hz": knee_hz(prob.phi_min, dt_s) if prob.phi_min > 0 else None,
+                             "velocity_bound": None,   # fit_noise_model
                              "nll_by_m": {str(k): float(v[0]) for k, v in orders.items()}})
     cands = [{k: v for k, v in c.items() if not k.startswith("_")} for c in prob.candidates]
     return NoiseFit(model, float(Q_best), int(m_best), cands, int(spectra.f_hz.size), float(fmax_hz))
@@ -773,8 +933,16 @@ class _Whittle:
     """The Whittle likelihood of the spectra under (anomaly order m, family spec, θ) and its
     minimisation (Nelder–Mead from random and nested starts)."""
 
-    def __init__(self, sp: _Spectra, dt_s: float, rng, n_starts: int, octave_weights: bool):
+    def __init__(self, sp: _Spectra, dt_s: float, rng, n_starts: int, octave_weights: bool,
+                 bound: VelocityBound | None = None):
         self.sp, self.dt_s, self.rng, self.n_starts = sp, float(dt_s), rng, int(n_starts)
+        # the height–velocity misfit's spectrum (velocity_bound): the noise model may not put
+        # more velocity error there than the misfit shows (nll)
+        self.bound = bound
+        if bound is not None:
+            eb = np.exp(-2j * np.pi * bound.f_hz * float(dt_s))
+            self._bound_e = eb
+            self._bound_num = {j: np.abs(1.0 - eb) ** (2 * j) for j in (1, 2)}
         self.wt = sp.weight
         if octave_weights:
             # every octave counts as much as the octave at the lowest frequency: the high band,
@@ -820,6 +988,7 @@ class _Whittle:
             with np.errstate(divide="ignore"):
                 S = np.where(self._line_bins, dt * float(ex[0]) / self.d_anom[mm], 0.0)
         k = 1
+        Sb = 0.0
         for order, free_phi in spec:
             w = float(ex[k])
             k += 1
@@ -827,6 +996,11 @@ class _Whittle:
             if free_phi:
                 phi = float(pm + (PHI_MAX - pm) / (1.0 + np.exp(-th[k])))
                 k += 1
+            if self.bound is not None:
+                pb = w * self._bound_num[order] if order else np.full(self.bound.f_hz.size, w)
+                if phi != 0.0:
+                    pb = pb / np.abs(1.0 - phi * self._bound_e) ** 2
+                Sb = Sb + dt * pb
             for variant in self._variants:
                 psd = w * self._num[(variant, order)] if order else w * 1.0
                 if phi != 0.0:
@@ -834,7 +1008,24 @@ class _Whittle:
                 S = S + (dt * psd / sp.r1 if variant == 1 else self._diff_dt * psd / sp.r2)
         if not (S.min() > 0 and S.max() < np.inf):
             return 1e300
-        return float(np.sum(self.wt * (np.log(S) + sp.psd / S)))
+        out = float(np.sum(self.wt * (np.log(S) + sp.psd / S)))
+        if self.bound is not None:
+            out += self._bound_nll(Sb)
+        return out
+
+    def _bound_nll(self, Sb) -> float:
+        """The misfit spectrum's term: its PSD is the velocity error in z plus a height error
+        ≥ 0 of unknown size in every group; profiled out, a group where the model is below the
+        misfit adds a constant, one where it is above adds the Whittle term at the model — an
+        upper bound that binds only where the model puts more velocity error than the heights
+        and velocities disagree by."""
+        b = self.bound
+        Sb = np.asarray(Sb, dtype=float)
+        if Sb.ndim == 0 or not (np.all(np.isfinite(Sb)) and Sb.min() >= 0):
+            return 1e300
+        ib = b.slack * b.psd
+        top = np.maximum(Sb, ib)
+        return float(np.sum(b.weight * (np.log(top) + ib / top)))
 
     def _component_psd(self, variant: int, c: NoiseComponent) -> np.ndarray:
         """:func:`_component_psd_per_sample` at the bins of scaling ``variant`` (1: z's

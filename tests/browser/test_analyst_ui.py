@@ -110,6 +110,9 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     assert page.locator("#report-gnss-filled tbody tr").first.locator("td").last.inner_text() == "2"
     fc = page.inner_text("#report-family-check")
     assert fc.startswith("Coloured velocity checked against the FIR differences: changed — 21 differences")
+    vb = page.inner_text("#report-velocity-bound")
+    assert vb.startswith("Velocity error bounded by the GNSS heights: refitted — the free fit put 15.0")
+    assert "after: 1.06" in vb and "0.972" in vb
     for key in ("base_ties", "time_offsets", "lag_check", "spike_repair", "crossovers", "noise_model", "model_order",
                 "model_choice", "future_section", "counts"):
         assert page.locator(f"#report-sec-{key}").count() == 1, key

@@ -364,3 +364,130 @@ def test_whittle_likelihood_is_the_closed_form():
             expect = np.sum(w.wt * (np.log(S) + sp.psd / S))
             assert w.nll(np.array(theta), spec, m) == pytest.approx(expect, rel=1e-10)
     assert w.nll(np.array([250.0, 0.0]), ((1, False),), 2) == 1e300
+
+
+# --- the GNSS height–velocity misfit as a bound on the velocity error (velocity_bound) ---
+
+def _ar1(rng, n, phi, sd):
+    """AR(1) of stationary std ``sd`` (m/s)."""
+    e = rng.normal(0.0, sd * np.sqrt(1.0 - phi ** 2), n)
+    out = np.empty(n)
+    acc = rng.normal(0.0, sd)
+    for i in range(n):
+        acc = phi * acc + e[i]
+        out[i] = acc
+    return out
+
+
+def _velocity_model(dt, phi, sd_gm, sd_white):
+    """The velocity error as z sees it, closed form: AR(1) + white velocity components."""
+    to_z = (1e5 / dt) ** 2     # (m/s)² per step → mGal² (z = −Δr/Δt in mGal)
+    comps = [NoiseComponent(1, 0.0, sd_white ** 2 * to_z)]
+    if sd_gm > 0:
+        comps.insert(0, NoiseComponent(1, phi, sd_gm ** 2 * (1.0 - phi ** 2) * to_z))
+    return NoiseModel(tuple(comps), dt, "truth")
+
+
+@pytest.mark.parametrize("sd_gm", [0.0, 0.005])
+def test_velocity_bound_is_the_velocity_error_in_z(sd_gm):
+    """The misfit h − ∫vu of exact heights and velocities with a known error: its spectrum,
+    carried to z, is the velocity component's closed-form PSD (white, and Gauss–Markov
+    with a 15 s correlation time, whose corner lies inside the band)."""
+    from app.core.measurement import height_velocity_misfit_m
+    from app.core.noise_model import velocity_bound
+
+    rng = np.random.default_rng(21)
+    dt, n, phi = 0.2, 20_000, float(np.exp(-0.2 / 15.0))
+    t = np.arange(n) * dt
+    h = 3000.0 + 3.0 * np.sin(2 * np.pi * t / 60.0) + 0.5 * np.sin(2 * np.pi * 0.2 * t)
+    v = 3.0 * 2 * np.pi / 60.0 * np.cos(2 * np.pi * t / 60.0) + 0.5 * 2 * np.pi * 0.2 * np.cos(2 * np.pi * 0.2 * t)
+    segs = []
+    for _ in range(8):
+        r = (_ar1(rng, n, phi, sd_gm) if sd_gm else 0.0) + rng.normal(0.0, 0.012, n)
+        segs.append(height_velocity_misfit_m(t, h, v + r))
+    b = velocity_bound(segs, dt, fmax_hz=0.01, n_groups=12)
+    ratio = b.psd / _velocity_model(dt, phi, sd_gm, 0.012).psd(b.f_hz)
+    assert b.f_hz.min() < 0.0015 and b.f_hz.max() <= 0.01
+    assert np.exp(np.mean(np.log(ratio))) == pytest.approx(1.0, abs=0.12)
+    assert np.all((ratio > 0.6) & (ratio < 1.6))
+
+
+def test_misfit_cancels_the_motion_and_integrates_a_bias():
+    """Analytic: exact heights and velocities of a manoeuvring aircraft leave d ≈ 0 (the
+    trapezoid rule's error only); a velocity bias b leaves d = −b·(t − t₀)."""
+    from app.core.measurement import height_velocity_misfit_m
+
+    dt = 0.1
+    t = 100.0 + np.arange(6000) * dt
+    w = 2 * np.pi / 40.0
+    h = 2000.0 + 20.0 * np.sin(w * t)
+    v = 20.0 * w * np.cos(w * t)
+    d = height_velocity_misfit_m(t, h, v)
+    assert np.max(np.abs(d)) < 20.0 * (w * dt) ** 2 / 6.0
+    np.testing.assert_allclose(height_velocity_misfit_m(t, h, v + 0.03) - d, -0.03 * (t - t[0]), atol=1e-9)
+    with pytest.raises(ValueError):
+        height_velocity_misfit_m(t, h, np.where(t > 200.0, np.nan, v))
+
+
+def test_a_slack_velocity_bound_leaves_the_fit_as_it_was():
+    """A bound far above the model adds a constant to the likelihood: the same fit."""
+    from app.core.noise_model import VelocityBound
+
+    segs = _anomaly_plus(np.random.default_rng(5), [NoiseComponent(1, 0.95, 1e6)])
+    f = np.geomspace(0.002, 0.05, 10)
+    loose = VelocityBound(f, np.full(10, 1e12), np.full(10, 50.0), np.full(10, 1.2), 1)
+    a = fit_noise_model(segs, 0.5)
+    b = fit_noise_model(segs, 0.5, bound=loose)
+    assert a.model.family == b.model.family
+    for ca, cb in zip(a.model.components, b.model.components):
+        assert cb.weight == pytest.approx(ca.weight, rel=1e-4)
+        assert cb.phi == pytest.approx(ca.phi, abs=1e-5)
+    info = b.model.info["velocity_bound"]
+    assert info["applied"] and info["max_model_to_misfit"] < 1e-3 and info["z_to_misfit"] < 1e-3
+
+
+def test_a_bound_far_below_z_noise_is_not_applied():
+    """Where z's noise above the anomaly band is many times what the GNSS misfit shows, the
+    GNSS does not make it (a gravimeter's sampling error, its own noise): the bound is left
+    out, the fit is the one without it, and the report says why."""
+    from app.core.noise_model import VelocityBound
+
+    segs = _anomaly_plus(np.random.default_rng(5), [NoiseComponent(1, 0.95, 1e6)])
+    f = np.geomspace(0.002, 0.05, 10)
+    tight = VelocityBound(f, np.full(10, 1e-3), np.full(10, 50.0), np.full(10, 1.2), 1)
+    a = fit_noise_model(segs, 0.5)
+    b = fit_noise_model(segs, 0.5, bound=tight)
+    info = b.model.info["velocity_bound"]
+    assert not info["applied"] and info["z_to_misfit"] > 2.0 and "not the GNSS alone" in info["reason"]
+    assert [(c.order, c.phi, c.weight) for c in a.model.components] == \
+           [(c.order, c.phi, c.weight) for c in b.model.components]
+
+
+def test_the_bound_stops_the_noise_fit_taking_the_anomaly_for_velocity_error():
+    """Simulation with truth (unseen survey 783's failure): an anomaly whose spectrum falls
+    exponentially (sources below a 3 km flight height, 28 mGal) over a white + Gauss–Markov
+    velocity error (15 s).  The spectra of z alone let a Gauss–Markov velocity with its corner
+    far below the truth's explain the anomaly band: the model puts 2–3× the true noise there,
+    and the smoother would flatten the anomaly.  The misfit of the same flight's heights and
+    velocities (5 cm height error) keeps it within 1.6× of the truth."""
+    from app.core.measurement import height_velocity_misfit_m
+    from app.core.noise_model import velocity_bound
+
+    rng = np.random.default_rng(1)
+    dt, n_line, n_lines = 0.2, 3750, 13
+    phi = float(np.exp(-dt / 15.0))
+    n = n_line * n_lines
+    r = _ar1(rng, n, phi, 0.005) + rng.normal(0.0, 0.0128, n)
+    d = height_velocity_misfit_m(np.arange(n) * dt, rng.normal(0.0, 0.03, n), r)
+    f = np.fft.rfftfreq(n_line, dt)
+    zs = []
+    for k in range(n_lines):
+        x = np.fft.irfft(np.exp(-f / 0.006) * (f > 0) * (rng.normal(size=f.size) + 1j * rng.normal(size=f.size)), n_line)
+        rr = r[k * n_line:(k + 1) * n_line]
+        zs.append(28.0 * x / x.std() - np.diff(np.concatenate([[rr[0]], rr])) / dt * 1e5)
+    truth = _velocity_model(dt, phi, 0.005, 0.0128)
+    band = np.array([0.002, 0.004])
+    free = fit_noise_model(zs, dt).model.psd(band) / truth.psd(band)
+    bounded = fit_noise_model(zs, dt, bound=velocity_bound([d], dt)).model.psd(band) / truth.psd(band)
+    assert np.all(free > 2.0)
+    assert np.all(bounded < 1.6) and np.all(bounded > 0.6)

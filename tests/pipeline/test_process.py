@@ -45,6 +45,10 @@ def test_outputs_follow_spec(tiny_processed):
                                 "diff_after_mgal"]
     assert len(cx) > 0
     assert set(report["timings_s"]) >= {"ingest", "measurement", "learning", "filtering", "gridding"}
+    # the GNSS velocities are in the file: the heights bound their error (stage 3), and the
+    # report says whether the bound applied and how z's noise compares with it
+    vb = report["noise_model"]["velocity_bound"]
+    assert isinstance(vb["applied"], bool) and vb["z_to_misfit"] > 0
     # progress: monotone, ends at 1, EM iterations streamed
     fr = [f for _, f, _ in events]
     assert fr[-1] == 1.0 and all(b >= a for a, b in zip(fr, fr[1:]))
@@ -210,6 +214,7 @@ def test_heights_only_survey_gets_a_height_noise_family(tmp_path):
                              h_colored_m=0.03)
     rep = process_survey(survey, tmp_path / "out")
     nm = rep["noise_model"]
+    assert nm["velocity_bound"] is None       # heights only: heights and velocities agree by construction
     assert nm["family"] in ("white height", "coloured height", "white + coloured height")
     assert nm["height_family_preferred"] in ("white velocity", "Gauss-Markov velocity",
                                              "white + Gauss-Markov velocity")   # the family it replaced

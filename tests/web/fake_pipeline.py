@@ -82,7 +82,12 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                         "family_check": {"chosen": "Gauss-Markov velocity", "alternative": "white velocity",
                                          "applied": True, "n": 21, "predicted_ms_mgal2": 9.01, "bound_mgal2": 5.32,
                                          "reason": "Gauss-Markov velocity predicts 9.01 mGal² of FIR noise ...: "
-                                                   "white velocity used"}},
+                                                   "white velocity used"},
+                        # as stage 3 writes it when the heights' bound refitted the noise (unseen 783's figures)
+                        "velocity_bound": {"applied": True, "z_to_misfit": 0.972, "check_band_hz": [0.02, 0.05],
+                                           "n_segments": 3, "groups": 9, "f_hz": [0.0011, 0.008],
+                                           "max_model_to_misfit": 15.03, "refitted": True,
+                                           "max_model_to_misfit_after": 1.064}},
         "lag_check": {"declared_tau_s": 2.0, "estimated_tau_s": [1.9995, 1.9990, 1.9992], "applied": False},
         # as the real stage 9 writes it when the FIR guard fired (unseen seed 88's figures)
         "model_choice": {"chosen": "FIR", "m": 2, "noisy_check": {"applied": False},

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from app.core.measurement import gnss_acceleration_ms2, response_prediction_mgal
+from app.core.measurement import gnss_acceleration_ms2, height_velocity_misfit_m, response_prediction_mgal
 from app.core.model_check import difference_nll, fir_noise_variance_mgal2, noise_overstated, repeat_contrasts
 from app.core.noise_level import band_noise_variance_cm2s2, local_noise_variance_cm2s2
-from app.core.noise_model import FAMILIES, fit_noise_model, pass_differences
+from app.core.noise_model import FAMILIES, VelocityBound, fit_noise_model, pass_differences, velocity_bound
 from app.pipeline.stages.lines import LineData, finite_segments, line_crossovers
 from app.pipeline.stages.measurement import FlightMeasurement
 
@@ -31,7 +31,40 @@ def level_band(p, dt_s: float) -> tuple[float, float]:
     return (min(float(p.noise_band_hz[0]), 0.5 * f2), f2)
 
 
-def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False, families=None, bridges=None):
+def misfit_bound(lines: list[LineData], flights: dict[str, FlightMeasurement], dt_s: float,
+                 p) -> VelocityBound | None:
+    """The GNSS height–velocity misfit's spectrum (:func:`app.core.noise_model.velocity_bound`)
+    over every flight whose velocities came from the file (not derived from its heights,
+    where the two agree by construction), from the first line's start to the last line's end
+    (turns included: the GNSS is the same receiver, and the longer the stretch the lower the
+    frequencies it shows), split where h or vu is missing.  None when off
+    (``noise_velocity_bound``) or no flight has such a stretch."""
+    if not p.noise_velocity_bound:
+        return None
+    segs = []
+    for name, fm in flights.items():
+        if getattr(fm, "heights_only", False) or getattr(fm, "vu_ms", None) is None:
+            continue
+        own = [ln for ln in lines if ln.flight == name and ln.t_s.size]
+        if not own:
+            continue
+        t0, t1 = min(float(ln.t_s[0]) for ln in own), max(float(ln.t_s[-1]) for ln in own)
+        k = (fm.t_s >= t0) & (fm.t_s <= t1)
+        t, h, v = fm.t_s[k], fm.h_m[k], fm.vu_ms[k]
+        ok = np.isfinite(t) & np.isfinite(h) & np.isfinite(v)
+        for a, b in finite_segments(np.where(ok, 0.0, np.nan)):
+            # and split where epochs are missing (the spectrum needs a uniform step)
+            cuts = [a] + (a + 1 + np.flatnonzero(np.diff(t[a:b]) > 1.5 * dt_s)).tolist() + [b]
+            for c0, c1 in zip(cuts[:-1], cuts[1:]):
+                if c1 - c0 >= 64:
+                    segs.append(height_velocity_misfit_m(t[c0:c1], h[c0:c1], v[c0:c1]))
+    if not segs:
+        return None
+    return velocity_bound(segs, dt_s, min(0.05, 0.4 / dt_s))
+
+
+def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False, families=None, bridges=None,
+              bound: VelocityBound | None = None):
     """The error of z as a coloured process (:mod:`app.core.noise_model`), fitted on the
     finite stretches of every line; returns (NoiseFit, model normalised so that a level R is
     the equivalent white velocity noise in :func:`level_band`).  ``heights_only``: every
@@ -39,7 +72,7 @@ def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False,
     apart (within the BIC margin) a height family is preferred (:func:`fit_noise_model`).
     Also returns the shortest stretch used (s): ``noise_fit_min_s[0]``, or ``[1]`` when no line
     is that long.  ``families``: the candidates (default: every family, or
-    ``p.noise_family`` when set)."""
+    ``p.noise_family`` when set).  ``bound``: :func:`misfit_bound`."""
     fams = families if families is not None else (
         FAMILIES if p.noise_family == "auto" else tuple(f for f in FAMILIES if f[0] == p.noise_family))
     zs = [bridged(ln, bridges, dt_s) for ln in lines]
@@ -57,7 +90,8 @@ def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False,
     fit = fit_noise_model(segs, dt_s, m=2, fmax_hz=fmax, families=fams, differences=diffs,
                           octave_weights=p.noise_fit_octave_weights, knee_max_fraction=p.noise_knee_max_fraction,
                           prefer_height=heights_only, min_duration_s=min_s,
-                          height_tau_min_s=p.noise_height_tau_min_s)
+                          height_tau_min_s=p.noise_height_tau_min_s, bound=bound,
+                          bound_fmax_hz=p.noise_velocity_bound_fmax_hz)
     return fit, fit.model.normalized(level_band(p, dt_s)), min_s
 
 
@@ -247,7 +281,8 @@ def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt
     heights_only = bool(flights) and all(getattr(f, "heights_only", False) for f in flights.values())
     bridges = {name: bridge_for(fm, dt_s, level_band(p, dt_s)) for name, fm in flights.items()
                if not np.all(np.isfinite(fm.z_mgal[1:]))}
-    fit, model, min_s = fit_noise(lines, dt_s, p, heights_only, bridges=bridges)
+    bound = misfit_bound(lines, flights, dt_s, p)
+    fit, model, min_s = fit_noise(lines, dt_s, p, heights_only, bridges=bridges, bound=bound)
     band = level_band(p, dt_s)
     r_local = noise_levels(flights, dt_s, p)
     stage = _noise_stage(fit, model, band, lines, r_local, n_crossovers, p)
@@ -257,7 +292,8 @@ def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt
     plain = tuple(f for f in FAMILIES if not coloured_velocity(f[1]))
     if p.noise_family == "auto" and p.noise_family_check and coloured_velocity(dict(FAMILIES)[fit.model.family]):
         # the family a check against the FIR differences may fall back on (check_noise_family)
-        alt_fit, alt_model, _ = fit_noise(lines, dt_s, p, heights_only, families=plain, bridges=bridges)
+        alt_fit, alt_model, _ = fit_noise(lines, dt_s, p, heights_only, families=plain, bridges=bridges,
+                                          bound=bound)
         stage.alternative = _noise_stage(alt_fit, alt_model, band, lines, r_local, n_crossovers, p)
         if alt_fit.unmoved is not None:
             stage.alternative.unmoved = _noise_stage(alt_fit.unmoved, alt_fit.unmoved.model.normalized(band), band,

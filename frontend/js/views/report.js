@@ -156,6 +156,17 @@ const RENDER = {
         (c.reason ? `; ${c.reason}` : "");
       out.push(el("p", { class: c.applied ? "warnline" : "note", id: `report-${key.replace("_", "-")}` }, text));
     }
+    // the GNSS heights' bound on the velocity error (stage 3): whether it applied, and whether it changed the fit
+    const vb = v.velocity_bound;
+    if (vb) {
+      const text = "Velocity error bounded by the GNSS heights: " +
+        (!vb.applied ? `not applied${vb.reason ? ` — ${vb.reason}` : ""}`
+          : vb.refitted ? `refitted — the free fit put ${fmt(vb.max_model_to_misfit, 3)}× the heights–velocities misfit ` +
+                          `below ${fmt((vb.f_hz || [])[1], 3)} Hz; after: ${fmt(vb.max_model_to_misfit_after, 3)}×`
+                        : `kept — the fit stays under it (${fmt(vb.max_model_to_misfit, 3)}×)`) +
+        (vb.z_to_misfit != null ? `; z's noise ${fmt(vb.z_to_misfit, 3)}× the misfit's at 0.02–0.05 Hz` : "");
+      out.push(el("p", { class: vb.refitted ? "warnline" : "note", id: "report-velocity-bound" }, text));
+    }
     if (v.candidates && v.candidates.length) {
       const c = [...v.candidates].sort((a, b) => (a.bic ?? Infinity) - (b.bic ?? Infinity));
       out.push(el("h4", {}, "Candidates by BIC (the family used is marked)"), table(["Family", "−log L", "Parameters", "BIC", "ΔBIC", ""],
