@@ -425,6 +425,9 @@ class ProcessingParams(_Strict):
     noise_velocity_bound_fmax_hz: float = Field(0.01, gt=0, le=1, description="Highest frequency (Hz) of that "
                                                 "bound: below it the velocity error dominates the misfit and the "
                                                 "GNSS the error of z")
+    noise_velocity_bound_quantile: float = Field(0.9, gt=0, lt=1, description="The bound binds from this quantile "
+                                                 "of its estimate's sampling distribution (χ²) on, so a group that fell "
+                                                 "low by chance does not pull the noise model down")
     std_unresolved_bound: bool = Field(True, description="On a line that does not resolve the anomaly (FIR shows "
                                        "none beyond its predicted noise and the estimate varies by less than its "
                                        "std), widen dg_std_mgal to Var(FIR) - Var(estimate), the error a smooth "

@@ -60,7 +60,7 @@ def misfit_bound(lines: list[LineData], flights: dict[str, FlightMeasurement], d
                     segs.append(height_velocity_misfit_m(t[c0:c1], h[c0:c1], v[c0:c1]))
     if not segs:
         return None
-    return velocity_bound(segs, dt_s, min(0.05, 0.4 / dt_s))
+    return velocity_bound(segs, dt_s, min(0.05, 0.4 / dt_s), quantile=p.noise_velocity_bound_quantile)
 
 
 def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False, families=None, bridges=None,
