@@ -352,6 +352,10 @@ class ProcessingParams(_Strict):
     noise_family_alpha: float = Field(0.05, gt=0, lt=0.5, description="Level of that test (and of the check that "
                                       "the fallback does not predict significantly less FIR noise than the "
                                       "differences show)")
+    white_level_bounded: bool = Field(True, description="With the white-velocity family and the heights' bound on the "
+                                      "velocity error applied, lower the level to what the bound allows below "
+                                      "0.01 Hz (the band measurement can hold a turbulence bump the f² shape "
+                                      "carries down)")
     white_level_fitted: bool = Field(True, description="With the white-velocity family, lower the noise level "
                                      "from the band measurement (noise_band_hz) to the level fitted to the lines' "
                                      "spectra when that is lower — on surveys with at least "

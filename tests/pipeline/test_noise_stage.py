@@ -38,7 +38,10 @@ def _survey(bump_factor: float, seed: int = 3):
         white_in_band = signal.sosfiltfilt(sos, z - 20.0 * np.sin(2 * np.pi * t / 400.0))
         bump = signal.sosfiltfilt(sos, rng.standard_normal(z.size))
         z += bump * np.sqrt(bump_factor) * white_in_band.std() / bump.std()
-    flights = {"F1": SimpleNamespace(z_mgal=z, heights_only=False)}
+    # the GNSS file of the same flight: velocities with that error (the aircraft level), heights
+    # with a 2 cm error of their own (stage 3's velocity bound)
+    flights = {"F1": SimpleNamespace(z_mgal=z, heights_only=False, t_s=t, vu_ms=v[1:],
+                                     h_m=rng.normal(0.0, 0.02, z.size))}
     lines = []
     for k in range(N_LINES):
         sl = slice(k * N_LINE, (k + 1) * N_LINE)
@@ -60,7 +63,8 @@ def bumped():
 
 def test_bump_overstates_band_level_fitted_level_is_true(bumped):
     lines, flights = bumped
-    p = ProcessingParams(noise_family="white velocity")
+    # the crossovers' part of the level (the heights' cap is the next test's)
+    p = ProcessingParams(noise_family="white velocity", noise_velocity_bound=False)
     checked = model_noise(lines, flights, DT_S, p, n_crossovers=10)
     unchecked = model_noise(lines, flights, DT_S, p, n_crossovers=2)
     assert checked.model.is_white_velocity
@@ -74,6 +78,21 @@ def test_bump_overstates_band_level_fitted_level_is_true(bumped):
     # the parameter off: the band measurement whatever the crossovers
     off = model_noise(lines, flights, DT_S, p.model_copy(update={"white_level_fitted": False}), n_crossovers=10)
     assert off.scale == 1.0
+
+
+def test_band_level_overstated_by_a_bump_is_capped_by_the_heights(bumped):
+    """No crossovers to check a fitted level: the band measurement holds the bump, but the GNSS
+    heights show the velocity error below 0.01 Hz, and the level is lowered to what they allow
+    (within the bound's 0.9-quantile slack of the true R); with the bound off it stays over-stated."""
+    lines, flights = bumped
+    p = ProcessingParams(noise_family="white velocity")
+    capped = model_noise(lines, flights, DT_S, p, n_crossovers=0)
+    free = model_noise(lines, flights, DT_S, p.model_copy(update={"noise_velocity_bound": False}), n_crossovers=0)
+    assert _level(free, lines) > 1.5 * R_TRUE_CM2S2
+    assert 0.8 * R_TRUE_CM2S2 < _level(capped, lines) < 1.5 * R_TRUE_CM2S2
+    assert "GNSS heights allow" in capped.level_note
+    off = model_noise(lines, flights, DT_S, p.model_copy(update={"white_level_bounded": False}), n_crossovers=0)
+    assert _level(off, lines) == pytest.approx(_level(free, lines))
 
 
 def test_white_level_never_raised():

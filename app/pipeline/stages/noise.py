@@ -315,8 +315,21 @@ def model_noise(lines: list[LineData], flights: dict[str, FlightMeasurement], dt
 
 def _noise_stage(fit, model, band, lines: list[LineData], r_local: dict, n_crossovers: int, p) -> NoiseStage:
     """The stage's result for one fit: the level scale and the scaled local levels."""
+    vb = fit.model.info.get("velocity_bound") or {}
+    bounded = bool(p.white_level_bounded and vb.get("applied") and fit.model.is_white_velocity)
     white_lower = bool(p.white_level_fitted and p.fir_guard and n_crossovers >= p.fir_guard_min_crossovers)
     scale = level_scale(fit, band, lines, r_local, white_lower)
+    capped = 1.0
+    if bounded and r_local:
+        # the heights' bound: no more white velocity error below 0.01 Hz than they show (only
+        # ever lowering: the bound cannot say a level is too low).  The ratio was taken at the
+        # fitted level; the level used is the mean of the scaled R(t)
+        over = float(vb.get("max_model_to_misfit_after", vb.get("max_model_to_misfit", 1.0)))
+        vals = np.concatenate([r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)] for ln in lines])
+        r_fit = float(fit.model.equivalent_white_R(band))
+        if vals.size and r_fit > 0:
+            capped = max(over * scale * float(np.mean(vals)) / r_fit, 1.0)
+            scale = scale / capped
     if not model.is_white_velocity:
         note = "the fitted model's level (local changes in time from the band measurement)"
     elif white_lower:
@@ -326,6 +339,9 @@ def _noise_stage(fit, model, band, lines: list[LineData], r_local: dict, n_cross
         note = ("white velocity: the band measurement" +
                 (f" (the fitted level is not used: {n_crossovers} crossovers < {p.fir_guard_min_crossovers} "
                  "cannot check it)" if p.white_level_fitted else ""))
+    if capped > 1.0:
+        note += (f"; lowered by {capped:.2f}x to the velocity error the GNSS heights allow below "
+                 f"{p.noise_velocity_bound_fmax_hz:g} Hz (velocity_bound)")
     return NoiseStage(fit, model, band, {k: v * scale for k, v in r_local.items()}, scale, note)
 
 
