@@ -402,6 +402,7 @@ def velocity_bound(d_segments_m, dt_s: float, fmax_hz: float = 0.05, nw: float =
     weight-averaged).  Returns None when no stretch leaves a bin.
     """
     from scipy.signal.windows import dpss
+    from scipy.stats import chi2
 
     K = max(1, int(2 * nw - 1))
     fs, ws, ps = [], [], []
@@ -429,17 +430,9 @@ def velocity_bound(d_segments_m, dt_s: float, fmax_hz: float = 0.05, nw: float =
         n_seg += 1
     if not fs:
         return None
-    f, p, w = np.concatenate(fs), np.concatenate(ps), np.concatenate(ws)
-    edges = np.geomspace(f.min(), f.max() * (1 + 1e-9), n_groups + 1)
-    g = np.clip(np.searchsorted(edges, f, side="right") - 1, 0, n_groups - 1)
-    Wg = np.bincount(g, w, n_groups)
-    keep = Wg > 0
-    fg = np.exp(np.bincount(g, w * np.log(f), n_groups)[keep] / Wg[keep])
-    pg = np.bincount(g, w * p, n_groups)[keep] / Wg[keep]
-    from scipy.stats import chi2
-
-    nu = 2.0 * Wg[keep]
-    return VelocityBound(fg, pg, Wg[keep], chi2.ppf(quantile, nu) / nu, n_seg)
+    fg, pg, Wg = _log_groups(np.concatenate(fs), np.concatenate(ps), np.concatenate(ws), n_groups)
+    nu = 2.0 * Wg
+    return VelocityBound(fg, pg, Wg, chi2.ppf(quantile, nu) / nu, n_seg)
 
 
 # --------------------------------------------------------------------------- fit
@@ -900,6 +893,18 @@ def _collect_spectra(z_segments, differences, dt_s, fmax_hz, nw, min_duration_s)
                     cat(lambda sp, diff, r: 1.0 if diff else 0.0), int(sum(diff for _, diff, _ in items))))
 
 
+def _log_groups(f, psd, w, n_groups: int):
+    """Spectral estimates pooled in ``n_groups`` log-spaced frequency groups: each non-empty
+    group's weighted geometric-mean frequency, weighted-mean PSD and summed weight."""
+    edges = np.geomspace(f.min(), f.max() * (1 + 1e-9), n_groups + 1)
+    g = np.clip(np.searchsorted(edges, f, side="right") - 1, 0, n_groups - 1)
+    W = np.bincount(g, w, n_groups)
+    keep = W > 0
+    fg = np.exp(np.bincount(g, w * np.log(f), n_groups)[keep] / W[keep])
+    pg = np.bincount(g, w * psd, n_groups)[keep] / W[keep]
+    return fg, pg, W[keep]
+
+
 def _aggregate(sp: _Spectra, n_groups: int = 400) -> _Spectra:
     """The lines' estimates pooled in ``n_groups`` log-spaced frequency groups.
 
@@ -910,21 +915,14 @@ def _aggregate(sp: _Spectra, n_groups: int = 400) -> _Spectra:
     line = sp.is_line > 0
     if line.sum() <= 2 * n_groups:
         return sp
-    f = sp.f_hz[line]
-    edges = np.geomspace(f.min(), f.max() * (1 + 1e-9), n_groups + 1)
-    g = np.clip(np.searchsorted(edges, f, side="right") - 1, 0, n_groups - 1)
-    w = sp.weight[line]
-    W = np.bincount(g, w, n_groups)
-    keep = W > 0
-    fg = np.exp(np.bincount(g, w * np.log(f), n_groups)[keep] / W[keep])
-    Ig = np.bincount(g, w * sp.psd[line], n_groups)[keep] / W[keep]
-    k = int(keep.sum())
+    fg, Ig, Wk = _log_groups(sp.f_hz[line], sp.psd[line], sp.weight[line], n_groups)
+    k = int(Wk.size)
     d = ~line
 
     def cat(a, b):
         return np.concatenate([a, b])
 
-    return _Spectra(cat(fg, sp.f_hz[d]), cat(Ig, sp.psd[d]), cat(W[keep], sp.weight[d]), cat(np.ones(k), sp.is_line[d]),
+    return _Spectra(cat(fg, sp.f_hz[d]), cat(Ig, sp.psd[d]), cat(Wk, sp.weight[d]), cat(np.ones(k), sp.is_line[d]),
                     cat(np.ones(k), sp.r1[d]), cat(np.ones(k), sp.r2[d]), cat(np.zeros(k), sp.is_diff[d]),
                     sp.n_differences)
 

@@ -198,6 +198,11 @@ def noise_levels(flights: dict[str, FlightMeasurement], dt_s: float, p) -> dict[
     return {}
 
 
+def line_levels(lines: list[LineData], r_local: dict) -> np.ndarray:
+    """The local levels R(t) ((cm/s)²) at the lines' epochs where z is measured."""
+    return np.concatenate([r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)] for ln in lines])
+
+
 def level_scale(noise_fit, band_hz, lines: list[LineData], r_local: dict, white_lower: bool = False) -> float:
     """Factor from the measured local levels R(t) to the fitted noise model's level.
 
@@ -217,7 +222,7 @@ def level_scale(noise_fit, band_hz, lines: list[LineData], r_local: dict, white_
         return 1.0
     if noise_fit.model.is_white_velocity and not white_lower:
         return 1.0
-    vals = np.concatenate([r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)] for ln in lines])
+    vals = line_levels(lines, r_local)
     if not vals.size:
         return 1.0
     scale = float(noise_fit.model.equivalent_white_R(band_hz) / np.mean(vals))
@@ -325,7 +330,7 @@ def _noise_stage(fit, model, band, lines: list[LineData], r_local: dict, n_cross
         # ever lowering: the bound cannot say a level is too low).  The ratio was taken at the
         # fitted level; the level used is the mean of the scaled R(t)
         over = float(vb.get("max_model_to_misfit_after", vb.get("max_model_to_misfit", 1.0)))
-        vals = np.concatenate([r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)] for ln in lines])
+        vals = line_levels(lines, r_local)
         r_fit = float(fit.model.equivalent_white_R(band))
         if vals.size and r_fit > 0:
             capped = max(over * scale * float(np.mean(vals)) / r_fit, 1.0)
