@@ -687,8 +687,11 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         velocity error in z where the anomaly hides it.  Each group enters the likelihood with
         a free non-negative height error of its own, profiled out, so it binds only where the
         model puts more error than the misfit shows (``_Whittle._bound_nll``).  Corners are
-        still moved below the data (``hidden_knees``), the cautious side, but the refit too
-        stays under the bound.  Only its groups up to ``bound_fmax_hz`` enter; and only when
+        still moved below the data (``hidden_knees``), the cautious side, and the refit too
+        is fitted under the bound; where the moved shape is refuted by the misfit (a χ² test,
+        :func:`bound_p_value`) and the shape as fitted is not, the fitted shape is kept
+        (:func:`_cautious_shape_under_bound`: z alone cannot see the noise below its band,
+        the heights can).  Only its groups up to ``bound_fmax_hz`` enter; and only when
         the GNSS accounts for z's noise just above the anomaly band: the median ratio of z's
         line spectra to the misfit's over ``bound_check_band_hz`` at most ``bound_max_excess``
         (:func:`_bound_applies`: the misfit holds the velocity error plus the height error, so
@@ -730,8 +733,40 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
             # Nelder–Mead searches to other local optima for nothing)
             fit = _fit_families(spectra, bound, **opts)
             check["max_model_to_misfit_after"] = _model_to_bound(fit.model, bound)
+        fit = _cautious_shape_under_bound(fit, bound, check)
     fit.model.info["velocity_bound"] = check
     return fit
+
+
+def _cautious_shape_under_bound(fit: NoiseFit, bound: VelocityBound, check: dict, alpha: float = 0.05) -> NoiseFit:
+    """The heights' verdict on the cautious shape.  Moving a corner below the data (or giving
+    a bare white height its random-walk part) puts more noise below the fitted band than the
+    spectra of z show, because z alone cannot tell that noise from the anomaly.  The
+    height–velocity misfit can: where the bound applies, the cautious model is refuted by it
+    (:func:`bound_p_value` < ``alpha``) and the fit as it was (``unmoved``) is not, the unmoved
+    fit is used (``check["cautious_shape"]``)."""
+    if fit.unmoved is None:
+        return fit
+    p_moved, p_kept = bound_p_value(fit.model, bound), bound_p_value(fit.unmoved.model, bound)
+    refuted = bool(p_moved < alpha <= p_kept)
+    check["cautious_shape"] = {"model_to_misfit": _model_to_bound(fit.model, bound),
+                               "unmoved_model_to_misfit": _model_to_bound(fit.unmoved.model, bound),
+                               "p_value": p_moved, "unmoved_p_value": p_kept, "alpha": alpha, "refuted": refuted}
+    if refuted:
+        return replace(fit.unmoved, unmoved=None)
+    return fit
+
+
+def bound_p_value(model: NoiseModel, bound: VelocityBound) -> float:
+    """How probable the misfit's spectrum is if the model's velocity error were all it held:
+    each group's estimate is ``S·χ²_ν/ν`` (ν its degrees of freedom) with ``S ≥`` the model's
+    PSD (the misfit adds the height error), so a group far below the model refutes it.  The
+    smallest lower-tail probability over the G groups, times G (Bonferroni; capped at 1)."""
+    from scipy.stats import chi2
+
+    nu = 2.0 * np.asarray(bound.weight, float)
+    lower = chi2.cdf(nu * bound.psd / model.psd(bound.f_hz), nu)
+    return float(min(1.0, bound.f_hz.size * np.min(lower)))
 
 
 def _model_to_bound(model: NoiseModel, bound: VelocityBound) -> float:

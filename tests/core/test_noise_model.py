@@ -491,3 +491,60 @@ def test_the_bound_stops_the_noise_fit_taking_the_anomaly_for_velocity_error():
     bounded = fit_noise_model(zs, dt, bound=velocity_bound([d], dt)).model.psd(band) / truth.psd(band)
     assert np.all(free > 2.0)
     assert np.all(bounded < 1.6) and np.all(bounded > 0.6)
+
+
+def test_bound_p_value_is_a_chi2_test_of_the_model():
+    """Group estimates drawn as S·χ²_ν/ν from a known velocity error: the true model is refuted
+    (p < 0.05) in about 5 % of draws at most (Bonferroni is conservative), a model 4× too high
+    in nearly all of them."""
+    from app.core.noise_model import VelocityBound, bound_p_value
+
+    rng = np.random.default_rng(3)
+    truth = _velocity_model(0.2, float(np.exp(-0.2 / 10.0)), 0.004, 0.008)
+    f = np.geomspace(0.001, 0.01, 9)
+    w = np.linspace(3.0, 40.0, 9)            # few degrees of freedom at the lowest groups
+    p_true, p_high = [], []
+    for _ in range(400):
+        psd = truth.psd(f) * rng.chisquare(2 * w) / (2 * w)
+        b = VelocityBound(f, psd, w, np.ones(9), 1)
+        p_true.append(bound_p_value(truth, b))
+        p_high.append(bound_p_value(truth.scaled(4.0), b))
+    assert np.mean(np.array(p_true) < 0.05) <= 0.06
+    assert np.mean(np.array(p_high) < 0.05) >= 0.9
+
+
+def test_the_heights_refute_a_corner_moved_below_the_data():
+    """Simulation with truth (unseen survey 1100's failure): a Gauss–Markov velocity error
+    (8.5 s, corner 0.019 Hz) beside a white one, under an anomaly that hides the corner.  The
+    spectra of z alone fit the corner inside the band, and the corner is moved below the data
+    (the cautious side where nothing else sees the noise): the model then puts 2–6× the true
+    noise at 0.002–0.008 Hz and the smoother would flatten the anomaly.  The misfit of the same
+    flight's heights and velocities refutes the moved shape (χ² test) and keeps the fitted
+    one, within 1.5× of the truth."""
+    from app.core.measurement import height_velocity_misfit_m
+    from app.core.noise_model import velocity_bound
+
+    rng = np.random.default_rng(2)
+    dt, n_line, n_lines = 0.2, 3750, 13
+    phi = float(np.exp(-dt / 8.5))
+    n = n_line * n_lines
+    r = _ar1(rng, n, phi, 0.004) + rng.normal(0.0, 0.0075, n)
+    d = height_velocity_misfit_m(np.arange(n) * dt, rng.normal(0.0, 0.02, n), r)
+    f = np.fft.rfftfreq(n_line, dt)
+    zs = []
+    for k in range(n_lines):
+        x = np.fft.irfft(np.exp(-f / 0.006) * (f > 0) * (rng.normal(size=f.size) + 1j * rng.normal(size=f.size)), n_line)
+        rr = r[k * n_line:(k + 1) * n_line]
+        zs.append(28.0 * x / x.std() - np.diff(np.concatenate([[rr[0]], rr])) / dt * 1e5)
+    truth = _velocity_model(dt, phi, 0.004, 0.0075)
+    band = np.array([0.002, 0.004, 0.008])
+    free = fit_noise_model(zs, dt)
+    assert free.model.info["hidden_corners_hz"]          # the corner was moved below the data
+    assert np.all(free.model.psd(band) / truth.psd(band) > 2.0)
+    fit = fit_noise_model(zs, dt, bound=velocity_bound([d], dt))
+    shape = fit.model.info["velocity_bound"]["cautious_shape"]
+    assert shape["refuted"] and shape["p_value"] < 0.05 <= shape["unmoved_p_value"]
+    assert shape["model_to_misfit"] > 2.0                 # the moved shape, refitted under the bound
+    assert not fit.model.info["hidden_corners_hz"] and fit.unmoved is None
+    ratio = fit.model.psd(band) / truth.psd(band)
+    assert np.all((ratio > 0.67) & (ratio < 1.5))

@@ -87,7 +87,11 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                         "velocity_bound": {"applied": True, "z_to_misfit": 0.972, "check_band_hz": [0.02, 0.05],
                                            "n_segments": 3, "groups": 9, "f_hz": [0.0011, 0.008],
                                            "max_model_to_misfit": 15.03, "refitted": True,
-                                           "max_model_to_misfit_after": 1.064}},
+                                           "max_model_to_misfit_after": 2.691,
+                                           # unseen 1100's figures: the moved corner refuted by the heights
+                                           "cautious_shape": {"model_to_misfit": 2.691, "unmoved_model_to_misfit": 1.202,
+                                                              "p_value": 0.0035, "unmoved_p_value": 0.67,
+                                                              "alpha": 0.05, "refuted": True}}},
         "lag_check": {"declared_tau_s": 2.0, "estimated_tau_s": [1.9995, 1.9990, 1.9992], "applied": False},
         # as the real stage 9 writes it when the FIR guard fired (unseen seed 88's figures)
         "model_choice": {"chosen": "FIR", "m": 2, "noisy_check": {"applied": False},

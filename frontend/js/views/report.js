@@ -164,7 +164,12 @@ const RENDER = {
           : vb.refitted ? `refitted — the free fit put ${fmt(vb.max_model_to_misfit, 3)}× the heights–velocities misfit ` +
                           `below ${fmt((vb.f_hz || [])[1], 3)} Hz; after: ${fmt(vb.max_model_to_misfit_after, 3)}×`
                         : `kept — the fit stays under it (${fmt(vb.max_model_to_misfit, 3)}×)`) +
-        (vb.z_to_misfit != null ? `; z's noise ${fmt(vb.z_to_misfit, 3)}× the misfit's at 0.02–0.05 Hz` : "");
+        (vb.z_to_misfit != null ? `; z's noise ${fmt(vb.z_to_misfit, 3)}× the misfit's at 0.02–0.05 Hz` : "") +
+        (vb.cautious_shape ? (vb.cautious_shape.refuted
+          ? `. The corner moved below the data was refuted by the heights (${fmt(vb.cautious_shape.model_to_misfit, 3)}× the misfit, ` +
+            `p = ${fmt(vb.cautious_shape.p_value, 4)}): the shape as fitted kept (${fmt(vb.cautious_shape.unmoved_model_to_misfit, 3)}×, ` +
+            `p = ${fmt(vb.cautious_shape.unmoved_p_value, 4)})`
+          : `. The corner moved below the data stands (p = ${fmt(vb.cautious_shape.p_value, 4)} against the heights)`) : "");
       out.push(el("p", { class: vb.refitted ? "warnline" : "note", id: "report-velocity-bound" }, text));
     }
     if (v.candidates && v.candidates.length) {
