@@ -109,14 +109,21 @@ def main() -> int:
     ap.add_argument("--geometry", action="store_true", help="small random layouts (draw_geometry) instead")
     ap.add_argument("--json", default=None)
     ap.add_argument("--params", default=None, help="processing overrides (JSON) instead of the defaults")
+    ap.add_argument("--bodies", choices=["points", "prisms"], default="points",
+                    help="the mountains' bodies: point masses (the draws as always) or prisms "
+                         "(app.simulate.field._mountain_prisms; the draw is otherwise unchanged)")
     a = ap.parse_args()
     work = Path(a.workdir)
     work.mkdir(parents=True, exist_ok=True)
     rows, refused = [], []
     for seed in a.seeds:
         ov = draw_geometry(seed) if a.geometry else draw(seed)
+        kind = "layout" if a.geometry else "unseen"
+        if a.bodies != "points":
+            ov["mountain_bodies"] = a.bodies
+            kind += "-" + a.bodies
         try:
-            s = run_survey("layout" if a.geometry else "unseen", "omolon-mini", ov, work, seed,
+            s = run_survey(kind, "omolon-mini", ov, work, seed,
                            params=a.params, with_oracle=a.oracle)
         except RuntimeError as exc:  # the pipeline refused the survey (its message says why)
             print(f"seed {seed}: refused: {str(exc).strip().splitlines()[-1][:200]}", flush=True)

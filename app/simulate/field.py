@@ -83,6 +83,8 @@ class AnomalyField:
         coords = ((e.ravel() - self.e0_km) * 1000.0, (n.ravel() - self.n0_km) * 1000.0, h.ravel())
         g = hm.point_gravity(coords, (src["x_m"], src["y_m"], src["z_m"]), src["mass_kg"], field="g_z",
                              parallel=True)
+        if "prisms_m" in src:
+            g = g + _prism_gz(coords, {"bounds_m": src["prisms_m"], "density_kgm3": src["prism_density_kgm3"]})
         return (g - src["offset_mgal"]).reshape(e.shape)
 
     def terrain_mountain(self, easting_km, northing_km) -> np.ndarray:
@@ -126,11 +128,17 @@ def make_field(cfg, extent_km, e0_km: float, n0_km: float, rng, line_pts_km=None
     py = rng.uniform(sy0, sy1, n_try)
     keep = ridges.contains(px, py)
     px, py = px[keep], py[keep]
-    pz = 500.0 - rng.uniform(*cfg.mountain_depth_m, px.size)
-    mass = rng.standard_normal(px.size) * 1e10
-    g_m = np.zeros(X.size)
-    if px.size:
-        g_m = hm.point_gravity(obs, (px * 1000.0, py * 1000.0, pz), mass, field="g_z", parallel=True)
+    prisms = None
+    if getattr(cfg, "mountain_bodies", "points") == "prisms":
+        prisms = _mountain_prisms(cfg, px, py, rng)
+        px = py = pz = mass = np.zeros(0)
+        g_m = _prism_gz(obs, prisms)
+    else:
+        pz = 500.0 - rng.uniform(*cfg.mountain_depth_m, px.size)
+        mass = rng.standard_normal(px.size) * 1e10
+        g_m = np.zeros(X.size)
+        if px.size:
+            g_m = hm.point_gravity(obs, (px * 1000.0, py * 1000.0, pz), mass, field="g_z", parallel=True)
     mask_grid = ridges.contains(X, Y).ravel()
     along = getattr(cfg, "field_std_over", "grid") == "lines"
     if along:
@@ -139,8 +147,11 @@ def make_field(cfg, extent_km, e0_km: float, n0_km: float, rng, line_pts_km=None
         lx, ly = (np.asarray(v, dtype=float) for v in line_pts_km)
         lobs = (lx * 1000.0, ly * 1000.0, np.full(lx.size, cfg.height_m))
         lmask = ridges.contains(lx, ly)
-        g_ml = (hm.point_gravity(lobs, (px * 1000.0, py * 1000.0, pz), mass, field="g_z", parallel=True)
-                if px.size else np.zeros(lx.size))
+        if prisms is not None:
+            g_ml = _prism_gz(lobs, prisms)
+        else:
+            g_ml = (hm.point_gravity(lobs, (px * 1000.0, py * 1000.0, pz), mass, field="g_z", parallel=True)
+                    if px.size else np.zeros(lx.size))
         s = np.std(g_ml[lmask]) if lmask.any() else np.std(g_ml)
     else:
         s = np.std(g_m[mask_grid]) if mask_grid.any() else np.std(g_m)
@@ -164,9 +175,51 @@ def make_field(cfg, extent_km, e0_km: float, n0_km: float, rng, line_pts_km=None
     sources = {"x_m": np.concatenate([px, qx]) * 1000.0, "y_m": np.concatenate([py, qy]) * 1000.0,
                "z_m": np.concatenate([pz, qz]), "mass_kg": np.concatenate([mass * f_m, mass_p * f_p]),
                "offset_mgal": float(mu_p * f_p), "n_mountain": int(px.size)}
-    info = {"n_mountain_sources": int(px.size), "n_plain_sources": int(n_p),
+    if prisms is not None:
+        sources["prisms_m"] = prisms["bounds_m"]
+        sources["prism_density_kgm3"] = prisms["density_kgm3"] * f_m
+    info = {"n_mountain_sources": int(px.size if prisms is None else prisms["bounds_m"].shape[0]),
+            **({} if prisms is None else {"mountain_bodies": "prisms"}), "n_plain_sources": int(n_p),
             "mountain_fraction_of_grid": float(mask_grid.mean()),
             "ridges": [{"x_km": float(a), "y_km": float(b), "angle_deg": float(np.rad2deg(c)),
                         "half_width_km": float(d)} for a, b, c, d in
                        zip(ridges.x_km, ridges.y_km, ridges.angle_rad, ridges.half_width_km)]}
     return AnomalyField(xg + e0_km, yg + n0_km, dg, e0_km, n0_km, ridges, info, sources)
+
+
+def _mountain_prisms(cfg, px_km, py_km, rng) -> dict:
+    """Right rectangular prisms in place of the mountains' point masses (``mountain_bodies =
+    "prisms"``): blocks with vertical sides — fault blocks, intrusions, basins —, another
+    anomaly family than point masses (extended bodies: at 1.5 km flight height less of the
+    std lies in 0.5 km gradients than with point masses at the same depths).  One
+    prism per four point-source draws (``px_km``, ``py_km``: the draws inside the ridges, km),
+    each ``prism_size_km`` wide in east and north, its top ``mountain_depth_m`` below a 500 m
+    surface scaled by 0.5 (the top of a body, not its centre), ``prism_thickness_m`` thick,
+    density contrast ±100–400 kg/m³ (scaled to the mountains' std afterwards).
+
+    Returns
+    -------
+    dict
+        ``bounds_m``: shape (n, 6), west, east, south, north, bottom, top (m, relative to the
+        survey centre, heights up); ``density_kgm3``: shape (n,).
+    """
+    keep = np.arange(0, np.asarray(px_km).size, 4)
+    x, y = np.asarray(px_km)[keep] * 1000.0, np.asarray(py_km)[keep] * 1000.0
+    n = x.size
+    wx = rng.uniform(*cfg.prism_size_km, n) * 1000.0
+    wy = rng.uniform(*cfg.prism_size_km, n) * 1000.0
+    top = 500.0 - 0.5 * rng.uniform(*cfg.mountain_depth_m, n)
+    bottom = top - rng.uniform(*cfg.prism_thickness_m, n)
+    rho = rng.choice([-1.0, 1.0], n) * rng.uniform(100.0, 400.0, n)
+    bounds = np.column_stack([x - wx / 2, x + wx / 2, y - wy / 2, y + wy / 2, bottom, top])
+    return {"bounds_m": bounds, "density_kgm3": rho}
+
+
+def _prism_gz(coords, prisms: dict) -> np.ndarray:
+    """harmonica's ``g_z`` (mGal) of the prisms at the points ``coords`` (x, y, height in m)."""
+    import harmonica as hm
+
+    n = np.asarray(coords[0]).size
+    if prisms["bounds_m"].shape[0] == 0:
+        return np.zeros(n)
+    return hm.prism_gravity(coords, prisms["bounds_m"], prisms["density_kgm3"], field="g_z", parallel=True)

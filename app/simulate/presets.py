@@ -52,6 +52,9 @@ class SimConfig:
     plain_std_mgal: float = 8.0
     mountain_sources_per_km2: float = 0.25
     mountain_depth_m: tuple[float, float] = (300.0, 2500.0)  # below a 500 m surface
+    mountain_bodies: str = "points"       # "points": point masses; "prisms": blocks (field._mountain_prisms)
+    prism_size_km: tuple[float, float] = (0.5, 4.0)        # horizontal sides of the prisms
+    prism_thickness_m: tuple[float, float] = (300.0, 3000.0)
     plain_sources_per_km2: float = 0.01
     plain_depth_m: tuple[float, float] = (6000.0, 20000.0)  # depth range of the plain sources
     field_std_over: str = "grid"          # "grid": *_std_mgal over the truth grid; "lines": along the line windows

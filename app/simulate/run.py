@@ -770,7 +770,11 @@ def _make_field(cfg: SimConfig, planned, ext, e0: float, n0: float, rng, seed) -
                          "at the actual position and height (x, y relative to survey_centre_km, metres; "
                          "z, height in metres) minus offset_mgal; truth/grid.nc stays at the nominal height_m"),
                 "x_m": src["x_m"], "y_m": src["y_m"], "z_m": src["z_m"], "mass_kg": src["mass_kg"],
-                "offset_mgal": src["offset_mgal"], "n_mountain": src["n_mountain"]}}
+                "offset_mgal": src["offset_mgal"], "n_mountain": src["n_mountain"],
+                **({"prisms_m": src["prisms_m"], "prism_density_kgm3": src["prism_density_kgm3"],
+                    "prisms_note": ("plus harmonica prism_gravity(field='g_z') of these prisms (west, east, "
+                                    "south, north, bottom, top in metres) and densities (kg/m³)")}
+                   if "prisms_m" in src else {})}}
         anomaly = _SourcesAnomaly(cfg, fld, topo)
     elif cfg.field_kind == "markov":
         rows = [ln.start_km[1] for ln in planned if ln.kind == "main"]
