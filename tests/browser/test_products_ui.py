@@ -53,7 +53,7 @@ def test_free_air_bouguer_switch_on_a_topography_survey(live_server, browser_pag
         assert s["has_dem"] is True
         _wait_job(c, s["id"])
     page.goto(f"{live_server.url}/#survey={s['id']}&tab=grid")
-    page.wait_for_selector("#grid-plot[data-product] .main-svg", timeout=20000)
+    page.wait_for_selector("#grid-plot[data-product] .main-svg", timeout=60000)
     assert page.get_attribute("#grid-plot", "data-product") == "free_air"
     assert "free-air anomaly δg at flight height" in page.text_content("#grid-plot .gtitle")
     assert page.is_visible("#grid-height-label") is False            # no datum: no height choice
@@ -64,7 +64,7 @@ def test_free_air_bouguer_switch_on_a_topography_survey(live_server, browser_pag
     free_air = _z_std(page)
 
     page.select_option("#grid-product", "bouguer")
-    page.wait_for_function("() => document.querySelector('#grid-plot').dataset.product === 'bouguer'", timeout=20000)
+    page.wait_for_function("() => document.querySelector('#grid-plot').dataset.product === 'bouguer'", timeout=60000)
     assert "Bouguer anomaly δg_B at flight height" in page.text_content("#grid-plot .gtitle")
     bouguer = _z_std(page)
     print(f"grid std: free-air {free_air:.2f} mGal, Bouguer {bouguer:.2f} mGal")
@@ -72,13 +72,13 @@ def test_free_air_bouguer_switch_on_a_topography_survey(live_server, browser_pag
     # topography only: the free-air map is the terrain's gravity, the Bouguer map is flat
     assert free_air > 5.0 and bouguer < 0.35 * free_air, (free_air, bouguer)
     page.select_option("#grid-product", "free_air")
-    page.wait_for_function("() => document.querySelector('#grid-plot').dataset.product === 'free_air'", timeout=20000)
+    page.wait_for_function("() => document.querySelector('#grid-plot').dataset.product === 'free_air'", timeout=60000)
     assert abs(_z_std(page) - free_air) < 1e-6
 
     # the profile shows the Bouguer anomaly; the exports list it
     page.screenshot(path=str(tmp_path / "grid-free-air.png"), full_page=True)
     page.click("#tabs button[data-tab=profile]")
-    page.wait_for_selector("#profile-plot[data-line] .main-svg", timeout=20000)
+    page.wait_for_selector("#profile-plot[data-line] .main-svg", timeout=60000)
     page.screenshot(path=str(tmp_path / "profile.png"), full_page=True)
     assert "dg_bouguer" in page.get_attribute("#profile-plot", "data-products").split()
     page.click("#tabs button[data-tab=export]")
@@ -112,7 +112,7 @@ def test_no_dem_then_dem_upload_and_datum_choice(tmp_path, monkeypatch, browser_
                                                              "application/zip")}).json()["id"]
         _wait_job(c, sid)
         page.goto(f"{srv.url}/#survey={sid}&tab=grid")
-        page.wait_for_selector("#grid-plot[data-product] .main-svg", timeout=20000)
+        page.wait_for_selector("#grid-plot[data-product] .main-svg", timeout=60000)
         assert page.evaluate("() => document.querySelector('#grid-product option[value=bouguer]').disabled") is True
         assert "has no DEM" in page.get_attribute("#grid-product", "title")
         assert "has no DEM" in page.inner_text("#grid-product-note")
@@ -124,36 +124,36 @@ def test_no_dem_then_dem_upload_and_datum_choice(tmp_path, monkeypatch, browser_
         (tmp_path / "bad.tif").write_bytes(b"not a tiff")
         page.set_input_files("#dem-file", str(tmp_path / "bad.tif"))
         page.click("#dem-btn")
-        page.wait_for_selector("#dem-error:visible", timeout=20000)
+        page.wait_for_selector("#dem-error:visible", timeout=60000)
         assert "dem.tif" in page.inner_text("#dem-error")
         page.errors.clear()       # the 422 of the rejected upload is expected
         page.set_input_files("#dem-file", str(make_dem(tmp_path / "srtm.tif")))
         page.click("#dem-btn")
-        page.wait_for_function("() => document.querySelector('#dem-upload').dataset.hasDem === '1'", timeout=20000)
+        page.wait_for_function("() => document.querySelector('#dem-upload').dataset.hasDem === '1'", timeout=60000)
         assert page.is_visible("#dem-remove")
 
         _wait_job(c, sid, {"datum": "constant", "datum_height_m": 1100.0})
         page.goto(f"{srv.url}/#survey={sid}&tab=qc")
         page.reload()
         page.click("#tabs button[data-tab=grid]")
-        page.wait_for_selector("#grid-plot[data-product] .main-svg", timeout=20000)
+        page.wait_for_selector("#grid-plot[data-product] .main-svg", timeout=60000)
         assert page.get_attribute("#grid-plot", "data-height") == "datum"
         assert page.is_visible("#grid-height-label")
         page.screenshot(path=str(tmp_path / "grid-datum.png"), full_page=True)
         assert "at the constant datum (1100 m)" in page.text_content("#grid-plot .gtitle")
         page.select_option("#grid-height", "flight")
-        page.wait_for_function("() => document.querySelector('#grid-plot').dataset.height === 'flight'", timeout=20000)
+        page.wait_for_function("() => document.querySelector('#grid-plot').dataset.height === 'flight'", timeout=60000)
         assert "at flight height" in page.text_content("#grid-plot .gtitle")
         # with a datum the Bouguer anomaly is at the datum only
         assert page.evaluate("() => document.querySelector('#grid-product option[value=bouguer]').disabled") is True
         page.select_option("#grid-height", "datum")
-        page.wait_for_function("() => document.querySelector('#grid-plot').dataset.height === 'datum'", timeout=20000)
+        page.wait_for_function("() => document.querySelector('#grid-plot').dataset.height === 'datum'", timeout=60000)
         page.select_option("#grid-product", "bouguer")
-        page.wait_for_function("() => document.querySelector('#grid-plot').dataset.product === 'bouguer'", timeout=20000)
+        page.wait_for_function("() => document.querySelector('#grid-plot').dataset.product === 'bouguer'", timeout=60000)
         page.click("#tabs button[data-tab=export]")
         page.wait_for_selector("#export-bouguer-geotiff")
         assert page.locator("#export-flight-netcdf").count() == 1
         page.click("#tabs button[data-tab=profile]")
-        page.wait_for_selector("#profile-plot[data-line] .main-svg", timeout=20000)
+        page.wait_for_selector("#profile-plot[data-line] .main-svg", timeout=60000)
         assert set(page.get_attribute("#profile-plot", "data-products").split()) == {"dg_flight", "dg_bouguer", "terrain"}
         assert not page.errors, page.errors
