@@ -129,7 +129,10 @@ def make_field(cfg, extent_km, e0_km: float, n0_km: float, rng, line_pts_km=None
     keep = ridges.contains(px, py)
     px, py = px[keep], py[keep]
     prisms = None
-    if getattr(cfg, "mountain_bodies", "points") == "prisms":
+    bodies = getattr(cfg, "mountain_bodies", "points")
+    if bodies not in ("points", "prisms"):
+        raise ValueError(f"mountain_bodies must be 'points' or 'prisms', got {bodies!r}")
+    if bodies == "prisms":
         prisms = _mountain_prisms(cfg, px, py, rng)
         px = py = pz = mass = np.zeros(0)
         g_m = _prism_gz(obs, prisms)

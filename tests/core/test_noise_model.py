@@ -388,6 +388,27 @@ def _velocity_model(dt, phi, sd_gm, sd_white):
     return NoiseModel(tuple(comps), dt, "truth")
 
 
+def _flight_with_gm_velocity(seed, dt, tau_s, sd_gm, sd_white, sd_h, n_line=3750, n_lines=13):
+    """Thirteen lines of z: an anomaly whose spectrum falls exponentially (sources below the
+    flight height, 28 mGal) minus a white + Gauss–Markov (``tau_s``) velocity error differenced
+    once, and the misfit of the flight's heights (white error ``sd_h`` m) and velocities.
+    Returns (z per line, misfit, the velocity error's closed-form model in z)."""
+    from app.core.measurement import height_velocity_misfit_m
+
+    rng = np.random.default_rng(seed)
+    phi = float(np.exp(-dt / tau_s))
+    n = n_line * n_lines
+    r = _ar1(rng, n, phi, sd_gm) + rng.normal(0.0, sd_white, n)
+    d = height_velocity_misfit_m(np.arange(n) * dt, rng.normal(0.0, sd_h, n), r)
+    f = np.fft.rfftfreq(n_line, dt)
+    zs = []
+    for k in range(n_lines):
+        x = np.fft.irfft(np.exp(-f / 0.006) * (f > 0) * (rng.normal(size=f.size) + 1j * rng.normal(size=f.size)), n_line)
+        rr = r[k * n_line:(k + 1) * n_line]
+        zs.append(28.0 * x / x.std() - np.diff(np.concatenate([[rr[0]], rr])) / dt * 1e5)
+    return zs, d, _velocity_model(dt, phi, sd_gm, sd_white)
+
+
 @pytest.mark.parametrize("sd_gm", [0.0, 0.005])
 def test_velocity_bound_is_the_velocity_error_in_z(sd_gm):
     """The misfit h − ∫vu of exact heights and velocities with a known error: its spectrum,
@@ -470,22 +491,10 @@ def test_the_bound_stops_the_noise_fit_taking_the_anomaly_for_velocity_error():
     far below the truth's explain the anomaly band: the model puts 2–3× the true noise there,
     and the smoother would flatten the anomaly.  The misfit of the same flight's heights and
     velocities (5 cm height error) keeps it within 1.6× of the truth."""
-    from app.core.measurement import height_velocity_misfit_m
     from app.core.noise_model import velocity_bound
 
-    rng = np.random.default_rng(1)
-    dt, n_line, n_lines = 0.2, 3750, 13
-    phi = float(np.exp(-dt / 15.0))
-    n = n_line * n_lines
-    r = _ar1(rng, n, phi, 0.005) + rng.normal(0.0, 0.0128, n)
-    d = height_velocity_misfit_m(np.arange(n) * dt, rng.normal(0.0, 0.03, n), r)
-    f = np.fft.rfftfreq(n_line, dt)
-    zs = []
-    for k in range(n_lines):
-        x = np.fft.irfft(np.exp(-f / 0.006) * (f > 0) * (rng.normal(size=f.size) + 1j * rng.normal(size=f.size)), n_line)
-        rr = r[k * n_line:(k + 1) * n_line]
-        zs.append(28.0 * x / x.std() - np.diff(np.concatenate([[rr[0]], rr])) / dt * 1e5)
-    truth = _velocity_model(dt, phi, 0.005, 0.0128)
+    dt = 0.2
+    zs, d, truth = _flight_with_gm_velocity(1, dt, 15.0, 0.005, 0.0128, 0.03)
     band = np.array([0.002, 0.004])
     free = fit_noise_model(zs, dt).model.psd(band) / truth.psd(band)
     bounded = fit_noise_model(zs, dt, bound=velocity_bound([d], dt)).model.psd(band) / truth.psd(band)
@@ -521,22 +530,10 @@ def test_the_heights_refute_a_corner_moved_below_the_data():
     noise at 0.002–0.008 Hz and the smoother would flatten the anomaly.  The misfit of the same
     flight's heights and velocities refutes the moved shape (χ² test) and keeps the fitted
     one, within 1.5× of the truth."""
-    from app.core.measurement import height_velocity_misfit_m
     from app.core.noise_model import velocity_bound
 
-    rng = np.random.default_rng(2)
-    dt, n_line, n_lines = 0.2, 3750, 13
-    phi = float(np.exp(-dt / 8.5))
-    n = n_line * n_lines
-    r = _ar1(rng, n, phi, 0.004) + rng.normal(0.0, 0.0075, n)
-    d = height_velocity_misfit_m(np.arange(n) * dt, rng.normal(0.0, 0.02, n), r)
-    f = np.fft.rfftfreq(n_line, dt)
-    zs = []
-    for k in range(n_lines):
-        x = np.fft.irfft(np.exp(-f / 0.006) * (f > 0) * (rng.normal(size=f.size) + 1j * rng.normal(size=f.size)), n_line)
-        rr = r[k * n_line:(k + 1) * n_line]
-        zs.append(28.0 * x / x.std() - np.diff(np.concatenate([[rr[0]], rr])) / dt * 1e5)
-    truth = _velocity_model(dt, phi, 0.004, 0.0075)
+    dt = 0.2
+    zs, d, truth = _flight_with_gm_velocity(2, dt, 8.5, 0.004, 0.0075, 0.02)
     band = np.array([0.002, 0.004, 0.008])
     free = fit_noise_model(zs, dt)
     assert free.model.info["hidden_corners_hz"]          # the corner was moved below the data

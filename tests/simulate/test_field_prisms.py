@@ -53,3 +53,9 @@ def test_prism_mountains_have_their_std_and_another_spectrum(prism_field):
         return np.std(d) / np.std(f.dg_mgal[mnt])
 
     assert short_share(fld) < 0.8 * short_share(pts)
+
+
+def test_unknown_mountain_bodies_are_refused():
+    cfg = PRESETS["tiny"].replace(mountain_bodies="prism")
+    with pytest.raises(ValueError, match="mountain_bodies must be 'points' or 'prisms', got 'prism'"):
+        make_field(cfg, (-30.0, 30.0, -12.0, 12.0), 500.0, 6000.0, np.random.default_rng(4))
