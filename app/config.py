@@ -378,6 +378,9 @@ class ProcessingParams(_Strict):
                                                   "frequency (None: anywhere)")
     noise_fit_octave_weights: bool = Field(False, description="Weight the spectra's bins so that every octave "
                                            "counts like the lowest one")
+    noise_anomaly_rolloff: bool = Field(True, description="Fit the anomaly's spectrum in the noise fit as the random "
+                                        "walk times exp(-beta f), beta free (a field seen from above its sources "
+                                        "falls exponentially); False: the random walk alone")
     noise_fit_fmax_hz: float = Field(0.2, gt=0, le=500, description="Highest frequency (Hz) of the spectra the noise "
                                      "model is fitted to (clipped to 0.8 × the GNSS Nyquist frequency)")
     noise_fit_min_s: tuple[float, float] = Field((120.0, 60.0), description="Shortest stretch of z (s) the noise "

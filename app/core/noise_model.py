@@ -55,6 +55,9 @@ from scipy import optimize, signal
 MGAL_PER_CMS_PER_S = 1000.0
 #: Largest AR(1) coefficient of a component (a correlation time of 1000 steps).
 PHI_MAX = 0.999
+#: Largest roll-off time (s) of the anomaly's spectrum in the noise fit (``exp(−β f)``):
+#: β = 4π d / v for sources d below the aircraft at ground speed v — 10 km at 50 m/s.
+ROLLOFF_MAX_S = 2500.0
 
 
 @dataclass(frozen=True)
@@ -223,12 +226,28 @@ def _component_psd_at(e: np.ndarray, num, c: NoiseComponent) -> np.ndarray:
     return c.weight * num / np.abs(1.0 - c.phi * e) ** 2
 
 
-def anomaly_psd(f_hz, Q_mgal2: float, m: int, dt_s: float) -> np.ndarray:
-    """Two-sided PSD (mGal²/Hz) of the anomaly ``∇^m δg = q``, ``Var q = Q`` per step."""
-    nu = np.asarray(f_hz, dtype=float) * dt_s
+def anomaly_psd(f_hz, Q_mgal2: float, m: int, dt_s: float, rolloff_s: float = 0.0) -> np.ndarray:
+    """Two-sided PSD (mGal²/Hz) of the anomaly ``∇^m δg = q``, ``Var q = Q`` per step,
+    times ``exp(−rolloff_s · f)``: a field observed at a height d above its sources falls as
+    ``exp(−4π d k)`` in wavenumber k, i.e. ``exp(−β f)`` with ``β = 4π d / v`` (s) along a
+    track flown at speed v."""
+    f = np.asarray(f_hz, dtype=float)
+    nu = f * dt_s
     d = np.abs(1.0 - np.exp(-2j * np.pi * nu)) ** (2 * m)
     with np.errstate(divide="ignore"):
-        return dt_s * Q_mgal2 / d
+        return dt_s * Q_mgal2 / d * np.exp(-float(rolloff_s) * f)
+
+
+def rolloff_s(theta) -> float:
+    """The anomaly's roll-off time β (s) held in the last element of a fit's θ
+    (``ROLLOFF_MAX_S`` times a logistic: 0 ≤ β < ``ROLLOFF_MAX_S``)."""
+    return float(ROLLOFF_MAX_S / (1.0 + np.exp(-float(theta[-1]))))
+
+
+def _n_base(spec) -> int:
+    """Length of a family's θ without the roll-off: log Q, then per component log w and, with
+    a free φ, its logit.  A θ one longer carries β (:func:`rolloff_s`)."""
+    return 1 + sum(1 + int(bool(free_phi)) for _, free_phi in spec)
 
 
 def _check_band(band_hz, dt_s):
@@ -597,6 +616,8 @@ class NoiseFit:
     candidates: list
     n_bins: int
     fmax_hz: float
+    rolloff_s: float = 0.0
+    """β (s) of the anomaly's spectrum ``exp(−β f)`` in the fit (:func:`anomaly_psd`)."""
     unmoved: NoiseFit | None = None
     """The fit before a decision that puts more noise below the fitted band than the spectra
     show — AR corners moved below the data (``hidden_corners_hz``), or a bare white height given
@@ -629,12 +650,13 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                     knee_max_fraction: float | None = None, hidden_knees: bool = True,
                     prefer_height: bool = False, height_tau_min_s: float = 20.0,
                     bound: VelocityBound | None = None, bound_fmax_hz: float = 0.01,
-                    bound_check_band_hz: tuple = (0.02, 0.05), bound_max_excess: float = 1.25) -> NoiseFit:
+                    bound_check_band_hz: tuple = (0.02, 0.05), bound_max_excess: float = 1.25,
+                    anomaly_rolloff: bool = True) -> NoiseFit:
     """Fit the error of z by the Whittle likelihood of prewhitened multitaper spectra.
 
-    Model of z's spectrum: ``S(f) = S_anomaly(f; Q, m) + Σ_c S_c(f)``; each family of
-    :data:`FAMILIES` is fitted (weights, AR coefficients and Q by Nelder–Mead from
-    ``n_starts`` seeded starts); the simplest family whose BIC is within ``bic_margin`` of
+    Model of z's spectrum: ``S(f) = S_anomaly(f; Q, m, β) + Σ_c S_c(f)``; each family of
+    :data:`FAMILIES` is fitted (weights, AR coefficients, Q and the anomaly's roll-off β by
+    Nelder–Mead from ``n_starts`` seeded starts); the simplest family whose BIC is within ``bic_margin`` of
     the smallest is chosen (a richer shape needs strong evidence).  Each
     multitaper estimate has ``dof`` degrees of freedom and neighbours within the
     bandwidth are correlated; the likelihood counts ``dof/2 · (1/(2·nw))`` per bin, i.e.
@@ -701,6 +723,10 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
         again under it only where that fit exceeds it (``velocity_bound.refitted``): a slack
         bound changes no number.
 
+    anomaly_rolloff : bool
+        The anomaly's spectrum as the random walk times ``exp(−β f)``, β free where it lowers a
+        family's BIC by more than ``bic_margin`` (``_Whittle.with_rolloff``); False: β = 0.
+
     Returns
     -------
     NoiseFit
@@ -713,7 +739,8 @@ def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
     spectra = _collect_spectra(z_segments, differences, dt_s, fmax_hz, nw, min_duration_s)
     opts = dict(dt_s=dt_s, seed=seed, n_starts=n_starts, octave_weights=octave_weights, families=families, m=m,
                 bic_margin=bic_margin, prefer_height=prefer_height, hidden_knees=hidden_knees,
-                knee_max_fraction=knee_max_fraction, height_tau_min_s=height_tau_min_s, fmax_hz=fmax_hz)
+                knee_max_fraction=knee_max_fraction, height_tau_min_s=height_tau_min_s, fmax_hz=fmax_hz,
+                rolloff=anomaly_rolloff)
     fit = _fit_families(spectra, None, **opts)
     if bound is None:
         return fit
@@ -775,9 +802,9 @@ def _model_to_bound(model: NoiseModel, bound: VelocityBound) -> float:
 
 
 def _fit_families(spectra, bound, *, dt_s, seed, n_starts, octave_weights, families, m, bic_margin,
-                  prefer_height, hidden_knees, knee_max_fraction, height_tau_min_s, fmax_hz) -> NoiseFit:
+                  prefer_height, hidden_knees, knee_max_fraction, height_tau_min_s, fmax_hz, rolloff) -> NoiseFit:
     """The body of :func:`fit_noise_model` on collected spectra, under ``bound`` (or none)."""
-    prob = _Whittle(spectra, dt_s, np.random.default_rng(seed), n_starts, octave_weights, bound)
+    prob = _Whittle(spectra, dt_s, np.random.default_rng(seed), n_starts, octave_weights, bound, rolloff)
     f_low = float(np.min(spectra.f_hz))
     if knee_max_fraction is not None:
         prob.phi_min = float(np.clip(1.0 - 2.0 * np.pi * dt_s * knee_max_fraction * f_low, 0.0, PHI_MAX - 1e-6))
@@ -864,9 +891,12 @@ def _finished_fit(prob, chosen: dict, m: int, spectra, hidden: list, fmax_hz: fl
                                                    if prob.best_fit_over is not None else None),
                              "max_corner_hz": knee_hz(prob.phi_min, dt_s) if prob.phi_min > 0 else None,
                              "velocity_bound": None,   # fit_noise_model
-                             "nll_by_m": {str(k): float(v[0]) for k, v in orders.items()}})
+                             "nll_by_m": {str(k): float(v[0]) for k, v in orders.items()},
+                             # the anomaly's spectrum in the fit: exp(−β f) on the random walk
+                             "anomaly_rolloff_s": prob.rolloff_of(orders[m_best][1], chosen["_spec"])})
     cands = [{k: v for k, v in c.items() if not k.startswith("_")} for c in prob.candidates]
-    return NoiseFit(model, float(Q_best), int(m_best), cands, int(spectra.f_hz.size), float(fmax_hz))
+    return NoiseFit(model, float(Q_best), int(m_best), cands, int(spectra.f_hz.size), float(fmax_hz),
+                    rolloff_s=prob.rolloff_of(orders[m_best][1], chosen["_spec"]))
 
 
 @dataclass
@@ -967,8 +997,12 @@ class _Whittle:
     minimisation (Nelder–Mead from random and nested starts)."""
 
     def __init__(self, sp: _Spectra, dt_s: float, rng, n_starts: int, octave_weights: bool,
-                 bound: VelocityBound | None = None):
+                 bound: VelocityBound | None = None, rolloff: bool = True):
         self.sp, self.dt_s, self.rng, self.n_starts = sp, float(dt_s), rng, int(n_starts)
+        # the anomaly's spectrum rolls off as exp(−β f) with β free (the last element of θ,
+        # :func:`rolloff_s`); without it the random-walk nuisance keeps the f^{−2m} slope up
+        # to the noise band and takes noise just above the crossover as anomaly
+        self.rolloff = bool(rolloff)
         # the height–velocity misfit's spectrum (velocity_bound): the noise model may not put
         # more velocity error there than the misfit shows (nll)
         self.bound = bound
@@ -1020,6 +1054,8 @@ class _Whittle:
         else:
             with np.errstate(divide="ignore"):
                 S = np.where(self._line_bins, dt * float(ex[0]) / self.d_anom[mm], 0.0)
+        if th.size > _n_base(spec):
+            S = S * np.exp(-rolloff_s(th) * sp.f_hz)
         k = 1
         Sb = 0.0
         for order, free_phi in spec:
@@ -1122,11 +1158,15 @@ class _Whittle:
         self.candidates = []
         for name, spec in families:
             best = self.fit(spec, m, self.random_starts(spec) + self.warm_starts(spec))
+            gain = None
+            if self.rolloff:
+                best, gain = self.with_rolloff(best, spec, m, bic_margin)
             Q, comps = _unpack(best.x, spec, self.phi_min)
             k = len(best.x)
             self.candidates.append({
                 "family": name, "nll": float(best.fun), "n_params": k,
                 "bic": float(2.0 * best.fun + k * np.log(max(self.n_eff, 2.0))), "Q_mgal2": Q,
+                "rolloff_s": self.rolloff_of(best.x, spec), "rolloff_bic_gain": gain,
                 "components": [{"order": c.order, "phi": c.phi, "weight_mgal2": c.weight} for c in comps],
                 "_theta": best.x, "_spec": spec})
         best_bic = min(c["bic"] for c in self.candidates)
@@ -1184,11 +1224,50 @@ class _Whittle:
         f_low = float(np.min(self.sp.f_hz))
         fg = np.geomspace(f_low, float(np.max(self.sp.f_hz)), 400)
         sn = NoiseModel(tuple(comps), self.dt_s, "x").psd(fg)
-        above = np.flatnonzero(anomaly_psd(fg, Qc, m, self.dt_s) >= sn)
+        above = np.flatnonzero(anomaly_psd(fg, Qc, m, self.dt_s, self.rolloff_of(chosen["_theta"], chosen["_spec"]))
+                               >= sn)
         f_x = float(fg[above[-1]]) if above.size else f_low
         f_high = float(np.max(self.sp.f_hz))
         return [k for k, c in ((knee_hz(c.phi, self.dt_s), c) for c in comps if c.phi > 0)
                 if f_low < k and (k < 2.0 * f_x or (c.order == 2 and k < f_high))]
+
+    @staticmethod
+    def rolloff_of(theta, spec) -> float:
+        """β (s) of a fit's θ; 0 where the fit has no roll-off."""
+        return rolloff_s(theta) if len(theta) > _n_base(spec) else 0.0
+
+    def with_rolloff(self, best, spec, m: int, bic_margin: float):
+        """The family refitted with the anomaly's roll-off β free, from its fit without it (β
+        from 0 to 300 s); kept where it lowers the BIC by more than ``bic_margin`` (one
+        parameter more must be strongly supported, like a richer family).
+
+        A field seen from a height d above its sources falls as ``exp(−4π d k)`` in
+        wavenumber, faster than any power law, so the random walk's ``f^{−2m}`` fitted where
+        the anomaly rules over-states it just above the crossover, and the noise fitted beside
+        it comes out too low there — where the smoother must cut (an anomaly falling as
+        e^{−150 f} over Gauss–Markov velocity noise: 0.2–0.55× the true noise at 0.01–0.03 Hz
+        without β, the right family and 0.94–1.4× with it)."""
+        penalty = float(np.log(max(self.n_eff, 2.0)))
+        # a screen first: Q and β alone, the noise as fitted; where that lowers the BIC at all
+        # the whole family is refitted with β (most surveys need no roll-off: one cheap search)
+        rest = np.asarray(best.x[1:], dtype=float)
+
+        def nll_q_beta(x):
+            return self.nll(np.concatenate([[x[0]], rest, [x[1]]]), spec, m)
+
+        screen = None
+        for b in (10.0, 60.0, 300.0):
+            r = optimize.minimize(nll_q_beta, np.array([best.x[0], np.log(b / (ROLLOFF_MAX_S - b))]),
+                                  method="Nelder-Mead", options={"maxiter": 400, "xatol": 1e-5, "fatol": 1e-6})
+            if screen is None or r.fun < screen.fun:
+                screen = r
+        if 2.0 * (best.fun - screen.fun) <= penalty:
+            return best, float(2.0 * (best.fun - screen.fun) - penalty)
+        starts = [np.append(best.x, np.log(b / (ROLLOFF_MAX_S - b))) for b in (1e-3, 10.0, 60.0, 300.0)]
+        starts.append(np.concatenate([[screen.x[0]], rest, [screen.x[1]]]))
+        res = self.fit(spec, m, starts)
+        gain = float(2.0 * (best.fun - res.fun) - penalty)
+        return (res if gain > bic_margin else best), gain
 
     def orders(self, chosen: dict, m: int) -> dict:
         """The chosen family refitted with m = 1, 2, 3 (from the m solution; equal parameter

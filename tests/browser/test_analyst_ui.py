@@ -114,6 +114,8 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     assert vb.startswith("Velocity error bounded by the GNSS heights: refitted — the free fit put 15.0")
     assert "after: 2.691" in vb and "0.972" in vb
     assert "refuted by the heights (2.691× the misfit, p = 0.0035): the shape as fitted kept (1.202×" in vb
+    assert page.inner_text("#report-anomaly-rolloff").startswith(
+        "Anomaly in the fit: random walk of order 2 × exp(−β f), β = 148.9 s")
     for key in ("base_ties", "time_offsets", "lag_check", "spike_repair", "crossovers", "noise_model", "model_order",
                 "model_choice", "future_section", "counts"):
         assert page.locator(f"#report-sec-{key}").count() == 1, key

@@ -78,7 +78,7 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                         "candidates": [{"family": "white velocity", "nll": 12512.1, "n_params": 2, "bic": 25038.0},
                                        {"family": "Gauss-Markov velocity", "nll": 12511.9, "n_params": 4,
                                         "bic": 25052.4}],
-                        "n_bins": 1198, "fit_fmax_hz": 0.2,
+                        "n_bins": 1198, "fit_fmax_hz": 0.2, "m": 2, "anomaly_rolloff_s": 148.9,
                         "family_check": {"chosen": "Gauss-Markov velocity", "alternative": "white velocity",
                                          "applied": True, "n": 21, "predicted_ms_mgal2": 9.01, "bound_mgal2": 5.32,
                                          "reason": "Gauss-Markov velocity predicts 9.01 mGal² of FIR noise ...: "

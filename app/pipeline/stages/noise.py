@@ -91,7 +91,7 @@ def fit_noise(lines: list[LineData], dt_s: float, p, heights_only: bool = False,
                           octave_weights=p.noise_fit_octave_weights, knee_max_fraction=p.noise_knee_max_fraction,
                           prefer_height=heights_only, min_duration_s=min_s,
                           height_tau_min_s=p.noise_height_tau_min_s, bound=bound,
-                          bound_fmax_hz=p.noise_velocity_bound_fmax_hz)
+                          bound_fmax_hz=p.noise_velocity_bound_fmax_hz, anomaly_rolloff=p.noise_anomaly_rolloff)
     return fit, fit.model.normalized(level_band(p, dt_s)), min_s
 
 

@@ -146,6 +146,13 @@ const RENDER = {
     const out = [table(["Family", "Fit", "Level band (Hz)", "Level scale", "Fitted up to (Hz)"],
       [[v.family ?? "—", v.fit ?? "—", (v.level_band_hz || []).join("–"), fmt(v.level_scale, 3), fmt(v.fit_fmax_hz ?? v.fmax_hz, 3)]])];
     if (v.components) out.push(el("h4", {}, "Components"), genericView(v.components));
+    // the anomaly's spectrum beside the noise in the fit: the random walk, rolled off where the data ask for it
+    if (v.anomaly_rolloff_s != null) {
+      out.push(el("p", { class: "note", id: "report-anomaly-rolloff" }, v.anomaly_rolloff_s > 0
+        ? `Anomaly in the fit: random walk of order ${v.m ?? "—"} × exp(−β f), β = ${fmt(v.anomaly_rolloff_s, 3)} s ` +
+          "(a field seen from above its sources falls exponentially; β = 4π·depth / speed)"
+        : `Anomaly in the fit: random walk of order ${v.m ?? "—"} (no roll-off: the spectra do not support one)`));
+    }
     // the checks of the family and of its corners against the FIR differences (crossovers, repeat passes)
     for (const [key, what] of [["family_check", "Coloured velocity checked against the FIR differences"],
                                ["corner_check", "Noise corners checked against the FIR differences"]]) {
