@@ -50,6 +50,7 @@ from math import comb
 
 import numpy as np
 from scipy import optimize, signal
+from scipy.stats import chi2
 
 #: mGal per (cm/s per s): 1 cm/s² = 1000 mGal.
 MGAL_PER_CMS_PER_S = 1000.0
@@ -242,6 +243,11 @@ def rolloff_s(theta) -> float:
     """The anomaly's roll-off time β (s) held in the last element of a fit's θ
     (``ROLLOFF_MAX_S`` times a logistic: 0 ≤ β < ``ROLLOFF_MAX_S``)."""
     return float(ROLLOFF_MAX_S / (1.0 + np.exp(-float(theta[-1]))))
+
+
+def _rolloff_logit(beta_s: float) -> float:
+    """The θ element that holds β (s): the inverse of :func:`rolloff_s`."""
+    return float(np.log(beta_s / (ROLLOFF_MAX_S - beta_s)))
 
 
 def _n_base(spec) -> int:
@@ -789,8 +795,6 @@ def bound_p_value(model: NoiseModel, bound: VelocityBound) -> float:
     each group's estimate is ``S·χ²_ν/ν`` (ν its degrees of freedom) with ``S ≥`` the model's
     PSD (the misfit adds the height error), so a group far below the model refutes it.  The
     smallest lower-tail probability over the G groups, times G (Bonferroni; capped at 1)."""
-    from scipy.stats import chi2
-
     nu = 2.0 * np.asarray(bound.weight, float)
     lower = chi2.cdf(nu * bound.psd / model.psd(bound.f_hz), nu)
     return float(min(1.0, bound.f_hz.size * np.min(lower)))
@@ -1166,6 +1170,7 @@ class _Whittle:
             self.candidates.append({
                 "family": name, "nll": float(best.fun), "n_params": k,
                 "bic": float(2.0 * best.fun + k * np.log(max(self.n_eff, 2.0))), "Q_mgal2": Q,
+                # β and the BIC's gain from it (the screen's gain where the refit was not tried)
                 "rolloff_s": self.rolloff_of(best.x, spec), "rolloff_bic_gain": gain,
                 "components": [{"order": c.order, "phi": c.phi, "weight_mgal2": c.weight} for c in comps],
                 "_theta": best.x, "_spec": spec})
@@ -1257,13 +1262,13 @@ class _Whittle:
 
         screen = None
         for b in (10.0, 60.0, 300.0):
-            r = optimize.minimize(nll_q_beta, np.array([best.x[0], np.log(b / (ROLLOFF_MAX_S - b))]),
+            r = optimize.minimize(nll_q_beta, np.array([best.x[0], _rolloff_logit(b)]),
                                   method="Nelder-Mead", options={"maxiter": 400, "xatol": 1e-5, "fatol": 1e-6})
             if screen is None or r.fun < screen.fun:
                 screen = r
         if 2.0 * (best.fun - screen.fun) <= penalty:
             return best, float(2.0 * (best.fun - screen.fun) - penalty)
-        starts = [np.append(best.x, np.log(b / (ROLLOFF_MAX_S - b))) for b in (1e-3, 10.0, 60.0, 300.0)]
+        starts = [np.append(best.x, _rolloff_logit(b)) for b in (1e-3, 10.0, 60.0, 300.0)]
         starts.append(np.concatenate([[screen.x[0]], rest, [screen.x[1]]]))
         res = self.fit(spec, m, starts)
         gain = float(2.0 * (best.fun - res.fun) - penalty)

@@ -332,7 +332,7 @@ def test_whittle_likelihood_is_the_closed_form():
     component dt·w(2 − 2cos)^j/(1 − 2φcos + φ²)/r1 at ν·r1; on pass-difference bins the
     components of both passes, at ν·r1 and ν·r2, no anomaly; θ = (log Q, log w, logit φ …), and
     with one element more the anomaly's roll-off exp(−β f); a θ beyond ±200 is refused (1e300)."""
-    from app.core.noise_model import FAMILIES, PHI_MAX, ROLLOFF_MAX_S, _Spectra, _Whittle
+    from app.core.noise_model import FAMILIES, PHI_MAX, ROLLOFF_MAX_S, _rolloff_logit, _Spectra, _Whittle, rolloff_s
 
     rng = np.random.default_rng(3)
     f = np.linspace(0.004, 0.2, 120)
@@ -371,6 +371,8 @@ def test_whittle_likelihood_is_the_closed_form():
             expect_ro = np.sum(w.wt * (np.log(S_ro) + sp.psd / S_ro))
             assert w.nll(np.array(theta + [t]), spec, m) == pytest.approx(expect_ro, rel=1e-10)
     assert w.nll(np.array([250.0, 0.0]), ((1, False),), 2) == 1e300
+    # the start of a β: the logistic's inverse
+    assert rolloff_s([_rolloff_logit(150.0)]) == pytest.approx(150.0, rel=1e-12)
 
 
 # --- the GNSS height–velocity misfit as a bound on the velocity error (velocity_bound) ---
