@@ -21,6 +21,9 @@ why (``app.pipeline`` model choice).
   Two tests: a paired t-test on the squared differences (the mean square) and a
   Wilcoxon signed-rank test on their magnitudes (:func:`paired_rank_p`), which one wild
   crossover cannot mask.
+* :func:`crossover_blend_weight` — the weight of the blend of two estimates whose
+  crossover differences have the least mean square: by the same reading of the
+  crossovers, the blend with the least error two crossing lines do not share.
 """
 
 from __future__ import annotations
@@ -411,6 +414,48 @@ def significantly_worse(cmp: CrossoverComparison, p_level: float) -> bool:
     if cmp.p_value < p_level:
         return True
     return bool(cmp.p_rank < p_level and cmp.rms_a_mgal > cmp.rms_b_mgal)
+
+
+def crossover_blend_weight(diff_a_mgal, diff_b_mgal) -> float:
+    """Weight w of estimate a in the blend ``w·a + (1 − w)·b`` whose crossover differences
+    have the least mean square, clipped to [0, 1].
+
+    The blend's differences at the crossovers are ``w·d_a + (1 − w)·d_b`` (the crossings are
+    the same points of the same lines), a quadratic in w with its minimum at
+    ``w = (S_bb − S_ab) / (S_aa + S_bb − 2·S_ab)``, ``S`` the mean products of the
+    differences after removing each one's mean (a level offset that leveling removes, as in
+    :func:`crossover_comparison`).  Read as there — a crossover difference is the sum of two
+    nearly independent line errors —, ``S_aa`` and ``S_bb`` are twice each estimate's mean
+    square error and ``S_ab`` twice their covariance, and w is the linear combination with
+    the least error (the minimum-variance weight of two correlated estimators), blind like
+    every crossover measure to the error the crossing lines share.
+
+    Parameters
+    ----------
+    diff_a_mgal, diff_b_mgal : array_like, shape (n,)
+        The two estimates' differences at the same crossovers (mGal); pairs with a NaN are
+        left out.
+
+    Returns
+    -------
+    float
+        w in [0, 1]; NaN with fewer than 3 finite pairs; 0 when the two sets of differences
+        are equal (nothing to blend).
+    """
+    a = np.asarray(diff_a_mgal, dtype=float)
+    b = np.asarray(diff_b_mgal, dtype=float)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError(f"diff_a_mgal and diff_b_mgal must be 1-D of one length, got {a.shape} and {b.shape}")
+    ok = np.isfinite(a) & np.isfinite(b)
+    if ok.sum() < 3:
+        return float("nan")
+    a = a[ok] - a[ok].mean()
+    b = b[ok] - b[ok].mean()
+    s_aa, s_bb, s_ab = float(np.mean(a * a)), float(np.mean(b * b)), float(np.mean(a * b))
+    den = s_aa + s_bb - 2.0 * s_ab   # = mean((a − b)²) ≥ 0
+    if den <= 1e-12 * max(s_aa + s_bb, 1e-300):
+        return 0.0
+    return float(np.clip((s_bb - s_ab) / den, 0.0, 1.0))
 
 
 def paired_rank_p(before, after) -> float:

@@ -6,6 +6,7 @@ from scipy import stats
 
 from app.core.baselines import fir_kernel, fir_lowpass_mgal
 from app.core.model_check import (
+    crossover_blend_weight,
     crossover_comparison,
     difference_nll,
     disagreement_ratio,
@@ -39,6 +40,50 @@ def test_crossover_comparison_prefers_the_more_accurate_estimate():
     assert c.n == 200 and c.p_value < 1e-6
     np.testing.assert_allclose([c.rms_a_mgal, c.rms_b_mgal], [2 * np.sqrt(2), np.sqrt(2)], rtol=0.15)
     assert crossover_comparison(d_good, d_bad).p_value > 0.99
+
+
+def test_crossover_blend_weight_finds_the_least_error_blend_of_correlated_estimates():
+    """Two estimates of 20 000 crossings whose line errors share a part: e_a = c + u_a,
+    e_b = c + u_b with std(c) = 1, std(u_a) = 2, std(u_b) = 1 (independent per line).  The
+    least-variance blend w·e_a + (1 − w)·e_b has w = var(u_b) / (var(u_a) + var(u_b)) = 0.2
+    (the shared part c is in both and the same in every blend); the weight is found from the
+    crossover differences alone, and the blend's error is the analytic minimum."""
+    rng = np.random.default_rng(11)
+    n = 20_000
+    c = rng.normal(0, 1.0, (n, 2))
+    e_a = c + rng.normal(0, 2.0, (n, 2))
+    e_b = c + rng.normal(0, 1.0, (n, 2))
+    d_a, d_b = e_a[:, 0] - e_a[:, 1], e_b[:, 0] - e_b[:, 1]
+    w = crossover_blend_weight(d_a, d_b)
+    assert abs(w - 0.2) < 0.02
+    blend = w * e_a + (1 - w) * e_b
+    # var = 1 + w²·4 + (1 − w)²·1, minimum 1 + 0.8 at w = 0.2
+    np.testing.assert_allclose(np.var(blend), 1.8, rtol=0.03)
+    assert np.var(blend) < np.var(e_b) < np.var(e_a)
+    # it is the argmin of the blend's crossover mean square (brute force over w)
+    grid = np.linspace(0, 1, 2001)
+    ms = [np.var(g * d_a + (1 - g) * d_b) for g in grid]
+    assert abs(grid[int(np.argmin(ms))] - w) < 1e-3
+    # symmetric: a's weight seen from b
+    np.testing.assert_allclose(crossover_blend_weight(d_b, d_a), 1 - w, atol=1e-12)
+
+
+def test_crossover_blend_weight_edges():
+    """Clipped to [0, 1]; NaN pairs left out; equal differences give 0; too few give NaN."""
+    rng = np.random.default_rng(2)
+    d_b = rng.normal(0, 1.0, 500)
+    # a = b + a large independent error, positively tied to b: the unclipped optimum is < 0
+    d_a = 3.0 * d_b + rng.normal(0, 1.0, 500)
+    assert crossover_blend_weight(d_a, d_b) == 0.0
+    assert crossover_blend_weight(d_b, d_a) == 1.0
+    assert crossover_blend_weight(d_b, d_b) == 0.0
+    d_a2 = rng.normal(0, 1.0, 500)
+    with_nan = d_a2.copy()
+    with_nan[:7] = np.nan
+    np.testing.assert_allclose(crossover_blend_weight(with_nan, d_b), crossover_blend_weight(d_a2[7:], d_b[7:]))
+    assert np.isnan(crossover_blend_weight([1.0, 2.0], [0.0, 1.0]))
+    with pytest.raises(ValueError, match="one length"):
+        crossover_blend_weight(np.ones(4), np.ones(5))
 
 
 def test_disagreement_ratio_matches_its_analytic_value():
