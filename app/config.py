@@ -242,6 +242,10 @@ class ProcessingParams(_Strict):
                                   "squared differences' paired t-test, or the signed ranks of their magnitudes when "
                                   "m = 2's crossover RMS is the larger): "
                                   "the crossovers are blind to the error two crossing lines share")
+    order_blend: bool = Field(True, description="Where m = 1 is not significantly better, the estimate is the blend "
+                              "w·(m = 1) + (1 − w)·(m = 2) whose crossover differences have the least mean square "
+                              "(w in [0, 1], app.core.model_check.crossover_blend_weight); the std adds the blend's "
+                              "share of the two orders' difference, w(1 − w)·(m₁ − m₂)². Off: m = 2 alone")
     choice_min_crossovers: int = Field(10, ge=3, le=1_000_000, description="Crossovers needed to choose between "
                                        "models (m, the FIR guard) by their crossover differences")
     flatten_check: bool = Field(True, description="A line whose estimate is flattened (flatten_min_ratio) takes the "

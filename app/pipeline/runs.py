@@ -212,6 +212,8 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     m_best, order_rep = choose_order(cands, p)
     if len(cands) > 1:  # the baseline only for the order that is used
         cands[m_best].filtered.add_stationary(idf.dt_s, m_best, p.smoother, idf.noise.model, p)
+    blend = order_rep.get("blend")   # the other order's estimate, kept for the blend (stage 9 step 1)
+    blend_est = cands[blend["m"]].filtered.table["dg_unleveled_mgal"].to_numpy().copy() if blend else None
     for m in [k for k in cands if k != m_best]:
         # the other order's filtered lines are not read after the order is chosen: freed before
         # the std, leveling and gridding, a copy of every epoch's columns less at the peak
@@ -225,6 +227,8 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
                                             min_points=p.min_points_adaptive, q_from_posteriors=p.q_from_posteriors,
                                             repeat_min_samples=p.std_repeat_min_samples or None,
                                             fir_period_s=p.fir_cutoff_period_s)
+    if blend:   # after m_best's own std: the blend's spread adds to it
+        cands[m_best].filtered.blend_order(blend_est, blend["weight"])
     choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings, order=(m_best, order_rep))
     best = cands[choice.m]
     table = choice.table

@@ -271,6 +271,61 @@ def test_order_choice_is_not_blinded_by_one_wild_crossover():
     assert m == 1 and rep["m"] == 1
 
 
+def test_orders_that_cannot_be_told_apart_are_blended_by_their_crossovers():
+    """Ten 40 km mains and ten ties (100 crossovers); m = 1's and m = 2's estimates with smooth,
+    independent errors of the same size (3 mGal, wavelengths 6–15 km): neither is
+    significantly better at the crossovers, so m = 2 stays the order, the blend weight comes
+    out near ½, and the blended estimate's error against the truth is near 1/√2 of either
+    order's, its std holding the blend's spread.  With ``order_blend`` off there is no blend."""
+    from types import SimpleNamespace
+
+    from app.pipeline.stages.choice import choose_order
+    from app.pipeline.stages.filtering import Filtered
+
+    rng = np.random.default_rng(21)
+    step_km, rows, t0 = 0.05, [], 0.0
+    s_km = np.arange(0.0, 40.0 + step_km / 2, step_km)
+    for k in range(10):
+        for name, kind, e, n in ((f"M{k}", "main", s_km, np.full_like(s_km, 2.0 + 4.0 * k)),
+                                 (f"T{k}", "tie", np.full_like(s_km, 2.0 + 4.0 * k), s_km)):
+            rows.append(pd.DataFrame({"line": name, "kind": kind, "time": t0 + 10.0 * np.arange(s_km.size),
+                                      "easting_km": e, "northing_km": n, "dg_true_mgal": _anomaly(e, n)}))
+            t0 += 10.0 * s_km.size + 600.0
+    table = pd.concat(rows, ignore_index=True)
+
+    def smooth_error():
+        err = np.zeros(len(table))
+        for _, g in table.groupby("line"):
+            d = np.hypot(g["easting_km"] - g["easting_km"].iloc[0], g["northing_km"] - g["northing_km"].iloc[0])
+            for lam in (6.0, 9.0, 15.0):
+                err[g.index] += 3.0 * np.sqrt(2.0 / 3.0) * np.sin(2 * np.pi * d / lam + rng.uniform(0, 2 * np.pi))
+        return err
+
+    errs = {1: smooth_error(), 2: smooth_error()}
+    cands = {m: SimpleNamespace(filtered=SimpleNamespace(table=table.assign(
+        dg_unleveled_mgal=table["dg_true_mgal"] + e, dg_mgal=table["dg_true_mgal"] + e,
+        dg_std_mgal=np.full(len(table), 3.0)))) for m, e in errs.items()}
+    m, rep = choose_order(cands, ProcessingParams())
+    assert rep["n_crossovers"] == 100
+    assert m == 2 and rep["p_m2_worse_than_m1"] > 0.05
+    w = rep["blend"]["weight"]
+    assert rep["blend"]["m"] == 1 and 0.3 < w < 0.7
+    assert rep["blend"]["crossover_rms_mgal"] < 0.85 * min(rep["crossover_rms_mgal"].values())
+    other = cands[1].filtered.table["dg_unleveled_mgal"].to_numpy()
+    Filtered.blend_order(cands[2].filtered, other, w)
+    t = cands[2].filtered.table
+    truth = t["dg_true_mgal"]
+    np.testing.assert_allclose(t["dg_mgal"], (1 - w) * (truth + errs[2]) + w * (truth + errs[1]))
+    assert np.array_equal(t["dg_mgal"], t["dg_unleveled_mgal"])
+    r_blend, r1, r2 = _rms(t["dg_mgal"], truth), _rms(errs[1], 0), _rms(errs[2], 0)
+    assert r_blend < 0.8 * min(r1, r2)
+    assert np.all(t["dg_std_mgal"] >= 3.0)
+    with pytest.raises(ValueError, match="blend weight"):
+        Filtered.blend_order(cands[2].filtered, other, 1.5)
+    _, rep_off = choose_order(cands, ProcessingParams(order_blend=False))
+    assert "blend" not in rep_off
+
+
 def test_a_stationary_baseline_that_passes_noise_is_reported():
     """The stationary column = truth + noise of 2× the anomaly's std on every line (a level
     that ran away): the check reports it and warns, the column itself is left as computed;

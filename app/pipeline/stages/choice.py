@@ -12,7 +12,16 @@
    difference either way therefore says nothing about the error against the truth
    (omolon: m = 2 had the lower crossover RMS, 3.45 vs 3.51 mGal, p = 0.22, and the larger
    error against truth, 2.49 vs 2.34 mGal, when both used the full-rate refined levels).
-   Without enough crossovers the SPEC default m = 2 is used.
+   Without enough crossovers the SPEC default m = 2 is used.  Where m = 1 is not
+   significantly better, the estimate is the blend ``w·(m = 1) + (1 − w)·(m = 2)`` whose
+   crossover differences have the least mean square (``order_blend``;
+   :func:`app.core.model_check.crossover_blend_weight`): read as above, the combination of
+   the two orders with the least unshared error — it takes what each order gets right (m = 1
+   the sharp anomalies m = 2's smoother prior rounds off, m = 2 the noise m = 1 lets through)
+   where the crossovers see it, and is m = 2 alone (w = 0) where they see no gain.  The
+   levels, the state map and the std are m = 2's; the variance adds the blend's share of the
+   two orders' difference, ``w(1 − w)·(m₁ − m₂)²`` (the law of total variance over the two
+   orders with weights w, 1 − w, each order's own variance taken as m = 2's).
 2. **Flattened lines.**  An estimate whose along-line variance is far below the anomaly
    variance the FIR 100 s estimate shows beyond its own noise
    (:func:`app.core.model_check.flattening_ratio` < ``flatten_min_ratio``) failed to detect
@@ -59,6 +68,7 @@ import pandas as pd
 
 from app.core.leveling import find_crossovers
 from app.core.model_check import (
+    crossover_blend_weight,
     crossover_comparison,
     crossover_rms_mgal,
     disagreement_ratio,
@@ -142,11 +152,20 @@ def choose_order(candidates: dict, p) -> tuple[int, dict]:
     # (by the mean square or by the ranks, as for the FIR guard: a few wild crossovers of the
     # default order blind the t-test — unseen seed 88: 48.5 against 11.3 mGal, t p = 0.09)
     best = lo if significantly_worse(cmp, p.order_choice_p) else hi
-    return best, {"criterion": f"crossover RMS: m = {hi} (SPEC's default) unless m = {lo} agrees significantly "
-                               f"better at the crossovers (one-sided p < {p.order_choice_p} by the squared "
-                               "differences' t-test, or the signed ranks of their magnitudes with the RMS agreeing)",
-                  "crossover_rms_mgal": {str(m): rms[m] for m in orders}, "n_crossovers": cmp.n,
-                  f"p_m{hi}_worse_than_m{lo}": cmp.p_value, f"p_rank_m{hi}_worse_than_m{lo}": cmp.p_rank, "m": best}
+    rep = {"criterion": f"crossover RMS: m = {hi} (SPEC's default) unless m = {lo} agrees significantly "
+                        f"better at the crossovers (one-sided p < {p.order_choice_p} by the squared "
+                        "differences' t-test, or the signed ranks of their magnitudes with the RMS agreeing)",
+           "crossover_rms_mgal": {str(m): rms[m] for m in orders}, "n_crossovers": cmp.n,
+           f"p_m{hi}_worse_than_m{lo}": cmp.p_value, f"p_rank_m{hi}_worse_than_m{lo}": cmp.p_rank, "m": best}
+    if best == hi and p.order_blend:
+        # neither order shown better: the blend the crossovers find least in error (module docstring)
+        w = crossover_blend_weight(diffs[lo], diffs[hi])
+        if np.isfinite(w) and w > 0.0:
+            rep["blend"] = {"m": lo, "weight": w, "crossover_rms_mgal": crossover_rms_mgal(
+                w * diffs[lo] + (1.0 - w) * diffs[hi])}
+        rep["criterion"] += (f"; else the blend w·(m = {lo}) + (1 − w)·(m = {hi}) with the least crossover mean "
+                             "square (w = 0: m = 2 alone)")
+    return best, rep
 
 
 def _use(table: pd.DataFrame, rows, values, std) -> None:

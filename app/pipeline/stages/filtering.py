@@ -362,6 +362,25 @@ class Filtered:
                 col[offsets[k]:offsets[k] + sizes[k]] = std
         self.table["dg_std_mgal"] = col
 
+    def blend_order(self, other_mgal, weight: float) -> None:
+        """Blend the other order's estimate into this one (stage 9 step 1, ``order_blend``), in
+        place: ``dg_mgal`` = ``dg_unleveled_mgal`` = ``(1 − w)·this + w·other`` and
+        ``dg_std_mgal² += w(1 − w)·(this − other)²``; epochs where the other has no value keep
+        this estimate.  ``other_mgal``: shape (rows of the table,), the same lines and epochs
+        in the same order (both orders' tables come from the same prepared lines)."""
+        other = np.asarray(other_mgal, dtype=float)
+        if other.shape != (len(self.table),):
+            raise ValueError(f"the other order's estimate has shape {other.shape}, the table {len(self.table)} rows")
+        w = float(weight)
+        if not 0.0 <= w <= 1.0:
+            raise ValueError(f"blend weight must be in [0, 1], got {w}")
+        est = self.table["dg_unleveled_mgal"].to_numpy()
+        d = np.where(np.isfinite(other), other - est, 0.0)
+        blended = est + w * d
+        self.table["dg_mgal"] = blended
+        self.table["dg_unleveled_mgal"] = blended
+        self.table["dg_std_mgal"] = np.sqrt(self.table["dg_std_mgal"].to_numpy() ** 2 + w * (1.0 - w) * d ** 2)
+
     def add_stationary(self, dt_s: float, m: int, method: str, noise, p=None) -> None:
         """Fill the ``dg_stationary_mgal`` column (when :func:`filter_survey` skipped it): the
         stationary model — one Q for the whole survey by the full-rate likelihood, the survey's
