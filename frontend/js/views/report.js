@@ -70,7 +70,17 @@ function summary(r) {
     let text = `Model choice: ${typeof mc === "object" && mc ? (mc.chosen ?? mc.model ?? JSON.stringify(mc).slice(0, 120)) : String(mc)}` +
       (mc && mc.reason ? ` — ${mc.reason}` : "");
     if (mc && typeof mc === "object") {
-      if (mc.m !== undefined) text += ` (anomaly order m = ${mc.m})`;
+      // neither order significantly better at the crossovers: their least-error blend (stage 9)
+      const b = (mc.order || {}).blend, xr = (mc.order || {}).crossover_rms_mgal || {};
+      if (mc.m !== undefined) {
+        let order = `anomaly order m = ${mc.m}`;
+        if (b) {
+          order += `, blended with m = ${b.m} at weight ${fmt(b.weight, 3)} — the least crossover mean square ` +
+            `(RMS ${fmt(b.crossover_rms_mgal, 2)} mGal against ${fmt(xr[String(mc.m)], 2)} for m = ${mc.m} and ` +
+            `${fmt(xr[String(b.m)], 2)} for m = ${b.m} alone)`;
+        }
+        text += ` (${order})`;
+      }
       // why FIR, when it is: the crossover guard or the noisy-estimate check (stage 9)
       const g = mc.fir_guard || {}, n = mc.noisy_check || {};
       if (g.applied) {
