@@ -132,7 +132,9 @@ def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress
         shutil.copytree(src, out / IDENTIFIED_DIR, copy_function=_link_or_copy, dirs_exist_ok=True)
     identification_timings = dict(idf.timings)
     idf.timings = {}
-    # the anomaly order chosen by the run this one starts from (its crossovers do not depend on h, ρ)
+    # the anomaly order chosen by the run this one starts from (its crossovers do not depend on h, ρ);
+    # where that run blended the two orders, both are filtered again and blended at the new h, ρ
+    # by their own crossovers, as `process` would (stage 9 step 1)
     orders = q_start = None
     prev_report = Path(identified_dir) / "report.json"
     if idf.cfg.processing.m is None and prev_report.exists():
@@ -140,10 +142,14 @@ def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress
 
         prev = json.loads(prev_report.read_text())
         prev_m = prev.get("model_choice", {}).get("m")
+        blend = (prev.get("model_choice", {}).get("order") or {}).get("blend")
         if prev_m in idf.identifications:
-            orders = [int(prev_m)]
-            q_start = prev.get("level_refinement", {}).get("Q_mgal2")
-    report = run_filter(idf, out, tr, orders=orders, q_start=q_start if orders else None)
+            q_start = {int(prev_m): prev.get("level_refinement", {}).get("Q_mgal2")}
+            if not blend:
+                orders = [int(prev_m)]
+            elif blend.get("Q_mgal2") is not None:
+                q_start[int(blend["m"])] = blend["Q_mgal2"]
+    report = run_filter(idf, out, tr, orders=orders, q_start=q_start)
     if orders:
         report["model_choice"]["order"] = {"criterion": "as chosen by the run this filter starts from", "m": orders[0]}
     report["reused_identification"] = {"from": str(identified_dir), "timings_s": identification_timings,

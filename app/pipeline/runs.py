@@ -189,9 +189,11 @@ def _recognised_by(idents: dict, m: int, p):
 
 
 def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = None, rho_km: float | None = None,
-               survey_name: str | None = None, orders: list[int] | None = None, q_start=None) -> dict:
+               survey_name: str | None = None, orders: list[int] | None = None,
+               q_start: dict | None = None) -> dict:
     """NL-means (h, ρ; default the survey's) → filtering of every identified order → model choice
-    → leveling → gridding → the files of SPEC §5.  Returns the report."""
+    → leveling → gridding → the files of SPEC §5.  Returns the report.  ``q_start``: {order: the Q
+    levels an earlier refinement found} (a filter job's warm start)."""
     cfg = idf.cfg
     p = cfg.processing
     h = p.nlmeans_h_per_km if h_per_km is None else float(h_per_km)
@@ -206,7 +208,7 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
         tr.start("filtering")
         filt = filter_survey(idf.lines, idf.flights, idf.fir, ident, smap, idf.noise.r_local, idf.noise.model,
                              idf.dt_s, p, warnings, progress=tr.emit, stationary=len(orders) == 1,
-                             q_start=q_start if len(orders) == 1 else None)
+                             q_start=(q_start or {}).get(m))
         cands[m] = Candidate(ident, smap, filt)
     tr.start("choice")
     m_best, order_rep = choose_order(cands, p)
@@ -214,6 +216,8 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
         cands[m_best].filtered.add_stationary(idf.dt_s, m_best, p.smoother, idf.noise.model, p)
     blend = order_rep.get("blend")   # the other order's estimate, kept for the blend (stage 9 step 1)
     blend_est = cands[blend["m"]].filtered.table["dg_unleveled_mgal"].to_numpy().copy() if blend else None
+    if blend:   # the other order's levels, for a later filter job's warm start
+        blend["Q_mgal2"] = [float(q) for q in cands[blend["m"]].filtered.Q_levels]
     for m in [k for k in cands if k != m_best]:
         # the other order's filtered lines are not read after the order is chosen: freed before
         # the std, leveling and gridding, a copy of every epoch's columns less at the peak

@@ -1,0 +1,25 @@
+"""The ``filter`` job after a run that blended the two anomaly orders (stage 9 step 1): it
+filters both orders again (each refinement warm-started from the levels that run found) and
+blends them, so at the same h, ρ it gives the ``process`` run's estimate — not m = 2 alone."""
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+SAMPLE = Path(__file__).resolve().parents[2] / "sample_surveys" / "omolon-mini"
+
+
+def test_filter_job_after_a_blended_run_reproduces_it(tmp_path):
+    from app.pipeline.process import filter_from, process_survey
+
+    first = process_survey(SAMPLE, tmp_path / "process", keep_identification=True)
+    blend = first["model_choice"]["order"].get("blend")
+    assert blend is not None and 0.0 < blend["weight"] < 1.0   # the sample's crossovers blend (w ≈ 0.41)
+    again = filter_from(tmp_path / "process", tmp_path / "filter")
+    # the warm-started refinements end near the cold ones: the same blend to a few thousandths
+    assert abs(again["model_choice"]["order"]["blend"]["weight"] - blend["weight"]) < 0.02
+    a = pd.read_parquet(tmp_path / "process" / "lines.parquet")
+    b = pd.read_parquet(tmp_path / "filter" / "lines.parquet")
+    for col in ("dg_mgal", "dg_std_mgal"):
+        assert np.sqrt(np.mean((a[col] - b[col]) ** 2)) < 0.02   # mGal; the blend moved it by ~0.5
