@@ -201,10 +201,13 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     warnings = list(idf.warnings)
     cands = {}
     orders = orders or filter_orders(idf, p)
+    maps = {}   # one NL-means per recognition: both orders filter with m = 1's map (recognition_order)
     for m in orders:
         tr.start("nlmeans")
         ident = _recognised_by(idf.identifications, m, p)
-        smap = state_map(ident.recognition, h, rho, p.nlmeans_mode)
+        if id(ident.recognition) not in maps:
+            maps[id(ident.recognition)] = state_map(ident.recognition, h, rho, p.nlmeans_mode)
+        smap = maps[id(ident.recognition)]
         tr.start("filtering")
         filt = filter_survey(idf.lines, idf.flights, idf.fir, ident, smap, idf.noise.r_local, idf.noise.model,
                              idf.dt_s, p, warnings, progress=tr.emit, stationary=len(orders) == 1,
