@@ -23,7 +23,8 @@ why (``app.pipeline`` model choice).
   crossover cannot mask.
 * :func:`crossover_blend_weight` — the weight of the blend of two estimates whose
   crossover differences have the least mean square: by the same reading of the
-  crossovers, the blend with the least error two crossing lines do not share.
+  crossovers, the blend with the least error two crossing lines do not share;
+  :func:`blend_estimates` — that blend and its std.
 """
 
 from __future__ import annotations
@@ -456,6 +457,38 @@ def crossover_blend_weight(diff_a_mgal, diff_b_mgal) -> float:
     if den <= 1e-12 * max(s_aa + s_bb, 1e-300):
         return 0.0
     return float(np.clip((s_bb - s_ab) / den, 0.0, 1.0))
+
+
+def blend_estimates(a_mgal, b_mgal, std_b_mgal, weight_a: float) -> tuple[np.ndarray, np.ndarray]:
+    """The blend ``w·a + (1 − w)·b`` of two estimates and its std.
+
+    The std is that of the two-point mixture — a with probability w, b with 1 − w, each with
+    b's std — by the law of total variance: ``sqrt(std_b² + w(1 − w)·(a − b)²)``.  Where a has
+    no value (NaN) the blend is b with b's std.
+
+    Parameters
+    ----------
+    a_mgal, b_mgal, std_b_mgal : array_like, shape (n,)
+        The two estimates and b's posterior std (mGal).
+    weight_a : float
+        w in [0, 1] (e.g. :func:`crossover_blend_weight`).
+
+    Returns
+    -------
+    (ndarray, ndarray)
+        The blended estimate and its std, shape (n,), mGal.
+    """
+    a = np.asarray(a_mgal, dtype=float)
+    b = np.asarray(b_mgal, dtype=float)
+    sb = np.asarray(std_b_mgal, dtype=float)
+    if not (a.shape == b.shape == sb.shape) or a.ndim != 1:
+        raise ValueError(f"a_mgal, b_mgal and std_b_mgal must be 1-D of one length, got {a.shape}, {b.shape}, "
+                         f"{sb.shape}")
+    w = float(weight_a)
+    if not 0.0 <= w <= 1.0:
+        raise ValueError(f"blend weight must be in [0, 1], got {w}")
+    d = np.where(np.isfinite(a), a - b, 0.0)
+    return b + w * d, np.sqrt(sb ** 2 + w * (1.0 - w) * d ** 2)
 
 
 def paired_rank_p(before, after) -> float:

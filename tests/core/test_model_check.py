@@ -6,6 +6,7 @@ from scipy import stats
 
 from app.core.baselines import fir_kernel, fir_lowpass_mgal
 from app.core.model_check import (
+    blend_estimates,
     crossover_blend_weight,
     crossover_comparison,
     difference_nll,
@@ -84,6 +85,26 @@ def test_crossover_blend_weight_edges():
     assert np.isnan(crossover_blend_weight([1.0, 2.0], [0.0, 1.0]))
     with pytest.raises(ValueError, match="one length"):
         crossover_blend_weight(np.ones(4), np.ones(5))
+
+
+def test_blend_estimates_is_the_mean_and_std_of_the_two_point_mixture():
+    """Draws of the mixture (a + N(0, s²) with probability w, b + N(0, s²) otherwise): their
+    mean and std per epoch are the blend and its std; NaN in a leaves b; bad weights raise."""
+    rng = np.random.default_rng(5)
+    a, b, s = np.array([3.0, -1.0, 10.0]), np.array([1.0, 2.0, 10.0]), np.array([0.5, 2.0, 1.0])
+    w, n = 0.3, 400_000
+    pick_a = rng.random((n, 3)) < w
+    draws = np.where(pick_a, a, b) + rng.normal(0.0, 1.0, (n, 3)) * s
+    est, std = blend_estimates(a, b, s, w)
+    np.testing.assert_allclose(est, draws.mean(axis=0), atol=0.01)
+    np.testing.assert_allclose(std, draws.std(axis=0), rtol=0.005)
+    est2, std2 = blend_estimates(np.array([np.nan, 4.0, 1.0]), b, s, w)
+    assert est2[0] == b[0] and std2[0] == s[0]
+    for bad in (-0.1, 1.5):
+        with pytest.raises(ValueError, match="blend weight"):
+            blend_estimates(a, b, s, bad)
+    with pytest.raises(ValueError, match="one length"):
+        blend_estimates(a, b[:2], s, w)
 
 
 def test_disagreement_ratio_matches_its_analytic_value():

@@ -14,6 +14,7 @@ import pandas as pd
 from app.core.accuracy import repeat_error_parts, repeat_line_accuracy
 from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
 from app.core.level_ml import refine_levels
+from app.core.model_check import blend_estimates
 from app.core.smoother import kalman_smooth, level_spread_std_mgal, mixture_std_mgal
 from app.pipeline.parallel import line_map
 from app.pipeline.stages.lines import LineData
@@ -364,22 +365,18 @@ class Filtered:
 
     def blend_order(self, other_mgal, weight: float) -> None:
         """Blend the other order's estimate into this one (stage 9 step 1, ``order_blend``), in
-        place: ``dg_mgal`` = ``dg_unleveled_mgal`` = ``(1 − w)·this + w·other`` and
-        ``dg_std_mgal² += w(1 − w)·(this − other)²``; epochs where the other has no value keep
-        this estimate.  ``other_mgal``: shape (rows of the table,), the same lines and epochs
-        in the same order (both orders' tables come from the same prepared lines)."""
+        place: ``dg_mgal`` = ``dg_unleveled_mgal`` = ``(1 − w)·this + w·other``, its std that of
+        the mixture (:func:`app.core.model_check.blend_estimates`).  ``other_mgal``: shape (rows
+        of the table,), the same lines and epochs in the same order (both orders' tables come
+        from the same prepared lines); where it has no value this estimate stays."""
         other = np.asarray(other_mgal, dtype=float)
         if other.shape != (len(self.table),):
             raise ValueError(f"the other order's estimate has shape {other.shape}, the table {len(self.table)} rows")
-        w = float(weight)
-        if not 0.0 <= w <= 1.0:
-            raise ValueError(f"blend weight must be in [0, 1], got {w}")
-        est = self.table["dg_unleveled_mgal"].to_numpy()
-        d = np.where(np.isfinite(other), other - est, 0.0)
-        blended = est + w * d
+        blended, std = blend_estimates(other, self.table["dg_unleveled_mgal"].to_numpy(),
+                                       self.table["dg_std_mgal"].to_numpy(), weight)
         self.table["dg_mgal"] = blended
         self.table["dg_unleveled_mgal"] = blended
-        self.table["dg_std_mgal"] = np.sqrt(self.table["dg_std_mgal"].to_numpy() ** 2 + w * (1.0 - w) * d ** 2)
+        self.table["dg_std_mgal"] = std
 
     def add_stationary(self, dt_s: float, m: int, method: str, noise, p=None) -> None:
         """Fill the ``dg_stationary_mgal`` column (when :func:`filter_survey` skipped it): the
