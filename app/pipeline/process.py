@@ -135,21 +135,24 @@ def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress
     # the anomaly order chosen by the run this one starts from (its crossovers do not depend on h, ρ);
     # where that run blended the two orders, both are filtered again and blended at the new h, ρ
     # by their own crossovers, as `process` would (stage 9 step 1)
-    orders = q_start = None
+    # The stationary baseline has no states: its level, fitted by that run, is taken as it is
+    orders = q_start = q_stationary = None
     prev_report = Path(identified_dir) / "report.json"
-    if idf.cfg.processing.m is None and prev_report.exists():
+    if prev_report.exists():
         import json
 
         prev = json.loads(prev_report.read_text())
         prev_m = prev.get("model_choice", {}).get("m")
         blend = (prev.get("model_choice", {}).get("order") or {}).get("blend")
         if prev_m in idf.identifications:
-            q_start = {int(prev_m): prev.get("level_refinement", {}).get("Q_mgal2")}
+            q_stationary = {int(prev_m): (prev.get("level_refinement") or {}).get("Q_stationary_mgal2")}
+        if idf.cfg.processing.m is None and prev_m in idf.identifications:
+            q_start = {int(prev_m): (prev.get("level_refinement") or {}).get("Q_mgal2")}
             if not blend:
                 orders = [int(prev_m)]
             elif blend.get("Q_mgal2") is not None:
                 q_start[int(blend["m"])] = blend["Q_mgal2"]
-    report = run_filter(idf, out, tr, orders=orders, q_start=q_start)
+    report = run_filter(idf, out, tr, orders=orders, q_start=q_start, q_stationary=q_stationary)
     if orders:
         report["model_choice"]["order"] = {"criterion": "as chosen by the run this filter starts from", "m": orders[0]}
     report["reused_identification"] = {"from": str(identified_dir), "timings_s": identification_timings,
@@ -171,10 +174,13 @@ def _link_or_copy(src, dst):
     import os
     import shutil
 
+    if os.path.exists(dst) and os.path.samefile(src, dst):
+        return dst   # a filter job run again into the same folder: already linked
     try:
         os.link(src, dst)
     except OSError:
         shutil.copy2(src, dst)
+    return dst
 
 
 def run_job(input_dir, out_dir, overrides: dict | None = None, progress: Progress | None = None,

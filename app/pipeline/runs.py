@@ -190,10 +190,11 @@ def _recognised_by(idents: dict, m: int, p):
 
 def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = None, rho_km: float | None = None,
                survey_name: str | None = None, orders: list[int] | None = None,
-               q_start: dict | None = None) -> dict:
+               q_start: dict | None = None, q_stationary: dict | None = None) -> dict:
     """NL-means (h, ρ; default the survey's) → filtering of every identified order → model choice
     → leveling → gridding → the files of SPEC §5.  Returns the report.  ``q_start``: {order: the Q
-    levels an earlier refinement found} (a filter job's warm start)."""
+    levels an earlier refinement found} (a filter job's warm start); ``q_stationary``: {order: the
+    stationary model's level an earlier run fitted} (independent of h, ρ: a filter job reuses it)."""
     cfg = idf.cfg
     p = cfg.processing
     h = p.nlmeans_h_per_km if h_per_km is None else float(h_per_km)
@@ -211,7 +212,7 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
         tr.start("filtering")
         filt = filter_survey(idf.lines, idf.flights, idf.fir, ident, smap, idf.noise.r_local, idf.noise.model,
                              idf.dt_s, p, warnings, progress=tr.emit, stationary=len(orders) == 1,
-                             q_start=(q_start or {}).get(m))
+                             q_start=(q_start or {}).get(m), q_stationary=(q_stationary or {}).get(m))
         cands[m] = Candidate(ident, smap, filt)
     tr.start("choice")
     m_best, order_rep = choose_order(cands, p)

@@ -23,3 +23,14 @@ def test_filter_job_after_a_blended_run_reproduces_it(tmp_path):
     b = pd.read_parquet(tmp_path / "filter" / "lines.parquet")
     for col in ("dg_mgal", "dg_std_mgal"):
         assert np.sqrt(np.mean((a[col] - b[col]) ** 2)) < 0.02   # mGal; the blend moved it by ~0.5
+    # the stationary baseline has no states, so other h, ρ leave it where the run put it: its
+    # level is the run's (not fitted again), the column the same but for R's map-dependent scale
+    other = filter_from(tmp_path / "process", tmp_path / "filter2",
+                        {"nlmeans_h_per_km": 1.0, "nlmeans_rho_km": 6.0})
+    assert other["level_refinement"]["Q_stationary_mgal2"] == first["level_refinement"]["Q_stationary_mgal2"]
+    c = pd.read_parquet(tmp_path / "filter2" / "lines.parquet")
+    assert np.sqrt(np.mean((a["dg_stationary_mgal"] - c["dg_stationary_mgal"]) ** 2)) < 0.05
+    assert np.sqrt(np.mean((a["dg_mgal"] - c["dg_mgal"]) ** 2)) > 0.05   # while the estimate moved
+    # and the same job again into its own folder (its identification already linked there)
+    filter_from(tmp_path / "process", tmp_path / "filter2", {"nlmeans_h_per_km": 1.0, "nlmeans_rho_km": 6.0})
+    assert pd.read_parquet(tmp_path / "filter2" / "lines.parquet")["dg_mgal"].equals(c["dg_mgal"])

@@ -410,10 +410,12 @@ def stationary_level(prepared: list, Q_levels, r_stationary: float, dt_s: float,
 
 def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], fir: dict, ident, smap,
                   r_local: dict, noise, dt_s: float, p, warnings: list, progress=None,
-                  stationary: bool = True, q_start=None) -> Filtered:
+                  stationary: bool = True, q_start=None, q_stationary: float | None = None) -> Filtered:
     """Stage 8 for one identification (order ``ident.m``) and one smoothed map; without
     ``stationary`` the baseline column is left NaN (:meth:`Filtered.add_stationary`).  ``q_start``:
-    the Q levels an earlier refinement found (a filter run with other h, ρ starts from them)."""
+    the Q levels an earlier refinement found (a filter run with other h, ρ starts from them);
+    ``q_stationary``: the stationary model's level an earlier run of this order fitted (mGal²;
+    it does not depend on h, ρ, so a filter job takes it instead of fitting it again)."""
     em = ident.learned.em
     Qs, Rs = np.asarray(em.Q, float), np.asarray(em.R, float)
     n_r = len(Rs)
@@ -466,6 +468,8 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
             progress((i + 1) / len(prepared))
     out = Filtered(pd.concat(frames, ignore_index=True), np.asarray(Qs, float), level_fit, r_scale, r_stationary,
                    prepared, r_lines=r_lines, n_r=n_r)
+    if q_stationary is not None and np.isfinite(q_stationary) and q_stationary > 0:
+        out.Q_stationary = float(q_stationary)
     if stationary:
         out.add_stationary(dt_s, ident.m, p.smoother, noise, p)
     return out
