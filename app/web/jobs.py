@@ -42,7 +42,7 @@ from typing import Any
 from sqlalchemy import update
 
 from app.jsonsafe import to_jsonable
-from app.pipeline.parallel import cpu_count, thread_count
+from app.pipeline.parallel import cpu_count, freeze_imports, thread_count
 
 from .db import ACTIVE_STATES, Job, Result, Survey, session_factory, utcnow
 
@@ -60,12 +60,14 @@ def load_entry(entry: str) -> Callable:
 
 
 def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: str,
-                kind: str, params: dict[str, Any], threads: int | None = None) -> str:
+                kind: str, params: dict[str, Any], threads: int | None = None, one_shot: bool = False) -> str:
     """Run one job to completion (in a worker).  Returns the final status.
 
     ``threads``: the job process's share of the CPUs for the per-line loops
     (``AEROGRAV_THREADS``, :mod:`app.pipeline.parallel`), set when the variable is not already
-    set; the output does not depend on it."""
+    set; the output does not depend on it.  ``one_shot``: the process ends with this job (a
+    local job's own process): the imports are frozen out of the garbage collector's reach
+    (:func:`app.pipeline.parallel.freeze_imports`)."""
     if threads is not None and not os.environ.get("AEROGRAV_THREADS", "").strip():
         os.environ["AEROGRAV_THREADS"] = str(max(1, int(threads)))
     Session = session_factory(db_url)
@@ -104,6 +106,8 @@ def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: s
     partial.mkdir(parents=True)
     try:
         fn = load_entry(entry)
+        if one_shot:
+            freeze_imports()
         kw: dict[str, Any] = {}
         if "kind" in inspect.signature(fn).parameters:
             kw["kind"] = kind
@@ -282,7 +286,8 @@ class JobManager:
     def _start_local(self, job_id: int, args: tuple) -> None:
         """Spawn the job's worker process (call under ``_lock``)."""
         ctx = multiprocessing.get_context("spawn")
-        p = ctx.Process(target=execute_job, args=args + (self.thread_share(),), name=f"aerograv-job-{job_id}")
+        p = ctx.Process(target=execute_job, args=args + (self.thread_share(),), kwargs={"one_shot": True},
+                        name=f"aerograv-job-{job_id}")
         p.start()
         self._procs[job_id] = p
 
