@@ -151,7 +151,7 @@ def write_grid_netcdf(path, easting_km, northing_km, dg, dg_std, crs, attrs: dic
     attrs : dict, optional
         Extra global attributes.
     """
-    import netCDF4   # directly: xarray's writer imports dask.array (~0.5 s of a 7 s run)
+    import netCDF4  # directly: xarray's writer imports dask.array (~0.5 s of a 7 s run)
 
     e, n, g, s = _check_grid(easting_km, northing_km, dg, dg_std)
     c = _crs(crs)
