@@ -23,6 +23,7 @@ process is gone is failed.
 
 from __future__ import annotations
 
+import datetime as dt
 import importlib
 import inspect
 import json
@@ -186,18 +187,46 @@ def _death_reason(exitcode: int | None) -> str:
     return f"worker process died with exit code {exitcode}"
 
 
-def _pid_alive(pid: int) -> bool:
+def _pid_alive(pid: int, started_at=None) -> bool:
+    """Whether ``pid`` is still a job's worker process: alive and not a zombie, a process and not
+    a thread of another one (thread ids share the pid space: a pid freed by a dead worker is soon
+    a new thread's), and, when the job's start (``started_at``, naive UTC, set by the worker
+    itself) is known, started no later than the job — a pid reused by a later process is not
+    the worker.  Without ``/proc`` only the first test is made."""
     try:
         os.kill(int(pid), 0)
     except ProcessLookupError:
         return False
     except (PermissionError, OverflowError, ValueError):
         return True
-    try:  # a zombie is not alive
-        with open(f"/proc/{int(pid)}/stat") as fh:
-            return fh.read().rsplit(")", 1)[-1].split()[0] != "Z"
+    try:
+        status = Path(f"/proc/{int(pid)}/status").read_text()
+        stat = Path(f"/proc/{int(pid)}/stat").read_text()
     except OSError:
         return True
+    fields = dict(line.split(":", 1) for line in status.splitlines() if ":" in line)
+    if fields.get("Tgid", str(int(pid))).strip() != str(int(pid)):
+        return False
+    after_comm = stat.rsplit(")", 1)[-1].split()   # fields 3… of /proc/<pid>/stat
+    if after_comm[0] == "Z":
+        return False
+    if started_at is not None:
+        started = _process_start_epoch_s(int(after_comm[19]))   # field 22: start, clock ticks after boot
+        job_start = started_at.replace(tzinfo=dt.UTC).timestamp() if started_at.tzinfo is None \
+            else started_at.timestamp()
+        if started is not None and started > job_start + 2.0:
+            return False
+    return True
+
+
+def _process_start_epoch_s(ticks_after_boot: int) -> float | None:
+    """A process's start (s since the epoch) from its start in clock ticks after boot."""
+    try:
+        btime = next(int(line.split()[1]) for line in Path("/proc/stat").read_text().splitlines()
+                     if line.startswith("btime "))
+    except (OSError, StopIteration, ValueError):
+        return None
+    return btime + ticks_after_boot / os.sysconf("SC_CLK_TCK")
 
 
 class JobManager:
@@ -409,8 +438,6 @@ class JobManager:
         """Fail local jobs the store says are active but that have no live worker: not watched by
         this server, and their worker process (``worker_pid``) gone; a queued job without a worker
         gets ``queued_grace_s`` to start.  Returns the ids failed."""
-        import datetime as dt
-
         from sqlalchemy import select
 
         failed = []
@@ -422,7 +449,7 @@ class JobManager:
         for j in active:
             if j.id in watched or self.backend != "local":
                 continue
-            if j.worker_pid and _pid_alive(j.worker_pid):
+            if j.worker_pid and _pid_alive(j.worker_pid, j.started_at):
                 continue
             if j.status == "queued" and j.created_at and j.created_at > cutoff:
                 continue

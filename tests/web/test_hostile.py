@@ -296,6 +296,42 @@ def test_04_running_job_without_worker_reconciled(client, tiny_src):
     assert client.post(f"/api/surveys/{sid}/jobs", json={"kind": "process"}).status_code == 201
 
 
+def test_04b_reused_worker_pid_is_not_the_worker(client, tiny_src):
+    """A dead worker's pid soon belongs to something else: a thread of another process (thread
+    ids share the pid space) or a process started after the job. Neither keeps the job running;
+    a process started before the job's own start does."""
+    import datetime as dt
+    import threading
+
+    from app.web.db import Job, utcnow
+
+    zipped = zip_dir(tiny_src)
+    stop = threading.Event()
+    th = threading.Thread(target=stop.wait, daemon=True)
+    th.start()
+    later = subprocess.Popen(["sleep", "30"])
+    try:
+        time.sleep(0.05)
+        rows = {"thread": (th.native_id, utcnow()),                                  # a thread, not a process
+                "later": (later.pid, utcnow() - dt.timedelta(seconds=60)),            # started after the job
+                "worker": (later.pid, utcnow())}                                       # started before it: alive
+        ids = {}
+        with client.app.state.Session() as db:
+            for k, (pid, started) in rows.items():   # one active job per survey: a survey each
+                sid = import_zip(client, zipped).json()["id"]
+                j = Job(survey_id=sid, kind="process", status="running", worker_pid=pid, started_at=started,
+                        backend="local")
+                db.add(j)
+                db.commit()
+                ids[k] = j.id
+        assert sorted(client.app.state.jobs.reconcile()) == sorted([ids["thread"], ids["later"]])
+        assert client.get(f"/api/jobs/{ids['worker']}").json()["status"] == "running"
+    finally:
+        stop.set()
+        later.kill()
+        later.wait()
+
+
 # 6 ------------------------------------------------------------------ name length
 def test_06_huge_name_refused_and_listing_small(client, tiny_src, tmp_path):
     root = tmp_path / "long" / "s"
