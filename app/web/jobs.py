@@ -18,7 +18,8 @@ is durable: when the store refuses the write (disk full, database locked) the de
 pending and is written again on every pass until the store accepts it.  Active jobs in the
 store are also reconciled with the live workers: at start-up all of them are failed (no
 worker survives its server), and every ``reconcile_interval_s`` a local job whose worker
-process is gone is failed.
+process is gone is failed — gone also when its pid now names a thread of another process or a
+process started after the job (pids are reused).
 """
 
 from __future__ import annotations
