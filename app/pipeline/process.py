@@ -132,10 +132,12 @@ def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress
         shutil.copytree(src, out / IDENTIFIED_DIR, copy_function=_link_or_copy, dirs_exist_ok=True)
     identification_timings = dict(idf.timings)
     idf.timings = {}
-    # the anomaly order chosen by the run this one starts from (its crossovers do not depend on h, ρ);
-    # where that run blended the two orders, both are filtered again and blended at the new h, ρ
-    # by their own crossovers, as `process` would (stage 9 step 1)
-    # The stationary baseline has no states: its level, fitted by that run, is taken as it is
+    # The anomaly order: m = 1, where the run this one starts from found it significantly better
+    # at the crossovers, or m = 2 where too few crossovers could tell, is kept; where m = 2 stood by
+    # the crossover test (blended or not), both orders are filtered again — each warm-started from
+    # the levels that run found — and chosen or blended at the new h, ρ by their own crossovers,
+    # as `process` would (stage 9 step 1).  The stationary baseline has no states: its level,
+    # fitted by that run, is taken as it is.
     orders = q_start = q_stationary = None
     prev_report = Path(identified_dir) / "report.json"
     if prev_report.exists():
@@ -143,15 +145,21 @@ def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress
 
         prev = json.loads(prev_report.read_text())
         prev_m = prev.get("model_choice", {}).get("m")
-        blend = (prev.get("model_choice", {}).get("order") or {}).get("blend")
+        order = prev.get("model_choice", {}).get("order") or {}
+        blend = order.get("blend")
         if prev_m in idf.identifications:
             q_stationary = {int(prev_m): (prev.get("level_refinement") or {}).get("Q_stationary_mgal2")}
         if idf.cfg.processing.m is None and prev_m in idf.identifications:
             q_start = {int(prev_m): (prev.get("level_refinement") or {}).get("Q_mgal2")}
-            if not blend:
-                orders = [int(prev_m)]
-            elif blend.get("Q_mgal2") is not None:
+            q_start.update({int(m): q for m, q in (order.get("Q_mgal2_by_order") or {}).items() if int(m) != prev_m})
+            if blend and blend.get("Q_mgal2") is not None:
                 q_start[int(blend["m"])] = blend["Q_mgal2"]
+            # m = 2 stood by the crossover test: at other h, ρ the blend's weight may be other than
+            # that run's (0 included), so both orders are filtered as `process` would
+            blend_open = (int(prev_m) == 2 and idf.cfg.processing.order_blend
+                          and order.get("p_m2_worse_than_m1") is not None)
+            if not (blend or blend_open):
+                orders = [int(prev_m)]
     report = run_filter(idf, out, tr, orders=orders, q_start=q_start, q_stationary=q_stationary)
     if orders:
         report["model_choice"]["order"] = {"criterion": "as chosen by the run this filter starts from", "m": orders[0]}

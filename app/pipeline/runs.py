@@ -216,6 +216,8 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
         cands[m] = Candidate(ident, smap, filt)
     tr.start("choice")
     m_best, order_rep = choose_order(cands, p)
+    if len(cands) > 1:   # every order's levels: a later filter job's warm starts
+        order_rep["Q_mgal2_by_order"] = {str(m): [float(q) for q in c.filtered.Q_levels] for m, c in cands.items()}
     if len(cands) > 1:  # the baseline only for the order that is used
         cands[m_best].filtered.add_stationary(idf.dt_s, m_best, p.smoother, idf.noise.model, p)
     blend, blend_est = order_rep.get("blend"), None

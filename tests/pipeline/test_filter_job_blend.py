@@ -34,3 +34,24 @@ def test_filter_job_after_a_blended_run_reproduces_it(tmp_path):
     # and the same job again into its own folder (its identification already linked there)
     filter_from(tmp_path / "process", tmp_path / "filter2", {"nlmeans_h_per_km": 1.0, "nlmeans_rho_km": 6.0})
     assert pd.read_parquet(tmp_path / "filter2" / "lines.parquet")["dg_mgal"].equals(c["dg_mgal"])
+
+
+def test_filter_job_after_a_zero_weight_run_blends_as_process_would(tmp_path, monkeypatch):
+    """A run whose crossovers gave the blend weight 0 (m = 2 alone): at other h, ρ the weight may
+    be other, so the filter job filters both orders and blends them as ``process`` would — here
+    at the run's own h, ρ, with the weight no longer forced to 0, it must find the sample's blend."""
+    import app.pipeline.stages.choice as choice
+    from app.pipeline.process import filter_from, process_survey
+
+    real = choice.crossover_blend_weight
+    monkeypatch.setattr(choice, "crossover_blend_weight", lambda a, b: 0.0)
+    first = process_survey(SAMPLE, tmp_path / "process", keep_identification=True)
+    assert first["model_choice"]["m"] == 2 and "blend" not in first["model_choice"]["order"]
+    assert set(first["model_choice"]["order"]["Q_mgal2_by_order"]) == {"1", "2"}
+    monkeypatch.setattr(choice, "crossover_blend_weight", real)
+    again = filter_from(tmp_path / "process", tmp_path / "filter")
+    blend = again["model_choice"]["order"].get("blend")
+    assert blend is not None and 0.2 < blend["weight"] < 0.7   # the sample's w ≈ 0.41 (first test)
+    a = pd.read_parquet(tmp_path / "process" / "lines.parquet")
+    b = pd.read_parquet(tmp_path / "filter" / "lines.parquet")
+    assert np.sqrt(np.mean((a["dg_mgal"] - b["dg_mgal"]) ** 2)) > 0.1   # the blend moved it (~0.5 mGal)
