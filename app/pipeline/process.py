@@ -152,8 +152,8 @@ def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress
         if idf.cfg.processing.m is None and prev_m in idf.identifications:
             q_start = {int(prev_m): (prev.get("level_refinement") or {}).get("Q_mgal2")}
             q_start.update({int(m): q for m, q in (order.get("Q_mgal2_by_order") or {}).items() if int(m) != prev_m})
-            if blend and blend.get("Q_mgal2") is not None:
-                q_start[int(blend["m"])] = blend["Q_mgal2"]
+            if blend and blend.get("Q_mgal2") is not None:   # a result stored before Q_mgal2_by_order
+                q_start.setdefault(int(blend["m"]), blend["Q_mgal2"])
             # m = 2 stood by the crossover test: at other h, ρ the blend's weight may be other than
             # that run's (0 included), so both orders are filtered as `process` would
             blend_open = (int(prev_m) == 2 and idf.cfg.processing.order_blend

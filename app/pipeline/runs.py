@@ -216,17 +216,13 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
         cands[m] = Candidate(ident, smap, filt)
     tr.start("choice")
     m_best, order_rep = choose_order(cands, p)
-    if len(cands) > 1:   # every order's levels: a later filter job's warm starts
+    if len(cands) > 1:
+        # every order's levels (a later filter job's warm starts); the baseline only for the order used
         order_rep["Q_mgal2_by_order"] = {str(m): [float(q) for q in c.filtered.Q_levels] for m, c in cands.items()}
-    if len(cands) > 1:  # the baseline only for the order that is used
         cands[m_best].filtered.add_stationary(idf.dt_s, m_best, p.smoother, idf.noise.model, p)
-    blend, blend_est = order_rep.get("blend"), None
-    if blend:   # the other order's estimate, kept for the blend (stage 9 step 1), and its levels for
-        # a later filter job's warm start
-        other = cands[blend["m"]].filtered
-        blend_est = other.table["dg_unleveled_mgal"].to_numpy().copy()
-        blend["Q_mgal2"] = [float(q) for q in other.Q_levels]
-        del other
+    blend = order_rep.get("blend")
+    # the other order's estimate, kept for the blend (stage 9 step 1)
+    blend_est = cands[blend["m"]].filtered.table["dg_unleveled_mgal"].to_numpy().copy() if blend else None
     for m in [k for k in cands if k != m_best]:
         # the other order's filtered lines are not read after the order is chosen: freed before
         # the std, leveling and gridding, a copy of every epoch's columns less at the peak

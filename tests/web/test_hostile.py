@@ -301,7 +301,6 @@ def test_04b_reused_worker_pid_is_not_the_worker(client, tiny_src):
     ids share the pid space) or a process started after the job. Neither keeps the job running;
     a process started before the job's own start does."""
     import datetime as dt
-    import threading
 
     from app.web.db import Job, utcnow
 
