@@ -228,14 +228,46 @@ class Flattening:
         Anomaly variance the FIR estimate shows beyond its noise.
     detectable : bool
         The FIR's anomaly variance exceeds ``min_snr`` × its noise variance.
+    ratio_bound : float
+        ``var(estimate)`` against the *least* anomaly variance the FIR shows at the
+        confidence level, given how few independent samples of its noise the stretch holds
+        (inf when that least variance is not positive: nothing shows the estimate
+        flattened); equal to ``ratio`` without ``independent_samples``.
+    independent_samples : float
+        The independent samples of the FIR's noise the stretch holds (NaN when not given).
     """
 
     ratio: float
     signal_var_mgal2: float
     detectable: bool
+    ratio_bound: float = float("nan")
+    independent_samples: float = float("nan")
 
 
-def flattening_ratio(estimate_mgal, fir_mgal, fir_noise_var_mgal2: float, min_snr: float = 4.0) -> Flattening:
+def fir_noise_bandwidth_hz(noise, dt_s: float, cutoff_period_s: float = 100.0) -> float:
+    """Equivalent bandwidth (Hz, one-sided) of the noise of z after the FIR low-pass,
+    ``(∫S df)² / ∫S² df`` with ``S`` the noise's spectrum through the FIR: a stretch of
+    ``T`` seconds holds ``2·B·T`` independent samples of that noise (band-limited white noise
+    of bandwidth ``B``: exactly ``2·B·T``).  The level R scales ``S`` and cancels.
+
+    Parameters
+    ----------
+    noise : app.core.noise_model.NoiseModel
+    dt_s : float
+        GNSS step (s).
+    cutoff_period_s : float
+        The FIR's cut-off period (s).
+    """
+    h = fir_kernel(dt_s, cutoff_period_s)
+    nfft = 1 << int(np.ceil(np.log2(max(8 * h.size, 1 << 14))))
+    f = np.fft.rfftfreq(nfft, dt_s)
+    s = np.abs(np.fft.rfft(h, nfft)) ** 2 * noise.psd(f, 1.0)
+    den = float(np.trapezoid(s * s, f))
+    return float(np.trapezoid(s, f) ** 2 / den) if den > 0 else float("nan")
+
+
+def flattening_ratio(estimate_mgal, fir_mgal, fir_noise_var_mgal2: float, min_snr: float = 4.0,
+                     independent_samples: float | None = None, confidence: float = 0.95) -> Flattening:
     """Along-line variance of ``estimate_mgal`` against the anomaly variance in ``fir_mgal``.
 
     Parameters
@@ -246,16 +278,40 @@ def flattening_ratio(estimate_mgal, fir_mgal, fir_noise_var_mgal2: float, min_sn
         :func:`fir_noise_variance_mgal2` for the stretch.
     min_snr : float
         The check applies only where the FIR's anomaly variance exceeds this × its noise.
+    independent_samples : float, optional
+        Independent samples ν of the FIR's noise along the stretch (``2·B·T``,
+        :func:`fir_noise_bandwidth_hz`).  The noise variance the FIR actually carries over the
+        stretch scatters as ``σ²·χ²_ν/ν`` about the model's σ², and its covariance with the
+        anomaly by ``±sqrt(var_a·σ²/ν)``: a line of three FIR periods (ν ≈ 6) can carry twice
+        the predicted noise variance, which then reads as anomaly the estimate missed.
+        ``ratio_bound`` sets the estimate's variance against the least anomaly variance
+        consistent with the FIR at ``confidence`` (one-sided): the anomaly variance less the
+        two deviations at that level combined as independent errors,
+        ``hypot(σ²·(χ²_conf(ν)/ν − 1), 2·z_conf·sqrt(var_a·σ²/ν))``.
+    confidence : float
+        One-sided confidence of that bound.
     """
     e = np.asarray(estimate_mgal, dtype=float)
     f = np.asarray(fir_mgal, dtype=float)
+    if not 0.5 <= confidence < 1:
+        raise ValueError(f"confidence must be in [0.5, 1), got {confidence}")
     ok = np.isfinite(e) & np.isfinite(f)
     if ok.sum() < 10:
         return Flattening(float("nan"), float("nan"), False)
-    sig = float(np.var(f[ok]) - fir_noise_var_mgal2)
+    var_f, var_e = float(np.var(f[ok])), float(np.var(e[ok]))
+    sig = var_f - fir_noise_var_mgal2
     detectable = sig > min_snr * fir_noise_var_mgal2 and sig > 0
-    ratio = float(np.var(e[ok]) / sig) if sig > 0 else float("nan")
-    return Flattening(ratio, sig, bool(detectable))
+    ratio = float(var_e / sig) if sig > 0 else float("nan")
+    if independent_samples is None or not np.isfinite(independent_samples):
+        return Flattening(ratio, sig, bool(detectable), ratio)
+    nu = max(float(independent_samples), 2.0)
+    # the two one-sided deviations at the confidence level, combined as independent errors
+    # (the line's mean costs the FIR's noise little: it has little power at the lowest frequencies)
+    noise_dev = fir_noise_var_mgal2 * (float(stats.chi2.ppf(confidence, nu)) / nu - 1.0)
+    cross_dev = 2.0 * float(stats.norm.ppf(confidence)) * np.sqrt(max(sig, 0.0) * fir_noise_var_mgal2 / nu)
+    sig_lo = sig - float(np.hypot(noise_dev, cross_dev))
+    bound = float(var_e / sig_lo) if sig_lo > 0 else float("inf")
+    return Flattening(ratio, sig, bool(detectable), bound, nu)
 
 
 def fir_smoothing_variance_mgal2(estimate_mgal, dt_s: float, cutoff_period_s: float = 100.0) -> float:

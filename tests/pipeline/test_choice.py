@@ -8,6 +8,7 @@ import pytest
 
 from app.config import ProcessingParams
 from app.core.baselines import fir_lowpass_mgal
+from app.core.model_check import fir_noise_bandwidth_hz
 from app.core.noise_model import white_velocity
 from app.pipeline.stages.choice import check_lines, choose_model, noisy_check, stationary_check
 from app.pipeline.stages.leveling import STD_FLOOR, level_survey
@@ -110,6 +111,10 @@ def test_a_flattened_line_is_replaced():
     table.loc[k, "dg_stationary_mgal"] = table.loc[k, "dg_true_mgal"] + 1.0
     lines = check_lines(table, noise, DT_S, ProcessingParams(), [])
     assert lines["M2"]["estimate"] == "stationary" and lines["M2"]["flattening_ratio"] < 0.01
+    # the decision is on the bound over the line's independent samples of FIR's noise (400 s)
+    nu = 2 * fir_noise_bandwidth_hz(noise, DT_S, 100.0) * 400.0
+    assert lines["M2"]["fir_noise_samples"] == pytest.approx(nu, rel=1e-6)
+    assert all(r["flattening_ratio_bound"] >= r["flattening_ratio"] for r in lines.values() if r["detectable"])
     assert all(lines[ln]["estimate"] == "adaptive" for ln in ("M1", "M3", "T1", "T2"))
     assert _rms(table.loc[k, "dg_mgal"], table.loc[k, "dg_true_mgal"]) == pytest.approx(1.0)
 

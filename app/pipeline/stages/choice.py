@@ -24,7 +24,9 @@
    orders with weights w, 1 − w, each order's own variance taken as m = 2's).
 2. **Flattened lines.**  An estimate whose along-line variance is far below the anomaly
    variance the FIR 100 s estimate shows beyond its own noise
-   (:func:`app.core.model_check.flattening_ratio` < ``flatten_min_ratio``) failed to detect
+   (:func:`app.core.model_check.flattening_ratio` < ``flatten_min_ratio`` against the least
+   anomaly variance FIR shows at 95 % over the line's ``2·B·T`` independent samples of its
+   noise — a short line's FIR can carry far more noise than predicted by chance) failed to detect
    the anomaly: that line takes the stationary estimate, or FIR if that is flattened too or
    differs from FIR by more than FIR's own along-line std (step 3's disagreement test: on a
    line with a noise episode the stationary estimate, blind to the episode, had 66 mGal of
@@ -72,6 +74,7 @@ from app.core.model_check import (
     crossover_comparison,
     crossover_rms_mgal,
     disagreement_ratio,
+    fir_noise_bandwidth_hz,
     fir_noise_variance_mgal2,
     fir_smoothing_variance_mgal2,
     flattening_ratio,
@@ -187,27 +190,32 @@ def _use(table: pd.DataFrame, rows, values, std) -> None:
 def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dict:
     """Step 2 (in place): flattened lines take the stationary or the FIR estimate."""
     out = {}
+    bandwidth_hz = fir_noise_bandwidth_hz(noise, dt_s, p.fir_cutoff_period_s)
     for line, g in table.groupby("line", sort=False):
         level = float(np.nanmean(g["R_cm2s2"]))
         fir_var = fir_noise_variance_mgal2(noise, level, dt_s, p.fir_cutoff_period_s)
-        fl = flattening_ratio(g["dg_unleveled_mgal"], g["dg_fir_mgal"], fir_var)
+        # independent samples of FIR's noise along the line: a short line's FIR can carry
+        # twice the predicted noise variance by chance, which would read as a flattened anomaly
+        nu = 2.0 * bandwidth_hz * len(g) * dt_s
+        fl = flattening_ratio(g["dg_unleveled_mgal"], g["dg_fir_mgal"], fir_var, independent_samples=nu)
         est_std = float(np.nanstd(g["dg_unleveled_mgal"]))
         post_std = float(np.sqrt(np.nanmean(np.square(g["dg_std_mgal"]))))
-        rec = {"estimate": "adaptive", "flattening_ratio": fl.ratio, "fir_signal_var_mgal2": fl.signal_var_mgal2,
-               "fir_noise_std_mgal": float(np.sqrt(fir_var)), "detectable": fl.detectable,
+        rec = {"estimate": "adaptive", "flattening_ratio": fl.ratio, "flattening_ratio_bound": fl.ratio_bound,
+               "fir_signal_var_mgal2": fl.signal_var_mgal2, "fir_noise_std_mgal": float(np.sqrt(fir_var)),
+               "fir_noise_samples": fl.independent_samples, "detectable": fl.detectable,
                "estimate_std_mgal": est_std, "posterior_std_mgal": post_std,
                "resolved": bool(fl.detectable or est_std >= post_std)}
         if not rec["resolved"] and p.std_unresolved_bound:
             _bound_std(table, g, rec)
-        if fl.detectable and fl.ratio < p.flatten_min_ratio:
-            st = flattening_ratio(g["dg_stationary_mgal"], g["dg_fir_mgal"], fir_var)
+        if fl.detectable and fl.ratio_bound < p.flatten_min_ratio:
+            st = flattening_ratio(g["dg_stationary_mgal"], g["dg_fir_mgal"], fir_var, independent_samples=nu)
             # the stationary estimate must not be flattened either, nor pass noise: an error
             # beyond the anomaly's own spread (a noise episode the stationary level ignores)
             st_dis = disagreement_ratio(g["dg_stationary_mgal"].to_numpy(), g["dg_fir_mgal"].to_numpy())
             rec["stationary_disagreement"] = st_dis
             st_noisy = bool(np.isfinite(st_dis) and st_dis > p.noisy_max_disagreement)
             why = ""
-            if st.ratio >= p.flatten_min_ratio and not st_noisy:
+            if st.ratio_bound >= p.flatten_min_ratio and not st_noisy:
                 _use(table, g.index, g["dg_stationary_mgal"].to_numpy(), g["dg_std_mgal"].to_numpy())
                 rec["estimate"] = "stationary"
             else:
@@ -216,7 +224,9 @@ def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> d
                 why = (f" (the stationary one differs from FIR by {st_dis:.2f}x FIR's std: it passes noise)"
                        if st_noisy else " (the stationary one is flattened too)")
             warnings.append(f"line {line}: the adaptive estimate is flattened (variance {fl.ratio:.2f} of the "
-                            f"anomaly variance FIR shows beyond its noise): {rec['estimate']} estimate used{why}")
+                            f"anomaly variance FIR shows beyond its noise, {fl.ratio_bound:.2f} of the least it can "
+                            f"show over {nu:.0f} independent samples of its noise): {rec['estimate']} estimate "
+                            f"used{why}")
         out[str(line)] = rec
     _warn_unresolved(out, warnings)
     return out
