@@ -297,6 +297,10 @@ class ProcessingParams(_Strict):
                                    "likelihood is ruled by frequencies above the anomaly band, where the "
                                    "random-walk model's spectrum decays slower than a real anomaly's, so its "
                                    "maximum sits 3-50x below the RMS-optimal level and can invert the levels")
+    refine_lift_max_stationary: bool = Field(True, description="A smoothest level the refinement lifted above the "
+                                             "EM's is never lifted above the one-level (stationary) model's "
+                                             "full-rate level: the smooth part of a survey is no rougher than the "
+                                             "whole (a lift beyond it under-smoothed the plains 1.5-2x)")
     q_from_posteriors: bool = Field(True, description="Q(t) for filtering: the Q levels' geometric mean weighted "
                                     "by the smoothed map's probabilities, interpolated between decimated points "
                                     "(False: the held state's level, jumping at the hold boundaries)")

@@ -177,6 +177,43 @@ def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
     return LevelFit(Q, R, -f0, -min(res.fun, f0), int(sum(len(z) for z in zs)), int(res.nfev) + 1)
 
 
+def cap_lifted_smooth_level(Q_used_mgal2, Q_em_mgal2, Q_stationary_mgal2: float):
+    """The smoothest anomaly level after a lift-only refinement, never above the one-level model's.
+
+    A refinement that may only raise the EM's levels (a guard against a collapsed level) can
+    lift the smoothest level above the level the full-rate likelihood gives the whole survey
+    as one (the stationary model's): the smooth part of a survey rougher than the whole,
+    which is the likelihood answering a noise level misjudged on part of the survey, not the
+    anomaly.  That level is brought down to the stationary one, never below the EM's own.
+
+    Parameters
+    ----------
+    Q_used_mgal2 : array_like, shape (n_q,)
+        The levels after the lift-only refinement (ascending as the EM's).
+    Q_em_mgal2 : array_like, shape (n_q,)
+        The EM's levels.
+    Q_stationary_mgal2 : float
+        The stationary model's full-rate level.
+
+    Returns
+    -------
+    (ndarray, bool)
+        The levels to use and whether the smoothest one was capped.  With one level (the
+        stationary model itself, at the survey's own noise levels) nothing changes.
+    """
+    q = np.array(Q_used_mgal2, dtype=float).reshape(-1)
+    em = np.asarray(Q_em_mgal2, dtype=float).reshape(-1)
+    if q.shape != em.shape:
+        raise ValueError(f"Q_used_mgal2 has shape {q.shape}, Q_em_mgal2 {em.shape}")
+    if q.size < 2 or not (np.isfinite(Q_stationary_mgal2) and Q_stationary_mgal2 > 0) or q[0] <= em[0]:
+        return q, False
+    cap = max(float(Q_stationary_mgal2), float(em[0]))
+    if q[0] <= cap:
+        return q, False
+    q[0] = cap
+    return q, True
+
+
 @dataclass
 class OrderChoice:
     """Result of :func:`select_order`: the chosen m and, per candidate, the

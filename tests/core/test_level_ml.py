@@ -105,3 +105,23 @@ def test_refine_levels_is_the_same_on_a_thread_pool():
         assert np.array_equal(par.Q_mgal2, ref.Q_mgal2)
         assert par.loglik == ref.loglik and par.n_evaluations == ref.n_evaluations
         assert len(seen) > 1
+
+
+def test_cap_lifted_smooth_level():
+    """A lifted smoothest level comes down to the stationary level, never below the EM's; a
+    level not lifted, one below the stationary level, the other levels and a one-level model
+    are left as they are."""
+    from app.core.level_ml import cap_lifted_smooth_level
+
+    q, capped = cap_lifted_smooth_level([15.7, 62.4], [1.46, 56.6], 8.97)      # unseen 1619's numbers
+    assert capped and q.tolist() == [8.97, 62.4]
+    q, capped = cap_lifted_smooth_level([15.7, 62.4], [10.0, 56.6], 8.97)      # EM's own level above it
+    assert capped and q.tolist() == [10.0, 62.4]
+    for args in (([5.0, 62.4], [1.46, 56.6], 8.97),     # lifted, still below the stationary level
+                 ([1.46, 62.4], [1.46, 56.6], 0.5),     # not lifted (the EM's level kept)
+                 ([15.7], [1.46], 8.97),                # one level: the stationary model itself
+                 ([15.7, 62.4], [1.46, 56.6], float("nan"))):
+        q, capped = cap_lifted_smooth_level(*args)
+        assert not capped and q.tolist() == list(args[0])
+    with pytest.raises(ValueError, match="shape"):
+        cap_lifted_smooth_level([1.0, 2.0], [1.0], 1.0)

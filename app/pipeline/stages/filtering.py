@@ -13,7 +13,7 @@ import pandas as pd
 
 from app.core.accuracy import repeat_error_parts, repeat_line_accuracy
 from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
-from app.core.level_ml import refine_levels
+from app.core.level_ml import cap_lifted_smooth_level, refine_levels
 from app.core.model_check import blend_estimates
 from app.core.smoother import kalman_smooth, level_spread_std_mgal, mixture_std_mgal
 from app.pipeline.parallel import line_map
@@ -180,6 +180,9 @@ class Filtered:
     level_fit : app.core.level_ml.LevelFit or None
     r_scale : float
         :func:`em_level_scale`.
+    smooth_lift_cap : dict or None
+        When the smoothest level was lifted above the stationary model's and brought down to it
+        (``refine_lift_max_stationary``): the lifted, stationary, EM and used levels (mGal²).
     """
 
     table: pd.DataFrame
@@ -194,6 +197,7 @@ class Filtered:
     std_level_factor: float | None = None
     std_level_reason: str | None = None
     std_repeat_tracks: dict | None = None
+    smooth_lift_cap: dict | None = None
 
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
@@ -206,7 +210,8 @@ class Filtered:
                 "lift_only": bool(p.refine_lift_only), "R_local_scale": self.r_scale, "noise_model": p.noise_model,
                 "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations,
                 "Q_stationary_mgal2": self.Q_stationary, "std_level_factor": self.std_level_factor,
-                "std_level_reason": self.std_level_reason, "std_repeat_tracks": self.std_repeat_tracks}
+                "std_level_reason": self.std_level_reason, "std_repeat_tracks": self.std_repeat_tracks,
+                "smooth_lift_capped": self.smooth_lift_cap}
 
     def estimate_q(self, pr: PreparedLine, q_from_posteriors: bool) -> np.ndarray:
         """Q(t) over the extended line as the estimate uses it: the one level, or
@@ -442,6 +447,17 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
         r_stationary = r_scale * float(np.median(np.concatenate([pr.r_ext for pr in prepared])))
     else:
         r_stationary = float(Rs[0])
+    lift_cap = None
+    if p.refine_lift_only and p.refine_lift_max_stationary and len(Qs) > 1 and Qs[0] > float(em.Q[0]):
+        # the smoothest level lifted: never above the one-level model's full-rate level (the
+        # stationary baseline's, fitted here only when needed and kept for the baseline column)
+        if q_stationary is None or not (np.isfinite(q_stationary) and q_stationary > 0):
+            q_stationary = stationary_level(prepared, Qs, r_stationary, dt_s, ident.m, noise, p)
+        lifted = float(Qs[0])
+        Qs, capped = cap_lifted_smooth_level(Qs, em.Q, q_stationary)
+        if capped:
+            lift_cap = {"lifted_mgal2": lifted, "stationary_mgal2": float(q_stationary),
+                        "em_mgal2": float(em.Q[0]), "used_mgal2": float(Qs[0])}
     def smooth(pr: PreparedLine):
         q = q_series(pr, Qs, n_r, p.q_from_posteriors)
         r = Rs[pr.s_ext % n_r] if pr.r_ext is None else r_scale * pr.r_ext
@@ -470,6 +486,7 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
                    prepared, r_lines=r_lines, n_r=n_r)
     if q_stationary is not None and np.isfinite(q_stationary) and q_stationary > 0:
         out.Q_stationary = float(q_stationary)
+    out.smooth_lift_cap = lift_cap
     if stationary:
         out.add_stationary(dt_s, ident.m, p.smoother, noise, p)
     return out
