@@ -51,12 +51,17 @@ def fir_noise_variance_mgal2(noise, level: float, dt_s: float, cutoff_period_s: 
     cutoff_period_s : float
         The FIR's cut-off period (s).
     """
+    f, s = _fir_noise_psd(noise, level, dt_s, cutoff_period_s)
+    return float(2.0 * np.trapezoid(s, f))
+
+
+def _fir_noise_psd(noise, level: float, dt_s: float, cutoff_period_s: float):
+    """Frequencies (Hz, ≥ 0) and the two-sided PSD (mGal²/Hz) of z's noise at level R after
+    the FIR low-pass: ``|H(f)|²·S(f)``."""
     h = fir_kernel(dt_s, cutoff_period_s)
     nfft = 1 << int(np.ceil(np.log2(max(8 * h.size, 1 << 14))))
-    H = np.fft.rfft(h, nfft)
     f = np.fft.rfftfreq(nfft, dt_s)
-    s = noise.psd(f, level)                        # two-sided, mGal²/Hz
-    return float(2.0 * np.trapezoid(np.abs(H) ** 2 * s, f))
+    return f, np.abs(np.fft.rfft(h, nfft)) ** 2 * noise.psd(f, level)
 
 
 @dataclass(frozen=True)
@@ -258,10 +263,7 @@ def fir_noise_bandwidth_hz(noise, dt_s: float, cutoff_period_s: float = 100.0) -
     cutoff_period_s : float
         The FIR's cut-off period (s).
     """
-    h = fir_kernel(dt_s, cutoff_period_s)
-    nfft = 1 << int(np.ceil(np.log2(max(8 * h.size, 1 << 14))))
-    f = np.fft.rfftfreq(nfft, dt_s)
-    s = np.abs(np.fft.rfft(h, nfft)) ** 2 * noise.psd(f, 1.0)
+    f, s = _fir_noise_psd(noise, 1.0, dt_s, cutoff_period_s)
     den = float(np.trapezoid(s * s, f))
     return float(np.trapezoid(s, f) ** 2 / den) if den > 0 else float("nan")
 
