@@ -101,7 +101,8 @@ def white_band_gain(dt_s: float, band_hz: tuple[float, float], order: int = 4) -
 
 
 def band_noise_variance_cm2s2(z_mgal, dt_s: float, band_hz: tuple[float, float] = (0.1, 0.5),
-                              window_s: float = 60.0, floor_cm2s2: float = 1e-4) -> np.ndarray:
+                              window_s: float = 60.0, floor_cm2s2: float = 1e-4,
+                              regressor_mgal=None, lags: int = 5) -> np.ndarray:
     """Local R(t) in (cm/s)² from z's content just above the anomaly's band.
 
     The high-frequency estimate of :func:`local_noise_variance_cm2s2` sees the GNSS noise
@@ -111,6 +112,14 @@ def band_noise_variance_cm2s2(z_mgal, dt_s: float, band_hz: tuple[float, float] 
     Here z is band-passed (zero-phase Butterworth, ``band_hz``), squared, averaged over
     ``window_s`` and divided by the band's gain for white R (:func:`white_band_gain`):
     the *equivalent white* R just above the anomaly band.
+
+    With ``regressor_mgal`` (the gravimeter's specific force) the band-passed z first loses
+    its least-squares fit on the band-passed regressor at lags ``−lags…lags``: the part of z
+    linear in the aircraft's acceleration, where the gravimeter's and the GNSS's responses
+    differ (an internal filter, interval means against point samples, a residual lag or
+    scale).  That part follows the turbulence, its gain falls as f² below the band, and it
+    is not the noise the smoother must weigh in the anomaly band.  The regressor holds no GNSS
+    noise, so the fit cannot take GNSS noise away.
 
     Parameters
     ----------
@@ -125,6 +134,10 @@ def band_noise_variance_cm2s2(z_mgal, dt_s: float, band_hz: tuple[float, float] 
         Length of the centred averaging window (s).
     floor_cm2s2 : float
         Lower bound of the returned values.
+    regressor_mgal : ndarray, shape (n,), optional
+        The gravimeter's specific force at the same epochs (mGal; NaN allowed).
+    lags : int
+        Lags each side of the fit (epochs).
 
     Returns
     -------
@@ -142,9 +155,38 @@ def band_noise_variance_cm2s2(z_mgal, dt_s: float, band_hz: tuple[float, float] 
         raise ValueError("no finite measurements to estimate the noise level from")
     zi = np.interp(np.arange(n), np.flatnonzero(ok), z[ok]) if not ok.all() else z
     sos = butter(4, (f1, f2), btype="bandpass", fs=1.0 / dt_s, output="sos")
-    y = sosfiltfilt(sos, zi - np.mean(zi), padtype="even", padlen=min(n - 1, int(round(4.0 / (f1 * dt_s)))))
+    padlen = min(n - 1, int(round(4.0 / (f1 * dt_s))))
+    y = sosfiltfilt(sos, zi - np.mean(zi), padtype="even", padlen=padlen)
+    if regressor_mgal is not None:
+        y = y - _band_regression(y, ok, regressor_mgal, sos, padlen, lags)
     var = _windowed_mean_square(y, ok, max(3, int(round(window_s / dt_s))))
     return np.maximum(var / white_band_gain(dt_s, (f1, f2)), floor_cm2s2)
+
+
+def _band_regression(y, ok, regressor_mgal, sos, padlen: int, lags: int) -> np.ndarray:
+    """The part of the band-passed ``y`` linear in the band-passed regressor at lags ±L
+    (least squares over the epochs where ``ok`` and the regressor are finite); zeros when
+    too few epochs."""
+    from scipy.signal import sosfiltfilt
+
+    x = np.asarray(regressor_mgal, dtype=float)
+    if x.shape != y.shape:
+        raise ValueError(f"regressor_mgal has shape {x.shape}, z_mgal {y.shape}")
+    fin = np.isfinite(x)
+    n, L = y.size, int(lags)
+    if fin.sum() < 10 * (2 * L + 1) or n <= 2 * L + 2:
+        return np.zeros(n)
+    xi = np.interp(np.arange(n), np.flatnonzero(fin), x[fin]) if not fin.all() else x
+    xb = sosfiltfilt(sos, xi - np.mean(xi), padtype="even", padlen=padlen)
+    k = np.arange(L, n - L)
+    X = np.column_stack([xb[k + lag] for lag in range(-L, L + 1)])
+    use = ok[k] & fin[k]
+    if use.sum() < 10 * X.shape[1]:
+        return np.zeros(n)
+    c, *_ = np.linalg.lstsq(X[use], y[k][use], rcond=None)
+    out = np.zeros(n)
+    out[k] = X @ c
+    return out
 
 
 def band_rms_mgal(z_mgal, dt_s: float, band_hz: tuple[float, float], usable=None,

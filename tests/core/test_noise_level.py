@@ -63,6 +63,48 @@ def test_band_level_of_position_derived_velocity_noise():
     assert np.median(hf) > 5 * np.median(est)
 
 
+def _turbulence_mgal(rng, n, rms_mgal=30_000.0, peak_hz=0.3):
+    """Peaked turbulence acceleration (mGal): white noise through a resonant AR(2)."""
+    from scipy.signal import lfilter
+
+    r, w = 0.995, 2 * np.pi * peak_hz * DT
+    a = lfilter([1.0], [1.0, -2 * r * np.cos(w), r * r], rng.standard_normal(n + 2000))[2000:]
+    return a / np.std(a) * rms_mgal
+
+
+def _boxcars(x, width_s, count):
+    """A gravimeter's internal filter: ``count`` centred boxcars of ``width_s``."""
+    k = int(round(width_s / DT)) | 1
+    for _ in range(count):
+        x = np.convolve(x, np.ones(k) / k, mode="same")
+    return x
+
+
+def test_band_level_less_the_response_mismatch():
+    # z = f_z − ḧ: the gravimeter's filter (two 0.5 s boxcars) passes 0.3 Hz turbulence at
+    # 0.93, so 7 % of 30,000 mGal stays in z — far above the GNSS noise (R = 1.69 (cm/s)²)
+    # and swinging with the turbulence, not the GNSS.  The band level less the part linear in
+    # f_z is the GNSS noise's again, turbulence episode or not.
+    rng = np.random.default_rng(3)
+    n = 60_000
+    acc = _turbulence_mgal(rng, n)
+    acc[30_000:] *= 3.0                                      # a rough half
+    f_z = _boxcars(acc, 0.5, 2)
+    z = f_z - acc + _z_noise(rng.standard_normal(n + 1) * 1.3)
+    plain = band_noise_variance_cm2s2(z, DT)
+    unmixed = band_noise_variance_cm2s2(z, DT, regressor_mgal=f_z)
+    assert np.median(plain[2000:28_000]) > 5 * 1.69          # the mismatch dominates...
+    assert np.median(plain[32_000:-2000]) > 5 * np.median(plain[2000:28_000])  # ...and follows the turbulence
+    assert np.median(unmixed[2000:28_000]) == pytest.approx(1.69, rel=0.1)
+    assert np.median(unmixed[32_000:-2000]) == pytest.approx(1.69, rel=0.1)
+    # with no mismatch (f_z follows the aircraft exactly) the regression takes nothing away
+    z0 = acc * 0.0 + _z_noise(rng.standard_normal(n + 1) * 1.3)
+    both = band_noise_variance_cm2s2(z0, DT), band_noise_variance_cm2s2(z0, DT, regressor_mgal=acc)
+    assert np.median(both[1]) == pytest.approx(np.median(both[0]), rel=0.02)
+    with pytest.raises(ValueError, match="regressor"):
+        band_noise_variance_cm2s2(z, DT, regressor_mgal=f_z[:-1])
+
+
 def test_band_level_bad_input():
     with pytest.raises(ValueError):
         band_noise_variance_cm2s2(np.ones(10), DT)

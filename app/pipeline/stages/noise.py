@@ -188,13 +188,18 @@ def repeat_fir_contrasts(lines: list[LineData], fir: dict[str, np.ndarray], spac
 
 def noise_levels(flights: dict[str, FlightMeasurement], dt_s: float, p) -> dict[str, np.ndarray]:
     """Local noise level R(t) ((cm/s)², equivalent white velocity noise) of every flight:
-    z's content in :func:`level_band` (``noise_model = 'band'``) or near the Nyquist frequency
-    (``'local'``); empty for ``'states'`` (the recognised R_j levels are used instead)."""
+    z's content in :func:`level_band` (``noise_model = 'band'``) — less its part linear in the
+    gravimeter's specific force f̄ with ``noise_level_unmix``, the two instruments' response
+    mismatch, which follows the turbulence and has no weight in the anomaly band — or near the
+    Nyquist frequency (``'local'``); empty for ``'states'`` (the recognised R_j levels are used
+    instead)."""
     if p.noise_model == "local":
         return {name: local_noise_variance_cm2s2(fm.z_mgal, dt_s) for name, fm in flights.items()}
     if p.noise_model == "band":
         band = level_band(p, dt_s)
-        return {name: band_noise_variance_cm2s2(fm.z_mgal, dt_s, band) for name, fm in flights.items()}
+        return {name: band_noise_variance_cm2s2(fm.z_mgal, dt_s, band,
+                                                regressor_mgal=fm.fbar_ms2 * 1e5 if p.noise_level_unmix else None)
+                for name, fm in flights.items()}
     return {}
 
 
