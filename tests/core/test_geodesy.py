@@ -115,3 +115,13 @@ def test_horizontal_velocity_misfit_finds_swapped_columns():
     assert misfit_en > 100.0
     parked = geodesy.horizontal_velocity_misfit_ms(t, lat, np.full(t.size, -70.0), h, 0 * ve, vn)
     assert parked[2] == 0
+
+
+def test_grs80_normal_gravity_defining_values():
+    """GRS80 (Moritz 1980): γ = 978 032.67715 mGal at the equator and 983 218.63685 mGal at the
+    pole, on the ellipsoid; 0.143 mGal above WGS84 (γ_e 978 032.53359) everywhere."""
+    g = geodesy.normal_gravity_mgal(np.array([0.0, 90.0, -90.0]), np.zeros(3), "GRS80")
+    np.testing.assert_allclose(g, [978032.67715, 983218.63685, 983218.63685], atol=1e-4)
+    lat = np.linspace(-90, 90, 37)
+    d = geodesy.normal_gravity_mgal(lat, 3000.0, "GRS80") - geodesy.normal_gravity_mgal(lat, 3000.0, "WGS84")
+    np.testing.assert_allclose(d, 978032.67715 - 978032.53359, atol=0.002)
