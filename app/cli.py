@@ -97,9 +97,15 @@ def cmd_simulate(args) -> int:
 
 
 def cmd_inspect(args) -> int:
+    import warnings
+
     from app.pipeline.inspect import inspect_survey
 
-    table = inspect_survey(args.survey)
+    with warnings.catch_warnings(record=True) as caught:   # the readers' warnings, said plainly
+        warnings.simplefilter("always")
+        table = inspect_survey(args.survey)
+    for w in caught:
+        print(f"warning: {w.message}", file=sys.stderr)
     import pandas as pd
 
     with pd.option_context("display.max_rows", None, "display.max_columns", None, "display.width", 200):

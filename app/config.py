@@ -80,7 +80,7 @@ class _Strict(BaseModel):
 class SurveySection(_Strict):
     name: Name = "survey"
     crs: str | None = Field(None, max_length=200, description="Projected CRS for distances and grids, e.g. 'EPSG:32657'; UTM chosen if absent")
-    normal_gravity: Literal["WGS84", "Helmert1901"] = "WGS84"
+    normal_gravity: Literal["WGS84", "GRS80", "Helmert1901"] = "WGS84"
 
 
 class GravimeterSection(_Strict):

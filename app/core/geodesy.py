@@ -56,20 +56,36 @@ def normal_gravity_wgs84_mgal(lat_deg, h_m):
     """
     import boule
 
+    return _somigliana_mgal(boule.WGS84, lat_deg, h_m)
+
+
+def normal_gravity_grs80_mgal(lat_deg, h_m):
+    """GRS80 normal gravity at height (Moritz 1980: γ_e = 978 032.677 mGal), through ``boule``
+    (mGal); 0.14 mGal above WGS84's everywhere (γ_e 978 032.677 against 978 032.534: the same
+    ellipsoid to 0.1 mm, GM and ω slightly different) — for surveys whose contractor states GRS80."""
+    import boule
+
+    return _somigliana_mgal(boule.GRS80, lat_deg, h_m)
+
+
+def _somigliana_mgal(ellipsoid, lat_deg, h_m):
     lat = np.asarray(lat_deg, dtype=float)
     h = np.asarray(h_m, dtype=float)
     lat, h = np.broadcast_arrays(lat, h)
     lon = np.zeros_like(lat)
-    return np.asarray(boule.WGS84.normal_gravity((lon, lat, h)), dtype=float)
+    return np.asarray(ellipsoid.normal_gravity((lon, lat, h)), dtype=float)
 
 
 def normal_gravity_mgal(lat_deg, h_m, model: str = "WGS84"):
-    """Normal gravity (mGal) by the model the survey chose: ``"WGS84"`` or ``"Helmert1901"``."""
+    """Normal gravity (mGal) by the model the survey chose: ``"WGS84"``, ``"GRS80"`` or
+    ``"Helmert1901"``."""
     if model == "WGS84":
         return normal_gravity_wgs84_mgal(lat_deg, h_m)
+    if model == "GRS80":
+        return normal_gravity_grs80_mgal(lat_deg, h_m)
     if model == "Helmert1901":
         return normal_gravity_helmert_mgal(lat_deg, h_m)
-    raise ValueError(f"unknown normal gravity model {model!r} (expected 'WGS84' or 'Helmert1901')")
+    raise ValueError(f"unknown normal gravity model {model!r} (expected 'WGS84', 'GRS80' or 'Helmert1901')")
 
 
 def radii_of_curvature_m(lat_deg, a_m: float = WGS84_A_M, e2: float = WGS84_E2):
@@ -134,6 +150,39 @@ def velocities_from_positions_ms(t_s, lat_deg, lon_deg, h_m):
     return dlon * (r_n + h) * np.cos(phi), dlat * (r_m + h)
 
 
+def horizontal_velocity_misfit_ms(t_s, lat_deg, lon_deg, h_m, ve_ms, vn_ms,
+                                  min_speed_ms: float = 20.0) -> tuple[float, float, int]:
+    """How far a GNSS file's horizontal velocities are from the velocity of its positions.
+
+    The two are the same motion and agree to a few cm/s on real records; a disagreement of
+    the order of the speed says a column is mislabelled — latitude and longitude swapped
+    (both valid numbers), east and north swapped, a sign flipped — and normal gravity and the
+    Eötvös correction, which use them, are then wrong by hundreds of mGal.
+
+    Parameters
+    ----------
+    t_s, lat_deg, lon_deg, h_m, ve_ms, vn_ms : ndarray, shape (n,)
+        One flight's GNSS record (s, degrees, m, m/s).
+    min_speed_ms : float
+        Only epochs moving at least this fast (by either velocity) are compared (m/s).
+
+    Returns
+    -------
+    (float, float, int)
+        Median speed (m/s), median magnitude of the vector difference (m/s), and the
+        number of epochs compared (NaNs when none).
+    """
+    ve_p, vn_p = velocities_from_positions_ms(t_s, lat_deg, lon_deg, h_m)
+    ve = np.asarray(ve_ms, dtype=float)
+    vn = np.asarray(vn_ms, dtype=float)
+    speed = np.maximum(np.hypot(ve, vn), np.hypot(ve_p, vn_p))
+    use = np.isfinite(speed) & (speed >= min_speed_ms) & np.isfinite(ve_p) & np.isfinite(vn_p)
+    if not use.any():
+        return float("nan"), float("nan"), 0
+    diff = np.hypot(ve - ve_p, vn - vn_p)[use]
+    return float(np.median(speed[use])), float(np.median(diff)), int(use.sum())
+
+
 def vertical_velocity_from_heights_ms(t_s, h_m):
     """Vertical velocity (m/s, up) of one contiguous GNSS run from its heights alone.
 
@@ -172,8 +221,14 @@ def vertical_velocity_from_heights_ms(t_s, h_m):
 
 
 def utm_crs_for(lon_deg, lat_deg) -> str:
-    """EPSG code of the UTM zone containing the mean of the given points."""
-    lon = float(np.nanmean(lon_deg))
+    """EPSG code of the UTM zone containing the mean of the given points.
+
+    The longitudes are averaged on the circle (the direction of the mean unit vector), so a
+    survey across the antimeridian (179.8°…−179.9°) or across 0° written from 0 to 360°
+    (359.6°…0.2°) gets the zone it lies in, not one half the world away.
+    """
+    lon_r = np.deg2rad(np.asarray(lon_deg, dtype=float))
+    lon = float(np.rad2deg(np.arctan2(np.nanmean(np.sin(lon_r)), np.nanmean(np.cos(lon_r)))))
     lat = float(np.nanmean(lat_deg))
     zone = int(np.floor((lon + 180.0) / 6.0)) % 60 + 1
     return f"EPSG:{32600 + zone if lat >= 0 else 32700 + zone}"

@@ -31,8 +31,56 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import savgol_filter
 
 #: Stamp deviation (s) from a uniform clock that a millisecond rounding explains; the default
-#: bound of :func:`dejitter_times_s` is the larger of this and 2.5 % of the step.
+#: bound of :func:`dejitter_times_s` is the larger of this and 5 % of the step.
 ROUNDING_JITTER_S = 1.5e-3
+
+
+def _clock_fits(t: np.ndarray, window: int):
+    """Per segment without gaps (steps within ±50 % of the median), the local straight-line
+    fit of the stamps (Savitzky–Golay, degree 1, ``window`` samples): ``(a, b, fit)``."""
+    n = t.size
+    dt = np.diff(t)
+    med = np.median(dt)
+    if not med > 0:
+        raise ValueError("time stamps must be strictly increasing")
+    breaks = np.flatnonzero(np.abs(dt - med) > 0.5 * med) + 1
+    edges = np.concatenate([[0], breaks, [n]])
+    window = int(window) | 1
+    for a, b in zip(edges[:-1], edges[1:]):
+        seg = t[a:b]
+        if seg.size < 7:
+            continue
+        w = min(window, seg.size if seg.size % 2 == 1 else seg.size - 1)
+        if w < 5:
+            continue
+        rel = seg - seg[0]   # relative to the segment start: full float precision
+        yield a, b, savgol_filter(rel, w, 1, mode="interp") + seg[0]
+
+
+def _robust_scale(x: np.ndarray) -> float:
+    return 1.4826 * float(np.median(np.abs(x - np.median(x)))) if x.size else 0.0
+
+
+def stamp_scatter_s(t_s, window: int = 401) -> tuple[float, float]:
+    """How far sample stamps scatter about a uniform clock (the local straight-line fit of
+    :func:`dejitter_times_s`), whether or not they are put back on it.
+
+    Returns
+    -------
+    (float, float)
+        The robust scale (1.4826 × MAD, s) and the largest deviation (s), over the segments
+        long enough to fit; (0, 0) for fewer than 3 stamps.
+    """
+    t = np.asarray(t_s, dtype=float)
+    if t.ndim != 1:
+        raise ValueError("t_s must be one-dimensional")
+    if t.size < 3:
+        return 0.0, 0.0
+    dev = [t[a:b] - fit for a, b, fit in _clock_fits(t, window)]
+    if not dev:
+        return 0.0, 0.0
+    d = np.concatenate(dev)
+    return _robust_scale(d), float(np.max(np.abs(d)))
 
 
 def dejitter_times_s(t_s, max_jitter_s: float | None = None, window: int = 401) -> np.ndarray:
@@ -43,23 +91,27 @@ def dejitter_times_s(t_s, max_jitter_s: float | None = None, window: int = 401) 
     without gaps (steps within ±50 % of the median), the stamps are replaced by
     a local straight-line fit (Savitzky–Golay, degree 1, ``window`` samples),
     which follows slow clock-rate changes but averages the rounding out.  A
-    segment is left untouched when its stamps deviate from the fit by more
-    than ``max_jitter_s`` (real irregular sampling is not "jitter").
+    segment is left untouched when its stamps' scatter about the fit — the robust
+    scale 1.4826 × MAD of the deviations — exceeds ``max_jitter_s``, or when any stamp
+    is a quarter of a step or more from the fit (real irregular sampling is not "jitter").
 
-    The default bound is the larger of 1.5 ms (a millisecond rounding) and 2.5 % of the
+    The default bound is the larger of 1.5 ms (a millisecond rounding) and 5 % of the
     median step: a logging computer's stamps on a 2 Hz record scatter by several
     milliseconds while the instrument's clock is uniform, and integrating the samples over
     the stamped intervals then multiplies the aircraft's acceleration by the stamps'
     relative error — on the simulated 2 Hz test line, ±5 ms of stamp jitter put 26 mGal
-    into the FIR 100 s estimate (1.9 without), left untouched by a 1.5 ms bound.
+    into the FIR 100 s estimate (1.9 without).  The scale, not the largest deviation, is
+    compared: over 40 000 stamps a 1 ms normal scatter rounded to 1 ms reaches 4 ms
+    somewhere, and leaving such a 10 Hz GNSS record on its stamps gave 31 mGal of error
+    against 3.3.  Steps alternating 0.45/0.55 s (a scale of 5 % × 1.48) stay as stamped.
 
     Parameters
     ----------
     t_s : ndarray, shape (n,)
         Strictly increasing sample time stamps (s).
     max_jitter_s : float, optional
-        Largest deviation from a uniform clock accepted as stamp jitter (s); default
-        ``max(1.5e-3, 0.025 × median step)``.
+        Largest robust scale of the deviations from a uniform clock accepted as stamp
+        jitter (s); default ``max(1.5e-3, 0.05 × median step)``.
     window : int
         Fit window in samples (odd).
 
@@ -74,28 +126,16 @@ def dejitter_times_s(t_s, max_jitter_s: float | None = None, window: int = 401) 
     n = t.size
     if n < 3:
         return t.copy()
-    dt = np.diff(t)
-    med = np.median(dt)
+    med = float(np.median(np.diff(t)))
     if not med > 0:
         raise ValueError("time stamps must be strictly increasing")
     if max_jitter_s is None:
-        max_jitter_s = max(ROUNDING_JITTER_S, 0.025 * float(med))
-    breaks = np.flatnonzero(np.abs(dt - med) > 0.5 * med) + 1
-    edges = np.concatenate([[0], breaks, [n]])
+        max_jitter_s = max(ROUNDING_JITTER_S, 0.05 * med)
     out = t.copy()
-    window = int(window) | 1
-    # Work relative to the segment start to keep full float precision.
-    for a, b in zip(edges[:-1], edges[1:]):
-        seg = t[a:b]
-        if seg.size < 7:
-            continue
-        w = min(window, seg.size if seg.size % 2 == 1 else seg.size - 1)
-        if w < 5:
-            continue
-        rel = seg - seg[0]
-        fit = savgol_filter(rel, w, 1, mode="interp")
-        if np.max(np.abs(fit - rel)) <= max_jitter_s:
-            out[a:b] = fit + seg[0]
+    for a, b, fit in _clock_fits(t, window):
+        dev = t[a:b] - fit
+        if _robust_scale(dev) <= max_jitter_s and np.max(np.abs(dev)) < 0.25 * med:
+            out[a:b] = fit
     # the fit must keep the stamps increasing
     if np.any(np.diff(out) <= 0):
         return t.copy()

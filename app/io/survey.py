@@ -262,15 +262,21 @@ def read_lines(path, display: str = "lines.csv") -> tuple[pd.DataFrame, np.ndarr
     bad = np.flatnonzero(~(df["t_end"].to_numpy() > df["t_start"].to_numpy()))
     if bad.size:
         i = int(bad[0])
-        raise InputError(display, int(rows[i]), "t_end",
-                         f"line {df['line'].iloc[i]} ends ({df['t_end'].iloc[i]!r}) before it starts "
-                         f"({df['t_start'].iloc[i]!r})")
+        t0, t1 = float(df["t_start"].iloc[i]), float(df["t_end"].iloc[i])
+        msg = f"line {df['line'].iloc[i]} ends ({t1:.3f}) before it starts ({t0:.3f})"
+        for period, what in ((86400.0, "seconds of day: the line crosses midnight"),
+                             (604800.0, "GPS seconds of week: the line crosses the week's end")):
+            if 0.0 < period - (t0 - t1) < 0.5 * period:   # a window across the clock's wrap
+                msg += (f" — the time scale wrapped ({what}); the survey needs one monotonic scale: add "
+                        f"{period:.0f} s to the times after the wrap, here and in the data files")
+        raise InputError(display, int(rows[i]), "t_end", msg)
     dup = np.flatnonzero(df["line"].duplicated().to_numpy())
     if dup.size:
         i = int(dup[0])
         first = int(rows[np.flatnonzero((df["line"] == df["line"].iloc[i]).to_numpy())[0]])
         raise InputError(display, int(rows[i]), "line",
                          f"line id {df['line'].iloc[i]!r} is listed twice (first at row {first})")
+    _check_overlaps(df, rows, display)
     if "track" in df:
         vals = [None if (v is None or v is pd.NA or (isinstance(v, float) and np.isnan(v)) or str(v).strip() == "")
                 else str(v).strip() for v in df["track"].tolist()]
@@ -279,6 +285,25 @@ def read_lines(path, display: str = "lines.csv") -> tuple[pd.DataFrame, np.ndarr
         df["track"] = pd.Series([None] * len(df), dtype=object)
     df = df[["line", "flight", "t_start", "t_end", "kind", "track"]]
     return df, rows
+
+
+def _check_overlaps(df: pd.DataFrame, rows: np.ndarray, display: str) -> None:
+    """No two lines of one flight overlap in time: an aircraft flies one line at a time, and
+    the shared epochs would be processed twice (a typo in a window, usually)."""
+    for _, g in df.groupby("flight", sort=False):
+        order = np.argsort(g["t_start"].to_numpy(), kind="stable")
+        idx = g.index.to_numpy()[order]
+        t0, t1 = df["t_start"].to_numpy()[idx], df["t_end"].to_numpy()[idx]
+        ends = np.maximum.accumulate(t1)
+        bad = np.flatnonzero(t0[1:] < ends[:-1])
+        if bad.size:
+            k = int(bad[0]) + 1
+            prev = idx[int(np.flatnonzero(t1[:k] == ends[k - 1])[0])]
+            i = idx[k]
+            raise InputError(display, int(rows[i]), "t_start",
+                             f"line {df['line'].iloc[i]} starts at {t0[k]:.3f}, before line {df['line'].iloc[prev]} "
+                             f"(row {int(rows[prev])}) of the same flight ends at {ends[k - 1]:.3f}: the windows "
+                             "overlap (one aircraft flies one line at a time)")
 
 
 def _check_names(col: pd.Series, rows: np.ndarray, display: str, what: str) -> None:

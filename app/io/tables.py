@@ -139,10 +139,30 @@ def _header(path: Path, display: str, **kw) -> list[str]:
     except pd.errors.EmptyDataError:
         raise InputError(display, None, None, "the file is empty (expected a header line with column names)") from None
     except (OSError, UnicodeDecodeError, EOFError, zlib.error) as exc:
+        if _is_gzip(path) and not str(path).endswith(".gz"):
+            raise InputError(display, None, None, "the file is gzip-compressed but not named .gz: rename it to "
+                                                  f"{path.name}.gz (or decompress it)") from None
         raise InputError(display, None, None, f"cannot read the file: {exc}") from None
     except pd.errors.ParserError as exc:
         raise InputError(display, 1, None, f"cannot read the header line: {exc}") from None
     return [str(c) for c in head.columns]
+
+
+def _is_gzip(path: Path) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(2) == b"\x1f\x8b"
+    except OSError:
+        return False
+
+
+def _separator_hint(names: list[str]) -> str:
+    """A hint when the header came out as one field holding another separator."""
+    if len(names) == 1:
+        for sep, what in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars"), (" ", "blanks")):
+            if sep in names[0].strip():
+                return f"; the header is one field separated by {what}: columns must be separated by commas"
+    return ""
 
 
 def locate_bad_cell(path: Path, display: str, usecols: Sequence[str], float_cols: Iterable[str],
@@ -232,7 +252,8 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
     for col in required:
         if col not in lookup:
             have = ", ".join(repr(n) for n in names) or "none"
-            raise InputError(display, 1, col, f"required column '{col}' is missing (columns found: {have})")
+            raise InputError(display, 1, col, f"required column '{col}' is missing (columns found: {have})"
+                                              + _separator_hint(names))
     wanted = list(required) + [c for c in optional if c in lookup]
     usecols = [lookup[c] for c in wanted]
     rename = {lookup[c]: c for c in wanted}

@@ -65,7 +65,7 @@ class SurveySectionPatch(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     name: str | None = Field(None, description="Survey name (also the name in the survey list)")
     crs: str | None = Field(None, description="Projected CRS, e.g. 'EPSG:32657' (null: the UTM zone of the data)")
-    normal_gravity: str | None = Field(None, description="'WGS84' or 'Helmert1901'")
+    normal_gravity: str | None = Field(None, description="'WGS84', 'GRS80' or 'Helmert1901'")
 
 
 class GravimeterSectionPatch(BaseModel):

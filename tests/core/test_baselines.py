@@ -135,6 +135,34 @@ def test_fir_gap_error_is_the_scale_of_what_a_missing_sample_moves():
     assert not fir_gap_error_mgal(z_ends, dt, 100.0).any()
 
 
+def test_fir_gap_error_at_a_record_end_in_the_air():
+    """A record cut out of turbulent air (white z, σ = 5000 mGal): near its ends the
+    renormalised low-pass departs from the low-pass of the uncut record, and the bound with
+    ``record_ends`` covers that departure (RMS over many draws) and vanishes half a kernel in;
+    without ``record_ends`` the ends are not holes."""
+    from app.core.baselines import fir_gap_error_mgal, fir_kernel
+
+    rng = np.random.default_rng(7)
+    dt, n = 0.5, 1200
+    half = fir_kernel(dt, 100.0).size // 2
+    dev = []
+    for _ in range(300):
+        z = rng.normal(0.0, 5000.0, n + 2 * half)
+        full = fir_lowpass_mgal(z, dt, 100.0)[half:half + n]
+        dev.append(fir_lowpass_mgal(z[half:half + n], dt, 100.0) - full)
+    rms = np.sqrt(np.mean(np.square(dev), axis=0))
+    bound = fir_gap_error_mgal(z[half:half + n], dt, 100.0, record_ends=True)
+    assert rms[0] > 100.0                                   # the effect is real: ~10² mGal
+    big = rms[:half] > 1.0                                  # what fir_baseline cares about
+    assert np.all(bound[:half][big] >= 0.95 * rms[:half][big])  # is covered
+    assert np.all(bound[half + 1:n - half - 1] == 0)
+    assert not fir_gap_error_mgal(z[half:half + n], dt, 100.0).any()
+    # a flight that starts on quiet ground (σ = 50 mGal) weighs its start with the ground's spread
+    zq = np.concatenate([rng.normal(0, 50.0, 600), rng.normal(0, 5000.0, 600)])
+    bq = fir_gap_error_mgal(zq, dt, 100.0, record_ends=True)
+    assert bq[0] < 50.0 and bq[-1] > 1000.0
+
+
 def test_fir_gap_error_weighs_a_hole_with_the_spread_next_to_it():
     """A record that is quiet for 70 % of its length (ground time, σ = 50 mGal) and turbulent
     after (σ = 5000): a hole in the turbulent part is weighed with 5000 (the bound at the hole

@@ -85,9 +85,43 @@ def test_velocities_from_positions():
 def test_projection_roundtrip_and_utm_zone():
     assert geodesy.utm_crs_for(160.0, 65.5) == "EPSG:32657"
     assert geodesy.utm_crs_for(121.5, -30.75) == "EPSG:32751"
+    # across the antimeridian, and across 0° in the 0–360° convention: the zone the points are in
+    assert geodesy.utm_crs_for([179.8, -179.9, 179.95], [-17.0, -17.1, -17.2]) == "EPSG:32760"
+    assert geodesy.utm_crs_for([-179.7, 179.9, -179.8], [52.0, 52.1, 52.2]) == "EPSG:32601"
+    assert geodesy.utm_crs_for([359.6, 0.2, 359.9], [51.4, 51.5, 51.6]) == "EPSG:32630"
     e, n = geodesy.project_km([160.0, 160.1], [65.5, 65.5], "EPSG:32657")
     lon, lat = geodesy.unproject_km(e, n, "EPSG:32657")
     np.testing.assert_allclose(lon, [160.0, 160.1], atol=1e-9)
     np.testing.assert_allclose(lat, [65.5, 65.5], atol=1e-9)
     # 0.1° of longitude at 65.5° ≈ 4.63 km
     assert (e[1] - e[0]) == pytest.approx(111.32 * 0.1 * math.cos(math.radians(65.5)), rel=0.01)
+
+
+def test_horizontal_velocity_misfit_finds_swapped_columns():
+    """A track east at 100 m/s near −33°, −70°: the file's ve/vn agree with its positions
+    (misfit ≪ 1 m/s); with lat and lon swapped, or ve and vn swapped, the misfit is of the
+    order of the speed; a parked aircraft is not compared."""
+    t = np.arange(0.0, 600.0, 0.1)
+    lat = np.full(t.size, -33.0)
+    r_m, r_n = geodesy.radii_of_curvature_m(lat)
+    lon = -70.0 + np.rad2deg(100.0 * t / ((r_n + 3000.0) * np.cos(np.deg2rad(-33.0))))
+    h = np.full(t.size, 3000.0)
+    ve, vn = np.full(t.size, 100.0), np.zeros(t.size)
+    speed, misfit, n = geodesy.horizontal_velocity_misfit_ms(t, lat, lon, h, ve, vn)
+    assert speed == pytest.approx(100.0, rel=1e-3) and misfit < 0.05 and n == t.size
+    _, misfit_swapped, _ = geodesy.horizontal_velocity_misfit_ms(t, lon, lat, h, ve, vn)
+    assert misfit_swapped > 50.0
+    _, misfit_en, _ = geodesy.horizontal_velocity_misfit_ms(t, lat, lon, h, vn, ve)
+    assert misfit_en > 100.0
+    parked = geodesy.horizontal_velocity_misfit_ms(t, lat, np.full(t.size, -70.0), h, 0 * ve, vn)
+    assert parked[2] == 0
+
+
+def test_grs80_normal_gravity_defining_values():
+    """GRS80 (Moritz 1980): γ = 978 032.67715 mGal at the equator and 983 218.63685 mGal at the
+    pole, on the ellipsoid; 0.143 mGal above WGS84 (γ_e 978 032.53359) everywhere."""
+    g = geodesy.normal_gravity_mgal(np.array([0.0, 90.0, -90.0]), np.zeros(3), "GRS80")
+    np.testing.assert_allclose(g, [978032.67715, 983218.63685, 983218.63685], atol=1e-4)
+    lat = np.linspace(-90, 90, 37)
+    d = geodesy.normal_gravity_mgal(lat, 3000.0, "GRS80") - geodesy.normal_gravity_mgal(lat, 3000.0, "WGS84")
+    np.testing.assert_allclose(d, 978032.67715 - 978032.53359, atol=0.002)

@@ -75,6 +75,25 @@ def test_dejitter_takes_logging_jitter_but_not_irregular_sampling():
     np.testing.assert_array_equal(gm.dejitter_times_s(stamped, max_jitter_s=1.5e-3), stamped)
 
 
+def test_dejitter_judges_the_scatter_not_its_largest_value():
+    """10 Hz stamps with a 1 ms normal scatter rounded to 1 ms: over 40 000 stamps the largest
+    deviation reaches 4 ms (beyond the old largest-deviation bound of 2.5 ms), the robust scale
+    is 1 ms — jitter, put back on the clock — and :func:`stamp_scatter_s` reports it either way."""
+    rng = np.random.default_rng(11)
+    n = 40_000
+    true = 20_000.0 + np.arange(n) * 0.1
+    stamped = np.round(true + rng.normal(0.0, 1e-3, n), 3)
+    assert np.max(np.abs(stamped - true)) > 3.5e-3
+    fixed = gm.dejitter_times_s(stamped)
+    assert np.max(np.abs(fixed[300:-300] - true[300:-300])) < 2e-4
+    scale, largest = gm.stamp_scatter_s(stamped)
+    assert 1e-3 <= scale <= 1.6e-3 and largest > 3.5e-3   # whole milliseconds: the MAD is 1 ms
+    # a scatter well beyond jitter (10 % of the step) is kept, and still measured
+    wild = true + rng.normal(0.0, 0.01, n)
+    np.testing.assert_array_equal(gm.dejitter_times_s(wild), wild)
+    assert gm.stamp_scatter_s(wild)[0] == pytest.approx(0.01, rel=0.1)
+
+
 def _sin_lagged(amps, omegas, phases, tau, k):
     """Specific force f(t) = 9.8 + Σ A sin(ωt+φ) through τ·ẏ + k·y = f (steady state)."""
     def f_true_mean(a, b):

@@ -326,9 +326,9 @@ def test_gap_straddling_line_start(tmp_path):
 def test_line_window_outside_data(survey_dir):
     root, lines, tabs = survey_dir
     l2 = lines.copy()
-    l2.loc[1, "t_start"] = T0 - 50.0
+    l2.loc[0, "t_start"] = T0 - 50.0
     l2.to_csv(root / "lines.csv", index=False)
-    expect_error(root, "lines.csv", 3, "t_start", match="outside")
+    expect_error(root, "lines.csv", 2, "t_start", match="outside")
     # GNSS ends earlier than the gravimeter: the end of the last line falls outside GNSS only
     lines.to_csv(root / "lines.csv", index=False)
     gnss = tabs["F1"][1]
@@ -351,6 +351,30 @@ def test_t_end_not_after_t_start(survey_dir):
     l2.loc[1, "t_end"] = l2.loc[1, "t_start"]
     l2.to_csv(root / "lines.csv", index=False)
     expect_error(root, "lines.csv", 3, "t_end")
+
+
+def test_t_end_before_t_start_across_midnight_says_so(survey_dir):
+    root, lines, _ = survey_dir
+    l2 = lines.copy()
+    l2.loc[2, "t_start"] = 86_300.0
+    l2.loc[2, "t_end"] = 100.0
+    l2.to_csv(root / "lines.csv", index=False)
+    err = expect_error(root, "lines.csv", 4, "t_end", match="ends (100.000) before it starts (86300.000)")
+    assert "midnight" in str(err) and "np.float64" not in str(err)
+
+
+def test_overlapping_windows_of_one_flight(survey_dir):
+    # a typo: 0002 starts 50 s before 0001 ends — the shared epochs would be processed twice
+    root, lines, _ = survey_dir
+    l2 = lines.copy()
+    l2.loc[1, "t_start"] = l2.loc[0, "t_end"] - 50.0
+    l2.to_csv(root / "lines.csv", index=False)
+    err = expect_error(root, "lines.csv", 3, "t_start", match="overlap")
+    assert "0001" in str(err) and "row 2" in str(err)
+    # touching windows are fine
+    l2.loc[1, "t_start"] = l2.loc[0, "t_end"]
+    l2.to_csv(root / "lines.csv", index=False)
+    read_survey(root)
 
 
 def test_unknown_kind(survey_dir):

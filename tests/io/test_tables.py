@@ -97,3 +97,18 @@ def test_median_rate_not_biased_by_rounded_stamps():
     t = np.round(1000.0 + np.arange(5000) / 18.24, 3)  # stamps rounded to 1 ms
     assert median_rate_hz(t) == pytest.approx(18.24, rel=2e-3)
     assert 1.0 / np.median(np.diff(t)) == pytest.approx(18.18, rel=1e-3)  # what a plain median gives
+
+
+def test_other_separators_and_unnamed_gzip_say_so(tmp_path):
+    p = tmp_path / "a.csv"
+    for sep, word in ((";", "semicolons"), ("\t", "tabs")):
+        p.write_text(sep.join(["time", "f_z"]) + "\n" + sep.join(["1", "9.8"]) + "\n")
+        with pytest.raises(InputError) as ei:
+            read_csv_table(p, "a.csv", ("time", "f_z"))
+        assert ei.value.row == 1 and word in str(ei.value) and "commas" in str(ei.value)
+    import gzip
+
+    p.write_bytes(gzip.compress(b"time,f_z\n1,9.8\n2,9.8\n"))
+    with pytest.raises(InputError) as ei:
+        read_csv_table(p, "a.csv", ("time", "f_z"))
+    assert "gzip" in str(ei.value) and "a.csv.gz" in str(ei.value)

@@ -27,13 +27,16 @@ MARGIN_S = 60.0
 def fir_baseline(m: FlightMeasurement, cutoff_period_s: float, max_gap_error_mgal: float | None = None) -> np.ndarray:
     """FIR 100 s low-pass (seed 004) of ``z`` over the whole flight (mGal), so line edges
     see the run-in data as in industry practice.  Left out (NaN) where missing samples inside
-    the record (a gravimeter dropout) can move it by more than ``max_gap_error_mgal``
-    (:func:`app.core.baselines.fir_gap_error_mgal`): a renormalised low-pass across them is
-    not an estimate of anything there, and the model checks compare with it."""
+    the record (a gravimeter dropout) or the record's own ends can move it by more than
+    ``max_gap_error_mgal`` (:func:`app.core.baselines.fir_gap_error_mgal`): a renormalised
+    low-pass across them is not an estimate of anything there, and the model checks compare
+    with it.  A flight recorded from the ground loses only ground time; a record that starts
+    or ends in the air loses up to half a kernel of its lines."""
     dt = float(np.median(np.diff(m.t_s)))
     fir = fir_lowpass_mgal(m.z_mgal, dt, cutoff_period_s)
     if max_gap_error_mgal is not None:
-        fir[fir_gap_error_mgal(m.z_mgal, dt, cutoff_period_s) > max_gap_error_mgal] = np.nan
+        bound = fir_gap_error_mgal(m.z_mgal, dt, cutoff_period_s, record_ends=True)
+        fir[bound > max_gap_error_mgal] = np.nan
     return fir
 
 
@@ -56,7 +59,7 @@ def fir_loss_warnings(lines: list[LineData], fir: dict[str, np.ndarray], p) -> l
         lost_all += lost
         if lost:
             out.append(f"flight {name}: FIR {p.fir_cutoff_period_s:g} s left out over {lost} line epochs near missing "
-                       f"samples inside the record (their values could move it by more than "
+                       f"samples inside the record or its ends in the air (their values could move it by more than "
                        f"{p.fir_gap_max_error_mgal:g} mGal there; processing.fir_gap_max_error_mgal); the model "
                        "checks use FIR elsewhere")
     if with_z and lost_all > FIR_LOSS_BLIND * with_z:

@@ -98,6 +98,12 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     if "ve" in gn and "vn" in gn:
         ve = gn["ve"].to_numpy(float)
         vn = gn["vn"].to_numpy(float)
+        speed, misfit, n_moving = geodesy.horizontal_velocity_misfit_ms(t, lat, lon, h, ve, vn)
+        if n_moving >= 100 and misfit > max(5.0, 0.25 * speed):
+            notes.append(f"the GNSS file's ve/vn differ from the velocity of its own positions by {misfit:.0f} m/s "
+                         f"(median, at a median speed of {speed:.0f} m/s): a column is mislabelled — lat and lon "
+                         "swapped, ve and vn swapped or a sign flipped? Normal gravity and the Eötvös correction "
+                         "use them; the anomaly is wrong by up to hundreds of mGal until the columns are right")
     else:
         ve, vn = geodesy.velocities_from_positions_ms(t, lat, lon, h)
     gamma = geodesy.normal_gravity_mgal(lat, h, cfg.survey.normal_gravity)
@@ -107,17 +113,25 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     stamps = gr["time"].to_numpy(float)
     uniform = gm.dejitter_times_s(stamps)
     jitter = float(np.max(np.abs(uniform - stamps))) if stamps.size else 0.0
+    scale_s, largest_s = gm.stamp_scatter_s(stamps)
     if jitter > gm.ROUNDING_JITTER_S:  # beyond a millisecond rounding: say so
         notes.append(f"gravimeter time stamps scatter up to {1e3 * jitter:.1f} ms about a uniform clock: the "
                      "samples were integrated on the clock (the instrument's sampling is uniform; the stamps' "
                      "scatter times the aircraft's acceleration would otherwise enter z)")
+    elif not jitter > 0 and scale_s > gm.ROUNDING_JITTER_S:
+        notes.append(f"gravimeter time stamps scatter by {1e3 * scale_s:.1f} ms (robust scale; up to "
+                     f"{1e3 * largest_s:.1f} ms) about a uniform clock, more than stamp jitter: the samples were "
+                     "integrated on their stamps as irregular sampling — if the instrument's clock is uniform, "
+                     "that scatter times the aircraft's acceleration is in z")
     series = gm.integrate_samples(uniform, gr["f_z"].to_numpy(float), dejitter=False)
     if getattr(flight, "vu_derived_from_h", False):
         notes.append("vu derived from the GNSS heights (the file has no vu column): derivative of the not-a-knot "
                      "cubic spline through h, per contiguous run")
     offset_info = time_offset(series, t, vu, tau, k, p, notes)
     # the report's time_offsets section: the stamps the samples were integrated on
-    offset_info["gravimeter_stamp_jitter_ms"] = 1e3 * jitter
+    offset_info["gravimeter_stamp_jitter_ms"] = 1e3 * largest_s
+    offset_info["gravimeter_stamp_scatter_ms"] = 1e3 * scale_s
+    offset_info["gravimeter_stamps_dejittered"] = bool(jitter > 0)
     offset_info.update(gnss_stamps)
     offset = offset_info.get("offset_s", 0.0)
     applied = bool(offset_info.get("applied", False))
@@ -132,8 +146,8 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
 
 def dejitter_gnss(gn: pd.DataFrame, max_gap_s: float, vu_from_h: bool, notes: list) -> tuple[pd.DataFrame, dict]:
     """The GNSS stamps put back on the receiver's uniform clock when they scatter about it like
-    a logger's or a rounding's stamps (:func:`app.core.gravimeter.dejitter_times_s`: at most
-    1.5 ms or 2.5 % of the step) **and** the scatter is uncorrelated from epoch to epoch (lag-1
+    a logger's or a rounding's stamps (:func:`app.core.gravimeter.dejitter_times_s`: a robust
+    scale of at most 1.5 ms or 5 % of the step) **and** the scatter is uncorrelated from epoch to epoch (lag-1
     correlation below 0.5).  A receiver whose clock is not steered stamps its epochs at the
     true, slowly drifting times (a sawtooth): those are kept.  The positions belong to the
     clock's epochs; on stamps scattered by ±1 ms the 2 Hz test line's FIR 100 s error went from
@@ -145,8 +159,15 @@ def dejitter_gnss(gn: pd.DataFrame, max_gap_s: float, vu_from_h: bool, notes: li
     u = gm.dejitter_times_s(t)
     dev = t - u
     jitter = float(np.max(np.abs(dev))) if dev.size else 0.0
-    info = {"gnss_stamp_jitter_ms": 1e3 * jitter, "gnss_stamps_dejittered": False}
-    if not jitter > 1e-6:   # on the clock already (float round-off)
+    scale_s, largest_s = gm.stamp_scatter_s(t)
+    info = {"gnss_stamp_jitter_ms": 1e3 * largest_s, "gnss_stamp_scatter_ms": 1e3 * scale_s,
+            "gnss_stamps_dejittered": False}
+    if not jitter > 1e-6:   # on the clock already (float round-off), or too irregular for jitter
+        if scale_s > gm.ROUNDING_JITTER_S:
+            notes.append(f"GNSS time stamps scatter by {1e3 * scale_s:.1f} ms (robust scale; up to "
+                         f"{1e3 * largest_s:.1f} ms) about a uniform clock, more than stamp jitter: kept as "
+                         "stamped — if the receiver's epochs are uniform, velocities differenced over these "
+                         "stamps carry the aircraft's acceleration times their relative error")
         return gn, info
     moved = np.abs(dev) > 1e-9
     d = dev[moved]

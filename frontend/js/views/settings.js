@@ -23,7 +23,7 @@ export async function render(sec, ctx) {
     const v = (cur[section] || {})[key];
     const name = `${section}.${key}`;
     const input = type === "select"
-      ? el("select", { name }, ["WGS84", "Helmert1901"].map((o) => el("option", { value: o, selected: o === v }, o)))
+      ? el("select", { name }, ["WGS84", "GRS80", "Helmert1901"].map((o) => el("option", { value: o, selected: o === v }, o)))
       : el("input", { name, type, step: type === "number" ? "any" : undefined, value: v ?? "",
         placeholder: OPTIONAL.has(key) ? (key === "crs" ? "auto (UTM)" : "none") : "" });
     input.dataset.initial = JSON.stringify(v ?? null);
