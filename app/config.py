@@ -327,10 +327,11 @@ class ProcessingParams(_Strict):
         "band", description="GNSS noise level for filtering: 'band' = R(t) from z's content just above the "
         "anomaly band (noise_band_hz), scaled to the EM's in-band level; 'local' = R(t) from the high-frequency "
         "content of z, scaled likewise; 'states' = the recognised R_j levels (seed 000)")
-    noise_level_unmix: bool = Field(True, description="Measure the band level R(t) on z less its part linear in "
+    noise_level_unmix: bool = Field(False, description="Measure the band level R(t) on z less its part linear in "
                                     "the gravimeter's specific force (lags ±5 epochs, band-passed): the two instruments' "
                                     "response mismatch follows the turbulence, not the GNSS noise, and has no weight in "
-                                    "the anomaly band")
+                                    "the anomaly band.  Off by default: over 88 surveys as good on average, but its two "
+                                    "largest changes were losses (docs/METHOD.md §4, session 20)")
     noise_band_hz: tuple[float, float] = Field((0.1, 0.5), description="Band (Hz) in which the 'band' noise "
                                                "model measures the local GNSS noise level")
     noise_family: Literal["auto", "white velocity", "Gauss-Markov velocity", "white height", "coloured height",
