@@ -51,13 +51,31 @@ def _display(path, display):
     return display if display is not None else str(path)
 
 
+#: The first bytes of a TIFF or BigTIFF file, either byte order.
+_TIFF_MAGIC = (b"II*\x00", b"MM\x00*", b"II+\x00", b"MM\x00+")
+
+
 def _open_raster(path, name: str):
-    """The raster at ``path`` opened with rasterio; an :class:`InputError` naming the file when GDAL
-    cannot read it."""
+    """The GeoTIFF at ``path`` opened with rasterio's GTiff driver only; an :class:`InputError`
+    naming the file when it is not a TIFF or GDAL cannot read it.
+
+    Only GeoTIFF: GDAL would otherwise open any of its formats, and some of them are references,
+    not data — a VRT (a few lines of XML) named ``dem.tif`` can point at any raster on the
+    machine or at a URL (``/vsicurl/``), so a survey uploaded to the server could make it read
+    its own files or fetch from its network.  A GeoTIFF's only side files are its own overviews
+    and masks, beside it."""
     try:
-        return rasterio.open(Path(path))
+        with open(Path(path), "rb") as fh:
+            head = fh.read(4)
+    except OSError as exc:
+        raise InputError(name, None, None, f"cannot read the file: {exc}") from None
+    if head not in _TIFF_MAGIC:
+        raise InputError(name, None, None, "not a GeoTIFF (the file does not start as a TIFF does); convert the "
+                                           "terrain model to GeoTIFF, e.g. gdal_translate -of GTiff")
+    try:
+        return rasterio.open(Path(path), driver="GTiff")
     except (RasterioIOError, OSError) as exc:
-        raise InputError(name, None, None, f"not a raster GDAL can read (GeoTIFF expected): {exc}") from None
+        raise InputError(name, None, None, f"not a GeoTIFF GDAL can read: {exc}") from None
 
 
 def read_dem(path, crs: str, bounds_m=None, spacing_m: float | None = None, margin_m: float = 0.0,

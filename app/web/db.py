@@ -35,8 +35,14 @@ class Base(DeclarativeBase):
     pass
 
 
+#: Ids are never handed out again after a delete (SQLite's AUTOINCREMENT; without it the next row
+#: takes max(id) + 1, so a retried DELETE from a stale tab removed the survey created since).
+_NO_ID_REUSE = {"sqlite_autoincrement": True}
+
+
 class Survey(Base):
     __tablename__ = "surveys"
+    __table_args__ = _NO_ID_REUSE
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     name: Mapped[str] = mapped_column(String(200))
     created_at: Mapped[dt.datetime] = mapped_column(default=utcnow)
@@ -75,7 +81,7 @@ class Line(Base):
 class Job(Base):
     __tablename__ = "jobs"
     __table_args__ = (Index("uq_jobs_one_active_per_survey", "survey_id", unique=True,
-                            sqlite_where=text(_ACTIVE_SQL), postgresql_where=text(_ACTIVE_SQL)),)
+                            sqlite_where=text(_ACTIVE_SQL), postgresql_where=text(_ACTIVE_SQL)), _NO_ID_REUSE)
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     survey_id: Mapped[int] = mapped_column(ForeignKey("surveys.id"), index=True)
     kind: Mapped[str] = mapped_column(String(16))
@@ -96,6 +102,7 @@ class Job(Base):
 
 class Result(Base):
     __tablename__ = "results"
+    __table_args__ = _NO_ID_REUSE
     id: Mapped[int] = mapped_column(Integer, primary_key=True)
     survey_id: Mapped[int] = mapped_column(ForeignKey("surveys.id"), index=True)
     job_id: Mapped[int] = mapped_column(ForeignKey("jobs.id"))

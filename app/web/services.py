@@ -230,6 +230,20 @@ def flight_from_lines(lines_raw: bytes | None) -> str | None:
     return name if SAFE_NAME.match(name) else None
 
 
+#: Most rows of an uploaded lines file (checked before it is parsed).
+MAX_LINES_ROWS = 100_000
+
+
+def _unused_flight_name(s: Survey) -> str:
+    """``flight<k>`` for the first k from the number of flights + 1 that no flight of the survey
+    has: an unnamed upload never replaces a stored flight."""
+    taken = {f.name for f in s.flights}
+    k = len(s.flights) + 1
+    while f"flight{k}" in taken:
+        k += 1
+    return f"flight{k}"
+
+
 def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str | None, write_files: Callable,
                lines_raw: bytes | None, budget_bytes: int | None = None) -> Survey:
     """Build the next snapshot (hard links to the current one + this flight's files), validate it and
@@ -239,7 +253,7 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
     with store.survey_lock(s.id):
         refresh_survey(db, s)
         base = s.input_dir
-        name = name or flight_from_lines(lines_raw) or f"flight{len(s.flights) + 1}"
+        name = name or flight_from_lines(lines_raw) or _unused_flight_name(s)
         staging = store.staging_dir()
         try:
             root = staging / "survey"
@@ -253,6 +267,11 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
             fdir.mkdir(parents=True)
             write_files(fdir)
             if lines_raw is not None:
+                n_rows = lines_raw.count(b"\n") + 1
+                if n_rows > MAX_LINES_ROWS + 1:
+                    raise InputError("lines.csv", None, None,
+                                     f"{n_rows:,} rows: more than the {MAX_LINES_ROWS:,} survey lines a lines file may "
+                                     "list (one row per line flown, a few to a few thousand)")
                 try:
                     new = pd.read_csv(io.BytesIO(lines_raw), dtype=str, keep_default_na=False)
                 except Exception as e:
@@ -339,6 +358,28 @@ def check_crs(crs: str) -> None:
         raise SettingsRejected([{"loc": ["survey", "crs"], "msg": f"{c.name} is not a projected CRS: distances and "
                                  "the grid need one in linear units (e.g. a UTM zone, EPSG:326xx)",
                                  "type": "value_error", "input": crs[:100]}])
+    why = _projection_fault(c)
+    if why:
+        raise SettingsRejected([{"loc": ["survey", "crs"], "msg": f"{c.name} cannot be used: {why}",
+                                 "type": "value_error", "input": crs[:100]}])
+
+
+def _projection_fault(c) -> str | None:
+    """Why positions cannot be projected with ``c`` (None when they can): a PROJ string can
+    parse and still fail on every point (``+k=1e-10``) or shrink distances absurdly."""
+    from pyproj import Transformer
+
+    aou = c.area_of_use
+    lon, lat = ((aou.west + aou.east) / 2.0, (aou.south + aou.north) / 2.0) if aou is not None else (0.0, 0.0)
+    try:
+        tr = Transformer.from_crs("EPSG:4326", c, always_xy=True)
+        x, y = tr.transform([lon, lon], [lat, lat + 0.01])
+    except Exception as e:  # noqa: BLE001 - PROJ's errors have no common base worth naming
+        return f"projecting a point fails ({str(e)[:150]})"
+    d_m = float(np.hypot(x[1] - x[0], y[1] - y[0])) * c.axis_info[0].unit_conversion_factor
+    if not (np.isfinite(d_m) and 0.1 * 1113.2 < d_m < 10.0 * 1113.2):
+        return f"0.01° of latitude comes out as {d_m:.3g} m (1113 m expected): the scale is wrong"
+    return None
 
 
 def merged_config(current: dict, patch) -> dict:

@@ -70,8 +70,17 @@ def test_write_read_round_trip(tmp_path):
 
 def test_bad_input(tmp_path):
     (tmp_path / "junk.tif").write_text("not a raster")
-    with pytest.raises(InputError, match="not a raster"):
+    with pytest.raises(InputError, match="not a GeoTIFF"):
         read_dem(tmp_path / "junk.tif", CRS)
+    # a GDAL VRT named dem.tif, pointing at a raster elsewhere on the machine: refused, never read
+    elsewhere = _geotiff(tmp_path / "elsewhere.tif", np.full((10, 10), 100.0),
+                         from_origin(500000, 7270000, 100, 100), crs=CRS)
+    (tmp_path / "dem.tif").write_text(
+        f'<VRTDataset rasterXSize="10" rasterYSize="10"><VRTRasterBand dataType="Float64" band="1">'
+        f'<SimpleSource><SourceFilename relativeToVRT="0">{elsewhere}</SourceFilename><SourceBand>1</SourceBand>'
+        f'</SimpleSource></VRTRasterBand></VRTDataset>')
+    with pytest.raises(InputError, match="not a GeoTIFF"):
+        read_dem(tmp_path / "dem.tif", CRS)
     # no CRS
     data = np.full((10, 10), 100.0)
     p = _geotiff(tmp_path / "nocrs.tif", data, from_origin(500000, 7270000, 100, 100), crs=None)

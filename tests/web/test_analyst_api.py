@@ -244,3 +244,45 @@ def test_flight_name_defaults_to_the_lines_csv_flight(client, tmp_path):
     r = upload(sid3, "line,t_start,t_end,kind\nL1,1010,1140,main\n")
     assert r.status_code == 201, r.text
     assert r.json()["flights"] == ["flight1"]
+
+
+def test_unnamed_flight_never_replaces_a_stored_one_and_ids_are_not_reused(client, tmp_path):
+    """An unnamed upload takes a name no stored flight has (flight2 exists: flight3); a deleted
+    survey's id is not handed to the next one, so a retried DELETE cannot remove it; a lines file
+    of a million rows is refused before it is parsed."""
+    from .conftest import make_tiny_survey
+
+    src = make_tiny_survey(tmp_path / "src")
+    fdir = src / "flights" / "f1"
+    files = lambda lines_text: {  # noqa: E731
+        "gravimeter": ("gravimeter.csv", (fdir / "gravimeter.csv").read_bytes(), "text/csv"),
+        "gnss": ("gnss.csv", (fdir / "gnss.csv").read_bytes(), "text/csv"),
+        "lines": ("lines.csv", lines_text.encode(), "text/csv")}
+    sid = client.post("/api/surveys", json={"name": "two flights"}).json()["id"]
+    r = client.post(f"/api/surveys/{sid}/flights", data={"flight": "flight2"},
+                    files=files("line,t_start,t_end,kind\nA1,1010,1140,main\n"))
+    assert r.status_code == 201, r.text
+    r = client.post(f"/api/surveys/{sid}/flights", files=files("line,t_start,t_end,kind\nB1,1010,1140,main\n"))
+    assert r.status_code == 201, r.text
+    assert r.json()["flights"] == ["flight2", "flight3"]
+    assert {l["line"] for l in client.get(f"/api/surveys/{sid}/lines").json()} == {"A1", "B1"}
+    big = "line,t_start,t_end,kind\n" + "X,1010,1140,main\n" * 100_050
+    r = client.post(f"/api/surveys/{sid}/flights", data={"flight": "f9"}, files=files(big))
+    assert r.status_code == 422 and "lines.csv" in r.text and "100,000" in r.text
+    assert client.get(f"/api/surveys/{sid}").json()["flights"] == ["flight2", "flight3"]
+    # ids
+    last = client.post("/api/surveys", json={"name": "doomed"}).json()["id"]
+    assert client.delete(f"/api/surveys/{last}").status_code == 204
+    new = client.post("/api/surveys", json={"name": "bob"}).json()["id"]
+    assert new != last
+    assert client.delete(f"/api/surveys/{last}").status_code == 404      # the retry
+    assert client.get(f"/api/surveys/{new}").status_code == 200
+
+
+def test_patch_refuses_a_crs_that_cannot_project(client, tiny_zip):
+    # parses as a projected CRS, but every point fails to project (k must be > 0)
+    sid = import_zip(client, tiny_zip).json()["id"]
+    r = client.patch(f"/api/surveys/{sid}", json={"survey": {"crs": "+proj=merc +lon_0=158 +k=1e-10 +type=crs"}})
+    assert r.status_code == 422 and "crs" in r.text, r.text
+    assert client.get(f"/api/surveys/{sid}").json()["settings"]["survey"]["crs"] == "EPSG:32657"
+    assert client.patch(f"/api/surveys/{sid}", json={"survey": {"crs": "EPSG:32658"}}).status_code == 200

@@ -57,7 +57,7 @@ def test_zip_import_keeps_the_dem(client, dem_survey, make_client):
 
 
 @pytest.mark.parametrize("case, column, words", [
-    ("garbage", None, "not a raster"),
+    ("garbage", None, "not a GeoTIFF"),
     ("no_crs", "crs", "no coordinate reference system"),
     ("elsewhere", None, "does not cover the survey lines"),
     ("feet", "band 1", "outside"),
