@@ -31,7 +31,9 @@ MAX_MA_ORDER = 40
 #: names: survey, flight, line and track ids
 MAX_NAME_LENGTH = 200
 
-_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029]")
+#: control characters, line/paragraph separators, and the bidirectional-text controls (a name
+#: holding U+202E displays reversed: spoofed)
+_CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029\u200e\u200f\u202a-\u202e\u2066-\u2069]")
 
 
 def check_name(value: str, what: str = "name") -> str:
@@ -45,7 +47,8 @@ def check_name(value: str, what: str = "name") -> str:
         raise ValueError(f"{what} is {len(value)} characters long; at most {MAX_NAME_LENGTH} allowed")
     m = _CONTROL.search(value)
     if m:
-        raise ValueError(f"{what} contains the control character {m.group()!r} (newline, tab, NUL, …)")
+        raise ValueError(f"{what} contains the control character {m.group()!r} (newline, tab, NUL, "
+                         "a text-direction override, …)")
     if "/" in value or "\\" in value:
         raise ValueError(f"{what} contains a path separator ('/' or '\\')")
     if value.strip() in (".", ".."):

@@ -286,3 +286,26 @@ def test_patch_refuses_a_crs_that_cannot_project(client, tiny_zip):
     assert r.status_code == 422 and "crs" in r.text, r.text
     assert client.get(f"/api/surveys/{sid}").json()["settings"]["survey"]["crs"] == "EPSG:32657"
     assert client.patch(f"/api/surveys/{sid}", json={"survey": {"crs": "EPSG:32658"}}).status_code == 200
+
+
+def test_gzip_upload_strict_job_params_and_bidi_names(client, tmp_path):
+    """A gzip-compressed flight upload is stored as .csv.gz and read (the client's file name is
+    not used); job parameters of the wrong JSON type are a 422, not converted; a survey name
+    with a right-to-left override is refused."""
+    import gzip
+
+    from .conftest import make_tiny_survey
+
+    src = make_tiny_survey(tmp_path / "src")
+    fdir = src / "flights" / "f1"
+    sid = client.post("/api/surveys", json={"name": "gz"}).json()["id"]
+    r = client.post(f"/api/surveys/{sid}/flights", data={"flight": "f1"},
+                    files={"gravimeter": ("g", gzip.compress((fdir / "gravimeter.csv").read_bytes()), "application/gzip"),
+                           "gnss": ("n", (fdir / "gnss.csv").read_bytes(), "text/csv"),
+                           "lines": ("l", (src / "lines.csv").read_bytes(), "text/csv")})
+    assert r.status_code == 201, r.text
+    for bad in ({"m": True}, {"m": "2"}, {"em_max_iter": True}, {"order_blend": "yes"}):
+        r = client.post(f"/api/surveys/{sid}/jobs", json={"kind": "process", "params": bad})
+        assert r.status_code == 422, (bad, r.text)
+    r = client.post("/api/surveys", json={"name": "report\u202etxt.exe"})
+    assert r.status_code == 422 and "control character" in r.text

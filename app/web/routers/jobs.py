@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import functools
+import json
+
 from fastapi import APIRouter, Depends, HTTPException
 from pydantic import ValidationError
 from sqlalchemy import select
@@ -21,11 +24,45 @@ from .surveys import job_out
 router = APIRouter(tags=["jobs"])
 
 
+@functools.cache
+def _param_types() -> dict[str, set[str]]:
+    """JSON types each ProcessingParams field takes (from its JSON schema)."""
+    out = {}
+    for k, prop in ProcessingParams.model_json_schema().get("properties", {}).items():
+        alts = prop.get("anyOf", [prop])
+        out[k] = {a.get("type") for a in alts if a.get("type")}
+    return out
+
+
+def _wrong_json_types(params: dict) -> list[dict]:
+    """Parameters whose JSON type is not the field's: ``true`` for a number, ``"2"`` for a number
+    or ``"yes"`` for a boolean are refused (pydantic's lax mode would read them as 1, 2, True),
+    while ``2`` for a number and ``1e9`` for an integer still reach the bounds checks."""
+    errors = []
+    types = _param_types()
+    for k, v in params.items():
+        want = types.get(k, set())
+        numeric = want & {"integer", "number"}
+        if isinstance(v, bool) and numeric and "boolean" not in want:
+            errors.append({"loc": [k], "msg": f"a number is expected, not {json.dumps(v)}", "type": "type_error"})
+        elif isinstance(v, str) and (numeric or "boolean" in want) and "string" not in want:
+            what = "a number" if numeric else "true or false"
+            errors.append({"loc": [k], "msg": f"{what} is expected, not a string", "type": "type_error",
+                           "input": v[:100]})
+        elif not isinstance(v, bool) and "boolean" in want and not (numeric or "string" in want) and v is not None:
+            errors.append({"loc": [k], "msg": f"true or false is expected, not {json.dumps(v)[:100]}",
+                           "type": "type_error"})
+    return errors
+
+
 @router.post("/api/surveys/{survey_id}/jobs", response_model=JobOut, status_code=201)
 def create_job(body: JobCreate, s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
                store: Store = Depends(get_store), jobs: JobManager = Depends(get_jobs)) -> JobOut:
     """Queue a job.  ``params`` are ProcessingParams overrides (422 when invalid)."""
     try:
+        wrong = _wrong_json_types(body.params)
+        if wrong:
+            raise HTTPException(422, wrong)
         params = ProcessingParams.model_validate(body.params).model_dump(exclude_unset=True, mode="json")
     except ValidationError as e:
         raise HTTPException(422, validation_detail(e.errors())) from e

@@ -132,7 +132,14 @@ def import_survey(file: UploadFile = File(..., description="zip of a survey dire
 
 
 def _write_upload(up: UploadFile, dest: Path) -> None:
+    """Store an uploaded table as ``dest`` — as ``dest.gz`` when it is gzip-compressed (the
+    client's file name is not used, so the content says which; the reader decompresses it
+    under the same limits)."""
     dest.parent.mkdir(parents=True, exist_ok=True)
+    head = up.file.read(2)
+    up.file.seek(0)
+    if head == b"\x1f\x8b":
+        dest = dest.with_name(dest.name + ".gz")
     with open(dest, "wb") as fh:
         shutil.copyfileobj(up.file, fh, 1 << 20)
 
