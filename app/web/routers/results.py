@@ -158,7 +158,8 @@ def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, descr
     groups = cache.get(("lines", r.id), lambda: _load_lines(r))["groups"]
     g = groups.get(line)
     if g is None:
-        raise HTTPException(404, f"line {line!r} not in the results of survey {s.id}")
+        shown = line if len(line) <= 100 else line[:100] + '…'
+        raise HTTPException(404, f"line {shown!r} not in the results of survey {s.id}")
     n = len(g)
     t = g["time"].to_numpy(float)
     e, nn = g["easting_km"].to_numpy(float), g["northing_km"].to_numpy(float)
