@@ -28,6 +28,11 @@ def validation_detail(errors) -> list[dict]:
     for e in errors:
         d = {"loc": [x if isinstance(x, int) else str(x)[:100] for x in e.get("loc", ())],
              "msg": str(e.get("msg", ""))[:300], "type": e.get("type")}
+        if "Expected UploadFile" in d["msg"]:
+            # a file part without a file name arrives as text: say what is wrong, do not echo it
+            d["msg"] = "a file upload is expected here (this part has no file name, or is not a file)"
+            out.append(d)
+            continue
         if "input" in e:
             d["input"] = _safe_value(e["input"])
         if e.get("ctx"):

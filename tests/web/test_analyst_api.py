@@ -309,3 +309,12 @@ def test_gzip_upload_strict_job_params_and_bidi_names(client, tmp_path):
         assert r.status_code == 422, (bad, r.text)
     r = client.post("/api/surveys", json={"name": "report\u202etxt.exe"})
     assert r.status_code == 422 and "control character" in r.text
+
+
+def test_file_part_without_a_name_is_a_plain_422(client, tiny_zip):
+    """A file part sent with filename="" reaches the endpoint as text: the 422 says a file is
+    expected and does not echo the bytes."""
+    r = import_zip(client, tiny_zip, "")
+    assert r.status_code == 422
+    d = r.json()["detail"][0]
+    assert "file upload is expected" in d["msg"] and "input" not in d and "UploadFile" not in r.text
