@@ -1,4 +1,4 @@
-"""DEM (terrain model) reader and writer: a GeoTIFF (any raster GDAL reads) in any CRS,
+"""DEM (terrain model) reader and writer: a GeoTIFF (GDAL's GTiff driver only) in any CRS,
 reprojected and resampled onto a regular grid in the survey's projected CRS.
 
 ``read_dem(path, crs, bounds_m=None, spacing_m=None, ...) -> app.core.terrain.Dem``
@@ -216,7 +216,7 @@ def _check_coverage(src, dst_crs, crs: str, x, y, heights, spacing_m: float, req
 
 def check_dem(path, crs: str, require_bounds_m=None, max_cells: int = MAX_DEM_CELLS,
               display: str | None = None) -> dict:
-    """Validate a DEM as it arrives (an upload), cheaply and in bounded memory: a raster GDAL reads,
+    """Validate a DEM as it arrives (an upload), cheaply and in bounded memory: a GeoTIFF GDAL reads,
     with a CRS and at least one band, at most ``max_cells`` pixels, band 1 read in blocks of rows with
     some data and every height within ``HEIGHT_RANGE_M`` (the first offending pixel named, as
     :func:`read_dem` does), and a footprint (in ``crs``) that contains ``require_bounds_m = (west,

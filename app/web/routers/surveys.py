@@ -178,7 +178,7 @@ def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv
                        409: {"description": "no data yet, or changed meanwhile"},
                        413: {"description": "over the upload limit or the survey's storage budget"},
                        422: {"description": "the DEM is not usable: the detail names dem.tif and what is wrong"}})
-def put_dem(dem: UploadFile = File(..., description="terrain model: a GeoTIFF (any raster GDAL reads) with its CRS, "
+def put_dem(dem: UploadFile = File(..., description="terrain model: a GeoTIFF with its CRS (other formats, a VRT among them, are refused), "
                                    "heights in metres, covering the survey lines"),
             s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
             store: Store = Depends(get_store), reader: Callable = Depends(get_survey_reader),
