@@ -85,6 +85,17 @@ class SurveySection(_Strict):
     crs: str | None = Field(None, max_length=200, description="Projected CRS for distances and grids, e.g. 'EPSG:32657'; UTM chosen if absent")
     normal_gravity: Literal["WGS84", "GRS80", "Helmert1901"] = "WGS84"
 
+    @field_validator("crs")
+    @classmethod
+    def _usable_crs(cls, v: str | None) -> str | None:
+        # refused here, naming survey.crs, rather than by PROJ in the middle of processing
+        from app.core.geodesy import crs_fault
+
+        why = None if v is None else crs_fault(v)
+        if why:
+            raise ValueError(why)
+        return v
+
 
 class GravimeterSection(_Strict):
     model: str = Field("GT-1A", max_length=MAX_NAME_LENGTH)

@@ -234,6 +234,34 @@ def utm_crs_for(lon_deg, lat_deg) -> str:
     return f"EPSG:{32600 + zone if lat >= 0 else 32700 + zone}"
 
 
+def crs_fault(crs: str) -> str | None:
+    """Why ``crs`` cannot hold a survey (None when it can): unknown to PROJ, not projected
+    (distances and the grid need linear units), or a projection that parses and still fails on
+    every point (``+k=1e-10``) or shrinks distances absurdly — 0.01° of latitude at the centre of
+    its area of use (0°, 0° without one) must come out within 10× of 1113 m."""
+    from pyproj import CRS, Transformer
+    from pyproj.exceptions import CRSError
+
+    try:
+        c = CRS.from_user_input(crs)
+    except CRSError as e:
+        return f"unknown CRS: {str(e)[:200]}"
+    if not c.is_projected:
+        return (f"{c.name} is not a projected CRS: distances and the grid need one in linear units "
+                "(e.g. a UTM zone, EPSG:326xx)")
+    name = c.name if c.name and c.name != "unknown" else "the CRS"
+    aou = c.area_of_use
+    lon, lat = ((aou.west + aou.east) / 2.0, (aou.south + aou.north) / 2.0) if aou is not None else (0.0, 0.0)
+    try:
+        x, y = Transformer.from_crs("EPSG:4326", c, always_xy=True).transform([lon, lon], [lat, lat + 0.01])
+    except Exception as e:  # noqa: BLE001 - PROJ's errors have no common base worth naming
+        return f"{name} cannot be used: projecting a point fails ({str(e)[:150]})"
+    d_m = float(np.hypot(x[1] - x[0], y[1] - y[0])) * c.axis_info[0].unit_conversion_factor
+    if not (np.isfinite(d_m) and 0.1 * 1113.2 < d_m < 10.0 * 1113.2):
+        return f"{name} cannot be used: 0.01° of latitude comes out as {d_m:.3g} m (1113 m expected)"
+    return None
+
+
 def project_km(lon_deg, lat_deg, crs: str):
     """Project geographic coordinates to a projected CRS, in km.
 

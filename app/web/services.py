@@ -346,40 +346,12 @@ def survey_settings(s: Survey) -> dict | None:
 
 
 def check_crs(crs: str) -> None:
-    """A CRS the pipeline can lay a grid out in: known to PROJ and projected."""
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
-    try:
-        c = CRS.from_user_input(crs)
-    except CRSError as e:
-        raise SettingsRejected([{"loc": ["survey", "crs"], "msg": f"unknown CRS: {str(e)[:200]}",
-                                 "type": "value_error", "input": crs[:100]}]) from None
-    if not c.is_projected:
-        raise SettingsRejected([{"loc": ["survey", "crs"], "msg": f"{c.name} is not a projected CRS: distances and "
-                                 "the grid need one in linear units (e.g. a UTM zone, EPSG:326xx)",
-                                 "type": "value_error", "input": crs[:100]}])
-    why = _projection_fault(c)
+    """A CRS the pipeline can lay a grid out in (:func:`app.core.geodesy.crs_fault`)."""
+    from app.core.geodesy import crs_fault
+
+    why = crs_fault(crs)
     if why:
-        raise SettingsRejected([{"loc": ["survey", "crs"], "msg": f"{c.name} cannot be used: {why}",
-                                 "type": "value_error", "input": crs[:100]}])
-
-
-def _projection_fault(c) -> str | None:
-    """Why positions cannot be projected with ``c`` (None when they can): a PROJ string can
-    parse and still fail on every point (``+k=1e-10``) or shrink distances absurdly."""
-    from pyproj import Transformer
-
-    aou = c.area_of_use
-    lon, lat = ((aou.west + aou.east) / 2.0, (aou.south + aou.north) / 2.0) if aou is not None else (0.0, 0.0)
-    try:
-        tr = Transformer.from_crs("EPSG:4326", c, always_xy=True)
-        x, y = tr.transform([lon, lon], [lat, lat + 0.01])
-    except Exception as e:  # noqa: BLE001 - PROJ's errors have no common base worth naming
-        return f"projecting a point fails ({str(e)[:150]})"
-    d_m = float(np.hypot(x[1] - x[0], y[1] - y[0])) * c.axis_info[0].unit_conversion_factor
-    if not (np.isfinite(d_m) and 0.1 * 1113.2 < d_m < 10.0 * 1113.2):
-        return f"0.01° of latitude comes out as {d_m:.3g} m (1113 m expected): the scale is wrong"
-    return None
+        raise SettingsRejected([{"loc": ["survey", "crs"], "msg": why, "type": "value_error", "input": crs[:100]}])
 
 
 def merged_config(current: dict, patch) -> dict:

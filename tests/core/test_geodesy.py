@@ -125,3 +125,13 @@ def test_grs80_normal_gravity_defining_values():
     lat = np.linspace(-90, 90, 37)
     d = geodesy.normal_gravity_mgal(lat, 3000.0, "GRS80") - geodesy.normal_gravity_mgal(lat, 3000.0, "WGS84")
     np.testing.assert_allclose(d, 978032.67715 - 978032.53359, atol=0.002)
+
+
+def test_crs_fault_names_what_cannot_hold_a_survey():
+    """UTM zones and a sane custom projection hold a survey; a geographic CRS, an unknown one
+    and a Mercator with k = 1e-10 (parses, then fails on every point) do not."""
+    assert geodesy.crs_fault("EPSG:32657") is None
+    assert geodesy.crs_fault("+proj=tmerc +lon_0=158 +k=0.9996 +x_0=500000 +type=crs") is None
+    assert "not a projected" in geodesy.crs_fault("EPSG:4326")
+    assert "unknown CRS" in geodesy.crs_fault("EPSG:99999999")
+    assert "projecting a point fails" in geodesy.crs_fault("+proj=merc +lon_0=158 +k=1e-10 +type=crs")

@@ -549,3 +549,12 @@ def test_unknown_toml_table(survey_dir):
     root, *_ = survey_dir
     (root / "survey.toml").write_text(TOML + "\n[plotting]\ncolour = 1\n")
     expect_error(root, "survey.toml", 13, "plotting", match="unknown")
+
+
+def test_unusable_crs_in_survey_toml_is_named(survey_dir):
+    # parses as a projected CRS, fails on every point: refused while reading, not mid-processing
+    root, *_ = survey_dir
+    p = root / "survey.toml"
+    p.write_text(p.read_text().replace('name = "tiny"\n', 'name = "tiny"\ncrs = "+proj=merc +k=1e-10 +type=crs"\n'))
+    err = expect_error(root, "survey.toml", 3, "survey.crs", match="the CRS cannot be used: projecting a point fails")
+    assert "ProjError" not in str(err)
