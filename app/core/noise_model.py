@@ -1077,6 +1077,103 @@ def _whittle_nll_kernel(th, n_base, d_anom, line_bins, f_hz, dt, orders, free_ph
     return out
 
 
+@njit(cache=True, nogil=True)
+def _argsort_small(v):
+    """Stable insertion argsort (numpy's for arrays of at most 16 elements)."""
+    n = v.size
+    ind = np.arange(n)
+    for i in range(1, n):
+        vi = ind[i]
+        j = i
+        while j > 0 and v[vi] < v[ind[j - 1]]:
+            ind[j] = ind[j - 1]
+            j -= 1
+        ind[j] = vi
+    return ind
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _nll_at(x, th, pos, kargs) -> float:
+    """:func:`_whittle_nll_kernel` with θ's elements ``pos`` set to ``x`` (``th`` is updated)."""
+    for i in range(x.size):
+        th[pos[i]] = x[i]
+    return _whittle_nll_kernel(th, *kargs)
+
+
+@njit(cache=True, nogil=True)
+def _converged(sim, fsim, xatol: float, fatol: float) -> bool:
+    """SciPy's test: every vertex within ``xatol`` of the best, every value within ``fatol``."""
+    dx = 0.0
+    df = 0.0
+    for j in range(1, sim.shape[0]):
+        df = max(df, abs(fsim[0] - fsim[j]))
+        for i in range(sim.shape[1]):
+            dx = max(dx, abs(sim[j, i] - sim[0, i]))
+    return dx <= xatol and df <= fatol
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _nelder_mead_kernel(x0, template, pos, maxiter, xatol, fatol, kargs):
+    """Nelder–Mead minimisation of :func:`_whittle_nll_kernel` (its arguments after θ packed
+    in ``kargs``) over the elements ``pos`` of θ, the others held at ``template``'s: step for
+    step SciPy's ``_minimize_neldermead`` with its defaults (ρ = 1, χ = 2, ψ = σ = 0.5; the
+    initial simplex x0 with one coordinate ×1.05, or 0.00025 where it is 0; no bounds, no limit
+    on evaluations), whose Python loop cost more than the likelihood itself — but the simplex
+    sorted stably (:func:`_argsort_small`).  Returns (x, f, iterations, evaluations)."""
+    N = x0.size
+    th = template.copy()
+    sim = np.empty((N + 1, N))
+    sim[0] = x0
+    for k in range(N):
+        sim[k + 1] = x0
+        sim[k + 1, k] = (1 + 0.05) * x0[k] if x0[k] != 0 else 0.00025
+    fsim = np.empty(N + 1)
+    for k in range(N + 1):
+        fsim[k] = _nll_at(sim[k], th, pos, kargs)
+    nfev = N + 1
+    ind = _argsort_small(fsim)
+    sim, fsim = sim[ind], fsim[ind]
+    xbar = np.empty(N)
+    iterations = 1
+    while iterations < maxiter and not _converged(sim, fsim, xatol, fatol):
+        for i in range(N):   # numpy's add.reduce over the rows: in order
+            acc = sim[0, i]
+            for j in range(1, N):
+                acc = acc + sim[j, i]
+            xbar[i] = acc / N
+        xr = 2 * xbar - 1 * sim[N]
+        fxr = _nll_at(xr, th, pos, kargs)
+        nfev += 1
+        doshrink = False
+        if fxr < fsim[0]:
+            xe = 3 * xbar - 2 * sim[N]
+            fxe = _nll_at(xe, th, pos, kargs)
+            nfev += 1
+            if fxe < fxr:
+                sim[N], fsim[N] = xe, fxe
+            else:
+                sim[N], fsim[N] = xr, fxr
+        elif fxr < fsim[N - 1]:
+            sim[N], fsim[N] = xr, fxr
+        else:
+            outside = fxr < fsim[N]
+            xc = 1.5 * xbar - 0.5 * sim[N] if outside else (1 - 0.5) * xbar + 0.5 * sim[N]
+            fxc = _nll_at(xc, th, pos, kargs)
+            nfev += 1
+            if (fxc <= fxr) if outside else (fxc < fsim[N]):
+                sim[N], fsim[N] = xc, fxc
+            else:
+                doshrink = True
+        if doshrink:
+            for j in range(1, N + 1):
+                sim[j] = sim[0] + 0.5 * (sim[j] - sim[0])
+                fsim[j] = _nll_at(sim[j], th, pos, kargs)
+                nfev += 1
+        iterations += 1
+        ind = _argsort_small(fsim)
+        sim, fsim = sim[ind], fsim[ind]
+    return sim[0].copy(), fsim.min(), iterations, nfev
+
 class _Whittle:
     """The Whittle likelihood of the spectra under (anomaly order m, family spec, θ) and its
     minimisation (Nelder–Mead from random and nested starts)."""
@@ -1160,14 +1257,19 @@ class _Whittle:
         tens of thousands of times per fit: :func:`_whittle_nll_kernel` (the arithmetic of
         :func:`_unpack` and :func:`_component_psd_at`, term by term), :meth:`nll_numpy` the
         same in numpy."""
+        ks = self._spec_arrays(spec)
+        return float(_whittle_nll_kernel(np.asarray(theta, dtype=float), ks[2], self.d_anom[mm], self._line_bins,
+                                         self.sp.f_hz, self.dt_s, ks[0], ks[1], self.phi_min, PHI_MAX,
+                                         ROLLOFF_MAX_S, *self._kernel_arrays))
+
+    def _spec_arrays(self, spec) -> tuple:
+        """A family's component orders, free-φ flags and θ length without the roll-off, for
+        the kernels (cached per family)."""
         ks = self._kernel_spec.get(spec)
         if ks is None:
             ks = self._kernel_spec[spec] = (np.array([int(o) for o, _ in spec], dtype=np.int64),
-                                            np.array([bool(f) for _, f in spec], dtype=np.bool_))
-        a = self._kernel_arrays
-        return float(_whittle_nll_kernel(np.asarray(theta, dtype=float), _n_base(spec), self.d_anom[mm],
-                                         self._line_bins, self.sp.f_hz, self.dt_s, ks[0], ks[1], self.phi_min,
-                                         PHI_MAX, ROLLOFF_MAX_S, *a))
+                                            np.array([bool(f) for _, f in spec], dtype=np.bool_), _n_base(spec))
+        return ks
 
     def nll_numpy(self, theta, spec, mm) -> float:
         """:meth:`nll` in numpy (the reference its compiled kernel is tested against)."""
@@ -1228,11 +1330,39 @@ class _Whittle:
     def fit(self, spec, mm, starts):
         best = None
         for th0 in starts:
-            res = optimize.minimize(self.nll, np.array(th0, float), args=(spec, mm), method="Nelder-Mead",
-                                    options={"maxiter": 400 * len(th0), "xatol": 1e-5, "fatol": 1e-6})
+            x0 = np.array(th0, float)
+            res = self.minimize(x0, spec, mm, 400 * len(th0))
             if best is None or res.fun < best.fun:
                 best = res
         return best
+
+    def minimize(self, x0, spec, mm, maxiter: int, template=None, pos=None) -> optimize.OptimizeResult:
+        """Nelder–Mead on :meth:`nll` (xatol 1e-5, fatol 1e-6) over θ, or over the elements
+        ``pos`` of θ with the others at ``template``'s: :func:`_nelder_mead_kernel`, SciPy's
+        algorithm compiled with the likelihood (``nelder_mead_scipy`` is the reference)."""
+        x0 = np.asarray(x0, dtype=float)
+        if template is None:
+            template, pos = x0, np.arange(x0.size)
+        ks = self._spec_arrays(spec)
+        kargs = (ks[2], self.d_anom[mm], self._line_bins, self.sp.f_hz, self.dt_s, ks[0], ks[1], self.phi_min,
+                 PHI_MAX, ROLLOFF_MAX_S, *self._kernel_arrays)
+        x, f, nit, nfev = _nelder_mead_kernel(x0, np.asarray(template, dtype=float), np.asarray(pos, dtype=np.int64),
+                                              int(maxiter), 1e-5, 1e-6, kargs)
+        return optimize.OptimizeResult(x=x, fun=float(f), nit=int(nit), nfev=int(nfev))
+
+    def nelder_mead_scipy(self, x0, spec, mm, maxiter: int, template=None, pos=None) -> optimize.OptimizeResult:
+        """:meth:`minimize` by ``scipy.optimize.minimize`` (the reference it is tested against)."""
+        x0 = np.asarray(x0, dtype=float)
+        if template is None:
+            template, pos = x0, np.arange(x0.size)
+        th = np.array(template, dtype=float)
+        idx = np.asarray(pos, dtype=np.int64)
+
+        def f(x):
+            th[idx] = x
+            return self.nll(th, spec, mm)
+
+        return optimize.minimize(f, x0, method="Nelder-Mead", options={"maxiter": maxiter, "xatol": 1e-5, "fatol": 1e-6})
 
     def random_starts(self, spec) -> list:
         out = []
@@ -1376,14 +1506,11 @@ class _Whittle:
         # a screen first: Q and β alone, the noise as fitted; where that lowers the BIC at all
         # the whole family is refitted with β (most surveys need no roll-off: one cheap search)
         rest = np.asarray(best.x[1:], dtype=float)
-
-        def nll_q_beta(x):
-            return self.nll(np.concatenate([[x[0]], rest, [x[1]]]), spec, m)
-
+        template = np.concatenate([[best.x[0]], rest, [0.0]])
+        pos = np.array([0, template.size - 1])
         screen = None
         for b in (10.0, 60.0, 300.0):
-            r = optimize.minimize(nll_q_beta, np.array([best.x[0], _rolloff_logit(b)]),
-                                  method="Nelder-Mead", options={"maxiter": 400, "xatol": 1e-5, "fatol": 1e-6})
+            r = self.minimize(np.array([best.x[0], _rolloff_logit(b)]), spec, m, 400, template, pos)
             if screen is None or r.fun < screen.fun:
                 screen = r
         if 2.0 * (best.fun - screen.fun) <= penalty:

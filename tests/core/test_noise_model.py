@@ -424,6 +424,51 @@ def test_whittle_misfit_bound_term_is_the_closed_form():
                 th = np.append(th, rng.normal(0.0, 2.0))
             assert w.nll(th, spec, 2) == pytest.approx(w.nll_numpy(th, spec, 2), rel=1e-12)
 
+
+class _StableArgsortNumpy:
+    """numpy with a stable ``argsort``: SciPy's Nelder–Mead sorts its simplex with numpy's
+    default argsort, whose order among equal values depends on the CPU's SIMD sort (ties of
+    1e300 where θ leaves the likelihood's domain); the compiled search sorts stably."""
+
+    def __getattr__(self, name):
+        return getattr(np, name)
+
+    @staticmethod
+    def argsort(a, *args, **kwargs):
+        return np.argsort(a, kind="stable")
+
+
+def test_compiled_nelder_mead_is_scipys(monkeypatch):
+    """The fit's Nelder–Mead (numba, with the likelihood inside) against SciPy's
+    ``minimize(method="Nelder-Mead")`` on the same likelihood, with a stable sort on both
+    sides: the same point, value and number of evaluations on every family, from starts near
+    and far (some vertices outside the domain, 1e300), and over a subset of θ (the roll-off
+    screen: Q and β free, the rest held)."""
+    import scipy.optimize._optimize as scipy_optimize
+
+    from app.core.noise_model import FAMILIES, _rolloff_logit, _Spectra, _Whittle
+
+    monkeypatch.setattr(scipy_optimize, "np", _StableArgsortNumpy())
+    rng = np.random.default_rng(5)
+    f = np.linspace(0.004, 0.2, 150)
+    n = f.size
+    is_line = (np.arange(n) % 4 != 0).astype(float)
+    sp = _Spectra(f, rng.uniform(0.5, 2.0, n), rng.uniform(0.5, 1.5, n), is_line, np.ones(n), rng.uniform(0.8, 1.2, n),
+                  1.0 - is_line, 2)
+    w = _Whittle(sp, 0.5, np.random.default_rng(0), 1, True)
+    checked = 0
+    for _, spec in FAMILIES:
+        for far in (False, True):
+            x0 = np.array(w.random_starts(spec)[0]) + (rng.normal(0.0, 150.0, 1 + len(spec) + sum(f for _, f in spec))
+                                                       if far else 0.0)
+            for template, pos in ((None, None), (np.append(x0, 0.0), np.array([0, x0.size]))):
+                start = x0 if template is None else np.array([x0[0], _rolloff_logit(60.0)])
+                a = w.minimize(start, spec, 2, 400 * start.size, template, pos)
+                b = w.nelder_mead_scipy(start, spec, 2, 400 * start.size, template, pos)
+                assert np.array_equal(a.x, b.x) and a.fun == b.fun and a.nfev == b.nfev
+                checked += 1
+    assert checked == 4 * len(FAMILIES)
+
 # --- the GNSS height–velocity misfit as a bound on the velocity error (velocity_bound) ---
 
 def _ar1(rng, n, phi, sd):
