@@ -151,8 +151,8 @@ class GravimeterColumns(_ColumnMap):
     f_x: ColumnRef | None = None
     f_y: ColumnRef | None = None
     f_z_unit: Literal["m/s2", "mGal", "um/s2"] | None = Field(
-        None, description="Unit of f_z (and f_x, f_y); inferred from the magnitude (~9.8 → m/s², ~980000 → mGal, "
-        "~9.8e6 → µm/s²) when None")
+        None, description="Unit of f_z (and f_x, f_y) in XYZ files and in gravimeter.csv (the values must agree "
+        "with it); inferred from the magnitude (~9.8 → m/s², ~980000 → mGal, ~9.8e6 → µm/s²) when None")
 
 
 class GnssColumns(_ColumnMap):

@@ -414,21 +414,57 @@ def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: flo
         _check_ranges(df, rows, display)
     else:
         df, rows = read_csv_table(path, display, GRAV_REQUIRED, GRAV_OPTIONAL, min_rows=2)
-        _csv_force_units(df, display)
+        declared = config.columns.for_role("gravimeter").get("f_z_unit")
+        _csv_force_units(df, display, declared, _unit_row(path) if declared else None)
         df = _finish_series(df, rows, display, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL)
     return finish_gravimeter(df, rows, display, config), rows
 
 
-def _csv_force_units(df: pd.DataFrame, display: str) -> None:
+def _unit_row(path: Path) -> int | None:
+    """Line of ``f_z_unit`` in the survey.toml of the survey holding ``path``
+    (``flights/<name>/<file>``), best effort."""
+    toml = path.parent.parent.parent / "survey.toml"
+    try:
+        text = toml.read_text(encoding="utf-8", errors="replace")
+    except OSError:
+        return None
+    for loc in (("columns", "gravimeter", "f_z_unit"), ("columns", "f_z_unit")):
+        row = _toml_key_row(text, loc)
+        if row is not None and "f_z_unit" in text.splitlines()[row - 1]:
+            return row
+    return None
+
+
+#: factors to m/s² of the units ``[columns] f_z_unit`` may declare
+F_Z_DECLARED = {"m/s2": 1.0, "mGal": 1e-5, "um/s2": 1e-6}
+
+
+def _csv_force_units(df: pd.DataFrame, display: str, declared: str | None = None,
+                     toml_row: int | None = None) -> None:
     """SPEC's gravimeter.csv has f_z in m/s²; a file in Gal, mGal or µm/s² is recognised by its
     median (≈ 9.8·10², 10⁵·9.8, 10⁶·9.8 — the ranges do not overlap) and converted in place,
     f_x/f_y with it, with a warning.  Anything else is left to the range checks (an error).
-    ``df`` is :func:`read_csv_table`'s (float columns: bad cells are already errors)."""
+    ``declared``: survey.toml's ``[columns] f_z_unit`` ("m/s2", "mGal" or "um/s2"), which the
+    values must then agree with (an error naming it — ``toml_row``, its line in survey.toml —
+    when they do not), converted without a warning.  ``df`` is :func:`read_csv_table`'s (float columns: bad cells are already errors)."""
     fz = df["f_z"].to_numpy(dtype=float)
     if not np.isfinite(fz).any():
         return
     med = float(np.nanmedian(fz))
     lo, hi = F_Z_PLAUSIBLE_MS2
+    if declared is not None:
+        factor = F_Z_DECLARED[declared]
+        if not lo <= med * factor <= hi:
+            seen = next((u for u, fac in (("m/s²", 1.0), *F_Z_UNITS) if lo <= med * fac <= hi), None)
+            raise InputError("survey.toml", toml_row, "columns.f_z_unit",
+                             f"f_z_unit = {declared!r}, but {display}'s median f_z is {med:.6g}, "
+                             f"{med * factor:.6g} m/s² in that unit (about 9.8 expected)"
+                             + (f"; the values look like {seen}" if seen else ""))
+        if factor != 1.0:
+            for c in ("f_z", "f_x", "f_y"):
+                if c in df:
+                    df[c] = df[c] * factor
+        return
     for unit, factor in F_Z_UNITS:
         if lo <= med * factor <= hi:
             for c in ("f_z", "f_x", "f_y"):

@@ -474,6 +474,30 @@ def test_f_z_units_checked(survey_dir):
     expect_error(root, "flights/F1/gravimeter.csv", None, "f_z", match="up")
 
 
+
+def test_declared_f_z_unit_applies_to_gravimeter_csv(survey_dir):
+    """survey.toml's ``[columns] f_z_unit`` is honoured for gravimeter.csv: a file in mGal
+    declared as mGal reads as the same m/s² values as the file in m/s² (no inference
+    warning); declared as m/s² it is refused, naming the key, its row and what the values
+    look like."""
+    import warnings
+
+    root, _, tabs = survey_dir
+    ref = read_survey(root).flights["F1"].gravimeter["f_z"].to_numpy()
+    g = tabs["F1"][0].copy()
+    g["f_z"] = g["f_z"] * 1e5
+    g.to_csv(root / "flights/F1/gravimeter.csv", index=False)
+    toml = (root / "survey.toml").read_text()
+    (root / "survey.toml").write_text(toml + '\n[columns]\nf_z_unit = "mGal"\n')
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        got = read_survey(root).flights["F1"].gravimeter["f_z"].to_numpy()
+    np.testing.assert_allclose(got, ref, rtol=1e-12)
+    assert not any("read as" in str(w.message) for w in caught)
+    (root / "survey.toml").write_text(toml + '\n[columns]\nf_z_unit = "m/s2"\n')
+    row = len(toml.splitlines()) + 3
+    expect_error(root, "survey.toml", row, "columns.f_z_unit", match="look like mGal")
+
 def test_missing_gnss_file(survey_dir):
     root, *_ = survey_dir
     (root / "flights/F1/gnss.csv").unlink()
