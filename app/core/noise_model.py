@@ -1221,6 +1221,9 @@ class _Whittle:
         self.candidates: list = []
         self._kernel_spec: dict = {}
         self._kernel_arrays = self._arrays_for_kernel()
+        self._f_hz = np.ascontiguousarray(sp.f_hz, dtype=float)
+        self._line_bins = np.ascontiguousarray(self._line_bins)
+        self.d_anom = {mm: np.ascontiguousarray(d) for mm, d in self.d_anom.items()}
 
     def _arrays_for_kernel(self) -> tuple:
         """The bins' arrays of :func:`_whittle_nll_kernel`, in its order: the two scalings'
@@ -1245,11 +1248,11 @@ class _Whittle:
             ib, bw = np.asarray(b.slack * b.psd, dtype=float), np.asarray(b.weight, dtype=float)
         else:
             eb, bn, ib, bw = np.zeros(0, complex), np.zeros((3, 0)), np.zeros(0), np.zeros(0)
-        return (one, np.ascontiguousarray(e1.real), np.ascontiguousarray(e1.imag),
-                np.asarray(self.sp.r1, dtype=float), two, np.ascontiguousarray(e2.real),
-                np.ascontiguousarray(e2.imag), r2, np.asarray(self._diff_dt, dtype=float),
-                np.asarray(self.wt, dtype=float), np.asarray(self.sp.psd, dtype=float), bn,
-                np.ascontiguousarray(eb.real), np.ascontiguousarray(eb.imag), ib, bw)
+        # C-contiguous float64 throughout: one compiled specialisation of the kernels (numba
+        # compiles, ~9 s, and caches one per array layout)
+        arrays = (one, e1.real, e1.imag, self.sp.r1, two, e2.real, e2.imag, r2, self._diff_dt, self.wt, self.sp.psd,
+                  bn, eb.real, eb.imag, ib, bw)
+        return tuple(np.ascontiguousarray(a, dtype=float) for a in arrays)
 
     def nll(self, theta, spec, mm) -> float:
         """The weighted Whittle negative log-likelihood at θ (log Q, then per component log w
@@ -1259,7 +1262,7 @@ class _Whittle:
         same in numpy."""
         ks = self._spec_arrays(spec)
         return float(_whittle_nll_kernel(np.asarray(theta, dtype=float), ks[2], self.d_anom[mm], self._line_bins,
-                                         self.sp.f_hz, self.dt_s, ks[0], ks[1], self.phi_min, PHI_MAX,
+                                         self._f_hz, self.dt_s, ks[0], ks[1], self.phi_min, PHI_MAX,
                                          ROLLOFF_MAX_S, *self._kernel_arrays))
 
     def _spec_arrays(self, spec) -> tuple:
@@ -1344,7 +1347,7 @@ class _Whittle:
         if template is None:
             template, pos = x0, np.arange(x0.size)
         ks = self._spec_arrays(spec)
-        kargs = (ks[2], self.d_anom[mm], self._line_bins, self.sp.f_hz, self.dt_s, ks[0], ks[1], self.phi_min,
+        kargs = (ks[2], self.d_anom[mm], self._line_bins, self._f_hz, self.dt_s, ks[0], ks[1], self.phi_min,
                  PHI_MAX, ROLLOFF_MAX_S, *self._kernel_arrays)
         x, f, nit, nfev = _nelder_mead_kernel(x0, np.asarray(template, dtype=float), np.asarray(pos, dtype=np.int64),
                                               int(maxiter), 1e-5, 1e-6, kargs)
