@@ -1249,7 +1249,7 @@ class _Whittle:
         else:
             eb, bn, ib, bw = np.zeros(0, complex), np.zeros((3, 0)), np.zeros(0), np.zeros(0)
         # C-contiguous float64 throughout: one compiled specialisation of the kernels (numba
-        # compiles, ~9 s, and caches one per array layout)
+        # compiles, ~11 s, and caches one per array layout)
         arrays = (one, e1.real, e1.imag, self.sp.r1, two, e2.real, e2.imag, r2, self._diff_dt, self.wt, self.sp.psd,
                   bn, eb.real, eb.imag, ib, bw)
         return tuple(np.ascontiguousarray(a, dtype=float) for a in arrays)
