@@ -1174,6 +1174,7 @@ def _nelder_mead_kernel(x0, template, pos, maxiter, xatol, fatol, kargs):
         sim, fsim = sim[ind], fsim[ind]
     return sim[0].copy(), fsim.min(), iterations, nfev
 
+
 class _Whittle:
     """The Whittle likelihood of the spectra under (anomaly order m, family spec, θ) and its
     minimisation (Nelder–Mead from random and nested starts)."""
@@ -1209,7 +1210,6 @@ class _Whittle:
             self._e[2] = np.exp(-2j * np.pi * np.asarray(self.nu * sp.r2, dtype=float))
         self._num = {(v, j): np.abs(1.0 - e) ** (2 * j) for v, e in self._e.items() for j in (1, 2)}
         self._variants = (1, 2) if sp.n_differences else (1,)
-        self._anom_positive = all(bool(np.all(d > 0)) for d in self.d_anom.values())
         self._line_bins = sp.is_line > 0
         self._diff_dt = sp.is_diff * self.dt_s
         self.level = float(np.median(sp.psd / dt_s))
