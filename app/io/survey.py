@@ -50,7 +50,7 @@ import numpy as np
 import pandas as pd
 from pydantic import ValidationError
 
-from app.config import SurveyConfig, check_name
+from app.config import F_Z_UNIT_TO_MS2, SurveyConfig, check_name
 from app.core.geodesy import radii_of_curvature_m, vertical_velocity_from_heights_ms
 from app.io.dgs import read_dgs, sniff_dat
 from app.io.errors import InputError
@@ -435,44 +435,44 @@ def _unit_row(path: Path) -> int | None:
     return None
 
 
-#: factors to m/s² of the units ``[columns] f_z_unit`` may declare
-F_Z_DECLARED = {"m/s2": 1.0, "mGal": 1e-5, "um/s2": 1e-6}
-
-
 def _csv_force_units(df: pd.DataFrame, display: str, declared: str | None = None,
                      toml_row: int | None = None) -> None:
     """SPEC's gravimeter.csv has f_z in m/s²; a file in Gal, mGal or µm/s² is recognised by its
     median (≈ 9.8·10², 10⁵·9.8, 10⁶·9.8 — the ranges do not overlap) and converted in place,
     f_x/f_y with it, with a warning.  Anything else is left to the range checks (an error).
-    ``declared``: survey.toml's ``[columns] f_z_unit`` ("m/s2", "mGal" or "um/s2"), which the
-    values must then agree with (an error naming it — ``toml_row``, its line in survey.toml —
-    when they do not), converted without a warning.  ``df`` is :func:`read_csv_table`'s (float columns: bad cells are already errors)."""
+    ``declared``: survey.toml's ``[columns] f_z_unit`` (:data:`app.config.F_Z_UNIT_TO_MS2`),
+    which the values must then agree with — an error naming it (``toml_row``: its line in
+    survey.toml) when they do not —, converted without a warning.  ``df`` is
+    :func:`read_csv_table`'s (float columns: bad cells are already errors)."""
     fz = df["f_z"].to_numpy(dtype=float)
     if not np.isfinite(fz).any():
         return
     med = float(np.nanmedian(fz))
     lo, hi = F_Z_PLAUSIBLE_MS2
     if declared is not None:
-        factor = F_Z_DECLARED[declared]
+        factor = F_Z_UNIT_TO_MS2[declared]
         if not lo <= med * factor <= hi:
             seen = next((u for u, fac in (("m/s²", 1.0), *F_Z_UNITS) if lo <= med * fac <= hi), None)
             raise InputError("survey.toml", toml_row, "columns.f_z_unit",
                              f"f_z_unit = {declared!r}, but {display}'s median f_z is {med:.6g}, "
                              f"{med * factor:.6g} m/s² in that unit (about 9.8 expected)"
                              + (f"; the values look like {seen}" if seen else ""))
-        if factor != 1.0:
-            for c in ("f_z", "f_x", "f_y"):
-                if c in df:
-                    df[c] = df[c] * factor
+        _scale_force(df, factor)
         return
     for unit, factor in F_Z_UNITS:
         if lo <= med * factor <= hi:
-            for c in ("f_z", "f_x", "f_y"):
-                if c in df:
-                    df[c] = df[c] * factor
+            _scale_force(df, factor)
             warnings.warn(f"{display}: f_z read as {unit} (median {med:.6g}) and converted to m/s² "
                           f"(× {factor:g}); SPEC's gravimeter.csv is in m/s²", stacklevel=2)
             return
+
+
+def _scale_force(df: pd.DataFrame, factor: float) -> None:
+    """f_z, f_x and f_y (those present) times ``factor``, in place."""
+    if factor != 1.0:
+        for c in ("f_z", "f_x", "f_y"):
+            if c in df:
+                df[c] = df[c] * factor
 
 
 def gnss_runs(t: np.ndarray, max_gap_s: float) -> list[tuple[int, int]]:

@@ -345,15 +345,6 @@ def survey_settings(s: Survey) -> dict | None:
     return _settings_of(str(p), st.st_mtime_ns)
 
 
-def check_crs(crs: str) -> None:
-    """A CRS the pipeline can lay a grid out in (:func:`app.core.geodesy.crs_fault`)."""
-    from app.core.geodesy import crs_fault
-
-    why = crs_fault(crs)
-    if why:
-        raise SettingsRejected([{"loc": ["survey", "crs"], "msg": why, "type": "value_error", "input": crs[:100]}])
-
-
 def merged_config(current: dict, patch) -> dict:
     """survey.toml data with the PATCH applied (fields given are set; null removes the key)."""
     data = {k: (dict(v) if isinstance(v, dict) else v) for k, v in current.items()}
@@ -378,18 +369,17 @@ def merged_config(current: dict, patch) -> dict:
 
 
 def validate_config(data: dict) -> None:
-    """SurveyConfig validation; errors as 422 details naming ``section.key``."""
+    """SurveyConfig validation (a CRS PROJ cannot use included: the survey section's validator,
+    :func:`app.core.geodesy.crs_fault`); errors as 422 details naming ``section.key``."""
     from pydantic import ValidationError
 
     from app.config import SurveyConfig
 
     from .errors import validation_detail
     try:
-        cfg = SurveyConfig.model_validate(data)
+        SurveyConfig.model_validate(data)
     except ValidationError as e:
         raise SettingsRejected(validation_detail(e.errors())) from None
-    if cfg.survey.crs:
-        check_crs(cfg.survey.crs)
 
 
 def patch_survey(db: Session, store: Store, reader: Callable, s: Survey, patch, budget_bytes: int | None = None) -> Survey:

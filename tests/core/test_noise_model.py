@@ -326,13 +326,32 @@ def test_whittle_cached_spectra_are_the_component_spectra():
                 assert np.array_equal(w._component_psd(v, c), _component_psd_per_sample(w.nu * r, c))
 
 
+def _random_theta(rng, spec) -> tuple[list, list]:
+    """A random θ of family ``spec`` (Q = 10⁻³; log w ~ N(−2, 1); logit φ ~ N(0.5, 1)) and its
+    components as (order, φ, w) written out independently of the code's unpacking."""
+    from app.core.noise_model import PHI_MAX
+
+    theta = [np.log(1e-3)]
+    comps = []
+    for order, free_phi in spec:
+        lw = rng.normal(-2.0, 1.0)
+        theta.append(lw)
+        phi = 0.0
+        if free_phi:
+            lg = rng.normal(0.5, 1.0)
+            theta.append(lg)
+            phi = PHI_MAX / (1.0 + np.exp(-lg))
+        comps.append((order, phi, np.exp(lw)))
+    return theta, comps
+
+
 def test_whittle_likelihood_is_the_closed_form():
     """The Whittle negative log-likelihood the fit minimises, Σ wt·(log S + I/S), against S
     written out from the closed forms: on line bins the anomaly dt·Q/(2 − 2cos 2πν)^m plus each
     component dt·w(2 − 2cos)^j/(1 − 2φcos + φ²)/r1 at ν·r1; on pass-difference bins the
     components of both passes, at ν·r1 and ν·r2, no anomaly; θ = (log Q, log w, logit φ …), and
     with one element more the anomaly's roll-off exp(−β f); a θ beyond ±200 is refused (1e300)."""
-    from app.core.noise_model import FAMILIES, PHI_MAX, ROLLOFF_MAX_S, _rolloff_logit, _Spectra, _Whittle, rolloff_s
+    from app.core.noise_model import FAMILIES, ROLLOFF_MAX_S, _rolloff_logit, _Spectra, _Whittle, rolloff_s
 
     rng = np.random.default_rng(3)
     f = np.linspace(0.004, 0.2, 120)
@@ -344,17 +363,7 @@ def test_whittle_likelihood_is_the_closed_form():
     w = _Whittle(sp, dt, np.random.default_rng(0), 1, True)
     for _, spec in FAMILIES:
         for m in (1, 2):
-            theta = [np.log(1e-3)]
-            comps = []
-            for order, free_phi in spec:
-                lw = rng.normal(-2.0, 1.0)
-                theta.append(lw)
-                phi = 0.0
-                if free_phi:
-                    lg = rng.normal(0.5, 1.0)
-                    theta.append(lg)
-                    phi = PHI_MAX / (1.0 + np.exp(-lg))
-                comps.append((order, phi, np.exp(lw)))
+            theta, comps = _random_theta(rng, spec)
             nu = f * dt
             S = is_line * dt * 1e-3 / (2 - 2 * np.cos(2 * np.pi * nu)) ** m
             for order, phi, wt in comps:
@@ -382,7 +391,7 @@ def test_whittle_misfit_bound_term_is_the_closed_form():
     component's dt·w(2 − 2cos 2πν)^j/(1 − 2φcos + φ²) at ν = f·dt, no anomaly: the compiled
     kernel against that written out, and against the numpy reference on random θ of every
     family (with and without the roll-off element)."""
-    from app.core.noise_model import FAMILIES, PHI_MAX, VelocityBound, _Spectra, _Whittle
+    from app.core.noise_model import FAMILIES, VelocityBound, _Spectra, _Whittle
 
     rng = np.random.default_rng(11)
     f = np.linspace(0.004, 0.2, 90)
@@ -395,17 +404,7 @@ def test_whittle_misfit_bound_term_is_the_closed_form():
     dt = 0.5
     w = _Whittle(sp, dt, np.random.default_rng(0), 1, False, bound)
     for _, spec in FAMILIES:
-        theta = [np.log(1e-3)]
-        comps = []
-        for order, free_phi in spec:
-            lw = rng.normal(-2.0, 1.0)
-            theta.append(lw)
-            phi = 0.0
-            if free_phi:
-                lg = rng.normal(0.5, 1.0)
-                theta.append(lg)
-                phi = PHI_MAX / (1.0 + np.exp(-lg))
-            comps.append((order, phi, np.exp(lw)))
+        theta, comps = _random_theta(rng, spec)
         nu = f * dt
         S = dt * 1e-3 / (2 - 2 * np.cos(2 * np.pi * nu)) ** 2
         cb = np.cos(2 * np.pi * fb * dt)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from app.core.geodesy import MGAL_PER_MS2
 from app.core.measurement import gnss_acceleration_ms2, height_velocity_misfit_m, response_prediction_mgal
 from app.core.model_check import difference_nll, fir_noise_variance_mgal2, noise_overstated, repeat_contrasts
 from app.core.noise_level import band_noise_variance_cm2s2, local_noise_variance_cm2s2
@@ -198,7 +199,7 @@ def noise_levels(flights: dict[str, FlightMeasurement], dt_s: float, p) -> dict[
     if p.noise_model == "band":
         band = level_band(p, dt_s)
         return {name: band_noise_variance_cm2s2(fm.z_mgal, dt_s, band,
-                                                regressor_mgal=fm.fbar_ms2 * 1e5 if p.noise_level_unmix else None)
+                                                regressor_mgal=fm.fbar_ms2 * MGAL_PER_MS2 if p.noise_level_unmix else None)
                 for name, fm in flights.items()}
     return {}
 
