@@ -11,6 +11,7 @@ never both start.
 
 from __future__ import annotations
 
+import csv
 import functools
 import io
 import json
@@ -232,6 +233,28 @@ def flight_from_lines(lines_raw: bytes | None) -> str | None:
 
 #: Most rows of an uploaded lines file (checked before it is parsed).
 MAX_LINES_ROWS = 100_000
+#: Most columns of an uploaded lines file (line, flight, t_start, t_end, kind, track and a few of the
+#: user's own): pandas parses and concatenates a frame with 10⁵ columns for minutes.
+MAX_LINES_COLUMNS = 100
+
+
+def check_lines_upload(lines_raw: bytes | None) -> None:
+    """The size of an uploaded lines file, checked before anything parses it: at most
+    ``MAX_LINES_ROWS`` rows and ``MAX_LINES_COLUMNS`` columns in its header (InputError naming
+    lines.csv, row 1 for the header)."""
+    if not lines_raw:
+        return
+    n_rows = lines_raw.count(b"\n") + 1
+    if n_rows > MAX_LINES_ROWS + 1:
+        raise InputError("lines.csv", None, None,
+                         f"{n_rows:,} rows: more than the {MAX_LINES_ROWS:,} survey lines a lines file may "
+                         "list (one row per line flown, a few to a few thousand)")
+    header = lines_raw.split(b"\n", 1)[0]
+    if header.count(b",") + 1 > MAX_LINES_COLUMNS:
+        n_cols = len(next(csv.reader([header.decode("utf-8", "replace")]), []))
+        if n_cols > MAX_LINES_COLUMNS:
+            raise InputError("lines.csv", 1, None, f"the header has {n_cols:,} columns; at most {MAX_LINES_COLUMNS} "
+                                                   "allowed (line, flight, t_start, t_end, kind, track, …)")
 
 
 def _unused_flight_name(s: Survey) -> str:
@@ -250,6 +273,7 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
     switch to it, under the survey's lock; ``write_files(flight_dir)`` writes gravimeter.csv and gnss.csv.
     Without a name the flight is called as the uploaded lines.csv calls it (when it names one flight),
     else ``flight<k>``."""
+    check_lines_upload(lines_raw)
     with store.survey_lock(s.id):
         refresh_survey(db, s)
         base = s.input_dir
@@ -267,11 +291,6 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
             fdir.mkdir(parents=True)
             write_files(fdir)
             if lines_raw is not None:
-                n_rows = lines_raw.count(b"\n") + 1
-                if n_rows > MAX_LINES_ROWS + 1:
-                    raise InputError("lines.csv", None, None,
-                                     f"{n_rows:,} rows: more than the {MAX_LINES_ROWS:,} survey lines a lines file may "
-                                     "list (one row per line flown, a few to a few thousand)")
                 try:
                     new = pd.read_csv(io.BytesIO(lines_raw), dtype=str, keep_default_na=False)
                 except Exception as e:

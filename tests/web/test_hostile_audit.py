@@ -1,0 +1,46 @@
+"""Second hostile pass over the REST surface: each test is a case that was broken (a 500, a hang, a
+silently ignored request) and the behaviour the fix gives."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+
+from .conftest import import_zip, make_tiny_survey, zip_dir
+
+
+@pytest.fixture(scope="module")
+def tiny_src(tmp_path_factory) -> Path:
+    return make_tiny_survey(tmp_path_factory.mktemp("audit") / "tiny", name="tiny")
+
+
+def _flight_files(src: Path, lines: bytes) -> dict:
+    fdir = src / "flights" / "f1"
+    return {"gravimeter": ("gravimeter.csv", (fdir / "gravimeter.csv").read_bytes()),
+            "gnss": ("gnss.csv", (fdir / "gnss.csv").read_bytes()),
+            "lines": ("lines.csv", lines)}
+
+
+def test_wide_lines_upload_refused_before_parsing(client, tiny_src):
+    """A 2 MB lines.csv with 300,000 columns kept the request busy for minutes (pandas parsing and
+    concatenating the frame); it is refused from its header, fast, and the survey is unchanged."""
+    sid = import_zip(client, zip_dir(tiny_src)).json()["id"]
+    before = client.get(f"/api/surveys/{sid}").json()
+    n = 300_000
+    wide = (",".join(["line", "t_start", "t_end", "kind"] + [f"c{i}" for i in range(n)]) + "\n"
+            + ",".join(["X1", "1010", "1140", "main"] + ["1"] * n) + "\n").encode()
+    t0 = time.monotonic()
+    r = client.post(f"/api/surveys/{sid}/flights", files=_flight_files(tiny_src, wide), data={"flight": "w"})
+    elapsed = time.monotonic() - t0
+    assert r.status_code == 422, r.text[:300]
+    d = r.json()["detail"]
+    assert (d["file"], d["row"]) == ("lines.csv", 1) and f"{n + 4:,} columns" in d["message"], d
+    assert elapsed < 5.0, elapsed
+    after = client.get(f"/api/surveys/{sid}").json()
+    assert after["flights"] == before["flights"] == ["f1"] and after["n_lines"] == before["n_lines"]
+    # a quoted header whose commas are inside one name is one column per name, and passes
+    quoted = b'line,t_start,t_end,kind,"' + b",".join([b"x"] * 200) + b'"\nX1,1010,1140,main,1\n'
+    r = client.post(f"/api/surveys/{sid}/flights", files=_flight_files(tiny_src, quoted), data={"flight": "q"})
+    assert r.status_code == 201, r.text[:300]
