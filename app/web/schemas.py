@@ -10,7 +10,7 @@ from __future__ import annotations
 import datetime as dt
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StrictFloat
 
 from app.config import Name
 
@@ -69,13 +69,14 @@ class SurveySectionPatch(BaseModel):
 
 
 class GravimeterSectionPatch(BaseModel):
-    """``[gravimeter]`` of survey.toml: the fields given are set (null removes an optional one)."""
+    """``[gravimeter]`` of survey.toml: the fields given are set (null removes an optional one).  Numbers
+    must be JSON numbers: ``true`` or ``"3"`` are refused, not read as 1.0 or 3.0 (as for job parameters)."""
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     model: str | None = Field(None, description="Gravimeter model, e.g. 'GT-1A'")
-    tau_s: float | None = Field(None, description="First-order lag time constant (s); 0 if already de-lagged")
-    scale: float | None = Field(None, description="Scale k of the gravimeter model")
-    rate_hz: float | None = Field(None, description="Declared sampling rate (Hz); null: inferred from the time stamps")
-    base_gravity_mgal: float | None = Field(None, description="Absolute gravity at the parking place (mGal); "
+    tau_s: StrictFloat | None = Field(None, description="First-order lag time constant (s); 0 if already de-lagged")
+    scale: StrictFloat | None = Field(None, description="Scale k of the gravimeter model")
+    rate_hz: StrictFloat | None = Field(None, description="Declared sampling rate (Hz); null: inferred from the time stamps")
+    base_gravity_mgal: StrictFloat | None = Field(None, description="Absolute gravity at the parking place (mGal); "
                                             "null: no absolute base tie (the level of dg is relative)")
 
 
@@ -121,7 +122,7 @@ class EMIteration(BaseModel):
 
 
 class JobCreate(BaseModel):
-    model_config = ConfigDict(allow_inf_nan=False)
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
     kind: JobKind = "process"
     params: dict[str, Any] = Field(default_factory=dict,
                                    description="ProcessingParams overrides (see GET /api/params/schema)")

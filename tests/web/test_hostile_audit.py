@@ -44,3 +44,30 @@ def test_wide_lines_upload_refused_before_parsing(client, tiny_src):
     quoted = b'line,t_start,t_end,kind,"' + b",".join([b"x"] * 200) + b'"\nX1,1010,1140,main,1\n'
     r = client.post(f"/api/surveys/{sid}/flights", files=_flight_files(tiny_src, quoted), data={"flight": "q"})
     assert r.status_code == 201, r.text[:300]
+
+
+def test_patch_numbers_must_be_json_numbers(client, tiny_src):
+    """PATCH stored ``scale = true`` as 1.0 and ``tau_s = "3"`` as 3.0 (pydantic's lax mode), where the
+    jobs endpoint refuses the same values; both are a 422 naming the field now, and nothing changes."""
+    sid = import_zip(client, zip_dir(tiny_src)).json()["id"]
+    before = client.get(f"/api/surveys/{sid}").json()["settings"]
+    for body, field in (({"gravimeter": {"scale": True}}, "scale"), ({"gravimeter": {"tau_s": "3"}}, "tau_s"),
+                        ({"gravimeter": {"base_gravity_mgal": False}}, "base_gravity_mgal")):
+        r = client.patch(f"/api/surveys/{sid}", json=body)
+        assert r.status_code == 422, (body, r.text)
+        assert r.json()["detail"][0]["loc"][-2:] == ["gravimeter", field], r.json()
+    assert client.get(f"/api/surveys/{sid}").json()["settings"] == before
+    # integers and floats are still numbers
+    r = client.patch(f"/api/surveys/{sid}", json={"gravimeter": {"tau_s": 3, "scale": 1.02}})
+    assert r.status_code == 200, r.text
+    assert r.json()["settings"]["gravimeter"]["tau_s"] == 3.0 and r.json()["settings"]["gravimeter"]["scale"] == 1.02
+
+
+def test_job_request_with_unknown_keys_refused(client, tiny_src):
+    """``{"kind": "process", "parameters": {...}}`` (a misspelt ``params``) started a job with the
+    defaults, silently; unknown top-level keys are a 422 naming the key, and no job is queued."""
+    sid = import_zip(client, zip_dir(tiny_src)).json()["id"]
+    r = client.post(f"/api/surveys/{sid}/jobs", json={"kind": "process", "parameters": {"grid_spacing_km": 0.5}})
+    assert r.status_code == 422, r.text
+    assert r.json()["detail"][0]["loc"] == ["body", "parameters"], r.json()
+    assert client.get(f"/api/surveys/{sid}/jobs").json() == []
