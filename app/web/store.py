@@ -23,6 +23,7 @@ import errno
 import os
 import re
 import shutil
+import struct
 import threading
 import time
 import uuid
@@ -44,6 +45,8 @@ SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9_.\-]{0,99}\Z")  # \Z: "$" would 
 MAX_ZIP_ENTRIES = 10_000
 MAX_ZIP_DEPTH = 8
 MAX_ZIP_NAME = 200
+#: most bytes of a zip's central directory (its table of contents: 46 bytes and the name per entry)
+MAX_ZIP_DIRECTORY = 16 << 20
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 
 
@@ -215,6 +218,43 @@ def _survey_member(rel: list[str]) -> bool:
     return rel in (["survey.toml"], ["lines.csv"], [DEM_NAME]) or (len(rel) == 3 and rel[0] == "flights")
 
 
+def _check_zip_directory(fileobj, max_entries: int) -> None:
+    """Bound the archive's table of contents before :class:`zipfile.ZipFile` reads it: ZipFile loads
+    the whole central directory and builds an object per entry (a 40 MB zip of 500,000 empty entries
+    cost 270 MB and 5 s), so its size, the count the end record declares and the entries actually
+    there (walked header by header: the declared count may lie) are checked first.  Damage is left
+    to ZipFile to report."""
+    try:
+        endrec = zipfile._EndRecData(fileobj)
+    except OSError:
+        endrec = None
+    if not endrec:
+        return
+    size_cd, declared = endrec[zipfile._ECD_SIZE], endrec[zipfile._ECD_ENTRIES_TOTAL]
+    if size_cd > MAX_ZIP_DIRECTORY:
+        raise InputError("upload", None, None, f"the archive's table of contents is {size_cd / 2**20:.0f} MB, more "
+                         f"than the {MAX_ZIP_DIRECTORY / 2**20:.0f} MB allowed (at most {max_entries:,} entries)")
+    if declared > max_entries:
+        raise InputError("upload", None, None, f"the archive has {declared:,} entries; at most "
+                                               f"{max_entries:,} allowed")
+    start = endrec[zipfile._ECD_LOCATION] - size_cd
+    if endrec[zipfile._ECD_SIGNATURE] == zipfile.stringEndArchive64:
+        start -= zipfile.sizeEndCentDir64 + zipfile.sizeEndCentDir64Locator
+    if start < 0:
+        return
+    fileobj.seek(start)
+    cd = fileobj.read(size_cd)
+    fileobj.seek(0)
+    i = n = 0
+    while i + 46 <= len(cd) and cd[i:i + 4] == b"PK\x01\x02":
+        name_len, extra_len, comment_len = struct.unpack_from("<HHH", cd, i + 28)
+        i += 46 + name_len + extra_len + comment_len
+        n += 1
+        if n > max_entries:
+            raise InputError("upload", None, None, f"the archive has more than {max_entries:,} entries (its "
+                                                   f"end record says {declared:,}); at most {max_entries:,} allowed")
+
+
 def extract_survey_zip(fileobj, dest: Path, max_bytes: int | None = None,
                        max_entries: int = MAX_ZIP_ENTRIES) -> Path:
     """Extract the survey files of a zip into ``dest``; return the survey root (``dest`` or one
@@ -226,6 +266,7 @@ def extract_survey_zip(fileobj, dest: Path, max_bytes: int | None = None,
     optional ``dem.tif`` and the files of ``flights/<flight>/`` are extracted.  Unsafe, over-long or over-deep names,
     encrypted, damaged or size-lying entries and more than ``max_entries`` entries are
     InputErrors."""
+    _check_zip_directory(fileobj, max_entries)
     try:
         zf = zipfile.ZipFile(fileobj)
         infos = zf.infolist()

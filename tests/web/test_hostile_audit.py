@@ -71,3 +71,54 @@ def test_job_request_with_unknown_keys_refused(client, tiny_src):
     assert r.status_code == 422, r.text
     assert r.json()["detail"][0]["loc"] == ["body", "parameters"], r.json()
     assert client.get(f"/api/surveys/{sid}/jobs").json() == []
+
+
+def _many_entries_zip(src: Path, n: int) -> bytes:
+    import io
+    import zipfile
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_STORED) as zf:
+        for p in sorted(src.rglob("*")):
+            if p.is_file():
+                zf.write(p, "s/" + p.relative_to(src).as_posix())
+        for i in range(n):
+            zf.writestr(zipfile.ZipInfo(f"j/{i}"), b"")
+    return buf.getvalue()
+
+
+def _set_declared_entries(data: bytes, n: int) -> bytes:
+    """The end-of-central-directory record's entry counts set to ``n`` (a lying table of contents)."""
+    import struct
+    b = bytearray(data)
+    k = b.rfind(b"PK\x05\x06")
+    struct.pack_into("<HH", b, k + 8, n, n)
+    return bytes(b)
+
+
+def test_zip_table_of_contents_bounded_before_it_is_read(client, tiny_src, monkeypatch):
+    """ZipFile reads the whole central directory and builds an object per entry before the entry
+    count was checked: 500,000 empty entries in a 40 MB zip cost 270 MB and 5 s.  The count is now
+    checked from the directory's headers first (also when the end record's count lies), and a
+    directory larger than MAX_ZIP_DIRECTORY is refused from the end record alone."""
+    import zipfile
+
+    import app.web.store as store_mod
+
+    spy_calls = []
+    real = zipfile.ZipFile.infolist
+    monkeypatch.setattr(zipfile.ZipFile, "infolist", lambda self: spy_calls.append(1) or real(self))
+    data = _many_entries_zip(tiny_src, 10_001)
+    for what, blob in (("declared", data), ("lying", _set_declared_entries(data, 5))):
+        r = import_zip(client, blob)
+        assert r.status_code == 422, (what, r.text[:300])
+        d = r.json()["detail"]
+        assert d["file"] == "upload" and "10,000 allowed" in d["message"], (what, d)
+    assert spy_calls == []                      # refused before ZipFile built its entry list
+    monkeypatch.setattr(store_mod, "MAX_ZIP_DIRECTORY", 4096)
+    r = import_zip(client, _many_entries_zip(tiny_src, 200))
+    assert r.status_code == 422 and "table of contents" in r.json()["detail"]["message"], r.text[:300]
+    assert client.get("/api/surveys").json() == []
+    # a zip within the limits still imports (the file position was restored for ZipFile)
+    monkeypatch.setattr(store_mod, "MAX_ZIP_DIRECTORY", 16 << 20)
+    r = import_zip(client, _many_entries_zip(tiny_src, 50))
+    assert r.status_code == 201, r.text[:300]
