@@ -50,8 +50,25 @@ export async function render(sec, ctx) {
     status, plot));
   let pngAdded = false;
 
+  // the z low-pass must be a number of seconds in [0, 600]: anything else is said, not sent
+  const lpValue = () => {
+    const raw = lp.value.trim();
+    const v = raw === "" || lp.validity.badInput ? NaN : Number(raw);
+    return Number.isFinite(v) && v >= +lp.min && v <= +lp.max ? v : null;
+  };
+  const fail = (msg) => { status.textContent = msg; status.classList.add("error"); };
   const draw = async () => {
-    const p = await endpoints.profile(s.id, sel.value, { max_points: 2500, z_lowpass_s: lp.value });
+    const zl = lpValue();
+    lp.setAttribute("aria-invalid", zl === null ? "true" : "false");
+    if (zl === null) {
+      fail(`z low-pass FWHM must be a number of seconds from ${lp.min} to ${lp.max}; the plot still shows the last valid value.`);
+      return;
+    }
+    status.classList.remove("error");
+    let p;
+    try {
+      p = await endpoints.profile(s.id, sel.value, { max_points: 2500, z_lowpass_s: zl });
+    } catch (e) { fail(`Error: ${e.message}`); return; }
     const x = p.distance_km;
     const lo = p.dg.map((v, i) => (v === null || p.dg_std[i] === null ? null : v - 2 * p.dg_std[i]));
     const hi = p.dg.map((v, i) => (v === null || p.dg_std[i] === null ? null : v + 2 * p.dg_std[i]));
