@@ -71,16 +71,33 @@ function renderDemStatus(s) {
   document.getElementById("dem-remove").hidden = !s.has_dem;
 }
 
-function selectSurvey(id) {
+function selectSurvey(id, push = true) {
   state.surveyId = id;
   state.rendered = {};
-  location.hash = `#survey=${id}&tab=${state.tab}`;
   renderSurveyList();
   document.getElementById("flight-upload").hidden = !id;
-  showTab(state.tab);
+  showTab(state.tab, push);
 }
 
-function showTab(tab) {
+// every survey or tab the analyst opens is a history entry: Back and Forward go through them
+function syncUrl(push) {
+  const want = `#survey=${state.surveyId}&tab=${state.tab}`;
+  if (location.hash === want) return;
+  if (push && location.hash) history.pushState(null, "", want);
+  else history.replaceState(null, "", want);
+}
+
+// the survey and tab in the URL (Back, Forward, an edited address): shown without a new entry
+function applyHash() {
+  const m = /survey=(\d+)(?:&tab=(\w+))?/.exec(location.hash);
+  if (!m || !state.surveys.some((s) => s.id === +m[1])) return false;
+  const tab = m[2] && VIEWS[m[2]] ? m[2] : state.tab;
+  if (+m[1] !== state.surveyId) { state.tab = tab; selectSurvey(+m[1], false); }
+  else if (tab !== state.tab) showTab(tab, false);
+  return true;
+}
+
+function showTab(tab, push = true) {
   state.tab = tab;
   for (const b of document.querySelectorAll("#tabs button")) b.classList.toggle("active", b.dataset.tab === tab);
   const has = !!ctx.survey;
@@ -90,14 +107,16 @@ function showTab(tab) {
     sec.hidden = !has || name !== tab;
   }
   if (!has) return;
-  if (state.surveyId) history.replaceState(null, "", `#survey=${state.surveyId}&tab=${tab}`);
+  if (state.surveyId) syncUrl(push);
   const sec = document.getElementById(`view-${tab}`);
   const key = `${state.surveyId}`;
   if (state.rendered[tab] !== key) {
     state.rendered[tab] = key;
     VIEWS[tab].render(sec, ctx).catch((e) => showError(sec, e));
-  } else if (VIEWS[tab].shown) {
-    VIEWS[tab].shown(sec, ctx);
+  } else {
+    // plots drawn while the window had another size (or the view was hidden): fit them to it now
+    for (const p of sec.querySelectorAll(".js-plotly-plot")) Plotly.Plots.resize(p).catch(() => {});
+    if (VIEWS[tab].shown) VIEWS[tab].shown(sec, ctx);
   }
 }
 
@@ -195,13 +214,9 @@ async function main() {
   for (const b of document.querySelectorAll("#tabs button")) b.addEventListener("click", () => showTab(b.dataset.tab));
   setupUploads();
   await loadSurveys();
-  const m = /survey=(\d+)(?:&tab=(\w+))?/.exec(location.hash);
-  if (m && state.surveys.some((s) => s.id === +m[1])) {
-    if (m[2] && VIEWS[m[2]]) state.tab = m[2];
-    selectSurvey(+m[1]);
-  } else if (state.surveys.length) {
-    selectSurvey(state.surveys[0].id);
-  }
+  if (!applyHash() && state.surveys.length) selectSurvey(state.surveys[0].id, false);
+  window.addEventListener("popstate", applyHash);
+  window.addEventListener("hashchange", applyHash);
   setInterval(loadSurveys, 10000);
 }
 

@@ -35,3 +35,42 @@ def test_profile_lowpass_rejects_nonsense(fake_server, browser_page, tmp_path): 
     assert "error" not in (page.get_attribute("#profile-status", "class") or "")
     assert page.get_attribute("#profile-lp", "aria-invalid") == "false"
     _no_errors(page)
+
+
+def _active(page):
+    return page.eval_on_selector("#tabs button.active", "b => b.dataset.tab")
+
+
+def test_back_and_forward_walk_the_tabs(fake_server, browser_page, tmp_path):  # noqa: F811
+    page = browser_page
+    sid = _processed_survey(fake_server.url, tmp_path)
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=qc")
+    page.wait_for_selector("#view-qc:not([hidden])")
+    _tab(page, "process")
+    _tab(page, "grid")
+    page.wait_for_selector("#grid-plot .main-svg", timeout=20000)
+    page.go_back()
+    page.wait_for_function("() => document.querySelector('#tabs button.active').dataset.tab === 'process'", timeout=5000)
+    assert page.is_visible("#view-process") and page.is_hidden("#view-grid")
+    assert page.url.endswith(f"#survey={sid}&tab=process")
+    page.go_back()
+    page.wait_for_function("() => document.querySelector('#tabs button.active').dataset.tab === 'qc'", timeout=5000)
+    assert page.is_visible("#view-qc")
+    page.go_forward()
+    page.wait_for_function("() => document.querySelector('#tabs button.active').dataset.tab === 'process'", timeout=5000)
+    assert page.url.endswith("tab=process")
+    _no_errors(page)
+
+
+def test_plots_fit_a_window_resized_while_their_tab_was_hidden(fake_server, browser_page, tmp_path):  # noqa: F811
+    page = browser_page
+    sid = _processed_survey(fake_server.url, tmp_path)
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=profile")
+    page.wait_for_selector("#profile-plot[data-line] .main-svg", timeout=20000)
+    _tab(page, "qc")
+    page.set_viewport_size({"width": 800, "height": 600})
+    _tab(page, "profile")
+    fits = """() => { const p = document.querySelector('#profile-plot');
+                      return p.querySelector('.main-svg').getBoundingClientRect().width <= p.clientWidth + 1; }"""
+    page.wait_for_function(fits, timeout=5000)
+    _no_errors(page)
