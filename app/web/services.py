@@ -236,14 +236,21 @@ MAX_LINES_ROWS = 100_000
 #: Most columns of an uploaded lines file (line, flight, t_start, t_end, kind, track and a few of the
 #: user's own): pandas parses and concatenates a frame with 10⁵ columns for minutes.
 MAX_LINES_COLUMNS = 100
+#: Most bytes of an uploaded lines file (100,000 rows of a few hundred bytes): it is parsed in memory
+#: (pandas needs about 6 times its size), so the request body limit alone would allow gigabytes.
+MAX_LINES_BYTES = 32 << 20
 
 
 def check_lines_upload(lines_raw: bytes | None) -> None:
     """The size of an uploaded lines file, checked before anything parses it: at most
-    ``MAX_LINES_ROWS`` rows and ``MAX_LINES_COLUMNS`` columns in its header (InputError naming
-    lines.csv, row 1 for the header)."""
+    ``MAX_LINES_BYTES`` bytes, ``MAX_LINES_ROWS`` rows and ``MAX_LINES_COLUMNS`` columns in its
+    header (InputError naming lines.csv, row 1 for the header).  The caller may pass the first
+    ``MAX_LINES_BYTES + 1`` bytes of a larger upload."""
     if not lines_raw:
         return
+    if len(lines_raw) > MAX_LINES_BYTES:
+        raise InputError("lines.csv", None, None, f"the lines file is larger than the {MAX_LINES_BYTES >> 20} MB "
+                                                  "allowed (one row per line flown: a few hundred bytes each)")
     n_rows = lines_raw.count(b"\n") + 1
     if n_rows > MAX_LINES_ROWS + 1:
         raise InputError("lines.csv", None, None,

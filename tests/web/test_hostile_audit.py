@@ -122,3 +122,26 @@ def test_zip_table_of_contents_bounded_before_it_is_read(client, tiny_src, monke
     monkeypatch.setattr(store_mod, "MAX_ZIP_DIRECTORY", 16 << 20)
     r = import_zip(client, _many_entries_zip(tiny_src, 50))
     assert r.status_code == 201, r.text[:300]
+
+
+def test_large_lines_upload_refused_unread(client, tiny_src, monkeypatch):
+    """An uploaded lines.csv was read whole and parsed in memory (a 57 MB file of 10,000 long rows
+    cost 340 MB): past MAX_LINES_BYTES it is refused from its size, with nothing stored."""
+    import app.web.services as services
+
+    sid = import_zip(client, zip_dir(tiny_src)).json()["id"]
+    monkeypatch.setattr(services, "MAX_LINES_BYTES", 4096)
+    monkeypatch.setattr("app.web.routers.surveys.MAX_LINES_BYTES", 4096)
+    parsed = []
+    real_read_csv = services.pd.read_csv
+    monkeypatch.setattr(services.pd, "read_csv", lambda *a, **k: parsed.append(1) or real_read_csv(*a, **k))
+    big = b"line,t_start,t_end,kind\n" + b"".join(b"L%d%s,1010,1140,main\n" % (i, b"x" * 90) for i in range(60))
+    assert len(big) > 4096
+    r = client.post(f"/api/surveys/{sid}/flights", files=_flight_files(tiny_src, big), data={"flight": "big"})
+    assert r.status_code == 422, r.text[:300]
+    d = r.json()["detail"]
+    assert d["file"] == "lines.csv" and "larger than" in d["message"], d
+    assert parsed == [] and client.get(f"/api/surveys/{sid}").json()["flights"] == ["f1"]
+    small = b"line,t_start,t_end,kind\nX1,1010,1140,main\n"
+    r = client.post(f"/api/surveys/{sid}/flights", files=_flight_files(tiny_src, small), data={"flight": "small"})
+    assert r.status_code == 201 and r.json()["flights"] == ["f1", "small"], r.text[:300]

@@ -24,6 +24,7 @@ from ..schemas import (
     TracksOut,
 )
 from ..services import (
+    MAX_LINES_BYTES,
     JobConflict,
     NoInput,
     SettingsRejected,
@@ -164,7 +165,8 @@ def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv
         _write_upload(gnss, fdir / "gnss.csv")
 
     try:
-        add_flight(db, store, reader, s, flight, write_files, lines.file.read() if lines is not None else None,
+        add_flight(db, store, reader, s, flight, write_files,
+                   lines.file.read(MAX_LINES_BYTES + 1) if lines is not None else None,
                    budget_bytes=settings.survey_storage_bytes)
     except SurveyConflict as e:
         raise HTTPException(409, str(e)) from e
