@@ -74,3 +74,24 @@ def test_plots_fit_a_window_resized_while_their_tab_was_hidden(fake_server, brow
                       return p.querySelector('.main-svg').getBoundingClientRect().width <= p.clientWidth + 1; }"""
     page.wait_for_function(fits, timeout=5000)
     _no_errors(page)
+
+
+def test_grid_colour_range_from_above_to_is_said(fake_server, browser_page, tmp_path):  # noqa: F811
+    page = browser_page
+    sid = _processed_survey(fake_server.url, tmp_path)
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=grid")
+    page.wait_for_selector("#grid-plot[data-variable] .main-svg", timeout=20000)
+    page.fill("#grid-zmin", "10")
+    page.fill("#grid-zmax", "-10")
+    page.dispatch_event("#grid-zmax", "change")
+    page.wait_for_selector("#grid-limits.error", timeout=5000)
+    assert "ignored" in page.inner_text("#grid-limits")
+    assert page.get_attribute("#grid-zmin", "aria-invalid") == "true"
+    zmin, zmax = float(page.get_attribute("#grid-plot", "data-zmin")), float(page.get_attribute("#grid-plot", "data-zmax"))
+    assert zmin == pytest.approx(-zmax) and zmax > 0          # the robust default, not the typed values
+    page.fill("#grid-zmax", "20")
+    page.dispatch_event("#grid-zmax", "change")
+    page.wait_for_function("() => document.querySelector('#grid-plot').dataset.zmax === '20'", timeout=5000)
+    assert "error" not in page.get_attribute("#grid-limits", "class")
+    _no_errors(page)
+

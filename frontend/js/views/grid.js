@@ -94,10 +94,15 @@ export async function render(sec, ctx) {
     } else {
       const L = symmetricLimit(z, 0.98);
       const a = zminIn.value === "" ? -L : +zminIn.value, b = zmaxIn.value === "" ? L : +zmaxIn.value;
-      [zmin, zmax] = a < b ? [a, b] : [-L, L];
+      // a typed range that is no range (from ≥ to, not a number) is said, not silently replaced
+      const bad = zminIn.validity.badInput || zmaxIn.validity.badInput || !(a < b);
+      [zmin, zmax] = bad ? [-L, L] : [a, b];
+      for (const i of [zminIn, zmaxIn]) i.setAttribute("aria-invalid", bad ? "true" : "false");
       colorscale = divergingScale(zmin, zmax);
       plot.dataset.zmin = zmin; plot.dataset.zmax = zmax;
-      limits.textContent = `colour scale ${fmt(zmin, 3)} … ${fmt(zmax, 3)} mGal, white at 0` + (zminIn.value === "" && zmaxIn.value === "" ? " (±98th percentile of |δg|)" : "");
+      limits.classList.toggle("error", bad);
+      limits.textContent = (bad ? `“from” must be a number below “to” — ignored; ` : "") +
+        `colour scale ${fmt(zmin, 3)} … ${fmt(zmax, 3)} mGal, white at 0` + (bad || (zminIn.value === "" && zmaxIn.value === "") ? " (±98th percentile of |δg|)" : "");
     }
     return {
       x: g.easting_km, y: g.northing_km, z, type: styleIn.value, name: isStd ? "σ" : symbol(), colorscale, zmin, zmax, zauto: false,
