@@ -95,3 +95,36 @@ def test_grid_colour_range_from_above_to_is_said(fake_server, browser_page, tmp_
     assert "error" not in page.get_attribute("#grid-limits", "class")
     _no_errors(page)
 
+
+@pytest.fixture
+def slow_server(tmp_path, monkeypatch):
+    from app.web.main import create_app
+    from app.web.settings import Settings
+    from tests.web.conftest import FAKE_ENTRY
+
+    from .conftest import LiveServer
+    monkeypatch.setenv("AEROGRAV_FAKE_DELAY_S", "0.5")
+    app = create_app(Settings(data_dir=tmp_path / "data", poll_interval_s=0.1, pipeline_entry=FAKE_ENTRY))
+    with LiveServer(app) as srv:
+        yield srv
+
+
+def test_jobs_table_follows_the_running_job(slow_server, browser_page, tmp_path):
+    import httpx
+
+    from tests.web.conftest import make_tiny_survey, zip_dir
+    page = browser_page
+    z = zip_dir(make_tiny_survey(tmp_path / "tiny", name="tiny"))
+    with httpx.Client(base_url=slow_server.url, timeout=30) as c:
+        sid = c.post("/api/surveys/import", files={"file": ("tiny.zip", z, "application/zip")}).json()["id"]
+    page.goto(f"{slow_server.url}/#survey={sid}&tab=process")
+    page.wait_for_selector("#run-job:not([disabled])")
+    page.click("#run-job")
+    page.wait_for_function("() => { const s = document.querySelector('#job-status'); return s && s.textContent === 'running'; }",
+                           timeout=20000)
+    # while the job box says running, so does the jobs table (it said "queued" until the job ended)
+    page.wait_for_function("""() => { const b = document.querySelector('#job-history tbody tr .badge');
+                                      return b && b.textContent === 'running'; }""", timeout=5000)
+    page.wait_for_function("() => document.querySelector('#job-status').textContent === 'succeeded'", timeout=60000)
+    page.wait_for_function("() => document.querySelector('#job-history tbody tr .badge').textContent === 'succeeded'", timeout=5000)
+    _no_errors(page)

@@ -128,13 +128,18 @@ function renderJob(box, job) {
 
 function watch(box, jobId, ctx, onDone) {
   if (poller) clearInterval(poller);
-  let busy = false;
+  let busy = false, lastStatus = "queued", ticks = 0;
   const tick = async () => {
     if (busy) return;
     busy = true;
     try {
       const job = await endpoints.job(jobId);
       renderJob(box, job);
+      // the jobs table below says what the job box says (queued → running), not the state at submit
+      // (its status when it changes, its progress every 5 s)
+      ticks += 1;
+      if ((job.status !== lastStatus || ticks % 10 === 0) && ["queued", "running"].includes(job.status) && onDone) Promise.resolve(onDone(job)).catch(() => {});
+      lastStatus = job.status;
       if (!["queued", "running"].includes(job.status)) {
         clearInterval(poller); poller = null;
         if (job.status === "succeeded") ctx.resultsChanged();
