@@ -128,3 +128,25 @@ def test_jobs_table_follows_the_running_job(slow_server, browser_page, tmp_path)
     page.wait_for_function("() => document.querySelector('#job-status').textContent === 'succeeded'", timeout=60000)
     page.wait_for_function("() => document.querySelector('#job-history tbody tr .badge').textContent === 'succeeded'", timeout=5000)
     _no_errors(page)
+
+
+_WIDEST = """() => { const W = document.documentElement.clientWidth; const out = [];
+  for (const e of document.querySelectorAll('body *')) { const r = e.getBoundingClientRect();
+    if (r.width && r.right > W + 1 && !e.closest('.js-plotly-plot .main-svg, .js-plotly-plot .svg-container > *')) out.push(`${e.tagName}#${e.id}.${e.className} ${Math.round(r.right)}`); }
+  return {W, scroll: document.documentElement.scrollWidth, over: out.slice(0, 6)}; }"""
+
+
+@pytest.mark.parametrize("tab,ready", [("qc", "#qc-lines tbody tr"), ("process", ".em-row"), ("report", "#report-summary li"),
+                                       ("recognition", "#rec-map .main-svg"), ("profile", "#profile-plot .main-svg"),
+                                       ("grid", "#grid-plot .main-svg"), ("export", "#export-geotiff")])
+def test_nothing_wider_than_an_800px_window(fake_server, browser_page, tmp_path, tab, ready):  # noqa: F811
+    page = browser_page
+    sid = _processed_survey(fake_server.url, tmp_path)
+    page.set_viewport_size({"width": 800, "height": 600})
+    page.goto(f"{fake_server.url}/#survey={sid}&tab={tab}")
+    page.wait_for_selector(ready, timeout=20000)
+    page.wait_for_timeout(300)
+    w = page.evaluate(_WIDEST)
+    page.screenshot(path=str(tmp_path / f"narrow-{tab}.png"), full_page=True)
+    assert w["scroll"] <= w["W"], w
+    _no_errors(page)
