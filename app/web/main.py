@@ -29,10 +29,13 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 from fastapi import FastAPI, HTTPException, Request
+from fastapi.exception_handlers import http_exception_handler
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import OperationalError
+from starlette.exceptions import HTTPException as StarletteHTTPException
+from starlette.routing import Match, Mount
 
 from app.config import ProcessingParams
 from app.io.errors import InputError
@@ -283,6 +286,20 @@ def _add_exception_handlers(app: FastAPI) -> None:
     async def _validation_error(_req: Request, exc: RequestValidationError):
         return JSONResponse(status_code=422, content={"detail": validation_detail(exc.errors())})
 
+    @app.exception_handler(StarletteHTTPException)
+    async def _http_error(req: Request, exc: StarletteHTTPException):
+        if exc.status_code == 405:
+            # the router names the methods of the first route whose path matched; the path's methods
+            # are those of every route matching it (GET, PATCH and DELETE for /api/surveys/{id})
+            allowed = [m for m in ("GET", "POST", "PUT", "PATCH", "DELETE")
+                       if any(r.matches({**req.scope, "method": m})[0] == Match.FULL for r in req.app.router.routes
+                              if not isinstance(r, Mount))]
+            if allowed:
+                return JSONResponse(status_code=405, headers={"Allow": ", ".join(allowed)},
+                                    content={"detail": f"{req.method} is not allowed here; use "
+                                                       f"{', '.join(allowed)}"})
+        return await http_exception_handler(req, exc)
+
     @app.exception_handler(RecursionError)
     async def _too_deep(_req: Request, _exc: RecursionError):
         return JSONResponse(status_code=400, content={"detail": "the request is nested too deeply"})
@@ -353,6 +370,19 @@ def _add_api_routes(app: FastAPI, settings: Settings, store: Store, Session, job
                          storage=storage_report())
 
 
+class _FrontendMount(Mount):
+    """The frontend at ``/``, for every path but ``/api``'s: a request to an API path with the wrong
+    method then gets the router's 405 with the path's real ``Allow`` methods (the static files
+    answered ``HEAD /api/surveys/1`` with 404 and ``PUT /api/surveys/import`` with "Allow: GET,
+    HEAD"), an unknown API path its JSON 404."""
+
+    def matches(self, scope):
+        path = scope.get("path", "")
+        if scope.get("type") == "http" and (path == "/api" or path.startswith("/api/")):
+            return Match.NONE, {}
+        return super().matches(scope)
+
+
 def _add_static_routes(app: FastAPI) -> None:
     """Swagger UI / ReDoc from fastapi-offline, Plotly's script, and the frontend at ``/`` (last:
     the mount catches every path the routes above do not)."""
@@ -385,7 +415,8 @@ def _add_static_routes(app: FastAPI) -> None:
                             headers={"Cache-Control": "public, max-age=86400"})
 
     if FRONTEND_DIR.is_dir():
-        app.mount("/", StaticFiles(directory=FRONTEND_DIR, html=True), name="frontend")
+        app.router.routes.append(_FrontendMount("/", app=StaticFiles(directory=FRONTEND_DIR, html=True),
+                                                name="frontend"))
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:

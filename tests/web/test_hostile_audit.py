@@ -145,3 +145,26 @@ def test_large_lines_upload_refused_unread(client, tiny_src, monkeypatch):
     small = b"line,t_start,t_end,kind\nX1,1010,1140,main\n"
     r = client.post(f"/api/surveys/{sid}/flights", files=_flight_files(tiny_src, small), data={"flight": "small"})
     assert r.status_code == 201 and r.json()["flights"] == ["f1", "small"], r.text[:300]
+
+
+def test_wrong_method_on_an_api_path_is_405_with_its_methods(client):
+    """The frontend's static mount at / answered API paths whose method did not match: HEAD on an
+    existing survey was a 404, and every 405 said "Allow: GET, HEAD" (also for POST-only paths).
+    API paths are the router's now: 405 listing the methods of the path, JSON 404 for unknown ones."""
+    sid = client.post("/api/surveys", json={"name": "m"}).json()["id"]
+    cases = [("HEAD", f"/api/surveys/{sid}", {"GET", "PATCH", "DELETE"}),
+             ("DELETE", f"/api/surveys/{sid}/qc", {"GET"}),
+             ("PATCH", "/api/jobs/1/cancel", {"POST"}),
+             ("PUT", f"/api/surveys/{sid}/flights", {"POST"}),
+             ("POST", "/api/health", {"GET"})]
+    for method, path, allowed in cases:
+        r = client.request(method, path)
+        assert r.status_code == 405, (method, path, r.status_code)
+        assert set(r.headers["allow"].split(", ")) == allowed, (method, path, r.headers["allow"])
+        assert r.headers["x-frame-options"] == "DENY"
+        if method != "HEAD":
+            assert method in r.json()["detail"], r.json()
+    r = client.get("/api/no-such-thing")
+    assert r.status_code == 404 and r.json() == {"detail": "Not Found"}
+    assert client.get(f"/api/surveys/{sid}").status_code == 200    # the survey is still there
+    assert client.get("/").status_code == 200 and "<html" in client.get("/").text.lower()
