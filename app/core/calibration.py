@@ -519,7 +519,7 @@ def _normal_inverse(M: np.ndarray, names: tuple) -> np.ndarray:
     ev, evec = np.linalg.eigh(C)
     if ev[0] < 1e-10:
         v = np.abs(evec[:p, 0])
-        involved = [names[i] for i in np.argsort(-v) if v[i] > 0.2]
+        involved = [names[i] for i in np.argsort(-v, kind="stable") if v[i] > 0.2]
         cond = ev[-1] / max(ev[0], 1e-300)
         raise ValueError(f"singular normal matrix (condition {cond:.1e}): parameters {involved or list(names)} "
                          "cannot be separated by this segment's manoeuvres; estimate fewer parameters or "

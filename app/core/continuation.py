@@ -417,7 +417,7 @@ def _gb_hyperparameters(fit: _Fit, damping, noise_scale, max_exact_sources: int)
         d, sources = fit.data, fit.sources
         e, n, h, s, r = d["easting_m"], d["northing_m"], d["height_m"], d["std_mgal"], fit.residual
         ce, cn = np.median(e), np.median(n)
-        order = np.argsort(np.hypot(sources[0] - ce, sources[1] - cn))
+        order = np.argsort(np.hypot(sources[0] - ce, sources[1] - cn), kind="stable")   # a grid has ties
         keep_s = order[:min(max_exact_sources, HYPER_SOURCES)]
         rad = np.hypot(sources[0][keep_s] - ce, sources[1][keep_s] - cn).max()
         keep_d = np.hypot(e - ce, n - cn) <= rad

@@ -45,13 +45,14 @@ class LevelFit:
 
 def select_subset(lengths, states_per_line, n_states: int, max_epochs: int, seed: int = 0) -> list[int]:
     """Choose lines (indices) totalling at most ``max_epochs`` epochs, covering every
-    state that occurs (lines rich in rare states first, then at random)."""
+    state that occurs (lines rich in rare states first — states of equal occupancy by index,
+    whatever the CPU's sort —, then at random)."""
     rng = np.random.default_rng(seed)
     order = list(rng.permutation(len(lengths)))
     occ = np.array([np.bincount(np.asarray(s, int), minlength=n_states)[:n_states] for s in states_per_line])
     chosen, total, covered = [], 0, np.zeros(n_states)
     # first pass: for each state, the line with most epochs in it
-    for k in np.argsort(occ.sum(axis=0)):
+    for k in np.argsort(occ.sum(axis=0), kind="stable"):   # ties by state index, on every CPU
         if occ[:, k].sum() == 0:
             continue
         i = int(np.argmax(occ[:, k]))

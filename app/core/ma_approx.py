@@ -148,7 +148,7 @@ def spectral_factor(gamma: np.ndarray) -> np.ndarray:
     poly = np.concatenate([gamma[:0:-1], gamma])
     with np.errstate(all="ignore"):
         roots = np.roots(poly)
-        roots = roots[np.argsort(np.abs(roots))][:J]  # the J innermost (reciprocal pairs)
+        roots = roots[np.argsort(np.abs(roots), kind="stable")][:J]  # the J innermost (reciprocal pairs)
         b = np.real(np.poly(roots))
         a = ma_autocovariance(b)
         s2 = float(a @ gamma) / float(a @ a)

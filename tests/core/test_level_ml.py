@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from app.core.level_ml import refine_levels, select_order
+from app.core.level_ml import refine_levels, select_order, select_subset
 from app.core.noise_level import local_noise_variance_cm2s2
 
 DT = 0.1
@@ -125,3 +125,15 @@ def test_cap_lifted_smooth_level():
         assert not capped and q.tolist() == list(args[0])
     with pytest.raises(ValueError, match="shape"):
         cap_lifted_smooth_level([1.0, 2.0], [1.0], 1.0)
+
+
+def test_select_subset_breaks_ties_by_state_index():
+    """States of equal occupancy are visited in index order, whatever the CPU's sort does with
+    ties (numpy 2's default argsort of [2, 1, 2, 2, 1] is [1 4 2 0 3] on an AVX-512 CPU).  Line
+    i holds only state i, with [2, 1, 2, 2, 1] epochs; a budget of 4 epochs takes the two rare
+    states' lines, then the first of the tied states: lines 0, 1, 4 — on every machine."""
+    counts = [2, 1, 2, 2, 1]
+    states = [np.full(c, i) for i, c in enumerate(counts)]
+    assert select_subset(counts, states, 5, max_epochs=4) == [0, 1, 4]
+    # with room for all, every line
+    assert select_subset(counts, states, 5, max_epochs=100) == [0, 1, 2, 3, 4]
