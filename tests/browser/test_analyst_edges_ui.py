@@ -150,3 +150,28 @@ def test_nothing_wider_than_an_800px_window(fake_server, browser_page, tmp_path,
     page.screenshot(path=str(tmp_path / f"narrow-{tab}.png"), full_page=True)
     assert w["scroll"] <= w["W"], w
     _no_errors(page)
+
+
+def test_em_rows_and_jobs_answer_the_keyboard(fake_server, browser_page, tmp_path):  # noqa: F811
+    page = browser_page
+    sid = _processed_survey(fake_server.url, tmp_path)
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=process")
+    page.wait_for_selector(".em-row")
+    n = page.locator(".em-row").count()
+    assert n >= 2 and page.get_attribute("#em-detail", "data-iteration") == page.inner_text(f".em-row[data-index='{n - 1}'] td")
+    page.focus(".em-row[data-index='0']")
+    page.keyboard.press("Enter")
+    page.wait_for_function("() => document.querySelector('#em-detail').dataset.iteration === "
+                           "document.querySelector(\".em-row[data-index='0'] td\").textContent")
+    assert page.evaluate("() => document.activeElement.dataset.index") == "0"   # focus stays on the row
+    page.keyboard.press("Shift+Tab")
+    page.keyboard.press("Tab")
+    page.keyboard.press("Tab")                                                   # the next row, from the keyboard
+    assert page.evaluate("() => document.activeElement.dataset.index") == "1"
+    page.keyboard.press(" ")
+    page.wait_for_selector(".em-row[data-index='1'].selected")
+    # the jobs table's rows too
+    page.focus("#job-history tbody tr")
+    page.keyboard.press("Enter")
+    page.wait_for_selector("#job-status")
+    _no_errors(page)

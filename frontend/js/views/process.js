@@ -96,7 +96,15 @@ function emDetail(rows, k, live) {
         : el("p", { class: "note" }, "No transition matrix recorded for this iteration.")));
 }
 
-let emSelected = null;  // row index the analyst clicked (null: follow the newest)
+let emSelected = null;
+
+// a row that acts on a click also acts from the keyboard: Tab to it, Enter or Space
+function clickable(tr, act, label) {
+  tr.tabIndex = 0;
+  tr.title = `${label} (click, or Enter)`;
+  tr.addEventListener("click", act);
+  tr.addEventListener("keydown", (ev) => { if (ev.key === "Enter" || ev.key === " ") { ev.preventDefault(); act(); } });
+}  // row index the analyst clicked (null: follow the newest)
 
 function renderJob(box, job) {
   const pct = Math.round(100 * (job.progress || 0));
@@ -117,7 +125,8 @@ function renderJob(box, job) {
   const sc = box.querySelector(".scroll");
   if (sc && emSelected === null) sc.scrollTop = sc.scrollHeight;  // the newest (final) iteration in view
   for (const tr of box.querySelectorAll(".em-row")) {
-    tr.addEventListener("click", () => { emSelected = +tr.dataset.index; renderJob(box, job); });
+    const pick = () => { emSelected = +tr.dataset.index; renderJob(box, job); box.querySelector(`.em-row[data-index="${tr.dataset.index}"]`).focus(); };
+    clickable(tr, pick, `show EM iteration ${tr.firstChild.textContent} in full`);
   }
   const cancel = el("button", { id: "job-cancel", disabled: !["queued", "running"].includes(job.status) }, "Cancel job");
   cancel.addEventListener("click", async () => {
@@ -179,7 +188,7 @@ export async function render(sec, ctx) {
           el("td", { class: "l" }, el("span", { class: `badge ${j.status}` }, j.status)), el("td", {}, `${Math.round(100 * j.progress)}%`),
           el("td", { class: "l" }, j.created_at.replace("T", " ").slice(0, 19)), el("td", { class: "l" }, (j.finished_at || "").replace("T", " ").slice(0, 19)),
           el("td", { class: "l" }, j.error || ""));
-        tr.addEventListener("click", () => { emSelected = null; renderJob(jobBox, j); });
+        clickable(tr, () => { emSelected = null; renderJob(jobBox, j); }, `show job ${j.id}`);
         return tr;
       }))) : el("p", { class: "note" }, "none"));
   };
