@@ -175,3 +175,25 @@ def test_em_rows_and_jobs_answer_the_keyboard(fake_server, browser_page, tmp_pat
     page.keyboard.press("Enter")
     page.wait_for_selector("#job-status")
     _no_errors(page)
+
+
+def test_out_of_range_parameter_in_the_closed_block_is_named(fake_server, browser_page, tmp_path):  # noqa: F811
+    page = browser_page
+    sid = _processed_survey(fake_server.url, tmp_path)
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=process")
+    page.wait_for_selector("#params-form .params input[name=em_max_iter]", state="attached")
+    page.eval_on_selector("#params-form input[name=em_max_iter]", "e => { e.value = '-3'; }")   # block stays closed
+    assert page.eval_on_selector("#params-form details", "d => d.open") is False
+    n_jobs = page.locator("#job-history tbody tr").count()
+    page.click("#run-job")
+    page.wait_for_selector("#job-box .error:visible", timeout=5000)
+    msg = page.inner_text("#job-box .error")
+    assert "Not started" in msg and "em_max_iter" in msg, msg
+    assert page.eval_on_selector("#params-form details", "d => d.open") is True
+    assert page.evaluate("() => document.activeElement.name") == "em_max_iter"
+    assert page.locator("#job-history tbody tr").count() == n_jobs           # nothing was submitted
+    page.fill("#params-form input[name=em_max_iter]", "60")
+    page.click("#run-job")
+    page.wait_for_function("() => document.querySelectorAll('#job-history tbody tr').length === %d" % (n_jobs + 1), timeout=10000)
+    assert page.is_hidden("#job-box .error")
+    _no_errors(page)

@@ -194,6 +194,18 @@ export async function render(sec, ctx) {
   };
 
   reset.addEventListener("click", () => { sec.querySelector("details").replaceChildren(el("summary", {}, "Processing parameters"), buildForm(schemaCache.schema, schemaCache.defaults)); });
+  // a parameter out of its range inside the closed "Processing parameters" block: the browser refused
+  // the submit without a word ("not focusable"); open the block, name the fields, point at the first
+  run.addEventListener("click", (ev) => {
+    const bad = [...form.querySelectorAll(".params input, .params select")].filter((i) => !i.checkValidity());
+    if (!bad.length) return;
+    ev.preventDefault();
+    sec.querySelector("#params-form details").open = true;
+    showError(jobBox, new Error("Not started — fix these parameters: " +
+      bad.map((i) => `${i.name} (${i.validationMessage})`).join("; ")));
+    bad[0].reportValidity();
+    bad[0].focus();
+  });
   form.addEventListener("submit", async (ev) => {
     ev.preventDefault();
     showError(jobBox, null);
