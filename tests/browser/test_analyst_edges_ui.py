@@ -197,3 +197,29 @@ def test_out_of_range_parameter_in_the_closed_block_is_named(fake_server, browse
     page.wait_for_function("() => document.querySelectorAll('#job-history tbody tr').length === %d" % (n_jobs + 1), timeout=10000)
     assert page.is_hidden("#job-box .error")
     _no_errors(page)
+
+
+def test_recognition_status_recovers_after_a_failed_request(fake_server, browser_page, tmp_path):  # noqa: F811
+    page = browser_page
+    sid = _processed_survey(fake_server.url, tmp_path)
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=recognition")
+    page.wait_for_selector("#rec-map[data-signature]", timeout=20000)
+    failed = []
+
+    def once(route):
+        if not failed:
+            failed.append(route.request.url)
+            route.fulfill(status=503, json={"detail": "server busy"})
+        else:
+            route.continue_()
+    page.route("**/recognition?*", once)
+    set_range = "(e, v) => { e.value = v; e.dispatchEvent(new Event('input', {bubbles: true})); }"
+    page.eval_on_selector("#rec-h", set_range, "2")
+    page.wait_for_selector("#rec-status.error", timeout=5000)
+    assert "server busy" in page.inner_text("#rec-status")
+    page.eval_on_selector("#rec-h", set_range, "3")
+    page.wait_for_function("() => document.querySelector('#rec-map').dataset.h === '3'", timeout=10000)
+    assert "error" not in page.get_attribute("#rec-status", "class")   # the good answer is not shown as an error
+    assert "h=3" in page.inner_text("#rec-status")
+    page.errors[:] = [e for e in page.errors if "503" not in e]          # the staged failure
+    _no_errors(page)

@@ -74,6 +74,7 @@ export async function render(sec, ctx) {
     const shown = showIn.value === "raw" ? base.state_raw : current;
     Plotly.restyle(plot, { "marker.color": [colors(shown)] }, [0]);
     const counts = Array.from({ length: base.n_states }, (_, i) => shown.filter((v) => v === i).length);
+    status.classList.remove("error");   // a failed request before this one is over
     status.textContent = `${base.n_points} points · h=${r.h} km⁻¹, ρ=${r.rho} km (${r.mode}) · server ${fmt(r.elapsed_ms, 1)} ms, round trip ${Math.round(rtt)} ms · ` +
       counts.map((c, i) => `state ${i}: ${c}`).join(", ");
     plot.dataset.signature = signature(shown);
@@ -103,6 +104,7 @@ export async function render(sec, ctx) {
     apply.disabled = true;
     try {
       const job = await endpoints.submitJob(s.id, "filter", { nlmeans_h_per_km: +hIn.value, nlmeans_rho_km: +rhoIn.value, nlmeans_mode: modeIn.value });
+      applyNote.classList.remove("error");
       applyNote.textContent = `filter job ${job.id} started (h=${hIn.value} km⁻¹, ρ=${rhoIn.value} km; the identification is reused) — see Process`;
       applyNote.dataset.job = job.id;
     } catch (e) { applyNote.textContent = `Error: ${e.message}`; applyNote.classList.add("error"); }
