@@ -132,10 +132,23 @@ export function hillshade(z, dx, dy, azimuthDeg = 315, altitudeDeg = 45) {
 }
 
 // Text labels of lines at their first point (a scatter "text" trace), names as text.
+// Lines that start at (nearly) the same point, e.g. repeats flown over one track, would print their
+// labels on top of each other: such labels go above / below / right of the point, each still clickable.
+const STACKED = ["top left", "bottom left", "top right", "bottom right", "middle right", "middle left"];
+export function labelPositions(x, y) {
+  const span = Math.max(Math.max(...x) - Math.min(...x), Math.max(...y) - Math.min(...y), 1e-9);
+  const tol = 0.015 * span;
+  const group = x.map((xi, i) => x.findIndex((xj, j) => Math.abs(xj - xi) < tol && Math.abs(y[j] - y[i]) < tol));
+  const rank = group.map((g, i) => group.slice(0, i).filter((h) => h === g).length);
+  const size = group.map((g) => group.filter((h) => h === g).length);
+  return rank.map((r, i) => (size[i] === 1 ? "middle left" : STACKED[r % STACKED.length]));
+}
+
 export function lineLabels(lines, axes = {}) {
   const ok = lines.filter((l) => l.easting_km.length);
-  return { x: ok.map((l) => l.easting_km[0]), y: ok.map((l) => l.northing_km[0]), text: ok.map((l) => esc(l.line)),
-    customdata: ok.map((l) => l.line), type: "scatter", mode: "text", textposition: "middle left",
+  const x = ok.map((l) => l.easting_km[0]), y = ok.map((l) => l.northing_km[0]);
+  return { x, y, text: ok.map((l) => esc(l.line)),
+    customdata: ok.map((l) => l.line), type: "scatter", mode: "text", textposition: ok.length ? labelPositions(x, y) : "middle left",
     textfont: { size: 10, color: "rgba(20,20,20,0.85)" }, name: "line labels", showlegend: false,
     hovertemplate: "line %{text} — click for its profile<extra></extra>", ...axes };
 }

@@ -223,3 +223,41 @@ def test_recognition_status_recovers_after_a_failed_request(fake_server, browser
     assert "h=3" in page.inner_text("#rec-status")
     page.errors[:] = [e for e in page.errors if "503" not in e]          # the staged failure
     _no_errors(page)
+
+
+_OVERLAPS = """(sel) => {
+  const r = [...document.querySelectorAll(sel + ' .textpoint text')].map((t) => [t.textContent, t.getBoundingClientRect()]);
+  const out = [];
+  for (let i = 0; i < r.length; i++) for (let j = i + 1; j < r.length; j++) {
+    const a = r[i][1], b = r[j][1];
+    const w = Math.min(a.right, b.right) - Math.max(a.left, b.left), h = Math.min(a.bottom, b.bottom) - Math.max(a.top, b.top);
+    if (w > 1 && h > 1) out.push(`${r[i][0]} / ${r[j][0]}`);
+  }
+  return {n: r.length, out}; }"""
+
+
+def test_repeat_line_labels_do_not_print_over_each_other(live_server, browser_page, tmp_path):
+    """omolon-mini has two repeat lines flown over one track (R1-1, R1-2): their labels were drawn at
+    the same point, one over the other, on the QC line map and the grid."""
+    import shutil
+    from pathlib import Path
+
+    import httpx
+
+    from tests.web.conftest import zip_dir
+    sample = Path(__file__).resolve().parents[2] / "sample_surveys" / "omolon-mini"
+    if not (sample / "survey.toml").exists():
+        pytest.skip("sample_surveys/omolon-mini is absent")
+    src = tmp_path / "omolon-mini"
+    shutil.copytree(sample, src, ignore=shutil.ignore_patterns("truth"))
+    with httpx.Client(base_url=live_server.url, timeout=60) as c:
+        sid = c.post("/api/surveys/import", files={"file": ("s.zip", zip_dir(src), "application/zip")}).json()["id"]
+    page = browser_page
+    page.goto(f"{live_server.url}/#survey={sid}&tab=qc")
+    page.wait_for_selector("#line-map .textpoint text", timeout=30000)
+    res = page.evaluate(_OVERLAPS, "#line-map")
+    assert res["n"] == 16 and not res["out"], res
+    # the positions themselves: lone labels left of the line's start, stacked ones above / below it
+    pos = page.evaluate("async () => (await import('/js/plots.js')).labelPositions([0, 0.001, 10, 0], [0, 0, 5, 0.0005])")
+    assert pos == ["top left", "bottom left", "middle left", "top right"]
+    _no_errors(page)
