@@ -353,16 +353,27 @@ def _qc_figures(row) -> dict[str, Any]:
     return q
 
 
-def _line_track(g, m, crs: str, track_points: int) -> dict:
-    """The line's GNSS positions, decimated to about ``track_points``, in the survey CRS (km)."""
+def _line_tracks(lon: np.ndarray, lat: np.ndarray, picks: list[np.ndarray], crs: str) -> list[dict]:
+    """The map tracks of a flight's lines (each ``picks[i]``: indices of its decimated GNSS
+    positions) in the survey CRS (km), projected in one call."""
     from app.core.geodesy import project_km
 
-    step = max(1, int(m.sum()) // track_points)
+    idx = np.concatenate(picks) if picks else np.zeros(0, int)
     try:
-        e, n = project_km(g["lon"][m].to_numpy()[::step], g["lat"][m].to_numpy()[::step], crs)
+        e, n = project_km(lon[idx], lat[idx], crs)
     except Exception:  # pragma: no cover - bad CRS string: no map, QC still shown
-        return {}
-    return {"easting_km": float_list(e, 3), "northing_km": float_list(n, 3), "crs": crs}
+        return [{} for _ in picks]
+    cuts = np.cumsum([len(p) for p in picks])[:-1]
+    return [{"easting_km": float_list(ei, 3), "northing_km": float_list(ni, 3), "crs": crs}
+            for ei, ni in zip(np.split(np.asarray(e), cuts), np.split(np.asarray(n), cuts))]
+
+
+def _line_samples(t: np.ndarray, sorted_t: bool, t_start: float, t_end: float) -> np.ndarray:
+    """Indices of the samples with ``t_start <= t <= t_end`` (by bisection when ``t`` is sorted:
+    a mask over the whole flight for every line made the QC of many lines quadratic)."""
+    if sorted_t:
+        return np.arange(np.searchsorted(t, t_start, "left"), np.searchsorted(t, t_end, "right"))
+    return np.flatnonzero((t >= t_start) & (t <= t_end))
 
 
 def survey_qc(survey, track_points: int = 150) -> tuple[dict[str, dict], list[dict]]:
@@ -387,17 +398,28 @@ def survey_qc(survey, track_points: int = 150) -> tuple[dict[str, dict], list[di
         flights[str(row.flight)] = {**_qc_figures(row), "t_start": finite_float(row.t_start),
                                     "t_end": finite_float(row.t_end)}
     lines: list[dict] = []
+    arrays: dict[str, tuple] = {}          # per flight: time, lon, lat, h, time sorted
+    picks: dict[str, list[tuple[int, np.ndarray]]] = {}
     for row in table[table["level"] == "line"].itertuples(index=False):
-        g = survey.flights[row.flight].gnss
-        m = ((g["time"] >= row.t_start) & (g["time"] <= row.t_end)).to_numpy()
+        if row.flight not in arrays:
+            g = survey.flights[row.flight].gnss
+            t = g["time"].to_numpy(float)
+            arrays[row.flight] = (t, g["lon"].to_numpy(float), g["lat"].to_numpy(float), g["h"].to_numpy(float),
+                                  bool(np.all(t[1:] >= t[:-1])))
+        t, _lon, _lat, h, sorted_t = arrays[row.flight]
+        idx = _line_samples(t, sorted_t, row.t_start, row.t_end)
         q = _qc_figures(row)
         q["speed_ms"] = finite_float(1000.0 * row.length_km / row.duration_s) if row.duration_s > 0 else None
-        q["mean_h_m"] = finite_float(np.mean(g["h"].to_numpy(float)[m])) if m.any() else None
+        q["mean_h_m"] = finite_float(np.mean(h[idx])) if idx.size else None
         track = row.track
+        picks.setdefault(row.flight, []).append((len(lines), idx[::max(1, idx.size // track_points)]))
         lines.append({"line": str(row.line), "flight": str(row.flight), "kind": str(row.kind),
                       "track": None if track is None or (isinstance(track, float) and np.isnan(track)) else str(track),
-                      "t_start": float(row.t_start), "t_end": float(row.t_end), "qc": q,
-                      "map_track": _line_track(g, m, crs, track_points)})
+                      "t_start": float(row.t_start), "t_end": float(row.t_end), "qc": q, "map_track": {}})
+    for flight, items in picks.items():
+        _t, lon, lat, _h, _s = arrays[flight]
+        for (i, _), tr in zip(items, _line_tracks(lon, lat, [p for _, p in items], crs)):
+            lines[i]["map_track"] = tr
     return flights, lines
 
 

@@ -191,3 +191,36 @@ def test_survey_listing_does_not_load_every_line(client, tiny_src):
         event.remove(Line, "load", on_load)
     assert loaded == []
     assert listing[0]["n_lines"] == one["n_lines"] == len(client.get(f"/api/surveys/{sid}/lines").json()) == 3
+
+
+def test_line_qc_of_many_lines_matches_a_direct_computation(tmp_path, monkeypatch):
+    """The QC of every line masked the whole flight and projected its track in its own call (20,000
+    lines: 46 s under the survey's lock); the samples are now found by bisection and a flight's
+    tracks projected at once.  Each line's mean height and map track equal a direct computation."""
+    import numpy as np
+    import pandas as pd
+
+    import app.core.geodesy as geodesy
+    from app.io.survey import read_survey
+    from app.web.store import survey_qc
+
+    root = make_tiny_survey(tmp_path / "s")
+    n = 400
+    t0 = 1000.5 + np.arange(n) * 399.0 / n
+    pd.DataFrame({"line": [f"L{i}" for i in range(n)], "flight": "f1", "t_start": t0,
+                  "t_end": t0 + 399.0 / n - 1e-3, "kind": "main"}).to_csv(root / "lines.csv", index=False)
+    survey = read_survey(root)
+    calls = []
+    real = geodesy.project_km
+    monkeypatch.setattr(geodesy, "project_km", lambda *a, **k: calls.append(1) or real(*a, **k))
+    _flights, lines = survey_qc(survey, track_points=5)
+    assert len(calls) == 1 and len(lines) == n
+    g = survey.flights["f1"].gnss
+    for ln in lines:
+        m = ((g["time"] >= ln["t_start"]) & (g["time"] <= ln["t_end"])).to_numpy()
+        assert ln["qc"]["mean_h_m"] == pytest.approx(float(g["h"][m].mean()), rel=1e-12)
+        step = max(1, int(m.sum()) // 5)
+        e, nn = real(g["lon"][m].to_numpy()[::step], g["lat"][m].to_numpy()[::step], "EPSG:32657")
+        assert ln["map_track"]["easting_km"] == pytest.approx(np.round(e, 3).tolist(), abs=1e-9), ln["line"]
+        assert ln["map_track"]["northing_km"] == pytest.approx(np.round(nn, 3).tolist(), abs=1e-9)
+        assert ln["map_track"]["crs"] == "EPSG:32657"
