@@ -303,9 +303,9 @@ def extract_survey_zip(fileobj, dest: Path, max_bytes: int | None = None,
             rel = parts[len(root_parts):]
             if parts[:len(root_parts)] != root_parts or not _survey_member(rel):
                 continue
-            for p in rel[1:-1]:
+            for p, what in zip(rel[1:], ("flight name", "file name")):   # the file's own name too
                 try:
-                    check_name(p, "flight name")
+                    check_name(p, what)
                 except ValueError as exc:
                     raise InputError(_clip(info.filename), None, None, str(exc)) from None
             if info.flag_bits & 0x1:

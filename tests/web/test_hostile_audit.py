@@ -224,3 +224,24 @@ def test_line_qc_of_many_lines_matches_a_direct_computation(tmp_path, monkeypatc
         assert ln["map_track"]["easting_km"] == pytest.approx(np.round(e, 3).tolist(), abs=1e-9), ln["line"]
         assert ln["map_track"]["northing_km"] == pytest.approx(np.round(nn, 3).tolist(), abs=1e-9)
         assert ln["map_track"]["crs"] == "EPSG:32657"
+
+
+def test_zip_file_names_with_control_characters_refused(client, tiny_src):
+    """A flight folder with a newline was refused, but a file in it named ``x\\ny.csv`` was stored in
+    the snapshot; file names are checked like flight names (422 naming the entry), nothing stored."""
+    import io
+    import zipfile
+
+    for bad in ("x\ny.csv", "gnss\u202e.csv", "a\tb.dat"):
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w") as zf:
+            for p in sorted(tiny_src.rglob("*")):
+                if p.is_file():
+                    zf.write(p, "s/" + p.relative_to(tiny_src).as_posix())
+            zf.writestr("s/flights/f1/" + bad, b"a")
+        r = import_zip(client, buf.getvalue())
+        assert r.status_code == 422, (bad, r.text[:300])
+        d = r.json()["detail"]
+        assert d["file"] == "s/flights/f1/" + bad and "control character" in d["message"], d
+    assert client.get("/api/surveys").json() == []
+    assert list((Path(client.app.state.settings.data_dir) / "tmp").iterdir()) == []
