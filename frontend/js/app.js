@@ -38,11 +38,28 @@ const ctx = {
 };
 window.aerograv = { state, ctx };
 
+const RESULT_TABS = ["report", "recognition", "profile", "grid", "export"];
+
 async function loadSurveys() {
   try {
+    const before = ctx.survey ? ctx.survey.current_result_id : undefined;
     state.surveys = await endpoints.surveys();
     renderSurveyList();
+    // a job finished while the analyst was elsewhere (another tab, or the page reloaded mid-job so no
+    // view watches it): the result views reload, the one on screen at once
+    const s = ctx.survey;
+    if (s && before !== undefined && s.current_result_id !== before) {
+      ctx.resultsChanged();
+      if (RESULT_TABS.includes(state.tab)) showTab(state.tab, false);
+    }
   } catch (e) { showError(document.querySelector(".sidebar section"), e); }
+}
+
+// the survey list (status badges, new results) every 10 s, every 2 s while the survey's job runs
+function pollSurveys() {
+  const s = ctx.survey;
+  const busy = s && s.last_job && ["queued", "running"].includes(s.last_job.status);
+  setTimeout(async () => { await loadSurveys(); pollSurveys(); }, busy ? 2000 : 10000);
 }
 
 function renderSurveyList() {
@@ -217,7 +234,7 @@ async function main() {
   if (!applyHash() && state.surveys.length) selectSurvey(state.surveys[0].id, false);
   window.addEventListener("popstate", applyHash);
   window.addEventListener("hashchange", applyHash);
-  setInterval(loadSurveys, 10000);
+  pollSurveys();
 }
 
 main();

@@ -261,3 +261,22 @@ def test_repeat_line_labels_do_not_print_over_each_other(live_server, browser_pa
     pos = page.evaluate("async () => (await import('/js/plots.js')).labelPositions([0, 0.001, 10, 0], [0, 0, 5, 0.0005])")
     assert pos == ["top left", "bottom left", "middle left", "top right"]
     _no_errors(page)
+
+
+def test_a_result_view_open_during_the_job_shows_the_result_when_it_ends(slow_server, browser_page, tmp_path):
+    """Reloaded mid-job on the recognition tab (no view watches the job): the map appears when the job
+    ends, without clicking another tab or survey; it used to say "No results yet" until then."""
+    import httpx
+
+    from tests.web.conftest import make_tiny_survey, zip_dir
+    page = browser_page
+    z = zip_dir(make_tiny_survey(tmp_path / "tiny", name="tiny"))
+    with httpx.Client(base_url=slow_server.url, timeout=30) as c:
+        sid = c.post("/api/surveys/import", files={"file": ("tiny.zip", z, "application/zip")}).json()["id"]
+        c.post(f"/api/surveys/{sid}/jobs", json={"kind": "process"}).raise_for_status()
+    page.goto(f"{slow_server.url}/#survey={sid}&tab=recognition")
+    page.wait_for_selector("#view-recognition .empty:has-text('No results yet')")
+    page.wait_for_selector("#survey-list li .badge:has-text('running')", timeout=10000)
+    page.wait_for_selector("#rec-map[data-signature]", timeout=60000)
+    page.wait_for_selector("#survey-list li .badge:has-text('succeeded')", timeout=5000)
+    _no_errors(page)
