@@ -194,7 +194,8 @@ def test_out_of_range_parameter_in_the_closed_block_is_named(fake_server, browse
     assert page.locator("#job-history tbody tr").count() == n_jobs           # nothing was submitted
     page.fill("#params-form input[name=em_max_iter]", "60")
     page.click("#run-job")
-    page.wait_for_function("() => document.querySelectorAll('#job-history tbody tr').length === %d" % (n_jobs + 1), timeout=10000)
+    page.wait_for_function(f"() => document.querySelectorAll('#job-history tbody tr').length === {n_jobs + 1}",
+                           timeout=10000)
     assert page.is_hidden("#job-box .error")
     _no_errors(page)
 
