@@ -60,6 +60,22 @@ def check_name(value: str, what: str = "name") -> str:
 Name = Annotated[str, AfterValidator(check_name)]
 
 
+def check_label(value: str, what: str = "label") -> str:
+    """Free text shown in the browser and the report (an instrument's model): at most
+    ``MAX_NAME_LENGTH`` characters and no control characters; path separators are allowed."""
+    if len(value) > MAX_NAME_LENGTH:
+        raise ValueError(f"{what} is {len(value)} characters long; at most {MAX_NAME_LENGTH} allowed")
+    m = _CONTROL.search(value)
+    if m:
+        raise ValueError(f"{what} contains the control character {m.group()!r} (newline, tab, NUL, "
+                         "a text-direction override, …)")
+    return value
+
+
+#: validated free text (see :func:`check_label`)
+Label = Annotated[str, AfterValidator(check_label)]
+
+
 def grid_cells(extent_e_km: float, extent_n_km: float, spacing_km: float) -> int:
     """Nodes of the regular grid over an extent (as ``app.core.gridding`` lays it out)."""
     nx = int(extent_e_km / spacing_km + 1e-9) + 1
@@ -98,7 +114,7 @@ class SurveySection(_Strict):
 
 
 class GravimeterSection(_Strict):
-    model: str = Field("GT-1A", max_length=MAX_NAME_LENGTH)
+    model: Label = "GT-1A"
     tau_s: float = Field(2.0, ge=0.0, le=60.0, description="First-order lag time constant (s); 0 if already de-lagged")
     scale: float = Field(1.0, gt=0.0, le=10.0, description="Scale k of the gravimeter model τ·ḟ' + k·f' = f_g + …")
     base_gravity_mgal: float | None = Field(None, ge=970_000.0, le=990_000.0, description="Absolute gravity at the parking place (mGal)")

@@ -318,3 +318,15 @@ def test_file_part_without_a_name_is_a_plain_422(client, tiny_zip):
     assert r.status_code == 422
     d = r.json()["detail"][0]
     assert "file upload is expected" in d["msg"] and "input" not in d and "UploadFile" not in r.text
+
+
+def test_gravimeter_model_refuses_control_characters(client, tiny_zip):
+    """The instrument's model is free text shown in the page and the report: a slash is fine,
+    a newline or a text-direction override is a 422 naming the field, and nothing is stored."""
+    sid = import_zip(client, tiny_zip).json()["id"]
+    r = client.patch(f"/api/surveys/{sid}", json={"gravimeter": {"model": "GT-1A/2A"}})
+    assert r.status_code == 200, r.text
+    for bad in ("GT-1A\nrm -rf", "GT\u202e2A"):
+        r = client.patch(f"/api/surveys/{sid}", json={"gravimeter": {"model": bad}})
+        assert r.status_code == 422 and "control character" in r.text and "model" in r.text, r.text
+    assert client.get(f"/api/surveys/{sid}").json()["settings"]["gravimeter"]["model"] == "GT-1A/2A"
