@@ -106,6 +106,7 @@ def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: s
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
     partial.mkdir(parents=True)
+    placed = False   # the result folder moved into place, not yet recorded
     try:
         fn = load_entry(entry)
         if one_shot:
@@ -123,6 +124,7 @@ def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: s
         if out.exists():
             shutil.rmtree(out)
         os.replace(partial, out)
+        placed = True
         with Session() as s:
             r = s.execute(update(Job).where(Job.id == job_id, Job.status == "running")
                           .values(status="succeeded", progress=1.0, stage="done", finished_at=utcnow(),
@@ -140,6 +142,8 @@ def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: s
         return "succeeded"
     except JobCancelled:
         shutil.rmtree(partial, ignore_errors=True)
+        if placed:   # cancelled (or its survey deleted) while the pipeline finished: no orphan folder
+            shutil.rmtree(out, ignore_errors=True)
         return "cancelled"
     except BaseException as exc:  # noqa: BLE001 - every failure is reported on the job
         shutil.rmtree(partial, ignore_errors=True)
