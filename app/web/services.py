@@ -264,6 +264,23 @@ def check_lines_upload(lines_raw: bytes | None) -> None:
                                                    "allowed (line, flight, t_start, t_end, kind, track, …)")
 
 
+#: Columns an uploaded lines file must have (``flight`` may be left out: the upload's flight).
+UPLOADED_LINES_COLUMNS = ("line", "t_start", "t_end", "kind")
+
+
+def check_uploaded_lines(df: pd.DataFrame) -> None:
+    """An uploaded lines file lists at least one line and has the columns of SPEC §4 (InputError
+    naming lines.csv, the row and the column): a file of anything else (e.g. garbage bytes,
+    read as a header without rows) would add a flight with no lines beside the stored ones."""
+    have = {str(c).strip().lower() for c in df.columns}
+    for col in UPLOADED_LINES_COLUMNS:
+        if col not in have:
+            found = ", ".join(repr(str(c)) for c in list(df.columns)[:10]) or "none"
+            raise InputError("lines.csv", 1, col, f"required column '{col}' is missing (columns found: {found})")
+    if not any(any(str(v).strip() for v in row) for row in df.itertuples(index=False)):
+        raise InputError("lines.csv", 2, None, "the uploaded lines file lists no lines (one row per line flown)")
+
+
 def _unused_flight_name(s: Survey) -> str:
     """``flight<k>`` for the first k from the number of flights + 1 that no flight of the survey
     has: an unnamed upload never replaces a stored flight."""
@@ -302,6 +319,7 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
                     new = pd.read_csv(io.BytesIO(lines_raw), dtype=str, keep_default_na=False)
                 except Exception as e:
                     raise InputError("lines.csv", None, None, f"cannot read the uploaded lines file: {e}") from e
+                check_uploaded_lines(new)
                 if "flight" not in new.columns:
                     new.insert(1 if len(new.columns) else 0, "flight", name)
                 elif len({v.strip() for v in new["flight"] if v.strip()}) <= 1:

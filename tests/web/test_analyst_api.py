@@ -330,3 +330,28 @@ def test_gravimeter_model_refuses_control_characters(client, tiny_zip):
         r = client.patch(f"/api/surveys/{sid}", json={"gravimeter": {"model": bad}})
         assert r.status_code == 422 and "control character" in r.text and "model" in r.text, r.text
     assert client.get(f"/api/surveys/{sid}").json()["settings"]["gravimeter"]["model"] == "GT-1A/2A"
+
+
+def test_flight_upload_with_a_lines_file_of_no_lines_is_refused(client, tmp_path):
+    """A lines file of garbage bytes (read as a header without rows) or with a header only used
+    to add the flight with no lines beside the stored ones: a 422 naming lines.csv, and the
+    survey keeps what it had."""
+    from .conftest import make_tiny_survey
+
+    src = make_tiny_survey(tmp_path / "src")
+    fdir = src / "flights" / "f1"
+    sid = client.post("/api/surveys", json={"name": "nolines"}).json()["id"]
+    files = {"gravimeter": ("g", (fdir / "gravimeter.csv").read_bytes(), "text/csv"),
+             "gnss": ("n", (fdir / "gnss.csv").read_bytes(), "text/csv")}
+    r = client.post(f"/api/surveys/{sid}/flights", data={"flight": "f1"},
+                    files={**files, "lines": ("l", (src / "lines.csv").read_bytes(), "text/csv")})
+    assert r.status_code == 201, r.text
+    before = client.get(f"/api/surveys/{sid}").json()
+    header = (src / "lines.csv").read_text().splitlines()[0].encode()
+    for raw, row in ((b"\x07\x03 zq#%!junk" * 40, 1), (header + b"\n", 2)):
+        r = client.post(f"/api/surveys/{sid}/flights", data={"flight": "f2"},
+                        files={**files, "lines": ("l", raw, "text/csv")})
+        assert r.status_code == 422, r.text
+        assert "lines.csv" in r.text and f'"row":{row}' in r.text.replace(" ", ""), r.text
+    after = client.get(f"/api/surveys/{sid}").json()
+    assert after["flights"] == before["flights"] and len(after["flights"]) == 1, after["flights"]
