@@ -36,30 +36,6 @@ MAX_NAME_LENGTH = 200
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029\u200e\u200f\u202a-\u202e\u2066-\u2069]")
 
 
-def check_name(value: str, what: str = "name") -> str:
-    """A name shown in the browser and used as a file or folder name: not empty, at most
-    ``MAX_NAME_LENGTH`` characters, no control characters, no path separators."""
-    if not isinstance(value, str):
-        raise ValueError(f"{what} must be text")
-    if not value.strip():
-        raise ValueError(f"{what} is empty")
-    if len(value) > MAX_NAME_LENGTH:
-        raise ValueError(f"{what} is {len(value)} characters long; at most {MAX_NAME_LENGTH} allowed")
-    m = _CONTROL.search(value)
-    if m:
-        raise ValueError(f"{what} contains the control character {m.group()!r} (newline, tab, NUL, "
-                         "a text-direction override, …)")
-    if "/" in value or "\\" in value:
-        raise ValueError(f"{what} contains a path separator ('/' or '\\')")
-    if value.strip() in (".", ".."):
-        raise ValueError(f"{what} cannot be '.' or '..'")
-    return value
-
-
-#: a validated name (see :func:`check_name`)
-Name = Annotated[str, AfterValidator(check_name)]
-
-
 def check_label(value: str, what: str = "label") -> str:
     """Free text shown in the browser and the report (an instrument's model): at most
     ``MAX_NAME_LENGTH`` characters and no control characters; path separators are allowed."""
@@ -70,6 +46,25 @@ def check_label(value: str, what: str = "label") -> str:
         raise ValueError(f"{what} contains the control character {m.group()!r} (newline, tab, NUL, "
                          "a text-direction override, …)")
     return value
+
+
+def check_name(value: str, what: str = "name") -> str:
+    """A name shown in the browser and used as a file or folder name: not empty, at most
+    ``MAX_NAME_LENGTH`` characters, no control characters, no path separators."""
+    if not isinstance(value, str):
+        raise ValueError(f"{what} must be text")
+    if not value.strip():
+        raise ValueError(f"{what} is empty")
+    check_label(value, what)
+    if "/" in value or "\\" in value:
+        raise ValueError(f"{what} contains a path separator ('/' or '\\')")
+    if value.strip() in (".", ".."):
+        raise ValueError(f"{what} cannot be '.' or '..'")
+    return value
+
+
+#: a validated name (see :func:`check_name`)
+Name = Annotated[str, AfterValidator(check_name)]
 
 
 #: validated free text (see :func:`check_label`)

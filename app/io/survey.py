@@ -220,6 +220,8 @@ def _short(v):
 
 
 # --------------------------------------------------------------------------- lines.csv
+#: The columns lines.csv must have (SPEC §4); ``track`` is optional.
+LINES_COLUMNS = ("line", "flight", "t_start", "t_end", "kind")
 
 
 def read_lines(path, display: str = "lines.csv") -> tuple[pd.DataFrame, np.ndarray]:
@@ -231,7 +233,7 @@ def read_lines(path, display: str = "lines.csv") -> tuple[pd.DataFrame, np.ndarr
     rows : ndarray of int
         File line number of each line.
     """
-    df, rows = read_csv_table(path, display, ("line", "flight", "t_start", "t_end", "kind"), ("track",),
+    df, rows = read_csv_table(path, display, LINES_COLUMNS, ("track",),
                               str_cols=("line", "flight", "kind", "track"), min_rows=1)
     # blank lines inside lines.csv are harmless: drop them
     keep = ~df.isna().all(axis=1).to_numpy()

@@ -30,6 +30,7 @@ from sqlalchemy.orm import Session
 
 from app.config import MAX_NAME_LENGTH, check_name
 from app.io.errors import InputError
+from app.io.survey import LINES_COLUMNS
 
 from .db import ACTIVE_STATES, Flight, Job, Line, Result, Survey, utcnow
 from .jobs import JobManager
@@ -264,8 +265,8 @@ def check_lines_upload(lines_raw: bytes | None) -> None:
                                                    "allowed (line, flight, t_start, t_end, kind, track, …)")
 
 
-#: Columns an uploaded lines file must have (``flight`` may be left out: the upload's flight).
-UPLOADED_LINES_COLUMNS = ("line", "t_start", "t_end", "kind")
+#: Columns an uploaded lines file must have (lines.csv's, less ``flight``: the upload's flight).
+UPLOADED_LINES_COLUMNS = tuple(c for c in LINES_COLUMNS if c != "flight")
 
 
 def check_uploaded_lines(df: pd.DataFrame) -> None:

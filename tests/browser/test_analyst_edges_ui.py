@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from .test_analyst_ui import _processed_survey, _tab, fake_server  # noqa: F401  (fixture)
+from .test_analyst_ui import _processed_survey, _tab, fake_pipeline_server, fake_server  # noqa: F401  (fixture)
 
 pytestmark = [pytest.mark.browser]
 
@@ -98,14 +98,7 @@ def test_grid_colour_range_from_above_to_is_said(fake_server, browser_page, tmp_
 
 @pytest.fixture
 def slow_server(tmp_path, monkeypatch):
-    from app.web.main import create_app
-    from app.web.settings import Settings
-    from tests.web.conftest import FAKE_ENTRY
-
-    from .conftest import LiveServer
-    monkeypatch.setenv("AEROGRAV_FAKE_DELAY_S", "0.5")
-    app = create_app(Settings(data_dir=tmp_path / "data", poll_interval_s=0.1, pipeline_entry=FAKE_ENTRY))
-    with LiveServer(app) as srv:
+    with fake_pipeline_server(tmp_path, monkeypatch, 0.5) as srv:
         yield srv
 
 
@@ -246,9 +239,7 @@ def test_repeat_line_labels_do_not_print_over_each_other(live_server, browser_pa
     import httpx
 
     from tests.web.conftest import zip_dir
-    sample = Path(__file__).resolve().parents[2] / "sample_surveys" / "omolon-mini"
-    if not (sample / "survey.toml").exists():
-        pytest.skip("sample_surveys/omolon-mini is absent")
+    sample = Path(__file__).resolve().parents[2] / "sample_surveys" / "omolon-mini"   # in the repository
     src = tmp_path / "omolon-mini"
     shutil.copytree(sample, src, ignore=shutil.ignore_patterns("truth"))
     with httpx.Client(base_url=live_server.url, timeout=60) as c:

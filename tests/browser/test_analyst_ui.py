@@ -43,16 +43,21 @@ def test_api_docs_work_offline_under_the_csp(live_server, browser_page, shots):
 
 
 # ---------------------------------------------------------------- a processed survey (test pipeline)
-@pytest.fixture
-def fake_server(tmp_path, monkeypatch):
+def fake_pipeline_server(tmp_path, monkeypatch, delay_s: float):
+    """A live server running the test pipeline, each stage taking ``delay_s`` (a context manager)."""
     from app.web.main import create_app
     from app.web.settings import Settings
     from tests.web.conftest import FAKE_ENTRY
 
     from .conftest import LiveServer
-    monkeypatch.setenv("AEROGRAV_FAKE_DELAY_S", "0.01")
+    monkeypatch.setenv("AEROGRAV_FAKE_DELAY_S", str(delay_s))
     app = create_app(Settings(data_dir=tmp_path / "data", poll_interval_s=0.1, pipeline_entry=FAKE_ENTRY))
-    with LiveServer(app) as srv:
+    return LiveServer(app)
+
+
+@pytest.fixture
+def fake_server(tmp_path, monkeypatch):
+    with fake_pipeline_server(tmp_path, monkeypatch, 0.01) as srv:
         yield srv
 
 
