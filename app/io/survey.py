@@ -882,19 +882,25 @@ def _check_line_windows(name: str, fs: _FlightSeries, lines: pd.DataFrame, origi
 # --------------------------------------------------------------------------- QC summary
 
 
-def path_length_km(lat_deg, lon_deg, h_m=None) -> float:
-    """Length of a track through consecutive positions, on the WGS84 ellipsoid (km).
+def step_lengths_km(lat_deg, lon_deg, h_m=None) -> np.ndarray:
+    """Length of each step between consecutive positions, on the WGS84 ellipsoid (km).
 
     Each step uses the radii of curvature at the mid-latitude (and mid-height):
     ``ds² = ((R_M+h)·Δφ)² + ((R_N+h)·cos φ·Δλ)²`` — exact to second order for
-    the short steps of 1–20 Hz GNSS.
+    the short steps of 1–20 Hz GNSS.  A longitude step across ±180° is taken the
+    short way.
+
+    Returns
+    -------
+    ndarray, shape (n − 1,)
+        Empty with fewer than two positions.
     """
     lat = np.asarray(lat_deg, dtype=float)
     lon = np.asarray(lon_deg, dtype=float)
     if lat.shape != lon.shape:
         raise ValueError("lat_deg and lon_deg must have the same shape")
     if lat.size < 2:
-        return 0.0
+        return np.zeros(0)
     h = np.zeros_like(lat) if h_m is None else np.asarray(h_m, dtype=float)
     phi = np.deg2rad(lat)
     lam = np.unwrap(np.deg2rad(lon))
@@ -903,20 +909,62 @@ def path_length_km(lat_deg, lon_deg, h_m=None) -> float:
     r_m, r_n = radii_of_curvature_m(np.rad2deg(phim))
     dn = (r_m + hm) * np.diff(phi)
     de = (r_n + hm) * np.cos(phim) * np.diff(lam)
-    return float(np.sum(np.hypot(dn, de)) / 1000.0)
+    return np.hypot(dn, de) / 1000.0
 
 
-def _window_stats(t: np.ndarray, a: float, b: float) -> tuple[float, float, int]:
-    """(median rate Hz, largest step s, sample count) of the samples of ``t`` in [a, b].
+def path_length_km(lat_deg, lon_deg, h_m=None) -> float:
+    """Length of a track through consecutive positions, on the WGS84 ellipsoid (km): the sum of
+    :func:`step_lengths_km`."""
+    return float(np.sum(step_lengths_km(lat_deg, lon_deg, h_m)))
+
+
+def _window_stats(t: np.ndarray, a, b) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per window ``[a_k, b_k]`` (s) of the sorted stamps ``t``: median rate (Hz), largest step
+    (s), sample count, and the index range ``[i0, i1)`` of its samples.
 
     The largest step includes the steps from the last sample before the window
     and to the first sample after it, so a hole at a window edge is seen.
+    One pass of index arithmetic for all windows (a survey may list 20 000 lines).
     """
+    a = np.atleast_1d(np.asarray(a, dtype=float))
+    b = np.atleast_1d(np.asarray(b, dtype=float))
     i0, i1 = np.searchsorted(t, a, side="left"), np.searchsorted(t, b, side="right")
-    seg = t[i0:i1]
-    around = t[max(i0 - 1, 0):min(i1 + 1, t.size)]
-    steps = np.diff(around)
-    return median_rate_hz(seg), (float(steps.max()) if steps.size else float("nan")), int(seg.size)
+    steps = np.diff(t)
+    lo, hi = np.maximum(i0 - 1, 0), np.minimum(i1 + 1, t.size) - 1   # steps[lo:hi] bound the window
+    rate = np.full(a.size, np.nan)
+    gap = np.full(a.size, np.nan)
+    for k in range(a.size):
+        if i1[k] - i0[k] >= 2:
+            rate[k] = median_rate_hz(t[i0[k]:i1[k]])
+        if hi[k] > lo[k]:
+            gap[k] = steps[lo[k]:hi[k]].max()
+    return rate, gap, (i1 - i0).astype(np.int64), i0, i1
+
+
+def _window_lengths_km(cum_km: np.ndarray, i0: np.ndarray, i1: np.ndarray) -> np.ndarray:
+    """Path length (km) through the positions ``[i0, i1)`` from the cumulative step lengths
+    ``cum_km`` (0 first): 0 for fewer than two positions."""
+    last = np.maximum(i1 - 1, i0)
+    return np.where(i1 - i0 >= 2, cum_km[last] - cum_km[i0], 0.0)
+
+
+_SUMMARY_COLUMNS = ["level", "flight", "line", "kind", "track", "t_start", "t_end", "duration_s",
+                    "gravimeter_rate_hz", "gnss_rate_hz", "gravimeter_max_gap_s", "gnss_max_gap_s",
+                    "n_gravimeter", "n_gnss", "length_km"]
+
+
+def _summary_block(level: str, flight: str, a, b, tg, tn, cum_km, line=None, kind=None, track=None) -> pd.DataFrame:
+    """Rows of :func:`survey_summary` for the windows ``[a, b]`` of one flight."""
+    a = np.atleast_1d(np.asarray(a, dtype=float))
+    b = np.atleast_1d(np.asarray(b, dtype=float))
+    rg, gg, ng, _, _ = _window_stats(tg, a, b)
+    rn, gn, nn, j0, j1 = _window_stats(tn, a, b)
+    cols = {k: np.full(a.size, None, dtype=object) if v is None else np.asarray(v, dtype=object)
+            for k, v in (("line", line), ("kind", kind), ("track", track))}
+    return pd.DataFrame({"level": level, "flight": flight, **cols, "t_start": a, "t_end": b, "duration_s": b - a,
+                         "gravimeter_rate_hz": rg, "gnss_rate_hz": rn, "gravimeter_max_gap_s": gg,
+                         "gnss_max_gap_s": gn, "n_gravimeter": ng, "n_gnss": nn,
+                         "length_km": _window_lengths_km(cum_km, j0, j1)}, columns=_SUMMARY_COLUMNS)
 
 
 def survey_summary(survey: Survey) -> pd.DataFrame:
@@ -928,36 +976,31 @@ def survey_summary(survey: Survey) -> pd.DataFrame:
     gaps are the largest time step among the samples inside (and bounding)
     the window, ``length_km`` is the ellipsoidal path length of the GNSS
     positions within the window (at flight height), ``line``/``kind``/``track``
-    are None on flight rows.
+    are None on flight rows.  Each flight's stamps and step lengths are read
+    once for all its lines.
     """
-    rows = []
+    flights, lines = [], []
+    by_flight = {name: idx for name, idx in survey.lines.groupby("flight", sort=False).indices.items()}
     for name, fl in survey.flights.items():
-        tg = fl.gravimeter["time"].to_numpy()
-        tn = fl.gnss["time"].to_numpy()
-        a, b = float(min(tg[0], tn[0])), float(max(tg[-1], tn[-1]))
-        rg, gg, ng = _window_stats(tg, a, b)
-        rn, gn, nn = _window_stats(tn, a, b)
+        tg = fl.gravimeter["time"].to_numpy(dtype=float)
+        tn = fl.gnss["time"].to_numpy(dtype=float)
         g = fl.gnss
-        rows.append(dict(level="flight", flight=name, line=None, kind=None, track=None, t_start=a, t_end=b,
-                         duration_s=b - a, gravimeter_rate_hz=rg, gnss_rate_hz=rn, gravimeter_max_gap_s=gg,
-                         gnss_max_gap_s=gn, n_gravimeter=ng, n_gnss=nn,
-                         length_km=path_length_km(g["lat"].to_numpy(), g["lon"].to_numpy(), g["h"].to_numpy())))
-    for ln in survey.lines.itertuples(index=False):
-        fl = survey.flights[ln.flight]
-        tg = fl.gravimeter["time"].to_numpy()
-        tn = fl.gnss["time"].to_numpy()
-        a, b = float(ln.t_start), float(ln.t_end)
-        rg, gg, ng = _window_stats(tg, a, b)
-        rn, gn, nn = _window_stats(tn, a, b)
-        i0, i1 = np.searchsorted(tn, a, side="left"), np.searchsorted(tn, b, side="right")
-        g = fl.gnss.iloc[i0:i1]
-        rows.append(dict(level="line", flight=ln.flight, line=ln.line, kind=ln.kind, track=ln.track, t_start=a,
-                         t_end=b, duration_s=b - a, gravimeter_rate_hz=rg, gnss_rate_hz=rn,
-                         gravimeter_max_gap_s=gg, gnss_max_gap_s=gn, n_gravimeter=ng, n_gnss=nn,
-                         length_km=path_length_km(g["lat"].to_numpy(), g["lon"].to_numpy(), g["h"].to_numpy())))
-    out = pd.DataFrame(rows, columns=["level", "flight", "line", "kind", "track", "t_start", "t_end", "duration_s",
-                                      "gravimeter_rate_hz", "gnss_rate_hz", "gravimeter_max_gap_s",
-                                      "gnss_max_gap_s", "n_gravimeter", "n_gnss", "length_km"])
-    for c in ("line", "kind", "track"):  # keep None (not NaN) on flight rows
-        out[c] = pd.Series([r[c] for r in rows], index=out.index, dtype=object)
+        steps = step_lengths_km(g["lat"].to_numpy(), g["lon"].to_numpy(), g["h"].to_numpy())
+        cum = np.concatenate([[0.0], np.cumsum(steps)])
+        a, b = float(min(tg[0], tn[0])), float(max(tg[-1], tn[-1]))
+        block = _summary_block("flight", name, a, b, tg, tn, cum)
+        block["length_km"] = float(np.sum(steps))   # the whole track, as path_length_km sums it
+        flights.append(block)
+        if name in by_flight:
+            ls = survey.lines.iloc[by_flight[name]]
+            lines.append(_summary_block("line", name, ls["t_start"], ls["t_end"], tg, tn, cum,
+                                        ls["line"].to_numpy(), ls["kind"].to_numpy(), ls["track"].to_numpy()))
+    out = pd.concat(flights + lines, ignore_index=True) if flights else pd.DataFrame(columns=_SUMMARY_COLUMNS)
+    # lines in the order lines.csv lists them (the blocks above are grouped by flight)
+    order = np.concatenate([np.arange(len(flights))] + [len(flights) + np.argsort(
+        np.concatenate([by_flight[n] for n in survey.flights if n in by_flight]), kind="stable")])
+    out = out.iloc[order].reset_index(drop=True)
+    for c in ("line", "kind", "track"):  # None (not NaN, which concatenating blocks may give) where empty
+        out[c] = pd.Series([None if v is None or (isinstance(v, float) and np.isnan(v)) else v for v in out[c]],
+                           index=out.index, dtype=object)
     return out

@@ -532,6 +532,39 @@ def test_two_flights_and_summary(tmp_path):
     assert ln.loc["0001", "length_km"] == pytest.approx(26.0, rel=2e-3)
 
 
+def test_summary_of_many_interleaved_lines(tmp_path):
+    """200 short lines of two flights listed alternately: every line row is its own window's
+    figures (pyproj's geodesic for the length, the stamps for counts, rates and gaps), in the
+    order lines.csv lists them."""
+    from pyproj import Geod
+
+    _, tabs = make_tables(flights=("F1", "F2"))
+    rows = []
+    for i in range(100):
+        for k, f in enumerate(("F1", "F2")):
+            a = T0 + 1000.0 * k + 5.0 + 5.8 * i
+            rows.append({"line": f"L{k}{i:03d}", "flight": f, "t_start": a, "t_end": a + 5.0 + 0.37 * (i % 3),
+                         "kind": "main", "track": ""})
+    lines = pd.DataFrame(rows)
+    root = write_survey(tmp_path / "s", lines, tabs)
+    q = survey_summary(read_survey(root))
+    ln = q[q["level"] == "line"]
+    assert ln["line"].tolist() == lines["line"].tolist()
+    geod = Geod(ellps="WGS84")
+    from app.core.geodesy import radii_of_curvature_m
+    r_m, r_n = radii_of_curvature_m(LAT0)
+    for row in list(ln.itertuples())[::17]:
+        grav, gnss = tabs[row.flight]
+        w = gnss[(gnss["time"] >= row.t_start) & (gnss["time"] <= row.t_end)]
+        ref_km = geod.line_length(w["lon"].to_numpy(), w["lat"].to_numpy()) / 1000.0 * (r_n + 3000.0) / r_n
+        assert row.length_km == pytest.approx(ref_km, rel=1e-6)
+        assert row.n_gnss == len(w)
+        assert row.n_gravimeter == int(((grav["time"] >= row.t_start) & (grav["time"] <= row.t_end)).sum())
+        assert row.gnss_rate_hz == pytest.approx(GNSS_HZ, rel=1e-6)
+        assert row.gravimeter_rate_hz == pytest.approx(GRAV_HZ, rel=2e-4)
+        assert row.gnss_max_gap_s == pytest.approx(0.1, abs=1e-6)
+
+
 def test_path_length_meridian_against_pyproj():
     from pyproj import Geod
 
