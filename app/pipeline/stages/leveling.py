@@ -81,10 +81,10 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFr
         # drift; the drift must also predict the crossovers of lines left out of its fit
         cv = cross_validated_leveling(cx, ranges, degree=p.leveling_degree, groups=groups)
         rep["cross_validation"] = cv
-        if not (cv["rms_cv_mgal"] < cv["rms_before_mgal"] and cv["p_value"] < p.leveling_significance):
+        if not (cv["rms_cv_mgal"] < cv["rms_before_mgal"] and cv["p_value"] < p.leveling_cv_significance):
             reason = (f"the drift does not predict held-out lines' crossovers significantly (leave-one-line-out "
                       f"RMS {cv['rms_cv_mgal']:.3g} mGal against {cv['rms_before_mgal']:.3g} without leveling, "
-                      f"p = {cv['p_value']:.3g}, needs < {p.leveling_significance})")
+                      f"p = {cv['p_value']:.3g}, needs < {p.leveling_cv_significance})")
     if reason is not None:
         rep.update(status=f"not leveled: {reason}",
                    rms_after_mgal=float(res.rms_before), rms_after_if_leveled_mgal=float(res.rms_after))
