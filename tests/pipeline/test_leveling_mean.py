@@ -85,3 +85,23 @@ def test_cross_validation_has_its_own_significance(monkeypatch):
     _, rep = level_lines_table(table.copy(), ProcessingParams(leveling_cv_significance=0.01), [])
     assert rep["status"].startswith("not leveled: the drift does not predict"), rep["status"]
     assert "needs < 0.01" in rep["status"]
+
+
+def test_a_refused_leveling_reports_what_it_would_have_moved(monkeypatch):
+    """When the held-out check refuses the drift, the map keeps the flights' offsets; the report
+    gives each flight's mean correction the drift would have applied — against the simulation's
+    known drifts (zero mean over the survey, as leveling keeps it)."""
+    import app.pipeline.stages.leveling as lv
+
+    table, drift = _survey(np.random.default_rng(1))
+    real = lv.cross_validated_leveling
+    monkeypatch.setattr(lv, "cross_validated_leveling", lambda *a, **k: {**real(*a, **k), "p_value": 0.5})
+    warnings: list = []
+    _, rep = level_lines_table(table, ProcessingParams(), warnings)
+    assert rep["status"].startswith("not leveled")
+    np.testing.assert_array_equal(table["dg_mgal"], table["dg_unleveled_mgal"])   # nothing applied
+    means = rep["if_leveled_mean_correction_mgal"]
+    true = {f: float(np.mean(drift[g.index])) for f, g in table.groupby("flight")}
+    assert set(means) == set(true)
+    for f in true:
+        assert abs(means[f] - true[f]) < 0.3, (f, means[f], true[f])
