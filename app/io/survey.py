@@ -997,9 +997,12 @@ def survey_summary(survey: Survey) -> pd.DataFrame:
                                         ls["line"].to_numpy(), ls["kind"].to_numpy(), ls["track"].to_numpy()))
     out = pd.concat(flights + lines, ignore_index=True) if flights else pd.DataFrame(columns=_SUMMARY_COLUMNS)
     # lines in the order lines.csv lists them (the blocks above are grouped by flight)
-    order = np.concatenate([np.arange(len(flights))] + [len(flights) + np.argsort(
-        np.concatenate([by_flight[n] for n in survey.flights if n in by_flight]), kind="stable")])
-    out = out.iloc[order].reset_index(drop=True)
+    listed = [np.asarray(by_flight[n]) for n in survey.flights if n in by_flight]
+    if listed:
+        order = np.concatenate([np.arange(len(flights)),
+                                len(flights) + np.argsort(np.concatenate(listed), kind="stable")])
+        out = out.iloc[order]
+    out = out.reset_index(drop=True)
     for c in ("line", "kind", "track"):  # None (not NaN, which concatenating blocks may give) where empty
         out[c] = pd.Series([None if v is None or (isinstance(v, float) and np.isnan(v)) else v for v in out[c]],
                            index=out.index, dtype=object)

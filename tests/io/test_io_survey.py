@@ -565,6 +565,16 @@ def test_summary_of_many_interleaved_lines(tmp_path):
         assert row.gnss_max_gap_s == pytest.approx(0.1, abs=1e-6)
 
 
+def test_summary_of_a_survey_without_lines(survey_dir):
+    """Flights stored before their lines (the web allows it): one row per flight, none per line."""
+    root, *_ = survey_dir
+    s = read_survey(root)
+    s.lines = s.lines.iloc[:0]
+    q = survey_summary(s)
+    assert q["level"].tolist() == ["flight"] and q["line"].tolist() == [None]
+    assert q["n_gnss"].iloc[0] == len(s.flights["F1"].gnss)
+
+
 def test_path_length_meridian_against_pyproj():
     from pyproj import Geod
 
