@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from .test_analyst_ui import _processed_survey, _tab, fake_pipeline_server, fake_server  # noqa: F401  (fixture)
+from .test_analyst_ui import _open_processed, _processed_survey, _tab, fake_pipeline_server, fake_server  # noqa: F401  (fixture)
 
 pytestmark = [pytest.mark.browser]
 
@@ -17,9 +17,7 @@ def _no_errors(page):
 
 def test_profile_lowpass_rejects_nonsense(fake_server, browser_page, tmp_path):  # noqa: F811
     page = browser_page
-    sid = _processed_survey(fake_server.url, tmp_path)
-    page.goto(f"{fake_server.url}/#survey={sid}&tab=profile")
-    page.wait_for_selector("#profile-plot[data-line] .main-svg", timeout=20000)
+    _open_processed(page, fake_server.url, tmp_path, "profile", "#profile-plot[data-line] .main-svg")
     z_name = "() => document.querySelector('#profile-plot').data[0].name"
     assert "30 s" in page.evaluate(z_name)
     for bad in ["-5", "1e9", ""]:
@@ -43,9 +41,7 @@ def _active(page):
 
 def test_back_and_forward_walk_the_tabs(fake_server, browser_page, tmp_path):  # noqa: F811
     page = browser_page
-    sid = _processed_survey(fake_server.url, tmp_path)
-    page.goto(f"{fake_server.url}/#survey={sid}&tab=qc")
-    page.wait_for_selector("#view-qc:not([hidden])")
+    sid = _open_processed(page, fake_server.url, tmp_path, "qc", "#view-qc:not([hidden])")
     _tab(page, "process")
     _tab(page, "grid")
     page.wait_for_selector("#grid-plot .main-svg", timeout=20000)
@@ -64,9 +60,7 @@ def test_back_and_forward_walk_the_tabs(fake_server, browser_page, tmp_path):  #
 
 def test_plots_fit_a_window_resized_while_their_tab_was_hidden(fake_server, browser_page, tmp_path):  # noqa: F811
     page = browser_page
-    sid = _processed_survey(fake_server.url, tmp_path)
-    page.goto(f"{fake_server.url}/#survey={sid}&tab=profile")
-    page.wait_for_selector("#profile-plot[data-line] .main-svg", timeout=20000)
+    _open_processed(page, fake_server.url, tmp_path, "profile", "#profile-plot[data-line] .main-svg")
     _tab(page, "qc")
     page.set_viewport_size({"width": 800, "height": 600})
     _tab(page, "profile")
@@ -78,9 +72,7 @@ def test_plots_fit_a_window_resized_while_their_tab_was_hidden(fake_server, brow
 
 def test_grid_colour_range_from_above_to_is_said(fake_server, browser_page, tmp_path):  # noqa: F811
     page = browser_page
-    sid = _processed_survey(fake_server.url, tmp_path)
-    page.goto(f"{fake_server.url}/#survey={sid}&tab=grid")
-    page.wait_for_selector("#grid-plot[data-variable] .main-svg", timeout=20000)
+    _open_processed(page, fake_server.url, tmp_path, "grid", "#grid-plot[data-variable] .main-svg")
     page.fill("#grid-zmin", "10")
     page.fill("#grid-zmax", "-10")
     page.dispatch_event("#grid-zmax", "change")
@@ -147,9 +139,7 @@ def test_nothing_wider_than_an_800px_window(fake_server, browser_page, tmp_path,
 
 def test_em_rows_and_jobs_answer_the_keyboard(fake_server, browser_page, tmp_path):  # noqa: F811
     page = browser_page
-    sid = _processed_survey(fake_server.url, tmp_path)
-    page.goto(f"{fake_server.url}/#survey={sid}&tab=process")
-    page.wait_for_selector(".em-row")
+    _open_processed(page, fake_server.url, tmp_path, "process", ".em-row")
     n = page.locator(".em-row").count()
     assert n >= 2 and page.get_attribute("#em-detail", "data-iteration") == page.inner_text(f".em-row[data-index='{n - 1}'] td")
     page.focus(".em-row[data-index='0']")
@@ -195,9 +185,7 @@ def test_out_of_range_parameter_in_the_closed_block_is_named(fake_server, browse
 
 def test_recognition_status_recovers_after_a_failed_request(fake_server, browser_page, tmp_path):  # noqa: F811
     page = browser_page
-    sid = _processed_survey(fake_server.url, tmp_path)
-    page.goto(f"{fake_server.url}/#survey={sid}&tab=recognition")
-    page.wait_for_selector("#rec-map[data-signature]", timeout=20000)
+    _open_processed(page, fake_server.url, tmp_path, "recognition", "#rec-map[data-signature]")
     failed = []
 
     def once(route):

@@ -72,6 +72,15 @@ def _processed_survey(url: str, tmp_path, name="tiny") -> int:
     return sid
 
 
+def _open_processed(page, url: str, tmp_path, tab: str, ready: str, timeout: int = 30000) -> int:
+    """A processed tiny survey opened in the browser on ``tab``, once ``ready`` (a selector) is
+    on the page; returns the survey id."""
+    sid = _processed_survey(url, tmp_path)
+    page.goto(f"{url}/#survey={sid}&tab={tab}")
+    page.wait_for_selector(ready, timeout=timeout)
+    return sid
+
+
 def _run(c, sid):
     import time
     job = c.post(f"/api/surveys/{sid}/jobs", json={"kind": "process"}).json()
