@@ -51,7 +51,7 @@ import pandas as pd
 from pydantic import ValidationError
 
 from app.config import F_Z_UNIT_TO_MS2, SurveyConfig, check_name
-from app.core.geodesy import radii_of_curvature_m, vertical_velocity_from_heights_ms
+from app.core.geodesy import path_length_km, step_lengths_km, vertical_velocity_from_heights_ms
 from app.io.dgs import read_dgs, sniff_dat
 from app.io.errors import InputError
 from app.io.gfile import is_gfile_name, read_gfile
@@ -880,42 +880,6 @@ def _check_line_windows(name: str, fs: _FlightSeries, lines: pd.DataFrame, origi
 
 
 # --------------------------------------------------------------------------- QC summary
-
-
-def step_lengths_km(lat_deg, lon_deg, h_m=None) -> np.ndarray:
-    """Length of each step between consecutive positions, on the WGS84 ellipsoid (km).
-
-    Each step uses the radii of curvature at the mid-latitude (and mid-height):
-    ``ds² = ((R_M+h)·Δφ)² + ((R_N+h)·cos φ·Δλ)²`` — exact to second order for
-    the short steps of 1–20 Hz GNSS.  A longitude step across ±180° is taken the
-    short way.
-
-    Returns
-    -------
-    ndarray, shape (n − 1,)
-        Empty with fewer than two positions.
-    """
-    lat = np.asarray(lat_deg, dtype=float)
-    lon = np.asarray(lon_deg, dtype=float)
-    if lat.shape != lon.shape:
-        raise ValueError("lat_deg and lon_deg must have the same shape")
-    if lat.size < 2:
-        return np.zeros(0)
-    h = np.zeros_like(lat) if h_m is None else np.asarray(h_m, dtype=float)
-    phi = np.deg2rad(lat)
-    lam = np.unwrap(np.deg2rad(lon))
-    phim = 0.5 * (phi[1:] + phi[:-1])
-    hm = 0.5 * (h[1:] + h[:-1])
-    r_m, r_n = radii_of_curvature_m(np.rad2deg(phim))
-    dn = (r_m + hm) * np.diff(phi)
-    de = (r_n + hm) * np.cos(phim) * np.diff(lam)
-    return np.hypot(dn, de) / 1000.0
-
-
-def path_length_km(lat_deg, lon_deg, h_m=None) -> float:
-    """Length of a track through consecutive positions, on the WGS84 ellipsoid (km): the sum of
-    :func:`step_lengths_km`."""
-    return float(np.sum(step_lengths_km(lat_deg, lon_deg, h_m)))
 
 
 def _window_stats(t: np.ndarray, a, b) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
