@@ -187,6 +187,11 @@ class IntegratedSeries:
         """f'(t) = F'(t): smooth point value of the series (m/s²)."""
         return self.spline(np.asarray(t_s, dtype=float), 1)
 
+    @property
+    def step_s(self) -> float:
+        """Median sampling interval (s) of the series (its boundaries' spacing)."""
+        return float(np.median(np.diff(self.spline.x)))
+
 
 def integrate_samples(t_s, f, dejitter: bool = True) -> IntegratedSeries:
     """Build the cumulative-integral interpolant of an interval-mean series.
