@@ -458,6 +458,9 @@ class ProcessingParams(_Strict):
                                       "first three flights) and use the median when it differs from survey.toml's "
                                       "by more than this (s) and the flights agree within it; None trusts "
                                       "survey.toml")
+    lag_check_min_change_s: float = Field(0.02, gt=0, le=10, description="An in-flight τ closer to survey.toml's "
+                                          "than lag_check_s, but more than this (s) away, is used only when the band "
+                                          "check runs and confirms it (lag_check_min_improvement)")
     lag_check_min_improvement: float = Field(0.01, ge=0, lt=1, description="The in-flight τ of lag_check_s is used only "
                                              "when it also lowers the RMS of z by at least this share in the band just above "
                                              "FIR's cutoff (2–5 × 1/fir_cutoff_period_s), where the estimate "

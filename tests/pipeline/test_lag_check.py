@@ -46,3 +46,19 @@ def test_small_real_lag_error_is_still_applied(tmp_path):
     assert info["applied"] and abs(tau - 2.15) < 0.02
     assert info["band_rms_improvement"] > 0.2
     assert any("gravimeter lag" in w for w in warnings)
+
+
+def test_lag_error_below_lag_check_s_applied_when_the_band_confirms(tmp_path):
+    """A lag error of 0.04 s (declared 2.04, true 2.0): below ``lag_check_s`` (0.05 s), once
+    kept without a look; the band check now decides, and the true τ lowers z's band RMS."""
+    survey_dir = simulate_survey("tiny", tmp_path / "s", seed=7, tau_true_s=2.0, tau_declared_s=2.04)
+    survey = read_survey(survey_dir)
+    assert survey.config.gravimeter.tau_s == 2.04
+    warnings = []
+    tau, info = check_lag(survey, survey.config, warnings)
+    assert info["applied"] and abs(tau - 2.0) < 0.015
+    assert info["band_rms_improvement"] > 0.03
+    # the old rule (no band check below lag_check_s) kept the declared τ
+    old = survey.config.processing.model_copy(update={"lag_check_min_change_s": 0.05})
+    tau_old, info_old = check_lag(survey, survey.config.model_copy(update={"processing": old}), [])
+    assert tau_old is None and info_old["applied"] is False
