@@ -4,7 +4,9 @@ lift happens: unseen draw 1413 of ``benchmarks/bench_unseen.py`` with prism moun
 point-sampled platform gravimeter, 5 Hz GNSS with Gauss–Markov velocity noise, noise episodes
 up to 8×). The full-rate likelihood lifts the smooth level of both orders hundreds of times above
 the EM's, far above the stationary level (m = 1: 0.033 → 13.4 mGal², stationary 0.86): without
-the cap m = 1 is chosen and the survey is 1.12× FIR; with it, 0.77× (session 19)."""
+the cap m = 1 is chosen and the survey is 1.12× FIR; with it, 0.77× (session 19).  With the
+time offset fitted where a 1 Hz record carries the aircraft's acceleration (session 24) the lift
+still happens, but no longer costs: the cap is checked to engage and not to hurt."""
 
 import numpy as np
 import pandas as pd
@@ -52,5 +54,9 @@ def test_a_smooth_level_lifted_above_the_stationary_one_is_capped(tmp_path):
     err_capped = _rms_vs_truth(tmp_path / "capped", survey, "dg_mgal")
     err_lifted = _rms_vs_truth(tmp_path / "lifted", survey, "dg_mgal")
     err_fir = _rms_vs_truth(tmp_path / "capped", survey, "dg_fir_mgal")
-    assert err_capped < 0.85 * err_lifted     # measured 14.0 against 21.2 mGal (FIR 19.6)
-    assert err_capped < err_fir
+    # session 19: 14.0 against 21.2 mGal (FIR 19.6).  Since session 24 the time offset of this
+    # 1 Hz record is fitted below 0.4 Hz (its 0.05 s offset found on every flight) and the
+    # lifted estimate no longer passes the noise it did (14.0 against 14.0): the cap costs
+    # nothing where the lift is harmless
+    assert err_capped <= 1.02 * err_lifted
+    assert err_capped < 0.8 * err_fir
