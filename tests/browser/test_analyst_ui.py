@@ -123,6 +123,7 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     # the time stamps and the noise family's check against the FIR differences, with their evidence
     offsets = page.locator("#report-time-offsets tbody tr")
     assert "\t1.9\t" in offsets.nth(0).inner_text() and offsets.nth(0).locator("td").last.inner_text() == "yes"
+    assert "\t0.01–0.4\t" in offsets.nth(0).inner_text()        # the band the accelerations were compared in
     assert page.locator("#report-gnss-filled tbody tr").first.locator("td").last.inner_text() == "2"
     fc = page.inner_text("#report-family-check")
     assert fc.startswith("Coloured velocity checked against the FIR differences: changed — 21 differences")

@@ -42,6 +42,7 @@ def test_offset_of_1hz_interval_means_found_and_applied(platform_1hz):
     for flight in s.flights.values():
         info = measure_flight(flight, s.config).time_offset
         assert info["applied"], info
+        assert info["band_hz"] == pytest.approx([0.01, 0.4])      # the comparison band, reported
         # the offset to apply undoes the stamps' shift
         assert abs(info["offset_s"] + OFFSET_S) < max(2.5 * info["se_s"], 0.005), info
         assert info["se_s"] < 0.01

@@ -39,6 +39,7 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                    "decimated_points": int(len(df) // 10), "crossovers": 1},
         "time_offsets": {f: {"offset_s": -0.0503, "correlation": 0.9957, "applied": i == 0, "estimated": True,
                              "se_s": 0.0003, "residual_reduction": 0.70 if i == 0 else 0.004,
+                             "band_hz": [0.01, 0.4],
                              "reason": "significant and improves the fit" if i == 0 else
                              "improves the fit by less than 1 %",
                              # the stamps: the first flight's scattered like a logger's, the others a drifting clock

@@ -273,16 +273,15 @@ def time_offset(series, t, vu, tau: float, k: float, p, notes: list) -> dict:
     an offset a few ms from zero only trades one response mismatch for another."""
     if not p.estimate_time_offset:
         return {"estimated": False}
+    band = (0.01, acceleration_band_top_hz(float(np.median(np.diff(t))), series.step_s))
     try:
-        fit = gm.fit_time_offset(series, t, vu, tau, k, p.max_time_offset_s,
-                                 band_hz=(0.01, acceleration_band_top_hz(float(np.median(np.diff(t))),
-                                                                         series.step_s)))
+        fit = gm.fit_time_offset(series, t, vu, tau, k, p.max_time_offset_s, band_hz=band)
     except ValueError as exc:  # too short a flight, etc.
         notes.append(f"time offset not estimated: {exc}")
         return {"estimated": False}
     offset, corr = fit.offset_s, fit.correlation
     info = {"estimated": True, "offset_s": offset, "se_s": fit.se_s, "correlation": corr,
-            "residual_reduction": fit.relative_improvement}
+            "residual_reduction": fit.relative_improvement, "band_hz": [float(b) for b in band]}
     if not (np.isfinite(corr) and corr > 0.1):
         notes.append(f"the gravimeter's and the GNSS vertical accelerations do not match at any time offset "
                      f"within ±{p.max_time_offset_s:g} s (best correlation {corr:.2f}): the two files' time "

@@ -113,9 +113,11 @@ const RENDER = {
   base_ties: (v) => [perFlight(v, ["Tie applied", "Absolute", "Drift (mGal/h)", "Static periods", "Reading error (mGal)"], (b) => [
     yes(b.applied), yes(b.absolute), fmt(b.drift_mgal_per_h, 3), String((b.static_periods || []).length),
     (b.static_periods || []).map((p) => fmt(p.reading_error_mgal, 2)).join(", ") || "—"])],
-  time_offsets: (v) => [perFlight(v, ["Offset (s)", "Std. error (s)", "Correlation", "Residual reduction", "Applied", "Reason",
-    "Gravimeter stamp scatter (ms)", "GNSS stamp scatter (ms)", "GNSS stamps put on the clock"], (o) => [
-    fmt(o.offset_s, 4), fmt(o.se_s, 2), fmt(o.correlation, 4), pct(o.residual_reduction), yes(o.applied), o.reason || "—",
+  time_offsets: (v) => [perFlight(v, ["Offset (s)", "Std. error (s)", "Correlation", "Compared (Hz)", "Residual reduction",
+    "Applied", "Reason", "Gravimeter stamp scatter (ms)", "GNSS stamp scatter (ms)", "GNSS stamps put on the clock"], (o) => [
+    fmt(o.offset_s, 4), fmt(o.se_s, 2), fmt(o.correlation, 4),
+    Array.isArray(o.band_hz) ? `${fmt(o.band_hz[0], 2)}–${fmt(o.band_hz[1], 2)}` : "—",
+    pct(o.residual_reduction), yes(o.applied), o.reason || "—",
     fmt(o.gravimeter_stamp_jitter_ms, 2), fmt(o.gnss_stamp_jitter_ms, 2),
     o.gnss_stamps_dejittered === undefined ? "—" : (o.gnss_stamps_dejittered ? "yes"
       : (o.gnss_stamp_jitter_lag1 > 0.5 ? `no (correlated, lag-1 ${fmt(o.gnss_stamp_jitter_lag1, 2)}: a receiver clock)` : "no"))], { id: "report-time-offsets" })],
