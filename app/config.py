@@ -249,6 +249,11 @@ class ProcessingParams(_Strict):
                                      "this many standard errors")
     time_offset_min_improvement: float = Field(0.01, ge=0, lt=1, description="… and removes at least this share "
                                                "of the band-passed acceleration residual")
+    slow_gravimeter_min_ratio: float | None = Field(1.5, gt=1, le=100, description="A gravimeter whose sampling "
+                                                    "interval is at least this many GNSS steps is also tried with "
+                                                    "its motion cancelled at its own sample boundaries "
+                                                    "(app.core.gravimeter.motion_compensated_means), kept when z is "
+                                                    "quieter above the anomaly band; None never")
     # --- anomaly model
     m: int | None = Field(None, ge=1, le=3, description="Order of the difference operator ∇^m δg = q; None "
                           "chooses it from the data (model_order)")

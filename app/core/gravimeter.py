@@ -280,6 +280,75 @@ def interval_means(series: IntegratedSeries, t_epochs_s, tau_s: float = 0.0, sca
     return out
 
 
+def motion_compensated_means(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 0.0,
+                             scale: float = 1.0, time_offset_s: float = 0.0) -> np.ndarray:
+    """Interval means of ``f_g`` on the GNSS intervals for a gravimeter sampled **slower** than the
+    GNSS (m/s²), formed so that the aircraft's acceleration cancels before any interpolation.
+
+    :func:`interval_means` interpolates ``F = ∫ f' dt`` between the sample boundaries; when those
+    are farther apart than the GNSS epochs the spline cannot know how the aircraft's acceleration
+    (0.1–0.5 m/s² at 0.2–2 Hz) moved ``F`` inside a sample interval, and that interpolation error,
+    differenced on the GNSS intervals, is a velocity-like error of its own in ``z`` (on a 1 Hz
+    interval-mean record beside 10 Hz GNSS it was larger than the GNSS's velocity error).  Here
+    the difference ``D(t) = G(t) − V(t)`` — ``G = k·F + τ·f'`` the integral of ``f_g``, ``V`` the
+    GNSS vertical velocity — is formed where ``G`` is known exactly, at the sample boundaries
+    (``V`` there from the cubic spline through the GNSS velocities, which resolve the motion), and
+    only ``D`` (the integral of ``γ + δg − E`` and of the errors: smooth) is interpolated to the
+    epochs.  The returned means are ``ΔD/Δt + ΔV/Δt`` on ``(t_{k−1}, t_k]``, so that
+    :func:`app.core.measurement.anomaly_measurement_mgal`, which subtracts ``ΔV/Δt``, gets
+    ``z = ΔD/Δt − γ + E``.
+
+    Parameters
+    ----------
+    series : IntegratedSeries
+    t_epochs_s : ndarray, shape (n,)
+        GNSS epoch times (s), strictly increasing.
+    vu_ms : ndarray, shape (n,)
+        GNSS vertical velocity (m/s, up) at the epochs; NaN epochs are left out of its spline.
+    tau_s, scale, time_offset_s : float
+        As in :func:`interval_means`.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        NaN at the first epoch and outside the gravimeter's span (as :func:`interval_means`).
+    """
+    if tau_s < 0:
+        raise ValueError(f"tau_s must be >= 0, got {tau_s}")
+    if not scale > 0:
+        raise ValueError(f"scale must be > 0, got {scale}")
+    t = np.asarray(t_epochs_s, dtype=float)
+    v = np.asarray(vu_ms, dtype=float)
+    if t.shape != v.shape or t.ndim != 1:
+        raise ValueError("t_epochs_s and vu_ms must be 1-D arrays of the same length")
+    out = np.full(t.shape, np.nan)
+    ok_v = np.isfinite(v)
+    if t.size < 2 or ok_v.sum() < 4:
+        return out
+    b = series.spline.x                               # sample boundaries, gravimeter time
+    bg = b + float(time_offset_s)                     # … in GNSS time
+    tv = t[ok_v]
+    use = (bg >= tv[0]) & (bg <= tv[-1])
+    if use.sum() < 4:
+        return out
+    G = scale * series.integral(b[use])
+    if tau_s > 0:
+        G = G + tau_s * series.value(b[use])
+    D = G - CubicSpline(tv, v[ok_v])(bg[use])
+    te = t - float(time_offset_s)
+    # the outermost GNSS epochs may lie up to one sample interval beyond the boundaries used:
+    # D (smooth) is extrapolated that far
+    reach = series.step_s
+    inside = ((t >= bg[use][0] - reach) & (t <= bg[use][-1] + reach)
+              & (te >= series.t_first_s) & (te <= series.t_last_s))
+    Dt = CubicSpline(bg[use], D)(np.clip(t, bg[use][0] - reach, bg[use][-1] + reach))
+    dt = np.diff(t)
+    mean = (np.diff(Dt) + np.diff(v)) / dt
+    ok = inside[1:] & inside[:-1]
+    out[1:] = np.where(ok, mean, np.nan)
+    return out
+
+
 def apply_first_order_lag(t_s, f, tau_s: float, scale: float = 1.0, f0=None) -> np.ndarray:
     """Pass a finely, uniformly sampled signal through ``τ·ẏ + k·y = f``.
 
