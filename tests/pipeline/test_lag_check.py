@@ -62,3 +62,38 @@ def test_lag_error_below_lag_check_s_applied_when_the_band_confirms(tmp_path):
     old = survey.config.processing.model_copy(update={"lag_check_min_change_s": 0.05})
     tau_old, info_old = check_lag(survey, survey.config.model_copy(update={"processing": old}), [])
     assert tau_old is None and info_old["applied"] is False
+
+
+PLATFORM_10HZ = dict(gravimeter_model="AIRGrav", gravimeter_rate_hz=10.0, gravimeter_sampling="point",
+                     tau_declared_s=0.0, time_offset_s=0.0, gravimeter_clock="aligned", gnss_rate_hz=1.0,
+                     turbulence_spectrum="peaked", turbulence_peak_hz=0.6, turbulence_slopes=(3.0, 8.0),
+                     turbulence_rms_ms2=(0.3, 0.4), sigma_vu_cms=0.2)
+
+
+def test_undeclared_lag_taken_for_a_time_offset_is_declared_as_a_lag(tmp_path):
+    """A platform meter with an undeclared 0.1 s lag on 1 Hz GNSS: below 0.2 Hz, where the offset
+    is fitted, a lag is a delay, so the time offset took it (−0.097 s here, −0.08 to −0.09 s on
+    a generated survey) and the τ-only calibration, fitted after it, found none (−0.006 s).
+    Read as a lag, the offset lowers z's band RMS (8 %: the lag's damping of the turbulence,
+    averaged on the 1 s GNSS intervals, folds into the band), and τ ≈ 0.1 s is used.  (On 2 Hz
+    GNSS the two agree within 0.1 % and the offset stays.)"""
+    survey_dir = simulate_survey("tiny", tmp_path / "s", seed=11, tau_true_s=0.1, **PLATFORM_10HZ)
+    survey = read_survey(survey_dir)
+    warnings = []
+    tau, info = check_lag(survey, survey.config, warnings)
+    assert info["from_time_offsets"] and info["applied"], info
+    assert abs(tau - 0.1) < 0.015 and info["band_rms_improvement"] > 0.05
+    assert any("as a lag" in w for w in warnings)
+
+
+def test_a_real_shift_of_the_stamps_stays_an_offset(tmp_path):
+    """The same meter with no lag but its stamps 0.1 s late: the offset is a shift, and as a
+    lag it would damp the acceleration wrongly — the band check keeps it an offset."""
+    survey_dir = simulate_survey("tiny", tmp_path / "s", seed=11, tau_true_s=0.0,
+                                 **{**PLATFORM_10HZ, "time_offset_s": 0.1})
+    survey = read_survey(survey_dir)
+    tau, info = check_lag(survey, survey.config, [])
+    assert tau is None
+    lag = info["offset_as_lag"]                 # tried (the offset looks like a lag) and refused
+    assert not lag["applied"] and abs(lag["estimated_tau_s"][0] - 0.1) < 0.015, info
+    assert lag["band_rms_improvement"] < -0.1   # as a lag, z's band RMS rises (+36 %)

@@ -60,10 +60,14 @@ class FlightMeasurement:
     time_offset: dict = field(default_factory=dict)
     heights_only: bool = False        # the GNSS file had no vu (derived from the heights)
     gnss_filled: int = 0              # missing GNSS epochs put back (fill_gnss_epochs)
+    #: a gravimeter slower than the GNSS: z with the motion cancelled at its sample boundaries,
+    #: its spike repair and notes (:func:`slow_gravimeter_z`), until :func:`choose_motion_compensation`
+    #: decides for the survey
+    compensated: tuple | None = None
 
 
 def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
-                   scale: float | None = None) -> FlightMeasurement:
+                   scale: float | None = None, line_windows=None) -> FlightMeasurement:
     """Corrections and the anomaly measurement ``z_k`` (SPEC §1) for one whole flight.
 
     Parameters
@@ -72,6 +76,9 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     cfg : SurveyConfig
     tau_s, scale : float, optional
         Override the gravimeter lag and scale of ``survey.toml`` (in-flight calibration).
+    line_windows : ndarray, shape (n_lines, 2), optional
+        The flight's line windows (t_start, t_end in s): where a choice between two versions of
+        z is judged (:func:`slow_gravimeter_z`); the airborne epochs when not given.
     """
     p = cfg.processing
     tau = cfg.gravimeter.tau_s if tau_s is None else tau_s
@@ -138,10 +145,111 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     fbar = gm.interval_means(series, t, tau, k, time_offset_s=offset if applied else 0.0)
     z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
     mask_gaps(z, t, gr["time"].to_numpy(float) + (offset if applied else 0.0), p.gravimeter_gap_margin_s, notes)
-    z, despike = despike_z(z, t, p, notes, bool(getattr(flight, "vu_derived_from_h", False)), filled)
+    judged = np.hypot(ve, vn) > 20.0
+    if line_windows is not None and len(line_windows):
+        judged = np.zeros(t.size, bool)
+        for a, b in np.asarray(line_windows, float):
+            judged |= (t >= a) & (t <= b)
+    z_mc = slow_gravimeter_z(series, (t, vu, gamma, eot, judged), (tau, k, offset if applied else 0.0), z, p,
+                             offset_info)
+    vu_from_h = bool(getattr(flight, "vu_derived_from_h", False))
+    compensated = None
+    if z_mc is not None:
+        notes_mc = list(notes)
+        compensated = (*despike_z(z_mc, t, p, notes_mc, vu_from_h, filled), notes_mc)
+    z, despike = despike_z(z, t, p, notes, vu_from_h, filled)
     return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
                              float(offset), float(offset_info.get("correlation", np.nan)), applied, notes,
-                             despike, offset_info, bool(getattr(flight, "vu_derived_from_h", False)), n_filled)
+                             despike, offset_info, vu_from_h, n_filled, compensated)
+
+
+def slow_gravimeter_z(series: gm.IntegratedSeries, gnss: tuple, response: tuple, z: np.ndarray, p,
+                      info: dict) -> np.ndarray | None:
+    """z of a gravimeter sampled slower than the GNSS with the aircraft's motion cancelled at its
+    sample boundaries (:func:`app.core.gravimeter.motion_compensated_means`; None for a gravimeter
+    that is not slower, by ``p.slow_gravimeter_min_ratio`` GNSS steps), and the evidence for
+    :func:`choose_motion_compensation` in ``info['motion_compensation']`` (the report's
+    time_offsets entry of the flight).
+
+    Plain interval means (``z``) interpolate the gravimeter's integral between its sample
+    boundaries and so miss how the aircraft's acceleration moved it inside a sample (on a 1 Hz
+    mean record beside 10 Hz GNSS with 0.15 m/s² of turbulence: 1.4·10⁵ mGal²/Hz at
+    0.02–0.05 Hz, with no GNSS error at all); the compensated means cancel the motion at the
+    boundaries but sample the GNSS velocity there, which folds its error above the gravimeter's
+    Nyquist frequency into the anomaly band (heights differentiated at 10 Hz: worse than the
+    plain means).  Which is larger depends on the turbulence and on the GNSS, so the data
+    decide: the RMS of both versions at 1–2 × 1/``fir_cutoff_period_s`` Hz over the lines
+    (:func:`app.core.noise_level.band_rms_mgal`; the anomaly is the same in both and small there
+    beside either noise).  ``gnss`` = (t_s, vu_ms, gamma_mgal, eotvos_mgal, judged), ``judged``
+    the epochs compared on (the line windows: a turn's manoeuvres would rule the comparison),
+    ``response`` = (tau_s, scale, time_offset_s)."""
+    t, vu, gamma, eot, judged = gnss
+    dt = float(np.median(np.diff(t))) if t.size > 1 else float("nan")
+    ratio = p.slow_gravimeter_min_ratio
+    if ratio is None or not np.isfinite(dt) or series.step_s < ratio * dt:
+        return None
+    band = (1.0 / p.fir_cutoff_period_s, 2.0 / p.fir_cutoff_period_s)
+    rec = {"applied": False, "gravimeter_step_s": series.step_s, "gnss_step_s": dt, "band_hz": list(band),
+           "n_epochs": 0}
+    info["motion_compensation"] = rec
+    if not band[1] < 0.5 / dt:
+        rec["reason"] = "the comparison band is above the GNSS Nyquist frequency"
+        return None
+    tau, k, offset = response
+    z_mc = anomaly_measurement_mgal(gm.motion_compensated_means(series, t, vu, tau, k, time_offset_s=offset),
+                                    t, vu, gamma, eot)
+    z_mc[~np.isfinite(z)] = np.nan              # the plain record's gap mask
+    usable = judged & np.isfinite(z) & np.isfinite(z_mc)
+    (r0, n), (r1, _) = (band_rms_mgal(x, dt, band, usable=usable) for x in (z, z_mc))
+    rec.update({"band_rms_plain_mgal": r0, "band_rms_compensated_mgal": r1, "n_epochs": int(n)})
+    return z_mc
+
+
+def choose_motion_compensation(flights: dict, p) -> None:
+    """For the whole survey, in place: every flight of a gravimeter slower than the GNSS gets its
+    motion-compensated z (:func:`slow_gravimeter_z`) when that lowers z's band RMS, pooled over
+    the flights by their epochs, by ≥ 3 % over ≥ 10 FIR cut-off periods of lines; else all keep
+    the plain interval means.  One choice for all flights, not one each: the noise model is
+    shared by the flights, and a mixture fitted worse than either (simulated 1 Hz platform
+    survey: the compensated flights with a 300 s one left plain, 6.43 → 7.79 mGal), and a
+    300 s flight's band RMS scatters by more than 3 % alone."""
+    recs = [(m, m.time_offset.get("motion_compensation")) for m in flights.values()]
+    recs = [(m, r) for m, r in recs if r is not None]
+    if not recs:
+        return
+    ss0 = ss1 = 0.0
+    n = 0
+    dt = float(recs[0][1]["gnss_step_s"])
+    for m, r in recs:
+        if m.compensated is not None and r["n_epochs"] and np.isfinite(r["band_rms_plain_mgal"]) \
+                and np.isfinite(r["band_rms_compensated_mgal"]):
+            ss0 += r["band_rms_plain_mgal"] ** 2 * r["n_epochs"]
+            ss1 += r["band_rms_compensated_mgal"] ** 2 * r["n_epochs"]
+            n += r["n_epochs"]
+    band = recs[0][1]["band_hz"]
+    r0, r1 = (float(np.sqrt(x / n)) if n else float("nan") for x in (ss0, ss1))
+    if not n:
+        why = "no line long enough to compare the two"
+    elif n * dt < 10.0 * p.fir_cutoff_period_s:
+        why = (f"plain interval means kept: {n * dt:.0f} s of lines to compare the two on, fewer than "
+               f"{10.0 * p.fir_cutoff_period_s:.0f} s (10 FIR cut-off periods)")
+    elif r1 < 0.97 * r0:
+        why = ""
+    else:
+        why = (f"plain interval means kept: cancelling the motion at the sample boundaries would not lower z's "
+               f"RMS at {band[0]:g}–{band[1]:g} Hz by 3 % over the survey ({r0:.3g} → {r1:.3g} mGal; the GNSS "
+               "velocity's error folds into the band)")
+    for m, r in recs:
+        r.update({"survey_band_rms_plain_mgal": r0, "survey_band_rms_compensated_mgal": r1})
+        if why or m.compensated is None:
+            r.setdefault("reason", why or "not compared on this flight")
+            continue
+        m.z_mgal, m.despike, m.notes = m.compensated
+        r["applied"] = True
+        r["reason"] = (f"motion cancelled at the gravimeter's {r['gravimeter_step_s']:g} s sample boundaries: z's "
+                       f"RMS at {band[0]:g}–{band[1]:g} Hz over the survey {r0:.3g} → {r1:.3g} mGal")
+    for m in flights.values():
+        m.compensated = None                    # the unused version is not kept
 
 
 def dejitter_gnss(gn: pd.DataFrame, max_gap_s: float, vu_from_h: bool, notes: list) -> tuple[pd.DataFrame, dict]:
@@ -516,7 +624,7 @@ def airborne(m: FlightMeasurement, min_speed_ms: float = 20.0) -> np.ndarray:
 
 
 def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600.0,
-                         params: tuple = ("tau", "k")) -> dict:
+                         params: tuple = ("tau", "k"), measured: FlightMeasurement | None = None) -> dict:
     """In-flight calibration of τ and k (seed 001 §3–4) on one flight's longest airborne
     stretch without gaps, by frequency-domain weighted least squares.
 
@@ -529,7 +637,7 @@ def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600
     dict
         ``tau_s``, ``k``, their standard errors (from D_XX) and the segment used.
     """
-    m = measure_flight(flight, cfg)
+    m = measure_flight(flight, cfg) if measured is None else measured
     t = m.t_s
     dt = float(np.median(np.diff(t)))
     moving = airborne(m)
@@ -567,7 +675,8 @@ def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600
     return {"flight": flight.name, "t_start": float(tt[1]), "t_end": float(tt[-1]),
             "tau_s": float(res.tau_s), "k": float(res.k),
             "std": {n: float(v) for n, v in zip(names, np.asarray(res.std))},
-            "chi2_per_dof": float(getattr(res, "chi2_per_dof", np.nan))}
+            "chi2_per_dof": float(getattr(res, "chi2_per_dof", np.nan)),
+            "time_offset_s": float(off), "time_offset_applied": bool(m.time_offset_applied)}
 
 
 @dataclass
@@ -607,24 +716,38 @@ def check_lag(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, 
     189 mGal with it and 75 with the estimate, the noise fit's level 8× too high.  Returns
     (τ to use or None, evidence)."""
     p = cfg.processing
-    taus, names = [], []
+    taus, names, offsets, fitted = [], [], [], []
+    declared = {}        # each checked flight measured once with survey.toml's τ, for every check below
     for name in sorted(survey.flights)[:3]:
+        declared[name] = measure_flight(survey.flights[name], cfg)
         try:
-            tau = calibrate_gravimeter(survey.flights[name], cfg, params=("tau",))["tau_s"]
+            cal = calibrate_gravimeter(survey.flights[name], cfg, params=("tau",), measured=declared[name])
         except (ValueError, np.linalg.LinAlgError):
             continue
+        fitted.append(name)
+        offsets.append(cal["time_offset_s"] if cal["time_offset_applied"] else 0.0)
+        tau = cal["tau_s"]
         if np.isfinite(tau) and 0.0 <= tau <= MAX_TAU_S:   # else no lag: the fit failed
             taus.append(tau)
             names.append(name)
+    tau_lag, info_lag = offset_as_lag(survey, cfg, fitted, offsets, declared)
+    if tau_lag is not None and info_lag is not None:
+        warnings.append(f"gravimeter lag: survey.toml says τ = {cfg.gravimeter.tau_s:g} s; the flights' gravimeter "
+                        f"lags the GNSS by {tau_lag - cfg.gravimeter.tau_s:.3f} s more, and as a lag (not a shift "
+                        f"of the time stamps) it leaves z quieter: using τ = {tau_lag:.3f} s")
+        return tau_lag, info_lag
     if not taus:
-        return None, None
+        return None, ({"declared_tau_s": cfg.gravimeter.tau_s, "estimated_tau_s": [], "applied": False,
+                       "offset_as_lag": info_lag} if info_lag is not None else None)
     tau_est = float(np.median(taus))
     change = abs(tau_est - cfg.gravimeter.tau_s)
     small = change <= p.lag_check_s     # confirmed by the band check, or not used
     applied = change > min(p.lag_check_min_change_s, p.lag_check_s) and float(np.ptp(taus)) < p.lag_check_s
     info = {"declared_tau_s": cfg.gravimeter.tau_s, "estimated_tau_s": taus, "applied": applied}
+    if info_lag is not None:
+        info["offset_as_lag"] = info_lag       # tried and refused: the evidence
     if applied:
-        info.update(lag_band_check([survey.flights[n] for n in names], cfg, tau_est))
+        info.update(lag_band_check([survey.flights[n] for n in names], cfg, tau_est, [declared[n] for n in names]))
         gain = info["band_rms_improvement"]
         if not np.isfinite(gain) and small:
             applied = info["applied"] = False
@@ -644,7 +767,50 @@ def check_lag(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, 
     return tau_est, info
 
 
-def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float) -> dict:
+def offset_as_lag(survey, cfg: SurveyConfig, names: list, offsets: list,
+                  declared: dict | None = None) -> tuple[float | None, dict | None]:
+    """The flights' time offsets read as an undeclared lag: ``τ + median(−offset)`` (s) and the
+    evidence, or ``(None, None)`` when that does not leave z quieter.
+
+    A first-order lag τ delays the gravimeter by about τ where the time offset is fitted (below
+    0.2·f_GNSS), so the offset fit takes an undeclared lag for a shift of the stamps and the
+    τ-only calibration, fitted after it, finds nothing left.  But a shift is not a lag: above
+    the fitted band a lag also damps (at 0.6 Hz a 0.1 s lag passes 94 % of the aircraft's
+    acceleration and delays it 0.095 s, not 0.1), and that mismatch, 1–2·10³ mGal of heavy
+    turbulence, is averaged on the GNSS intervals and folded into the anomaly band.  A
+    generated survey with a 10 Hz platform meter's 0.098 s undeclared lag on 1 Hz GNSS got
+    offsets of −0.083 to −0.088 s; declared as a lag its estimate's error went 4.51 → 2.58 mGal
+    (FIR's 4.38 → 2.75).  Tried when every one of the flights (``names``, the first three)
+    has an applied offset of −0.02 to −0.5 s (the gravimeter late) and they agree within
+    ``lag_check_s``; used when the lag check's band test (:func:`lag_band_check`) finds z's
+    RMS lowered by ``lag_check_min_improvement`` — a real shift of the stamps (a logger's
+    latency) is left as an offset, since as a lag it would damp the acceleration wrongly."""
+    p = cfg.processing
+    if p.lag_check_s is None or not offsets or len(offsets) != len(names):
+        return None, None
+    late = [-o for o in offsets]
+    if not all(p.lag_check_min_change_s <= x <= 0.5 for x in late) or float(np.ptp(late)) > p.lag_check_s:
+        return None, None
+    tau_c = cfg.gravimeter.tau_s + float(np.median(late))
+    check = lag_band_check([survey.flights[n] for n in names], cfg, tau_c,
+                           [declared[n] for n in names] if declared else None)
+    info = {"declared_tau_s": cfg.gravimeter.tau_s, "estimated_tau_s": [cfg.gravimeter.tau_s + x for x in late],
+            "from_time_offsets": True, **check}
+    gain = check["band_rms_improvement"]
+    if not (np.isfinite(gain) and gain >= p.lag_check_min_improvement):
+        info["applied"] = False
+        info["reason"] = (f"the flights' time offsets read as a lag (τ = {tau_c:.3f} s) change z's RMS at "
+                          f"{check['band_hz'][0]:g}–{check['band_hz'][1]:g} Hz by {-100 * gain:+.1f} %: kept as "
+                          "offsets")
+        return None, info
+    info["applied"] = True
+    info["reason"] = (f"the flights' time offsets ({', '.join(f'{-x:+.3f}' for x in late)} s) read as a lag: "
+                      f"τ = {tau_c:.3f} s lowers z's RMS at {check['band_hz'][0]:g}–{check['band_hz'][1]:g} Hz by "
+                      f"{100 * gain:.1f} %")
+    return tau_c, info
+
+
+def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float, declared: list | None = None) -> dict:
     """Does the in-flight τ make z better where the anomaly is estimated?
 
     The τ-only calibration fits up to ``acceleration_band_top_hz``, where the response of
@@ -656,14 +822,17 @@ def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float) -> dict:
     declared 2.0: 78 → 33 mGal).  Compared on the flights the τ was estimated on, each with
     the time offset re-estimated for its τ: the RMS of z in 2–5 × 1/``fir_cutoff_period_s``
     Hz over the airborne stretches (:func:`app.core.noise_level.band_rms_mgal`), flights
-    pooled by their epochs.  The declared-τ pass repeats work :func:`measure` does again;
-    it runs only where the τ check would change τ (10 of 321 simulated surveys)."""
+    pooled by their epochs.  ``declared``: the flights already measured with survey.toml's τ
+    (:func:`check_lag` measures them once for all its checks), else measured here.  It runs
+    where the τ check would change τ (10 of 321 simulated surveys) and where the time offsets
+    may be a lag (:func:`offset_as_lag`)."""
     p = cfg.processing
     band = (2.0 / p.fir_cutoff_period_s, 5.0 / p.fir_cutoff_period_s)
     ss = {"declared": 0.0, "estimated": 0.0}
     n_tot = 0
-    for flight in flights:
-        m0, m1 = measure_flight(flight, cfg), measure_flight(flight, cfg, tau_s=tau_s)
+    for i, flight in enumerate(flights):
+        m0 = measure_flight(flight, cfg) if declared is None else declared[i]    # measured already
+        m1 = measure_flight(flight, cfg, tau_s=tau_s)
         dt = float(np.median(np.diff(m0.t_s)))
         if not band[1] < 0.5 / dt:
             continue
@@ -701,11 +870,17 @@ def measure(survey, progress=None) -> Measurement:
     flights, base_ties = {}, {}
     names = list(survey.flights)
     for i, name in enumerate(names):
-        flights[name] = measure_flight(survey.flights[name], cfg, tau_s=tau_s, scale=scale)
-        warnings.extend(f"flight {name}: {n}" for n in flights[name].notes)
-        base_ties[name] = base_tie(flights[name], cfg.gravimeter.base_gravity_mgal)
+        lw = None
+        if getattr(survey, "lines", None) is not None and len(survey.lines):
+            own = survey.lines[survey.lines["flight"] == name]
+            lw = own[["t_start", "t_end"]].to_numpy(float)
+        flights[name] = measure_flight(survey.flights[name], cfg, tau_s=tau_s, scale=scale, line_windows=lw)
         if progress is not None:
             progress((i + 1) / len(names))
+    choose_motion_compensation(flights, p)
+    for name in names:
+        warnings.extend(f"flight {name}: {n}" for n in flights[name].notes)
+        base_ties[name] = base_tie(flights[name], cfg.gravimeter.base_gravity_mgal)
     if not any(b.get("applied") and b.get("absolute") for b in base_ties.values()):
         why = ("no base_gravity_mgal in survey.toml" if cfg.gravimeter.base_gravity_mgal is None
                else "no static parking-place segment found in the flights")

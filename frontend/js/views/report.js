@@ -109,21 +109,33 @@ function spikeOutcome(d) {
     (ho.length > done.length ? ` (${ho.length - done.length} left: no finite window)` : "") + (list ? `: ${list}` : "");
 }
 
+/** A gravimeter slower than the GNSS: were its samples' motion cancelled, and z's band RMS both ways. */
+function motionCompensation(mc) {
+  if (!mc) return "— (gravimeter not slower than the GNSS)";
+  const band = Array.isArray(mc.band_hz) ? ` at ${fmt(mc.band_hz[0], 2)}–${fmt(mc.band_hz[1], 2)} Hz` : "";
+  const rms = Number.isFinite(mc.band_rms_plain_mgal) && Number.isFinite(mc.band_rms_compensated_mgal)
+    ? ` (z's RMS${band}: ${fmt(mc.band_rms_plain_mgal, 3)} plain, ${fmt(mc.band_rms_compensated_mgal, 3)} cancelled, mGal)` : "";
+  return (mc.applied ? "yes" : "no") + rms + (mc.applied || rms ? "" : ` — ${mc.reason || "not compared"}`);
+}
+
 const RENDER = {
   base_ties: (v) => [perFlight(v, ["Tie applied", "Absolute", "Drift (mGal/h)", "Static periods", "Reading error (mGal)"], (b) => [
     yes(b.applied), yes(b.absolute), fmt(b.drift_mgal_per_h, 3), String((b.static_periods || []).length),
     (b.static_periods || []).map((p) => fmt(p.reading_error_mgal, 2)).join(", ") || "—"])],
   time_offsets: (v) => [perFlight(v, ["Offset (s)", "Std. error (s)", "Correlation", "Compared (Hz)", "Residual reduction",
-    "Applied", "Reason", "Gravimeter stamp scatter (ms)", "GNSS stamp scatter (ms)", "GNSS stamps put on the clock"], (o) => [
+    "Applied", "Reason", "Gravimeter stamp scatter (ms)", "GNSS stamp scatter (ms)", "GNSS stamps put on the clock",
+    "Motion cancelled at the gravimeter's samples"], (o) => [
     fmt(o.offset_s, 4), fmt(o.se_s, 2), fmt(o.correlation, 4),
     Array.isArray(o.band_hz) ? `${fmt(o.band_hz[0], 2)}–${fmt(o.band_hz[1], 2)}` : "—",
     pct(o.residual_reduction), yes(o.applied), o.reason || "—",
     fmt(o.gravimeter_stamp_jitter_ms, 2), fmt(o.gnss_stamp_jitter_ms, 2),
     o.gnss_stamps_dejittered === undefined ? "—" : (o.gnss_stamps_dejittered ? "yes"
-      : (o.gnss_stamp_jitter_lag1 > 0.5 ? `no (correlated, lag-1 ${fmt(o.gnss_stamp_jitter_lag1, 2)}: a receiver clock)` : "no"))], { id: "report-time-offsets" })],
+      : (o.gnss_stamp_jitter_lag1 > 0.5 ? `no (correlated, lag-1 ${fmt(o.gnss_stamp_jitter_lag1, 2)}: a receiver clock)` : "no")),
+    motionCompensation(o.motion_compensation)], { id: "report-time-offsets" })],
   gnss_filled_epochs: (v) => [perFlight(v, ["Missing GNSS epochs put back on the clock"], (n) => [String(n)], { id: "report-gnss-filled" })],
-  lag_check: (v) => [table(["Declared τ (s)", "Estimated τ per flight (s)", "Applied"],
-    [[fmt(v.declared_tau_s, 4), (v.estimated_tau_s || []).map((x) => fmt(x, 4)).join(", "), yes(v.applied)]])],
+  lag_check: (v) => [table(["Declared τ (s)", "Estimated τ per flight (s)", "Applied", "Reason"],
+    [[fmt(v.declared_tau_s, 4), (v.estimated_tau_s || []).map((x) => fmt(x, 4)).join(", "), yes(v.applied),
+      v.reason || (v.offset_as_lag && v.offset_as_lag.reason) || "—"]], { id: "report-lag-check" })],
   spike_repair: (v) => [perFlight(v, ["Flagged epochs", "Fraction", "Epochs", "Threshold (robust σ)", "Outcome"], (d) => [
     String(d.flagged ?? "—"), pct(d.fraction), String(d.epochs ?? "—"), fmt(d.threshold, 3),
     spikeOutcome(d)])],
