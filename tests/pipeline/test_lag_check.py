@@ -70,6 +70,13 @@ PLATFORM_10HZ = dict(gravimeter_model="AIRGrav", gravimeter_rate_hz=10.0, gravim
                      turbulence_rms_ms2=(0.3, 0.4), sigma_vu_cms=0.2)
 
 
+def test_offsets_are_not_read_as_a_lag_by_default(tmp_path):
+    survey_dir = simulate_survey("tiny", tmp_path / "s", seed=11, tau_true_s=0.1, **PLATFORM_10HZ)
+    survey = read_survey(survey_dir)
+    tau, info = check_lag(survey, survey.config, [])
+    assert tau is None and (info is None or "offset_as_lag" not in info)
+
+
 def test_undeclared_lag_taken_for_a_time_offset_is_declared_as_a_lag(tmp_path):
     """A platform meter with an undeclared 0.1 s lag on 1 Hz GNSS: below 0.2 Hz, where the offset
     is fitted, a lag is a delay, so the time offset took it (−0.097 s here, −0.08 to −0.09 s on
@@ -78,7 +85,7 @@ def test_undeclared_lag_taken_for_a_time_offset_is_declared_as_a_lag(tmp_path):
     averaged on the 1 s GNSS intervals, folds into the band), and τ ≈ 0.1 s is used.  (On 2 Hz
     GNSS the two agree within 0.1 % and the offset stays.)"""
     survey_dir = simulate_survey("tiny", tmp_path / "s", seed=11, tau_true_s=0.1, **PLATFORM_10HZ)
-    survey = read_survey(survey_dir)
+    survey = read_survey(survey_dir, {"lag_from_time_offsets": True})
     warnings = []
     tau, info = check_lag(survey, survey.config, warnings)
     assert info["from_time_offsets"] and info["applied"], info
@@ -91,7 +98,7 @@ def test_a_real_shift_of_the_stamps_stays_an_offset(tmp_path):
     lag it would damp the acceleration wrongly — the band check keeps it an offset."""
     survey_dir = simulate_survey("tiny", tmp_path / "s", seed=11, tau_true_s=0.0,
                                  **{**PLATFORM_10HZ, "time_offset_s": 0.1})
-    survey = read_survey(survey_dir)
+    survey = read_survey(survey_dir, {"lag_from_time_offsets": True})
     tau, info = check_lag(survey, survey.config, [])
     assert tau is None
     lag = info["offset_as_lag"]                 # tried (the offset looks like a lag) and refused

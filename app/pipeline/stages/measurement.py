@@ -784,9 +784,11 @@ def offset_as_lag(survey, cfg: SurveyConfig, names: list, offsets: list,
     has an applied offset of −0.02 to −0.5 s (the gravimeter late) and they agree within
     ``lag_check_s``; used when the lag check's band test (:func:`lag_band_check`) finds z's
     RMS lowered by ``lag_check_min_improvement`` — a real shift of the stamps (a logger's
-    latency) is left as an offset, since as a lag it would damp the acceleration wrongly."""
+    latency) is left as an offset, since as a lag it would damp the acceleration wrongly.
+    Only with ``lag_from_time_offsets`` (off by default: on the 4-pass test line the lag it
+    finds, right as it is, lets the repeat passes narrow the std below the error they share)."""
     p = cfg.processing
-    if p.lag_check_s is None or not offsets or len(offsets) != len(names):
+    if not p.lag_from_time_offsets or p.lag_check_s is None or not offsets or len(offsets) != len(names):
         return None, None
     late = [-o for o in offsets]
     if not all(p.lag_check_min_change_s <= x <= 0.5 for x in late) or float(np.ptp(late)) > p.lag_check_s:
