@@ -67,7 +67,7 @@ class FlightMeasurement:
 
 
 def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
-                   scale: float | None = None, line_windows=None) -> FlightMeasurement:
+                   scale: float | None = None, line_windows=None, compensation: bool = True) -> FlightMeasurement:
     """Corrections and the anomaly measurement ``z_k`` (SPEC §1) for one whole flight.
 
     Parameters
@@ -79,6 +79,10 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     line_windows : ndarray, shape (n_lines, 2), optional
         The flight's line windows (t_start, t_end in s): where a choice between two versions of
         z is judged (:func:`slow_gravimeter_z`); the airborne epochs when not given.
+    compensation : bool
+        Also form the motion-compensated z of a slow gravimeter for :func:`choose_motion_compensation`
+        (only :func:`measure` uses it; the lag and calibration checks, which compare plain z
+        with plain z, skip that work).
     """
     p = cfg.processing
     tau = cfg.gravimeter.tau_s if tau_s is None else tau_s
@@ -150,8 +154,8 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
         judged = np.zeros(t.size, bool)
         for a, b in np.asarray(line_windows, float):
             judged |= (t >= a) & (t <= b)
-    z_mc = slow_gravimeter_z(series, (t, vu, gamma, eot, judged), (tau, k, offset if applied else 0.0), z, p,
-                             offset_info)
+    z_mc = (slow_gravimeter_z(series, (t, vu, gamma, eot, judged), (tau, k, offset if applied else 0.0), z, p,
+                              offset_info) if compensation else None)
     vu_from_h = bool(getattr(flight, "vu_derived_from_h", False))
     compensated = None
     if z_mc is not None:
@@ -637,7 +641,7 @@ def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600
     dict
         ``tau_s``, ``k``, their standard errors (from D_XX) and the segment used.
     """
-    m = measure_flight(flight, cfg) if measured is None else measured
+    m = measure_flight(flight, cfg, compensation=False) if measured is None else measured
     t = m.t_s
     dt = float(np.median(np.diff(t)))
     moving = airborne(m)
@@ -719,8 +723,8 @@ def check_lag(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, 
     taus, names, offsets, fitted = [], [], [], []
     declared = {}        # each checked flight measured once with survey.toml's τ, for every check below
     for name in sorted(survey.flights)[:3]:
-        declared[name] = measure_flight(survey.flights[name], cfg)
         try:
+            declared[name] = measure_flight(survey.flights[name], cfg, compensation=False)
             cal = calibrate_gravimeter(survey.flights[name], cfg, params=("tau",), measured=declared[name])
         except (ValueError, np.linalg.LinAlgError):
             continue
@@ -833,8 +837,8 @@ def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float, declared: lis
     ss = {"declared": 0.0, "estimated": 0.0}
     n_tot = 0
     for i, flight in enumerate(flights):
-        m0 = measure_flight(flight, cfg) if declared is None else declared[i]    # measured already
-        m1 = measure_flight(flight, cfg, tau_s=tau_s)
+        m0 = measure_flight(flight, cfg, compensation=False) if declared is None else declared[i]  # measured already
+        m1 = measure_flight(flight, cfg, tau_s=tau_s, compensation=False)
         dt = float(np.median(np.diff(m0.t_s)))
         if not band[1] < 0.5 / dt:
             continue
