@@ -20,6 +20,8 @@ Nyquist frequency, and the smoother works at low frequency.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
@@ -189,28 +191,32 @@ def _band_regression(y, ok, regressor_mgal, sos, padlen: int, lags: int) -> np.n
     return out
 
 
-def _band_passed(z: np.ndarray, dt_s: float, sos: np.ndarray, edge: int) -> np.ndarray:
+def _band_passed(z: np.ndarray, dt_s: float, sos: np.ndarray, edge: int,
+                 order: int | None = None) -> tuple[np.ndarray, int]:
     """``sos`` (zero phase) applied to a stretch of z directly, through its integral and
     through its double integral (each with a polynomial of its order removed, the result
     differentiated back; see :func:`band_rms_mgal`): of the three, the one with the least
-    power inside ``edge`` samples of the ends, shape of z.  Ringing from the ends only adds
-    power, and the way in with the smoothest ends is the one with the least."""
+    power inside ``edge`` samples of the ends, shape of z, and its integration order (0–2).
+    Ringing from the ends only adds power, and the way in with the smoothest ends is the one
+    with the least.  ``order`` forces one way in (the same linear filter for a second series)."""
     from scipy.signal import sosfiltfilt
 
     x = np.arange(z.size) * dt_s
     u = z - np.mean(z)
-    best, best_ss = None, np.inf
-    for k in range(3):
+    best, best_ss, best_k = None, np.inf, 0
+    for k in range(3 if order is None else order + 1):
         if k:
             u = np.cumsum(u) * dt_s
             u = u - np.polyval(np.polyfit(x, u, k), x)
+        if order is not None and k != order:
+            continue
         y = sosfiltfilt(sos, u)
         for _ in range(k):
             y = np.gradient(y, dt_s)
         ss = float(np.sum(y[edge:z.size - edge] ** 2))
         if ss < best_ss:
-            best, best_ss = y, ss
-    return best
+            best, best_ss, best_k = y, ss, k
+    return best, best_k
 
 
 def band_rms_mgal(z_mgal, dt_s: float, band_hz: tuple[float, float], usable=None,
@@ -268,7 +274,92 @@ def band_rms_mgal(z_mgal, dt_s: float, band_hz: tuple[float, float], usable=None
     for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
         if b - a < max(3 * edge, 16):
             continue
-        y = _band_passed(z[a:b], dt_s, sos, edge)[edge:b - a - edge]
+        y = _band_passed(z[a:b], dt_s, sos, edge)[0][edge:b - a - edge]
         total += float(np.sum(y * y))
         n += y.size
     return (float(np.sqrt(total / n)) if n else float("nan")), n
+
+
+class BandFit(NamedTuple):
+    """Least-squares fit ``y ≈ −c·x`` of two records inside one frequency band
+    (:func:`band_fit_coefficient`)."""
+
+    coef: float              #: c, in y's unit per x's unit: ``y + c·x`` has the least band power
+    se: float                #: its standard error (the band's few independent samples counted)
+    rms_before_mgal: float   #: band RMS of y
+    rms_after_mgal: float    #: band RMS of ``y + c·x``
+    n_epochs: int            #: epochs the fit is taken over
+    dof: float               #: independent samples in the band, ``2·(f2 − f1)·T``
+
+
+def band_fit_coefficient(y_mgal, x, dt_s: float, band_hz: tuple[float, float], usable=None,
+                         edge_s: float = 100.0) -> BandFit:
+    """How much of a known regressor ``x`` a record ``y`` holds inside a frequency band.
+
+    Both records go through the same linear filter, stretch by stretch (as in
+    :func:`band_rms_mgal`: zero-phase Butterworth band-pass, entered directly or through the
+    stretch's first or second integral — whichever leaves y the least power, the same way for
+    x — and ``edge_s`` left out at both ends), and ``c = −Σ y_b x_b / Σ x_b²``.  The standard
+    error counts the band's independent samples, ``ν = 2·(f2 − f1)·T`` over the total duration
+    ``T`` of the stretches, not the epochs: ``se² = mean(r²)/mean(x_b²)/ν`` with ``r = y_b + c·x_b``.
+
+    Used with ``y = z`` and ``x = ∂z/∂τ`` (the gravimeter's jerk): the lag that leaves the
+    aircraft's motion out of z where the anomaly is estimated.
+
+    Parameters
+    ----------
+    y_mgal, x : ndarray, shape (n,)
+        The record (mGal) and the regressor (any unit) on the same uniform time step.
+    dt_s : float
+        Time step (s).
+    band_hz : (float, float)
+        Pass band (Hz), ``0 < f1 < f2 <`` Nyquist.
+    usable : ndarray of bool, shape (n,), optional
+        Epochs that may be used (both records finite there as well).
+    edge_s : float
+        Time left out at each end of every stretch (s).
+
+    Returns
+    -------
+    BandFit
+        NaN coefficient and error when no stretch is long enough or x has no band power.
+    """
+    from scipy.signal import butter
+
+    y = _check_series(y_mgal, dt_s, 1)
+    xr = np.asarray(x, dtype=float)
+    if xr.shape != y.shape:
+        raise ValueError(f"x has shape {xr.shape}, y_mgal {y.shape}")
+    f1, f2 = float(band_hz[0]), float(band_hz[1])
+    if not 0 < f1 < f2 < 0.5 / dt_s:
+        raise ValueError(f"band_hz must satisfy 0 < f1 < f2 < Nyquist ({0.5 / dt_s} Hz), got {band_hz}")
+    ok = np.isfinite(y) & np.isfinite(xr)
+    if usable is not None:
+        u = np.asarray(usable, dtype=bool)
+        if u.shape != y.shape:
+            raise ValueError(f"usable has shape {u.shape}, y_mgal {y.shape}")
+        ok &= u
+    edge = int(round(edge_s / dt_s))
+    d = np.diff(np.concatenate([[0], ok.astype(np.int8), [0]]))
+    sos = butter(4, (f1, f2), btype="bandpass", fs=1.0 / dt_s, output="sos")
+    syy = sxy = sxx = 0.0
+    n = 0
+    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+        if b - a < max(3 * edge, 16):
+            continue
+        yb, k = _band_passed(y[a:b], dt_s, sos, edge)
+        xb, _ = _band_passed(xr[a:b], dt_s, sos, edge, order=k)
+        yb, xb = yb[edge:b - a - edge], xb[edge:b - a - edge]
+        syy += float(yb @ yb)
+        sxy += float(yb @ xb)
+        sxx += float(xb @ xb)
+        n += yb.size
+    nan = float("nan")
+    if not n or not sxx > 0:
+        return BandFit(nan, nan, float(np.sqrt(syy / n)) if n else nan, nan, n, 0.0)
+    c = -sxy / sxx
+    ss_after = max(syy - sxy * sxy / sxx, 0.0)
+    dof = 2.0 * (f2 - f1) * n * dt_s
+    se = float(np.sqrt(ss_after / sxx / max(dof - 1.0, 1.0)))
+    return BandFit(float(c), se, float(np.sqrt(syy / n)), float(np.sqrt(ss_after / n)), n, float(dof))
+

@@ -140,6 +140,7 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
         "Anomaly in the fit: random walk of order 2 × exp(−β f), β = 148.9 s")
     lag = page.locator("#report-lag-check tbody tr").first.locator("td")
     assert lag.last.inner_text().startswith("the flights' time offsets read as a lag (τ = 2.050 s)")
+    assert lag.nth(2).inner_text() == "not used (first fit Δτ -0.4 ± 1.1 ms)"
     for key in ("base_ties", "time_offsets", "lag_check", "spike_repair", "crossovers", "noise_model", "model_order",
                 "model_choice", "future_section", "counts"):
         assert page.locator(f"#report-sec-{key}").count() == 1, key

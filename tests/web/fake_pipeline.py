@@ -101,7 +101,11 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
         "lag_check": {"declared_tau_s": 2.0, "estimated_tau_s": [1.9995, 1.9990, 1.9992], "applied": False,
                       "offset_as_lag": {"applied": False, "from_time_offsets": True,
                                         "reason": "the flights' time offsets read as a lag (τ = 2.050 s) change z's "
-                                                  "RMS at 0.02–0.05 Hz by +0.6 %: kept as offsets"}},
+                                                  "RMS at 0.02–0.05 Hz by +0.6 %: kept as offsets"},
+                      "band_fit": {"applied": False, "from_band_fit": True, "declared_tau_s": 2.0,
+                                   "iterations": [{"tau_s": 2.0, "dtau_s": -0.0004, "se_s": 0.0011}],
+                                   "reason": "survey.toml's τ fits the band: Δτ -0.0004 s within 3 standard "
+                                             "errors (0.0011 s)"}},
         # as the real stage 9 writes it when the FIR guard fired (unseen seed 88's figures)
         "model_choice": {"chosen": "FIR", "m": 2, "noisy_check": {"applied": False},
                          # unseen 1301's order choice: m = 1 not significantly better, the blend

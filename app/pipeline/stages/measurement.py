@@ -32,7 +32,7 @@ from app.core.measurement import (
     repair_spikes,
     spike_mask,
 )
-from app.core.noise_level import band_rms_mgal, local_noise_variance_cm2s2
+from app.core.noise_level import band_fit_coefficient, band_rms_mgal, local_noise_variance_cm2s2
 from app.io.survey import gnss_runs
 
 
@@ -64,6 +64,9 @@ class FlightMeasurement:
     #: its spike repair and notes (:func:`slow_gravimeter_z`), until :func:`choose_motion_compensation`
     #: decides for the survey
     compensated: tuple | None = None
+    #: ∂z/∂τ (mGal/s): how z moves with the lag τ (the gravimeter's jerk on the GNSS intervals;
+    #: z is linear in τ at a fixed time offset), for :func:`band_lag`
+    dz_dtau_mgal_s: np.ndarray | None = None
 
 
 def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
@@ -148,6 +151,7 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     applied = bool(offset_info.get("applied", False))
     fbar = gm.interval_means(series, t, tau, k, time_offset_s=offset if applied else 0.0)
     z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
+    dz_dtau = 1e5 * (gm.interval_means(series, t, tau + 1.0, k, time_offset_s=offset if applied else 0.0) - fbar)
     mask_gaps(z, t, gr["time"].to_numpy(float) + (offset if applied else 0.0), p.gravimeter_gap_margin_s, notes)
     judged = np.hypot(ve, vn) > 20.0
     if line_windows is not None and len(line_windows):
@@ -164,7 +168,7 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     z, despike = despike_z(z, t, p, notes, vu_from_h, filled)
     return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
                              float(offset), float(offset_info.get("correlation", np.nan)), applied, notes,
-                             despike, offset_info, vu_from_h, n_filled, compensated)
+                             despike, offset_info, vu_from_h, n_filled, compensated, dz_dtau)
 
 
 def slow_gravimeter_z(series: gm.IntegratedSeries, gnss: tuple, response: tuple, z: np.ndarray, p,
@@ -740,14 +744,27 @@ def check_lag(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, 
                         f"lags the GNSS by {tau_lag - cfg.gravimeter.tau_s:.3f} s more, and as a lag (not a shift "
                         f"of the time stamps) it leaves z quieter: using τ = {tau_lag:.3f} s")
         return tau_lag, info_lag
+    tau_band, info_band = band_lag(survey, cfg, fitted, declared)
+    if tau_band is not None:
+        info_band.update({"estimated_tau_s": taus, "offset_as_lag": info_lag} if info_lag is not None
+                         else {"estimated_tau_s": taus})
+        warnings.append(f"gravimeter lag: survey.toml says τ = {cfg.gravimeter.tau_s:g} s; in the band where the "
+                        f"anomaly is estimated the flights say {tau_band:.3f} s ({info_band['reason']}): using "
+                        f"{tau_band:.3f} s")
+        return tau_band, info_band
     if not taus:
-        return None, ({"declared_tau_s": cfg.gravimeter.tau_s, "estimated_tau_s": [], "applied": False,
-                       "offset_as_lag": info_lag} if info_lag is not None else None)
+        if info_lag is None and info_band is None:
+            return None, None
+        info = {"declared_tau_s": cfg.gravimeter.tau_s, "estimated_tau_s": [], "applied": False}
+        info.update({k: v for k, v in (("offset_as_lag", info_lag), ("band_fit", info_band)) if v is not None})
+        return None, info
     tau_est = float(np.median(taus))
     change = abs(tau_est - cfg.gravimeter.tau_s)
     small = change <= p.lag_check_s     # confirmed by the band check, or not used
     applied = change > min(p.lag_check_min_change_s, p.lag_check_s) and float(np.ptp(taus)) < p.lag_check_s
     info = {"declared_tau_s": cfg.gravimeter.tau_s, "estimated_tau_s": taus, "applied": applied}
+    if info_band is not None:
+        info["band_fit"] = info_band           # tried and refused: the evidence
     if info_lag is not None:
         info["offset_as_lag"] = info_lag       # tried and refused: the evidence
     if applied:
@@ -769,6 +786,97 @@ def check_lag(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, 
     warnings.append(f"gravimeter lag: survey.toml says τ = {cfg.gravimeter.tau_s:g} s, the flights say "
                     f"{tau_est:.3f} s (estimates {', '.join(f'{v:.3f}' for v in taus)}); using {tau_est:.3f} s")
     return tau_est, info
+
+
+def _pooled_band_fit(measured: list, band: tuple) -> dict:
+    """The flights' band fits of z on ∂z/∂τ (:func:`app.core.noise_level.band_fit_coefficient`,
+    airborne epochs) pooled by inverse variance: Δτ (s), its standard error, z's band RMS
+    before and after (mGal, pooled by epochs) and each flight's own fit."""
+    w = wc = ss0 = ss1 = 0.0
+    n_tot = 0
+    per = {}
+    for m in measured:
+        dt = float(np.median(np.diff(m.t_s)))
+        if m.dz_dtau_mgal_s is None or not band[1] < 0.5 / dt:
+            continue
+        f = band_fit_coefficient(m.z_mgal, m.dz_dtau_mgal_s, dt, band, usable=airborne(m))
+        if not (np.isfinite(f.coef) and f.se > 0):
+            continue
+        per[m.flight] = {"dtau_s": f.coef, "se_s": f.se, "dof": f.dof}
+        w += 1.0 / f.se ** 2
+        wc += f.coef / f.se ** 2
+        ss0 += f.rms_before_mgal ** 2 * f.n_epochs
+        ss1 += f.rms_after_mgal ** 2 * f.n_epochs
+        n_tot += f.n_epochs
+    if not w:
+        return {"dtau_s": float("nan"), "se_s": float("nan"), "n_epochs": 0, "flights": per}
+    return {"dtau_s": wc / w, "se_s": float(w ** -0.5), "rms_before_mgal": float(np.sqrt(ss0 / n_tot)),
+            "rms_after_mgal": float(np.sqrt(ss1 / n_tot)), "n_epochs": n_tot, "flights": per}
+
+
+def band_lag(survey, cfg: SurveyConfig, names: list, declared: dict,
+             max_iterations: int = 5) -> tuple[float | None, dict | None]:
+    """τ fitted where the anomaly is estimated: the lag whose z holds the least of the
+    gravimeter's jerk in the band just above FIR's cutoff (2–5 × 1/``fir_cutoff_period_s`` Hz).
+
+    z is linear in τ at a fixed time offset (``∂z/∂τ`` = the gravimeter's jerk on the GNSS
+    intervals), so the band's least-squares τ is one regression per flight
+    (:func:`app.core.noise_level.band_fit_coefficient`), pooled over the checked flights.  The
+    time offset is fitted after τ (0.01 Hz up to the GNSS band's top) and takes up part of a lag
+    error, so the fit is repeated with each new τ (the flights measured again, their offsets
+    re-fitted) until its change is within ``lag_band_fit_z`` standard errors.  The wideband τ
+    fit of :func:`calibrate_gravimeter` weighs the response above 0.1 Hz, where the records
+    (interval means, heights differenced twice) differ from a first-order lag, and the offset
+    with it: on a generated GT-1A survey (declared 2.07 s, true 2.009 s, a 35 s phugoid of 0.2
+    m/s²) it gave 2.022 s, and z's RMS at 0.02–0.05 Hz stayed 75 mGal — its estimate 1.31×
+    FIR's error; the band fit gave 2.0087 s (51 mGal, the GNSS's own noise there).
+    Used when the first fit is significant, the result lies in 0–``MAX_TAU_S``, and z's band RMS
+    (re-measured, :func:`lag_band_check`) is lower by ``lag_check_min_improvement``.  Returns
+    (τ or None, evidence or None when not tried)."""
+    p = cfg.processing
+    if not p.lag_band_fit or not names:
+        return None, None
+    band = (2.0 / p.fir_cutoff_period_s, 5.0 / p.fir_cutoff_period_s)
+    tau0 = cfg.gravimeter.tau_s
+    fit = _pooled_band_fit([declared[n] for n in names], band)
+    info = {"declared_tau_s": tau0, "band_hz": list(band), "iterations": [{"tau_s": tau0, **fit}],
+            "applied": False, "from_band_fit": True}
+    if not fit["n_epochs"]:
+        info["reason"] = "no airborne stretch long enough for the band fit"
+        return None, info
+    if not abs(fit["dtau_s"]) > p.lag_band_fit_z * fit["se_s"]:
+        info["reason"] = (f"survey.toml's τ fits the band: Δτ {fit['dtau_s']:+.4f} s within "
+                          f"{p.lag_band_fit_z:g} standard errors ({fit['se_s']:.4f} s)")
+        return None, info
+    tau = tau0
+    for _ in range(max_iterations):
+        tau = tau + fit["dtau_s"]
+        if not 0.0 <= tau <= MAX_TAU_S:
+            info["reason"] = f"the band fit leaves the lag's range (τ = {tau:.3f} s)"
+            return None, info
+        try:
+            measured = [measure_flight(survey.flights[n], cfg, tau_s=tau, compensation=False) for n in names]
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            info["reason"] = f"a flight could not be measured at τ = {tau:.3f} s: {exc}"
+            return None, info
+        fit = _pooled_band_fit(measured, band)
+        info["iterations"].append({"tau_s": tau, **fit})
+        if not fit["n_epochs"] or abs(fit["dtau_s"]) <= p.lag_band_fit_z * fit["se_s"]:
+            break
+    info["band_fit_tau_s"] = tau
+    check = lag_band_check([survey.flights[n] for n in names], cfg, tau, [declared[n] for n in names])
+    info.update(check)
+    gain = check["band_rms_improvement"]
+    if not (np.isfinite(gain) and gain >= p.lag_check_min_improvement):
+        info["reason"] = (f"the band-fitted τ {tau:.4f} s changes z's RMS at {band[0]:g}–{band[1]:g} Hz by "
+                          f"{-100 * gain:+.1f} % (needs −{100 * p.lag_check_min_improvement:g} %): survey.toml's "
+                          "τ kept")
+        return None, info
+    info["applied"] = True
+    info["reason"] = (f"Δτ {tau - tau0:+.4f} s, {abs(info['iterations'][0]['dtau_s']) / info['iterations'][0]['se_s']:.0f}"
+                      f" standard errors at the first fit; z's RMS at {band[0]:g}–{band[1]:g} Hz "
+                      f"{check['band_rms_declared_mgal']:.1f} → {check['band_rms_estimated_mgal']:.1f} mGal")
+    return tau, info
 
 
 def offset_as_lag(survey, cfg: SurveyConfig, names: list, offsets: list,

@@ -61,7 +61,9 @@ function summary(r) {
   }
   if (rep.lag_check) {
     const lc = rep.lag_check;
-    items.push({ cls: lc.applied ? "warn" : "ok", text: lc.applied
+    items.push({ cls: lc.applied ? "warn" : "ok", text: lc.applied && lc.from_band_fit
+      ? `Gravimeter lag: survey.toml says τ = ${fmt(lc.declared_tau_s, 3)} s; fitted where the anomaly is estimated (0.02–0.05 Hz) the flights say ${fmt(lc.band_fit_tau_s, 4)} s: that value was used.`
+      : lc.applied
       ? `Gravimeter lag: survey.toml says τ = ${fmt(lc.declared_tau_s, 3)} s, the flights say ${(lc.estimated_tau_s || []).map((v) => fmt(v, 3)).join(", ")} s: the flights' value was used.`
       : `Gravimeter lag τ = ${fmt(lc.declared_tau_s, 3)} s confirmed in flight (${(lc.estimated_tau_s || []).map((v) => fmt(v, 3)).join(", ")} s).` });
   }
@@ -110,6 +112,16 @@ function spikeOutcome(d) {
 }
 
 /** A gravimeter slower than the GNSS: were its samples' motion cancelled, and z's band RMS both ways. */
+// the lag fitted where the anomaly is estimated (stage 1): its first fit against survey.toml's τ, and the τ used
+function bandFitCell(v) {
+  const b = v.from_band_fit ? v : v.band_fit;
+  if (!b) return "—";
+  const it = (b.iterations || [])[0] || {};
+  const ms = (x) => (x === null || x === undefined ? x : 1000 * x);
+  const first = `first fit Δτ ${fmt(ms(it.dtau_s), 1)} ± ${fmt(ms(it.se_s), 1)} ms`;
+  return b.applied ? `${fmt(b.band_fit_tau_s, 4)} s used (${first})` : `not used (${first})`;
+}
+
 function motionCompensation(mc) {
   if (!mc) return "— (gravimeter not slower than the GNSS)";
   const band = Array.isArray(mc.band_hz) ? ` at ${fmt(mc.band_hz[0], 2)}–${fmt(mc.band_hz[1], 2)} Hz` : "";
@@ -133,9 +145,10 @@ const RENDER = {
       : (o.gnss_stamp_jitter_lag1 > 0.5 ? `no (correlated, lag-1 ${fmt(o.gnss_stamp_jitter_lag1, 2)}: a receiver clock)` : "no")),
     motionCompensation(o.motion_compensation)], { id: "report-time-offsets" })],
   gnss_filled_epochs: (v) => [perFlight(v, ["Missing GNSS epochs put back on the clock"], (n) => [String(n)], { id: "report-gnss-filled" })],
-  lag_check: (v) => [table(["Declared τ (s)", "Estimated τ per flight (s)", "Applied", "Reason"],
-    [[fmt(v.declared_tau_s, 4), (v.estimated_tau_s || []).map((x) => fmt(x, 4)).join(", "), yes(v.applied),
-      v.reason || (v.offset_as_lag && v.offset_as_lag.reason) || "—"]], { id: "report-lag-check" })],
+  lag_check: (v) => [table(["Declared τ (s)", "Estimated τ per flight (s)", "Fitted in the band", "Applied", "Reason"],
+    [[fmt(v.declared_tau_s, 4), (v.estimated_tau_s || []).map((x) => fmt(x, 4)).join(", "), bandFitCell(v), yes(v.applied),
+      v.reason || (v.offset_as_lag && v.offset_as_lag.reason) || (v.band_fit && v.band_fit.reason) || "—"]],
+    { id: "report-lag-check" })],
   spike_repair: (v) => [perFlight(v, ["Flagged epochs", "Fraction", "Epochs", "Threshold (robust σ)", "Outcome"], (d) => [
     String(d.flagged ?? "—"), pct(d.fraction), String(d.epochs ?? "—"), fmt(d.threshold, 3),
     spikeOutcome(d)])],
