@@ -864,7 +864,7 @@ def band_lag(survey, cfg: SurveyConfig, names: list, declared: dict,
         if not fit["n_epochs"] or abs(fit["dtau_s"]) <= p.lag_band_fit_z * fit["se_s"]:
             break
     info["band_fit_tau_s"] = tau
-    check = lag_band_check([survey.flights[n] for n in names], cfg, tau, [declared[n] for n in names])
+    check = lag_band_check([survey.flights[n] for n in names], cfg, tau, [declared[n] for n in names], measured)
     info.update(check)
     gain = check["band_rms_improvement"]
     if not (np.isfinite(gain) and gain >= p.lag_check_min_improvement):
@@ -924,7 +924,8 @@ def offset_as_lag(survey, cfg: SurveyConfig, names: list, offsets: list,
     return tau_c, info
 
 
-def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float, declared: list | None = None) -> dict:
+def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float, declared: list | None = None,
+                   estimated: list | None = None) -> dict:
     """Does the in-flight τ make z better where the anomaly is estimated?
 
     The τ-only calibration fits up to ``acceleration_band_top_hz``, where the response of
@@ -939,14 +940,15 @@ def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float, declared: lis
     pooled by their epochs.  ``declared``: the flights already measured with survey.toml's τ
     (:func:`check_lag` measures them once for all its checks), else measured here.  It runs
     where the τ check would change τ (10 of 321 simulated surveys) and where the time offsets
-    may be a lag (:func:`offset_as_lag`)."""
+    may be a lag (:func:`offset_as_lag`).  ``estimated``: the flights already measured with
+    ``tau_s`` (:func:`band_lag`'s last fit), else measured here."""
     p = cfg.processing
     band = (2.0 / p.fir_cutoff_period_s, 5.0 / p.fir_cutoff_period_s)
     ss = {"declared": 0.0, "estimated": 0.0}
     n_tot = 0
     for i, flight in enumerate(flights):
         m0 = measure_flight(flight, cfg, compensation=False) if declared is None else declared[i]  # measured already
-        m1 = measure_flight(flight, cfg, tau_s=tau_s, compensation=False)
+        m1 = measure_flight(flight, cfg, tau_s=tau_s, compensation=False) if estimated is None else estimated[i]
         dt = float(np.median(np.diff(m0.t_s)))
         if not band[1] < 0.5 / dt:
             continue
