@@ -474,8 +474,9 @@ class ProcessingParams(_Strict):
                                "the gravimeter's jerk in z at 2–5 × 1/fir_cutoff_period_s Hz (lag check; used when "
                                "significant at lag_band_fit_z standard errors and it lowers z's RMS there by "
                                "lag_check_min_improvement)")
-    lag_band_fit_z: float = Field(3.0, gt=0, le=100, description="Standard errors by which the band-fitted τ must differ "
-                                  "from survey.toml's to be used")
+    lag_band_fit_z: float = Field(5.0, gt=0, le=100, description="Standard errors by which the band-fitted τ must differ "
+                                  "from survey.toml's to be used (the fit's error counts the band's independent samples "
+                                  "and takes the turns' manoeuvres as the lines' motion)")
     lag_check_min_improvement: float = Field(0.01, ge=0, lt=1, description="The in-flight τ of lag_check_s is used only "
                                              "when it also lowers the RMS of z by at least this share in the band just above "
                                              "FIR's cutoff (2–5 × 1/fir_cutoff_period_s), where the estimate "

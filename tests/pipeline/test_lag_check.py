@@ -56,12 +56,15 @@ def test_lag_error_below_lag_check_s_applied_when_the_band_confirms(tmp_path):
     assert survey.config.gravimeter.tau_s == 2.04
     warnings = []
     tau, info = check_lag(survey, survey.config, warnings)
-    assert info["applied"] and info["from_band_fit"] and abs(tau - 2.0) < 0.005
+    # tiny's one short flight holds too little motion in the band for the band fit to reach 5
+    # standard errors (Δτ ≈ −0.04 ± 0.01 s): the wideband τ, confirmed by the band check
+    assert not info["band_fit"]["applied"]
+    assert info["applied"] and abs(tau - 2.0) < 0.015
     assert info["band_rms_improvement"] > 0.03
-    # without the band fit, the wideband τ (confirmed by the band check) is used
+    # without the band fit, the same
     wide = survey.config.processing.model_copy(update={"lag_band_fit": False})
     tau_w, info_w = check_lag(survey, survey.config.model_copy(update={"processing": wide}), [])
-    assert info_w["applied"] and "from_band_fit" not in info_w and abs(tau_w - 2.0) < 0.015
+    assert info_w["applied"] and "band_fit" not in info_w and tau_w == tau
     # the old rule (no band check below lag_check_s) kept the declared τ
     old = wide.model_copy(update={"lag_check_min_change_s": 0.05})
     tau_old, info_old = check_lag(survey, survey.config.model_copy(update={"processing": old}), [])
