@@ -477,6 +477,10 @@ class ProcessingParams(_Strict):
     lag_band_fit_z: float = Field(5.0, gt=0, le=100, description="Standard errors by which the band-fitted τ must differ "
                                   "from survey.toml's to be used (the fit's error counts the band's independent samples "
                                   "and takes the turns' manoeuvres as the lines' motion)")
+    lag_band_confirm_z: float = Field(3.0, gt=0, le=100, description="A wideband in-flight τ whose band check gains "
+                                      "less than lag_check_min_improvement (but > 0) is still used when the band fit's "
+                                      "first estimate lies this many standard errors from survey.toml's τ and within "
+                                      "two of the wideband τ")
     lag_check_min_improvement: float = Field(0.01, ge=0, lt=1, description="The in-flight τ of lag_check_s is used only "
                                              "when it also lowers the RMS of z by at least this share in the band just above "
                                              "FIR's cutoff (2–5 × 1/fir_cutoff_period_s), where the estimate "

@@ -138,3 +138,24 @@ def test_a_real_shift_of_the_stamps_stays_an_offset(tmp_path):
     lag = info["offset_as_lag"]                 # tried (the offset looks like a lag) and refused
     assert not lag["applied"] and abs(lag["estimated_tau_s"][0] - 0.1) < 0.015, info
     assert lag["band_rms_improvement"] < -0.1   # as a lag, z's band RMS rises (+36 %)
+
+
+def test_band_fit_confirms_a_small_wideband_lag_only_when_they_agree():
+    """The rule of ``_band_confirms`` on the figures of the generated surveys it was measured on:
+    9 (declared 1.59 s, wideband 1.568, band fit −0.0200 ± 0.0055 s: true 1.5695) is confirmed;
+    32 (declared 0, wideband 0.039, band +0.0417 ± 0.0229: 1.8 standard errors; true 0), 55
+    (wideband 0.020, band +0.0072 ± 0.0035: 3.8 standard errors apart; true 0) and a band fit the
+    other way are not."""
+    from app.config import ProcessingParams
+    from app.pipeline.stages.measurement import _band_confirms
+
+    p = ProcessingParams()
+
+    def band(tau0, d, se):
+        return {"declared_tau_s": tau0, "iterations": [{"tau_s": tau0, "dtau_s": d, "se_s": se}]}
+
+    assert _band_confirms(band(1.59, -0.0200, 0.0055), 1.568, p)
+    assert not _band_confirms(band(0.0, 0.0417, 0.0229), 0.039, p)
+    assert not _band_confirms(band(0.0, 0.0072, 0.0035), 0.0204, p)
+    assert not _band_confirms(band(1.59, +0.0200, 0.0055), 1.568, p)
+    assert not _band_confirms(None, 1.568, p) and not _band_confirms(band(1.59, float("nan"), 0.01), 1.568, p)
