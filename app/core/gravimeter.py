@@ -233,6 +233,14 @@ def integrate_samples(t_s, f, dejitter: bool = True) -> IntegratedSeries:
     return IntegratedSeries(spline=spline, t_first_s=float(b[0]), t_last_s=float(b[-1]))
 
 
+def _check_response(tau_s: float, scale: float) -> None:
+    """The lag (s, ≥ 0) and scale (> 0) of the instrument's response, checked at the edge."""
+    if tau_s < 0:
+        raise ValueError(f"tau_s must be >= 0, got {tau_s}")
+    if not scale > 0:
+        raise ValueError(f"scale must be > 0, got {scale}")
+
+
 def interval_means(series: IntegratedSeries, t_epochs_s, tau_s: float = 0.0, scale: float = 1.0,
                    time_offset_s: float = 0.0) -> np.ndarray:
     """Mean of ``f_g = τ·ḟ' + k·f'`` over each GNSS interval ``(t_{k−1}, t_k]`` (m/s²).
@@ -259,10 +267,7 @@ def interval_means(series: IntegratedSeries, t_epochs_s, tau_s: float = 0.0, sca
     -------
     ndarray, shape (n,)
     """
-    if tau_s < 0:
-        raise ValueError(f"tau_s must be >= 0, got {tau_s}")
-    if not scale > 0:
-        raise ValueError(f"scale must be > 0, got {scale}")
+    _check_response(tau_s, scale)
     t = np.asarray(t_epochs_s, dtype=float) - float(time_offset_s)
     inside = (t >= series.t_first_s) & (t <= series.t_last_s)
     tc = np.clip(t, series.t_first_s, series.t_last_s)
@@ -313,10 +318,7 @@ def motion_compensated_means(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s:
     ndarray, shape (n,)
         NaN at the first epoch and outside the gravimeter's span (as :func:`interval_means`).
     """
-    if tau_s < 0:
-        raise ValueError(f"tau_s must be >= 0, got {tau_s}")
-    if not scale > 0:
-        raise ValueError(f"scale must be > 0, got {scale}")
+    _check_response(tau_s, scale)
     t = np.asarray(t_epochs_s, dtype=float)
     v = np.asarray(vu_ms, dtype=float)
     if t.shape != v.shape or t.ndim != 1:

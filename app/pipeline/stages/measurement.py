@@ -793,6 +793,12 @@ def check_lag(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, 
     return tau_est, info
 
 
+def _band_check_passes(check: dict, p) -> bool:
+    """Does a τ's band check (:func:`lag_band_check`) lower z's band RMS by ``lag_check_min_improvement``?"""
+    gain = check["band_rms_improvement"]
+    return bool(np.isfinite(gain) and gain >= p.lag_check_min_improvement)
+
+
 def _band_confirms(info_band: dict | None, tau_est: float, p) -> bool:
     """Does the band fit's first estimate confirm the wideband τ: ``lag_band_confirm_z`` standard
     errors from survey.toml's τ, the same way, and within two standard errors of the wideband τ?
@@ -900,7 +906,7 @@ def band_lag(survey, cfg: SurveyConfig, names: list, declared: dict,
     check = lag_band_check([survey.flights[n] for n in names], cfg, tau, [declared[n] for n in names], measured)
     info.update(check)
     gain = check["band_rms_improvement"]
-    if not (np.isfinite(gain) and gain >= p.lag_check_min_improvement):
+    if not _band_check_passes(check, p):
         info["reason"] = (f"the band-fitted τ {tau:.4f} s changes z's RMS at {band[0]:g}–{band[1]:g} Hz by "
                           f"{-100 * gain:+.1f} % (needs −{100 * p.lag_check_min_improvement:g} %): survey.toml's "
                           "τ kept")
@@ -944,7 +950,7 @@ def offset_as_lag(survey, cfg: SurveyConfig, names: list, offsets: list,
     info = {"declared_tau_s": cfg.gravimeter.tau_s, "estimated_tau_s": [cfg.gravimeter.tau_s + x for x in late],
             "from_time_offsets": True, **check}
     gain = check["band_rms_improvement"]
-    if not (np.isfinite(gain) and gain >= p.lag_check_min_improvement):
+    if not _band_check_passes(check, p):
         info["applied"] = False
         info["reason"] = (f"the flights' time offsets read as a lag (τ = {tau_c:.3f} s) change z's RMS at "
                           f"{check['band_hz'][0]:g}–{check['band_hz'][1]:g} Hz by {-100 * gain:+.1f} %: kept as "
