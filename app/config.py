@@ -349,6 +349,11 @@ class ProcessingParams(_Strict):
                                           "narrowed) to that error, given at least this many independent stretches "
                                           "on the track (fir_cutoff_period_s of flight x (passes - 1)); lines off "
                                           "the tracks keep the spread; 0 = off")
+    std_repeat_significance: float = Field(0.1, gt=0, le=1, description="The passes size a repeat track's std only "
+                                           "when their smoothing part is above 0 at this one-sided level (F-test of "
+                                           "their mean difference against its noise, one degree of freedom per "
+                                           "independent stretch; 1 = any positive estimate): a smoothing part lost "
+                                           "in the passes' noise says nothing of the error they share")
     std_state_mixture: bool = Field(True, description="dg_std_mgal as the std of a mixture of levels where the map is "
                                     "unsure: the larger of the smoother under the probability-weighted arithmetic "
                                     "mean of the Q levels and the law of total variance over each level's smoother "
@@ -466,10 +471,11 @@ class ProcessingParams(_Strict):
     lag_check_min_change_s: float = Field(0.02, gt=0, le=10, description="An in-flight τ closer to survey.toml's "
                                           "than lag_check_s, but more than this (s) away, is used only when the band "
                                           "check runs and confirms it (lag_check_min_improvement)")
-    lag_from_time_offsets: bool = Field(False, description="Read the flights' time offsets of −0.02 to −0.5 s as an "
-                                        "undeclared gravimeter lag when that lowers z's band RMS (lag check); off: "
-                                        "on the 4-pass test line it narrows the repeat-track std (2σ coverage "
-                                        "0.90 → 0.77 on one seed)")
+    lag_from_time_offsets: bool = Field(True, description="Read the flights' time offsets of −0.02 to −0.5 s as an "
+                                        "undeclared gravimeter lag when that lowers z's band RMS (lag check); on since "
+                                        "session 27, when the repeat passes size a track's std only where their "
+                                        "smoothing part is significant (std_repeat_significance): on the 4-pass test "
+                                        "line the lag it finds no longer narrows the std (seed 3 2σ coverage 0.94)")
     lag_band_fit: bool = Field(True, description="Fit τ where the anomaly is estimated: the lag that leaves the least of "
                                "the gravimeter's jerk in z at 2–5 × 1/fir_cutoff_period_s Hz (lag check; used when "
                                "significant at lag_band_fit_z standard errors and it lowers z's RMS there by "

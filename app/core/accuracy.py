@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import ConvexHull, Delaunay
+from scipy.stats import f as f_dist
 
 
 def crossover_rms(diff_mgal) -> float:
@@ -75,12 +76,34 @@ class RepeatErrorParts:
         own noise taken out (≥ 0): the smoothing part, which repeats share.
     n_points : int
     n_repeats : int
+    mean_diff_sq_mgal2 : float
+        ``mean_j(d̄_j²)``: the repeats' mean difference squared, its noise not taken out.
+    mean_diff_noise_mgal2 : float
+        ``mean_j(s_j²)/K``: the part of it the difference's noise explains.
     """
 
     noise_var_mgal2: float
     smoothing_var_mgal2: float
     n_points: int
     n_repeats: int
+    mean_diff_sq_mgal2: float = float("nan")
+    mean_diff_noise_mgal2: float = float("nan")
+
+    def smoothing_p_value(self, n_independent: float) -> float:
+        """One-sided p-value of a smoothing part above 0: the probability that the difference's
+        noise alone gives a ratio ``F = mean(d̄²) / (mean(s²)/K)`` at least as large.  With the
+        track's ``n_independent`` independent stretches (its length over the length one
+        independent value spans, ≥ 1; the points along a track are strongly correlated), F
+        follows Fisher's F(ν, ν(K − 1)), ν = ``n_independent``: ``K·d̄²`` and ``s²`` are
+        independent estimates of the same noise variance (with 1 and K − 1 degrees of freedom
+        per stretch) when the repeats share nothing but the anomaly."""
+        nu = float(n_independent)
+        if not nu >= 1.0:
+            raise ValueError(f"n_independent must be at least 1, got {n_independent!r}")
+        if not self.mean_diff_noise_mgal2 > 0:
+            return 0.0 if self.mean_diff_sq_mgal2 > 0 else 1.0
+        ratio = self.mean_diff_sq_mgal2 / self.mean_diff_noise_mgal2
+        return float(f_dist.sf(ratio, nu, nu * (self.n_repeats - 1)))
 
     def std_scale(self, posterior_var_mgal2: float) -> float:
         """Factor ≥ 1 that widens a posterior std (mean variance ``posterior_var_mgal2``,
@@ -123,8 +146,9 @@ def repeat_error_parts(values_mgal, diff_mgal) -> RepeatErrorParts:
         raise ValueError("repeat values must be finite")
     k, n = g.shape
     noise = float(np.mean(np.var(g, axis=0, ddof=1)))
-    smooth = float(np.mean(d.mean(axis=0) ** 2) - np.mean(np.var(d, axis=0, ddof=1)) / k)
-    return RepeatErrorParts(noise, max(0.0, smooth), n, k)
+    mean_sq = float(np.mean(d.mean(axis=0) ** 2))
+    of_noise = float(np.mean(np.var(d, axis=0, ddof=1)) / k)
+    return RepeatErrorParts(noise, max(0.0, mean_sq - of_noise), n, k, mean_sq, of_noise)
 
 
 @dataclass

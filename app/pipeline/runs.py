@@ -235,7 +235,8 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
                                             n_points=cands[m_best].ident.n_points,
                                             min_points=p.min_points_adaptive, q_from_posteriors=p.q_from_posteriors,
                                             repeat_min_samples=p.std_repeat_min_samples or None,
-                                            fir_period_s=p.fir_cutoff_period_s)
+                                            fir_period_s=p.fir_cutoff_period_s,
+                                            repeat_significance=p.std_repeat_significance)
     if blend:   # after m_best's own std: the blend's spread adds to it
         cands[m_best].filtered.blend_order(blend_est, blend["weight"])
     choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings, order=(m_best, order_rep))

@@ -104,9 +104,9 @@ PLATFORM_10HZ = dict(gravimeter_model="AIRGrav", gravimeter_rate_hz=10.0, gravim
                      turbulence_rms_ms2=(0.3, 0.4), sigma_vu_cms=0.2)
 
 
-def test_offsets_are_not_read_as_a_lag_by_default(tmp_path):
+def test_offsets_are_not_read_as_a_lag_when_switched_off(tmp_path):
     survey_dir = simulate_survey("tiny", tmp_path / "s", seed=11, tau_true_s=0.1, **PLATFORM_10HZ)
-    survey = read_survey(survey_dir)
+    survey = read_survey(survey_dir, {"lag_from_time_offsets": False})
     tau, info = check_lag(survey, survey.config, [])
     assert tau is None and (info is None or "offset_as_lag" not in info)
 
@@ -117,9 +117,9 @@ def test_undeclared_lag_taken_for_a_time_offset_is_declared_as_a_lag(tmp_path):
     a generated survey) and the τ-only calibration, fitted after it, found none (−0.006 s).
     Read as a lag, the offset lowers z's band RMS (8 %: the lag's damping of the turbulence,
     averaged on the 1 s GNSS intervals, folds into the band), and τ ≈ 0.1 s is used.  (On 2 Hz
-    GNSS the two agree within 0.1 % and the offset stays.)"""
+    GNSS the two agree within 0.1 % and the offset stays.)  On by default."""
     survey_dir = simulate_survey("tiny", tmp_path / "s", seed=11, tau_true_s=0.1, **PLATFORM_10HZ)
-    survey = read_survey(survey_dir, {"lag_from_time_offsets": True})
+    survey = read_survey(survey_dir)
     warnings = []
     tau, info = check_lag(survey, survey.config, warnings)
     assert info["from_time_offsets"] and info["applied"], info

@@ -108,8 +108,13 @@ def test_repeat_passes_size_the_std_instead_of_the_level_spread():
                 np.testing.assert_array_equal(f.table["dg_mgal"].to_numpy(), table["dg_mgal"].to_numpy())
                 runs[rule] = f
             rep = runs["repeat"]
-            assert rep.std_level_factor is None and "repeat tracks" in rep.std_level_reason
-            assert rep.std_repeat_tracks["T1"]["scale"] >= 1.0
+            track = rep.std_repeat_tracks["T1"]
+            if track["smoothing_p_value"] < 0.1:   # the smoothing part significant: the passes size it
+                assert rep.std_level_factor is None and "repeat tracks" in rep.std_level_reason
+                assert track["scale"] >= 1.0
+            else:                                  # not: the spread stays (seed 0 with Q right, p = 0.36)
+                assert rep.std_level_factor == 10.0 and track["scale"] is None
+                assert case == "ok"
             assert runs["spread"].std_level_factor == 10.0
             std = {k: f.table["dg_std_mgal"].to_numpy()[inner] for k, f in runs.items()}
             if case == "ok":
@@ -167,10 +172,11 @@ def test_lines_off_the_repeat_track_keep_the_level_spread():
 
 def test_repeat_passes_without_a_measured_shared_error_keep_the_level_spread():
     """Where the passes' shared difference from the less-smoothed estimate is lost in their
-    noise (the smoothing part clipped at 0), the measure says nothing about the error the
-    passes share, so the track keeps the (wider) level spread; where it is measured, the
-    passes size the std.  On a nearly flat anomaly the shared part is pure noise and comes
-    out clipped on some seeds and not on others: both ways are checked."""
+    noise (the smoothing part clipped at 0, or not significant at p < 0.1), the measure says
+    nothing about the error the passes share, so the track keeps the (wider) level spread;
+    where it is measured, the passes size the std.  On a nearly flat anomaly the shared part
+    is pure noise: it comes out above 0 on some seeds, and the F-test keeps the spread on
+    most (it sizes by chance at most on about 1 in 10)."""
     dt, T, R, speed = 0.5, 3000, 1.0, 60.0
     seen = {"kept": 0, "sized": 0}
     for seed in range(8):
@@ -188,11 +194,13 @@ def test_repeat_passes_without_a_measured_shared_error_keep_the_level_spread():
             f.level_spread_std(dt, 2, "bf", None, 10.0, repeat_min_samples=min_samples, fir_period_s=100.0)
             runs[rule] = f
         track = runs["repeat"].std_repeat_tracks["T1"]
-        if track["smoothing_part_mgal"] == 0.0:
+        if track["smoothing_part_mgal"] == 0.0 or track["smoothing_p_value"] >= 0.1:
             seen["kept"] += 1
             assert track["scale"] is None and runs["repeat"].std_level_factor == 10.0
             np.testing.assert_array_equal(runs["repeat"].table["dg_std_mgal"], runs["spread"].table["dg_std_mgal"])
         else:
             seen["sized"] += 1
             assert track["scale"] >= 1.0 and runs["repeat"].std_level_factor is None
-    assert seen["kept"] and seen["sized"], seen
+        seen["positive"] = seen.get("positive", 0) + int(track["smoothing_part_mgal"] > 0.0)
+    # the shared part is noise here: it comes out above 0 on some seeds, significant on few
+    assert seen["positive"] >= 2 and seen["kept"] >= 6, seen

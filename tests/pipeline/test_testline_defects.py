@@ -83,9 +83,15 @@ def test_testline_with_a_missing_gnss_epoch_and_gravimeter_sample(tmp_path):
     assert report["gnss_filled_epochs"] == {"F01": 1}
     assert report["time_offsets"]["F01"]["gnss_stamps_dejittered"]
     assert any("FIR 100 s left out" in w for w in report["warnings"])
-    hb = report["noise_model"]["holes_bridged"]["F01"]    # the noise fit's bridge, with its limit
-    assert 0 < hb["epochs_bridged"] <= 3 * hb["max_hole_epochs"]
     lines = pd.read_parquet(out / "lines.parquet")
+    # the noise fit's bridge, with its limit: the gravimeter's hole (one missing sample, as z's
+    # epochs) is bridged exactly when the flight's limit allows it.  Since the undeclared 0.23 s
+    # lag is taken (lag_from_time_offsets) the de-lagged z is less predictable from the GNSS
+    # acceleration and the limit falls below the hole (3 against 31 epochs without the lag)
+    hb = report["noise_model"]["holes_bridged"]["F01"]
+    bad = lines["z_mgal"].isna().to_numpy()
+    assert 0 < bad.sum() <= 20
+    assert hb["epochs_bridged"] == (bad.sum() if bad.sum() <= hb["max_hole_epochs"] else 0)
     near = (lines["time"] > 14300.0 - 60) & (lines["time"] < 14300.0 + 60)
     assert lines.loc[near, "dg_fir_mgal"].isna().all() and lines["dg_fir_mgal"].notna().mean() > 0.5
     assert lines["dg_mgal"].notna().all()

@@ -228,7 +228,7 @@ class Filtered:
     def level_spread_std(self, dt_s: float, m: int, method: str, noise, factor: float,
                          n_points: int | None = None, min_points: int | None = None,
                          q_from_posteriors: bool = True, repeat_min_samples: float | None = None,
-                         fir_period_s: float = 100.0) -> None:
+                         fir_period_s: float = 100.0, repeat_significance: float = 0.1) -> None:
         """Levels learned from too few points: widen ``dg_std_mgal`` by the spread of the
         estimates with the Q levels scaled by 1/f and f (:func:`app.core.smoother.level_spread_std_mgal`,
         ``std_level_factor`` = f); the report's ``level_refinement.std_level_factor`` and
@@ -239,7 +239,8 @@ class Filtered:
         probabilities with ``q_from_posteriors``), scaled as a whole.  With
         ``repeat_min_samples``, repeat tracks that measure their own error get
         :meth:`repeat_calibrated_std` instead (``fir_period_s``: the length of one independent
-        stretch).  Run for the order that is used only."""
+        stretch; ``repeat_significance``: the level its smoothing part must pass).  Run for the
+        order that is used only."""
         n_q = len(self.Q_levels)
         few = n_q > 1 and n_points is not None and min_points is not None and n_points < n_q * min_points
         if (n_q != 1 and not few) or factor <= 1.0 or not self.prepared or self.r_lines is None:
@@ -247,7 +248,7 @@ class Filtered:
         reason = ("one anomaly level" if n_q == 1 else
                   f"{n_q} anomaly levels from {n_points} decimated points (< {n_q} x {min_points})")
         done = (self.repeat_calibrated_std(dt_s, m, method, noise, factor, q_from_posteriors,
-                                           repeat_min_samples, fir_period_s)
+                                           repeat_min_samples, fir_period_s, repeat_significance)
                 if repeat_min_samples is not None else {})
         col = self.table["dg_std_mgal"].to_numpy().copy()
         off = 0
@@ -268,7 +269,8 @@ class Filtered:
                                       "(level_refinement.std_repeat_tracks)" + ("" if spread else " alone"))
 
     def repeat_calibrated_std(self, dt_s: float, m: int, method: str, noise, factor: float,
-                              q_from_posteriors: bool, min_samples: float, period_s: float) -> set:
+                              q_from_posteriors: bool, min_samples: float, period_s: float,
+                              significance: float = 0.1) -> set:
         """Where repeat passes measure their error, their ``dg_std_mgal`` widened to it
         (never narrowed: the measure is noisy and misses what the less-smoothed estimate
         also smooths away) instead of by the levels' spread.  Per repeat track: the passes'
@@ -278,11 +280,12 @@ class Filtered:
         ``c = max(1, sqrt((noise + smoothing) / mean σ²))`` (σ the posterior std at the
         passes' common points), so it keeps its shape (wider at line ends and holes).  A
         track needs ``min_samples`` independent stretches (``period_s`` of flight each,
-        times passes − 1), and a smoothing part above 0: where the passes' shared difference
-        is lost in their noise (clipped at 0) the measure says nothing of the error they share
-        and the track keeps the spread (test line, seed 3: 2σ coverage 0.75 sized by its passes,
-        0.90 with the spread).  Lines off the tracks are left to the spread: a track says little
-        about the rest of a survey (one repeat line in the plains of a mountain survey).
+        times passes − 1), and a smoothing part significantly above 0 (one-sided p below
+        ``significance``, :meth:`app.core.accuracy.RepeatErrorParts.smoothing_p_value`): where
+        the passes' shared difference is lost in their noise the measure says nothing of the
+        error they share and the track keeps the spread (test line, seed 3: 2σ coverage 0.75
+        sized by its passes, 0.90 with the spread).  Lines off the tracks are left to the
+        spread: a track says little about the rest of a survey (one repeat line in the plains of a mountain survey).
         Returns the indices of the prepared lines done; ``std_repeat_tracks`` gives the
         figures per track for the report."""
         tracks: dict = {}
@@ -324,10 +327,12 @@ class Filtered:
                    "posterior_mgal": float(np.sqrt(post_v)), "passes": parts.n_repeats,
                    "independent_stretches": float(samples), "versus_q_factor": float(factor)}
             figures[str(track)] = fig
-            if not parts.smoothing_var_mgal2 > 0:
+            fig["smoothing_p_value"] = p_smooth = parts.smoothing_p_value(max(1.0, samples / (parts.n_repeats - 1)))
+            if not (parts.smoothing_var_mgal2 > 0 and p_smooth < significance):
                 # the passes' shared difference is lost in their noise: the measure says
                 # nothing of the error they share, and the level spread stays
-                fig["reason"] = "smoothing part lost in the passes' noise: level spread kept"
+                fig["reason"] = (f"smoothing part lost in the passes' noise (p = {p_smooth:.3g}, needs "
+                                 f"< {significance:g}): level spread kept")
                 continue
             fig["scale"] = c = parts.std_scale(post_v)
             for i, off, n in passes:

@@ -936,8 +936,9 @@ def offset_as_lag(survey, cfg: SurveyConfig, names: list, offsets: list,
     ``lag_check_s``; used when the lag check's band test (:func:`lag_band_check`) finds z's
     RMS lowered by ``lag_check_min_improvement`` — a real shift of the stamps (a logger's
     latency) is left as an offset, since as a lag it would damp the acceleration wrongly.
-    Only with ``lag_from_time_offsets`` (off by default: on the 4-pass test line the lag it
-    finds, right as it is, lets the repeat passes narrow the std below the error they share)."""
+    Only with ``lag_from_time_offsets`` (on by default since the repeat passes size a track's
+    std only where their smoothing part is significant: on the 4-pass test line the lag it
+    finds, right as it is, had let them narrow the std below the error they share)."""
     p = cfg.processing
     if not p.lag_from_time_offsets or p.lag_check_s is None or not offsets or len(offsets) != len(names):
         return None, None
