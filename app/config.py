@@ -506,6 +506,10 @@ class ProcessingParams(_Strict):
                                        "none beyond its predicted noise and the estimate varies by less than its "
                                        "std), widen dg_std_mgal to Var(FIR) - Var(estimate), the error a smooth "
                                        "estimate can have")
+    std_common_level: bool = Field(True, description="Without an absolute base tie, add to dg_std_mgal and the grid "
+                                   "std the std of the level leveling leaves common to the flights: the flights' "
+                                   "offsets at the crossovers, read as draws of one drift, spread by s; their mean is "
+                                   "off by s/sqrt(n) (report crossovers.common_level)")
     std_crossover_check: bool = Field(True, description="Rescale dg_std by what the crossover differences say "
                                       "about the two lines' errors (widen only, below std_crossover_min_n)")
     std_crossover_min_n: int = Field(20, ge=3, le=1_000_000, description="Crossovers needed to also narrow dg_std (fewer: the "

@@ -9,6 +9,9 @@ Two steps:
    time normalised per line to [-1, 1]) to the crossover differences by
    weighted least squares and reports the crossover RMS before and after.
 
+:func:`common_level_std` says how far off the level leveling leaves common to every
+flight can be (what crossovers cannot see).
+
 The drift model of seed 001 is ``δf_T(t) = l_0 + l_1 t + … + l_p t^p`` per line.
 Crossover differences only see differences of drifts, so the problem is
 degenerate: at least a common constant (one per connected group of lines) and,
@@ -730,6 +733,81 @@ def keep_mean_level(correction_mgal, unit, crossing_units) -> tuple[np.ndarray, 
             c[group] -= shift
             removed.append(shift)
     return c, removed
+
+
+@dataclass(frozen=True)
+class CommonLevel:
+    """Result of :func:`common_level_std` (mGal).
+
+    Attributes
+    ----------
+    std_mgal : float
+        Std of the level the drift units share, which crossovers cannot see: ``s/√n``.
+    spread_mgal : float
+        ``s``: the std of the units' own offsets (their noise taken out; ≥ 0).
+    offsets_mgal : dict of str to float
+        Each unit's offset from the units' mean, fitted to the crossovers between units.
+    n_units, n_crossovers : int
+        Units connected by crossovers, and the crossovers between different units used.
+    """
+
+    std_mgal: float
+    spread_mgal: float
+    offsets_mgal: dict
+    n_units: int
+    n_crossovers: int
+
+
+def common_level_std(unit_a, unit_b, diff_mgal) -> CommonLevel | None:
+    """The std of the level that leveling leaves common to every drift unit (a flight).
+
+    Crossover differences see only differences of the units' drifts, so leveling fixes the
+    flights relative to each other and leaves their mean offset where it is (without a base
+    tie nothing else sees it).  Read the flights' offsets as exchangeable draws of one
+    instrument's drift, std ``s`` about the truth: then their mean, the level leveling keeps,
+    is off by ``s/√n`` (n units).  ``s`` is estimated from the crossovers between different
+    units: one offset per unit by least squares (their sum zero), ``s² = Σ b_u²/(n − 1) −
+    tr(Cov b)/n`` (the offsets' scatter less their estimation noise, from the residual
+    variance of the fit), clipped at 0.
+
+    Parameters
+    ----------
+    unit_a, unit_b : array_like of str, shape (k,)
+        The drift unit (flight) of each crossover's two lines.
+    diff_mgal : array_like, shape (k,)
+        The crossover differences before leveling (line a − line b, mGal); non-finite ones and
+        those within one unit are ignored.
+
+    Returns
+    -------
+    CommonLevel or None
+        None when fewer than two units are connected, or no more crossovers between units
+        than offsets to fit.
+    """
+    ua = np.asarray(unit_a, dtype=object)
+    ub = np.asarray(unit_b, dtype=object)
+    d = np.asarray(diff_mgal, dtype=float)
+    if not (ua.shape == ub.shape == d.shape) or d.ndim != 1:
+        raise ValueError(f"unit_a, unit_b and diff_mgal must be 1-D of one length, got {ua.shape}, {ub.shape}, "
+                         f"{d.shape}")
+    sel = np.isfinite(d) & (ua != ub)
+    units = sorted({str(u) for u in ua[sel]} | {str(u) for u in ub[sel]})
+    n, k = len(units), int(sel.sum())
+    if n < 2 or k <= n - 1:
+        return None
+    idx = {u: i for i, u in enumerate(units)}
+    A = np.zeros((k + 1, n))
+    rows = np.arange(k)
+    A[rows, [idx[str(u)] for u in ua[sel]]] += 1.0
+    A[rows, [idx[str(u)] for u in ub[sel]]] -= 1.0
+    A[k, :] = 1.0                                     # the offsets' sum is zero
+    y = np.concatenate([d[sel], [0.0]])
+    b = np.linalg.lstsq(A, y, rcond=None)[0]
+    resid = d[sel] - A[:k] @ b
+    var_r = float(np.sum(resid ** 2) / max(1, k - (n - 1)))
+    cov = var_r * np.linalg.pinv(A.T @ A)
+    s2 = max(0.0, float(np.sum(b ** 2) / (n - 1) - np.trace(cov) / n))
+    return CommonLevel(float(np.sqrt(s2 / n)), float(np.sqrt(s2)), {u: float(b[i]) for u, i in idx.items()}, n, k)
 
 
 def crossover_table(crossovers: pd.DataFrame, result: LevelingResult) -> pd.DataFrame:

@@ -22,7 +22,7 @@ from app.pipeline.stages.choice import Candidate, choose_model, choose_order, co
 from app.pipeline.stages.filtering import filter_survey, fir_baseline, fir_loss_warnings
 from app.pipeline.stages.gridding import grid_survey
 from app.pipeline.stages.identification import Identification, identify
-from app.pipeline.stages.leveling import level_survey
+from app.pipeline.stages.leveling import add_common_level_std, level_survey
 from app.pipeline.stages.lines import survey_lines
 from app.pipeline.stages.measurement import measure
 from app.pipeline.stages.model_order import candidate_orders, choose_model_order
@@ -257,6 +257,8 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     if at_flight is not None:  # continued to a datum: the free-air map at flight height beside it
         # (no crossover term: the crossovers were measured at the datum)
         grid_flight = grid_survey(at_flight, p, warnings, None)
+    tied = any(b.get("applied") and b.get("absolute") for b in idf.measurement_report.get("base_ties", {}).values())
+    add_common_level_std(table, [grid, grid_bouguer, grid_flight], leveled.report, tied, p, warnings)
     tr.start("writing")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

@@ -5,6 +5,7 @@ import pytest
 
 from app.core.leveling import (
     LineTrack,
+    common_level_std,
     cross_validated_leveling,
     crossover_table,
     find_crossovers,
@@ -354,3 +355,43 @@ def test_keep_mean_level_per_connected_group():
     assert out[5] == 10.0
     with pytest.raises(ValueError, match="1-D"):
         keep_mean_level(corr[:3], unit, [])
+
+
+def test_common_level_std_is_calibrated_for_exchangeable_flight_offsets():
+    """Simulation with known truth: n = 2–4 flights whose offsets are draws of std s = 5 mGal,
+    seen at 30 crossovers between flights with 1.5 mGal of noise each.  Over 3000 surveys the
+    reported variance of the level leveling keeps (the offsets' mean) is unbiased: its mean is
+    s²/n within 6 % for every n (the level's own mean square is s²/n within its sampling error),
+    and the spread's mean square estimates s² within 6 %; the fitted offsets are the true ones less
+    their mean.  (One survey's std comes from n − 1 degrees of freedom, so the level over it is
+    t-like: it is the variance that is calibrated, not a 2σ coverage of two flights.)"""
+    rng = np.random.default_rng(5)
+    sq = {n: ([], []) for n in (2, 3, 4)}
+    spread = []
+    for trial in range(3000):
+        n = 2 + trial % 3
+        flights = [f"F{i}" for i in range(n)]
+        off = rng.normal(0.0, 5.0, n)
+        a = rng.integers(0, n, 30)
+        b = (a + rng.integers(1, n, 30)) % n               # another flight
+        d = off[a] - off[b] + rng.normal(0.0, 1.5, 30)
+        res = common_level_std([flights[i] for i in a], [flights[i] for i in b], d)
+        assert res.n_units == n and res.n_crossovers == 30
+        sq[n][0].append(np.mean(off) ** 2)
+        sq[n][1].append(res.std_mgal ** 2)
+        spread.append(res.spread_mgal ** 2)
+        if trial == 0:
+            np.testing.assert_allclose([res.offsets_mgal[f] for f in flights], off - off.mean(), atol=1.5)
+    for n, (level2, var) in sq.items():   # 1000 surveys each: the level's mean square within 3 SE (13 %)
+        assert np.mean(var) == pytest.approx(25.0 / n, rel=0.06), n
+        assert np.mean(level2) == pytest.approx(25.0 / n, rel=0.13), n
+    assert np.mean(spread) == pytest.approx(25.0, rel=0.06)
+
+
+def test_common_level_std_needs_two_connected_flights():
+    assert common_level_std(["F1", "F1"], ["F1", "F1"], [1.0, 2.0]) is None          # one flight
+    assert common_level_std(["F1"], ["F2"], [1.0]) is None                            # no residual dof
+    res = common_level_std(["F1", "F1", "F1"], ["F2", "F2", "F2"], [4.0, 4.0, 4.0])   # no noise: s exact
+    assert res.spread_mgal == pytest.approx(np.sqrt(8.0)) and res.std_mgal == pytest.approx(2.0)
+    with pytest.raises(ValueError, match="1-D of one length"):
+        common_level_std(["F1"], ["F2", "F3"], [1.0])

@@ -105,3 +105,43 @@ def test_a_refused_leveling_reports_what_it_would_have_moved(monkeypatch):
     assert set(means) == set(true)
     for f in true:
         assert abs(means[f] - true[f]) < 0.3, (f, means[f], true[f])
+
+
+def test_common_level_std_is_added_without_an_absolute_base_tie():
+    """After leveling, the flights' common level is what crossovers cannot see: without an
+    absolute base tie its std (from the flights' offsets at the crossovers) is added in
+    quadrature to every epoch's std and to the grids' std, and the report says so; with a tie
+    nothing changes.  The offsets reported are the flights' drifts at the crossings, less
+    their mean (within the crossovers' noise and the drifts' spread along the lines)."""
+    from types import SimpleNamespace
+
+    from app.pipeline.stages.leveling import add_common_level_std
+
+    p = ProcessingParams()
+    table, drift = _survey(np.random.default_rng(1))
+    _, rep = level_lines_table(table, p, [])
+    common = rep["common_level"]
+    assert common["n_units"] == 3 and common["n_crossovers"] > 20
+    assert common["spread_mgal"] > 0 and common["std_mgal"] == common["spread_mgal"] / np.sqrt(3)
+    assert abs(sum(common["offsets_mgal"].values())) < 1e-9
+    # each flight's offset is its drift where it crosses the others (flight C crosses at every time)
+    mean_drift = {f: float(np.mean(drift[table["flight"].to_numpy() == f])) for f in "ABC"}
+    centred = {f: v - np.mean(list(mean_drift.values())) for f, v in mean_drift.items()}
+    for f in "AB":
+        assert abs(common["offsets_mgal"][f] - centred[f]) < 0.5 * common["spread_mgal"], (f, common, centred)
+
+    grid = SimpleNamespace(dg_std_mgal=np.full((3, 4), 2.0))
+    tied_table = table.copy()
+    add_common_level_std(tied_table, [grid, None], {**rep, "common_level": dict(common)}, True, p, [])
+    np.testing.assert_array_equal(tied_table["dg_std_mgal"], table["dg_std_mgal"])
+    np.testing.assert_array_equal(grid.dg_std_mgal, 2.0)
+
+    warnings: list = []
+    before = table["dg_std_mgal"].to_numpy().copy()
+    add_common_level_std(table, [grid, None], rep, False, p, warnings)
+    np.testing.assert_allclose(table["dg_std_mgal"], np.sqrt(before ** 2 + common["std_mgal"] ** 2))
+    np.testing.assert_allclose(grid.dg_std_mgal, np.sqrt(4.0 + common["std_mgal"] ** 2))
+    assert rep["common_level"]["applied"] and any("common level" in w for w in warnings)
+    off = table.copy()
+    add_common_level_std(off, [], {"common_level": dict(common)}, False, p.model_copy(update={"std_common_level": False}), [])
+    np.testing.assert_array_equal(off["dg_std_mgal"], table["dg_std_mgal"])

@@ -67,7 +67,10 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                                  "significantly (leave-one-line-out RMS 1.31 mGal against 1.2 without "
                                  "leveling, p = 0.83, needs < 0.01)",
                        "rms_after_mgal": 1.2, "rms_after_if_leveled_mgal": 0.1,
-                       "std_check": {"n": 1, "rms_ratio": 0.57, "factor": 1.0}},
+                       "std_check": {"n": 1, "rms_ratio": 0.57, "factor": 1.0},
+                       # (only a leveled survey has it; here to show how the page renders it)
+                       "common_level": {"std_mgal": 2.5, "spread_mgal": 4.33, "n_units": 3, "n_crossovers": 12,
+                                        "offsets_mgal": {"F01": 3.0, "F02": -1.0, "F03": -2.0}, "applied": True}},
         "identification": {"Q_mgal2": [0.041, 0.353], "R_cm2s2": [1.679], "transition": [[0.98, 0.02], [0.03, 0.97]]},
         "timings_s": {"ingest": 0.1, "learning": 0.2},
         "warnings": warnings,

@@ -1,7 +1,8 @@
 """Stage 10, leveling (SPEC §3): crossovers of main and tie lines, one drift polynomial per
 flight fitted to them, applied only when an F-test says the crossovers support it and
 without moving the map's mean level (the crossovers cannot see it); the crossovers also
-check the lines' posterior std.
+check the lines' posterior std.  Without an absolute base tie the leveled map's common level
+is as uncertain as the flights' offsets say (:func:`add_common_level_std`, after gridding).
 """
 
 from __future__ import annotations
@@ -13,7 +14,14 @@ import pandas as pd
 from scipy.stats import f as f_dist
 
 from app.core.accuracy import crossover_std_factor
-from app.core.leveling import LineTrack, cross_validated_leveling, find_crossovers, keep_mean_level, level_lines
+from app.core.leveling import (
+    LineTrack,
+    common_level_std,
+    cross_validated_leveling,
+    find_crossovers,
+    keep_mean_level,
+    level_lines,
+)
 
 #: Per-epoch lower bound of ``dg_std_mgal`` that stage 9 sets on lines that do not resolve the
 #: anomaly (:func:`app.pipeline.stages.choice.check_lines`); :func:`level_survey` applies it
@@ -100,6 +108,12 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFr
     table["dg_mgal"] = table["dg_unleveled_mgal"].to_numpy() - corr
     cx = cx.assign(diff_before_mgal=before, diff_after_mgal=after)
     rep.update(status="leveled", rms_after_mgal=float(res.rms_after), mean_level_removed_mgal=removed)
+    common = common_level_std([res.unit_of.get(str(a), str(a)) for a in cx["line_a"]],
+                              [res.unit_of.get(str(b), str(b)) for b in cx["line_b"]], before)
+    if common is not None:
+        rep["common_level"] = {"std_mgal": common.std_mgal, "spread_mgal": common.spread_mgal,
+                               "offsets_mgal": common.offsets_mgal, "n_units": common.n_units,
+                               "n_crossovers": common.n_crossovers}
     rep["std_check"] = std_check(after, pred_var, p)
     return cx[cols], rep
 
@@ -154,3 +168,36 @@ def level_survey(table: pd.DataFrame, p, warnings: list) -> Leveled:
     if STD_FLOOR in table:  # stage 9's floor on lines that do not resolve the anomaly
         table["dg_std_mgal"] = np.fmax(table["dg_std_mgal"].to_numpy(), table.pop(STD_FLOOR).to_numpy())
     return Leveled(crossovers, rep)
+
+
+#: the std columns the common level's std is added to (besides the grids')
+_STD_COLUMNS = ("dg_std_mgal", "dg_flight_std_mgal", "dg_datum_std_mgal")
+
+
+def add_common_level_std(table: pd.DataFrame, grids, report: dict, tied: bool, p, warnings: list) -> None:
+    """Where leveling fixed the flights relative to each other and no absolute base tie fixes
+    their common level (``tied`` False), add that level's std (the report's
+    ``crossovers.common_level``, :func:`app.core.leveling.common_level_std`) to every epoch's
+    std and every grid's, in quadrature (in place; ``std_common_level``).  After gridding: the
+    level is one number for the whole map, so it must not weigh the lines against each other
+    there.  The report's ``common_level`` says whether it was applied."""
+    common = report.get("common_level")
+    if common is None:
+        return
+    if not p.std_common_level or tied:
+        common["applied"] = False
+        common["reason"] = "off" if not p.std_common_level else "an absolute base tie fixes the level"
+        return
+    var = float(common["std_mgal"]) ** 2
+    common["applied"] = True
+    if not var > 0:
+        return
+    for col in _STD_COLUMNS:
+        if col in table:
+            table[col] = np.sqrt(table[col].to_numpy(float) ** 2 + var)
+    for g in grids:
+        if g is not None:
+            g.dg_std_mgal = np.sqrt(np.asarray(g.dg_std_mgal, float) ** 2 + var)
+    warnings.append(f"no absolute base tie: leveling fixed the {common['n_units']} flights relative to each other "
+                    f"(their offsets spread by {common['spread_mgal']:.2f} mGal at the crossovers), and their common "
+                    f"level is uncertain by about {common['std_mgal']:.2f} mGal; dg_std_mgal and the grid std include it")

@@ -163,6 +163,15 @@ const RENDER = {
           [[fmt(cv.rms_before_mgal, 4), fmt(cv.rms_cv_mgal, 4), fmt(cv.p_value, 3), String(cv.n_folds ?? "—")]], { id: "report-leveling-cv" }));
     }
     if (v.std_check) out.push(el("p", { class: "note" }, `σ check at the crossovers: `), genericView(v.std_check));
+    // the level leveling leaves common to the flights (no absolute base tie: it is in the std)
+    if (v.common_level) {
+      const c = v.common_level;
+      out.push(el("p", { class: "note", id: "report-common-level" },
+        `Common level of the ${c.n_units} flights: their offsets at ${c.n_crossovers} crossovers spread by ${fmt(c.spread_mgal, 3)} mGal, ` +
+        `so their mean — the level leveling keeps — is uncertain by ${fmt(c.std_mgal, 3)} mGal` +
+        (c.applied ? "; included in δg's std and the grid std (no absolute base tie)." : ` (not added to the std: ${c.reason ?? "—"}).`)),
+        table(["Flight", "Offset (mGal)"], Object.entries(c.offsets_mgal || {}).map(([f, o]) => [f, fmt(o, 3)]), { id: "report-common-level-offsets" }));
+    }
     if (r.crossovers && r.crossovers.length) {
       out.push(el("h4", {}, `Crossovers (${r.crossovers.length})`), el("div", { class: "scroll" }, table(["Line a", "Line b", "E (km)", "N (km)", "before (mGal)", "after (mGal)"],
         r.crossovers.map((c) => [String(c.line_a), String(c.line_b), fmt(c.easting_km, 2), fmt(c.northing_km, 2), fmt(c.diff_before_mgal, 3), fmt(c.diff_after_mgal, 3)]),
