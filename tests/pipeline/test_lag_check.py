@@ -127,6 +127,28 @@ def test_undeclared_lag_taken_for_a_time_offset_is_declared_as_a_lag(tmp_path):
     assert any("as a lag" in w for w in warnings)
 
 
+def test_offsets_are_not_read_as_a_lag_when_the_gravimeter_is_slower_than_the_gnss(tmp_path, monkeypatch):
+    """A 2 Hz point-sampled platform meter with the same undeclared 0.1 s lag on 10 Hz GNSS: the
+    offsets are not tried as a lag (on two generated surveys like it the lag, right as it was,
+    made the estimate worse: z takes the slow record between its samples)."""
+    from app.pipeline.stages.measurement import _gravimeter_at_gnss_rate
+
+    slow = {**PLATFORM_10HZ, "gravimeter_rate_hz": 2.0, "gnss_rate_hz": 10.0}
+    survey_dir = simulate_survey("tiny", tmp_path / "s", seed=11, tau_true_s=0.1, **slow)
+    survey = read_survey(survey_dir)
+    assert not any(_gravimeter_at_gnss_rate(f) for f in survey.flights.values())
+    tau, info = check_lag(survey, survey.config, [])
+    assert not (info or {}).get("from_time_offsets") and "offset_as_lag" not in (info or {})
+    fast = read_survey(simulate_survey("tiny", tmp_path / "f", seed=11, tau_true_s=0.1, **PLATFORM_10HZ))
+    assert all(_gravimeter_at_gnss_rate(f) for f in fast.flights.values())
+    # without the rate rule the slow meter's offsets would be tried as a lag
+    import app.pipeline.stages.measurement as ms
+
+    monkeypatch.setattr(ms, "_gravimeter_at_gnss_rate", lambda flight: True)
+    _, tried = check_lag(survey, survey.config, [])
+    assert tried.get("from_time_offsets") or "offset_as_lag" in tried, tried
+
+
 def test_a_real_shift_of_the_stamps_stays_an_offset(tmp_path):
     """The same meter with no lag but its stamps 0.1 s late: the offset is a shift, and as a
     lag it would damp the acceleration wrongly — the band check keeps it an offset."""
