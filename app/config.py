@@ -475,7 +475,8 @@ class ProcessingParams(_Strict):
                                         "undeclared gravimeter lag when that lowers z's band RMS (lag check); on since "
                                         "session 27, when the repeat passes size a track's std only where their "
                                         "smoothing part is significant (std_repeat_significance): on the 4-pass test "
-                                        "line the lag it finds no longer narrows the std (seed 3 2σ coverage 0.94)")
+                                        "line the lag it finds no longer narrows the std (seed 3 2σ coverage 0.94); "
+                                        "not tried for a gravimeter slower than the GNSS (slow_gravimeter_min_ratio)")
     lag_band_fit: bool = Field(True, description="Fit τ where the anomaly is estimated: the lag that leaves the least of "
                                "the gravimeter's jerk in z at 2–5 × 1/fir_cutoff_period_s Hz (lag check; used when "
                                "significant at lag_band_fit_z standard errors and it lowers z's RMS there by "

@@ -128,23 +128,25 @@ def test_undeclared_lag_taken_for_a_time_offset_is_declared_as_a_lag(tmp_path):
 
 
 def test_offsets_are_not_read_as_a_lag_when_the_gravimeter_is_slower_than_the_gnss(tmp_path, monkeypatch):
-    """A 2 Hz point-sampled platform meter with the same undeclared 0.1 s lag on 10 Hz GNSS: the
-    offsets are not tried as a lag (on two generated surveys like it the lag, right as it was,
+    """A 2 Hz point-sampled platform meter with the same undeclared 0.1 s lag on 10 Hz GNSS (5 GNSS
+    steps per sample, by the stamps; the 10 Hz meter on 1 Hz GNSS is not slow): the offsets are
+    not tried as a lag (on two generated surveys like it the lag, right as it was,
     made the estimate worse: z takes the slow record between its samples)."""
-    from app.pipeline.stages.measurement import _gravimeter_at_gnss_rate
+    from app.pipeline.stages.measurement import _slow_gravimeter
 
     slow = {**PLATFORM_10HZ, "gravimeter_rate_hz": 2.0, "gnss_rate_hz": 10.0}
     survey_dir = simulate_survey("tiny", tmp_path / "s", seed=11, tau_true_s=0.1, **slow)
     survey = read_survey(survey_dir)
-    assert not any(_gravimeter_at_gnss_rate(f) for f in survey.flights.values())
+    ratio = survey.config.processing.slow_gravimeter_min_ratio
+    assert all(_slow_gravimeter(f, ratio) for f in survey.flights.values())
     tau, info = check_lag(survey, survey.config, [])
     assert not (info or {}).get("from_time_offsets") and "offset_as_lag" not in (info or {})
     fast = read_survey(simulate_survey("tiny", tmp_path / "f", seed=11, tau_true_s=0.1, **PLATFORM_10HZ))
-    assert all(_gravimeter_at_gnss_rate(f) for f in fast.flights.values())
+    assert not any(_slow_gravimeter(f, ratio) for f in fast.flights.values())
     # without the rate rule the slow meter's offsets would be tried as a lag
     import app.pipeline.stages.measurement as ms
 
-    monkeypatch.setattr(ms, "_gravimeter_at_gnss_rate", lambda flight: True)
+    monkeypatch.setattr(ms, "_slow_gravimeter", lambda flight, ratio: False)
     _, tried = check_lag(survey, survey.config, [])
     assert tried.get("from_time_offsets") or "offset_as_lag" in tried, tried
 

@@ -34,6 +34,7 @@ from app.core.measurement import (
 )
 from app.core.noise_level import band_fit_coefficient, band_rms_mgal, local_noise_variance_cm2s2
 from app.io.survey import gnss_runs
+from app.io.tables import median_rate_hz
 
 
 @dataclass
@@ -936,8 +937,7 @@ def offset_as_lag(survey, cfg: SurveyConfig, names: list, offsets: list,
     ``lag_check_s``; used when the lag check's band test (:func:`lag_band_check`) finds z's
     RMS lowered by ``lag_check_min_improvement`` — a real shift of the stamps (a logger's
     latency) is left as an offset, since as a lag it would damp the acceleration wrongly.
-    Not tried where a flight's gravimeter samples less often than its GNSS
-    (:func:`_gravimeter_at_gnss_rate`).  Only with ``lag_from_time_offsets`` (on by default
+    Not tried where a flight's gravimeter is slower than its GNSS (:func:`_slow_gravimeter`).  Only with ``lag_from_time_offsets`` (on by default
     since the repeat passes size a track's std only where their smoothing part is
     significant: on the 4-pass test line the lag it finds, right as it is, had let them narrow
     the std below the error they share)."""
@@ -947,7 +947,7 @@ def offset_as_lag(survey, cfg: SurveyConfig, names: list, offsets: list,
     late = [-o for o in offsets]
     if not all(p.lag_check_min_change_s <= x <= 0.5 for x in late) or float(np.ptp(late)) > p.lag_check_s:
         return None, None
-    if not all(_gravimeter_at_gnss_rate(survey.flights[n]) for n in names):
+    if any(_slow_gravimeter(survey.flights[n], p.slow_gravimeter_min_ratio) for n in names):
         return None, None
     tau_c = cfg.gravimeter.tau_s + float(np.median(late))
     check = lag_band_check([survey.flights[n] for n in names], cfg, tau_c,
@@ -968,18 +968,20 @@ def offset_as_lag(survey, cfg: SurveyConfig, names: list, offsets: list,
     return tau_c, info
 
 
-def _gravimeter_at_gnss_rate(flight) -> bool:
-    """Does the flight's gravimeter sample at least as often as its GNSS (1 % slack)?  Where
-    it is slower, z takes the gravimeter between its samples (interpolated, or the means
-    compensated for the motion) and a lag inverted on the slow record changes z above the band
-    more than the damping it undoes: on two generated surveys with 2 Hz point samples on 5 and
-    10 Hz GNSS, the offsets read as a lag (τ right, 0.028 and 0.085 s) took the estimate 5.00 →
-    5.31 and 1.41 → 1.57 mGal, FIR unchanged."""
-    tg = flight.gravimeter["time"].to_numpy(float)
-    tn = flight.gnss["time"].to_numpy(float)
-    if tg.size < 2 or tn.size < 2:
+def _slow_gravimeter(flight, min_ratio: float | None) -> bool:
+    """Is the flight's gravimeter slower than its GNSS — its sampling interval at least
+    ``min_ratio`` GNSS steps (``slow_gravimeter_min_ratio``, the measure stage 1's motion
+    compensation uses; None: never), both rates from the stamps (:func:`app.io.tables.median_rate_hz`)?
+    There z takes the gravimeter between its samples (interpolated, or the means compensated
+    for the motion), and a lag inverted on the slow record changes z above the band more than
+    the damping it undoes: on two generated surveys with 2 Hz point samples on 5 and 10 Hz
+    GNSS, the offsets read as a lag (τ right, 0.028 and 0.085 s) took the estimate 5.00 → 5.31
+    and 1.41 → 1.57 mGal, FIR unchanged."""
+    if min_ratio is None:
         return False
-    return float(np.median(np.diff(tg))) <= 1.01 * float(np.median(np.diff(tn)))
+    f_grav = median_rate_hz(flight.gravimeter["time"].to_numpy(float))
+    f_gnss = median_rate_hz(flight.gnss["time"].to_numpy(float))
+    return bool(np.isfinite(f_grav) and np.isfinite(f_gnss) and f_gnss >= min_ratio * f_grav)
 
 
 def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float, declared: list | None = None,
