@@ -254,6 +254,13 @@ class ProcessingParams(_Strict):
                                                     "its motion cancelled at its own sample boundaries "
                                                     "(app.core.gravimeter.motion_compensated_means), kept when z is "
                                                     "quieter above the anomaly band; None never")
+    band_delay_check: bool = Field(True, description="Fit the gravimeter's timing left after the time offset and "
+                                   "lag at 1-5 x 1/fir_cutoff_period_s (z's band on the GNSS jerk's, over the lines, "
+                                   "flights pooled) and take it out of z below 10 x 1/fir_cutoff_period_s when "
+                                   "significant (band_delay_min_t); report band_delay")
+    band_delay_min_t: float = Field(4.0, ge=1, le=1000, description="The residual delay is taken out when it "
+                                    "exceeds this many standard errors (one independent sample per 1/(2B) s of "
+                                    "the band's width B)")
     # --- anomaly model
     m: int | None = Field(None, ge=1, le=3, description="Order of the difference operator ∇^m δg = q; None "
                           "chooses it from the data (model_order)")

@@ -10,7 +10,10 @@ at rest at a point of gravity g gives ``z = g − γ``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+from scipy import signal
 
 from app.core.geodesy import MGAL_PER_MS2, vertical_velocity_from_heights_ms
 
@@ -436,4 +439,137 @@ def response_prediction_mgal(z_mgal, a_ms2, lags: int = 5) -> np.ndarray:
         return out
     c, *_ = np.linalg.lstsq(X[fit], z[k][fit], rcond=None)
     out[k[rows]] = X[rows] @ c
+    return out
+
+
+@dataclass(frozen=True)
+class BandDelay:
+    """Result of :func:`band_delay_fit`.
+
+    Attributes
+    ----------
+    delay_s : float
+        The gravimeter's residual delay behind the GNSS at the band's frequencies (s; positive:
+        the gravimeter late), ``z_band ≈ −delay_s · ȧ_band``.
+    se_s : float
+        Its standard error (s), from ``n_independent`` independent samples of the residual.
+    t_stat : float
+        ``delay_s / se_s``.
+    n_independent : float
+        ``2·B·T``: B the band's width (Hz), T the duration fitted (s).
+    band_rms_mgal, band_rms_corrected_mgal : float
+        RMS of z in the band before and after the delay is taken out (mGal).
+    n_epochs : int
+        Epochs fitted.
+    """
+
+    delay_s: float
+    se_s: float
+    t_stat: float
+    n_independent: float
+    band_rms_mgal: float
+    band_rms_corrected_mgal: float
+    n_epochs: int
+
+
+def _filled(x: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """x with its NaNs linearly interpolated (constant beyond the ends); zeros if none finite."""
+    ok = np.isfinite(x)
+    if not ok.any():
+        return np.zeros_like(x)
+    return np.interp(t, t[ok], x[ok]) if not ok.all() else x
+
+
+def band_delay_fit(segments, dt_s: float, band_hz: tuple[float, float], gap_margin_s: float = 100.0) -> BandDelay:
+    """The timing error left between z and the GNSS acceleration at the anomaly's edge.
+
+    A time offset or lag fitted over a broad band (where the aircraft's turbulence rules) is
+    that band's best single delay; an instrument whose response is not a pure lag and shift
+    (an anti-alias filter, a platform's loop) keeps a residual delay at the lowest frequencies
+    of the motion, and the phugoid (periods of 20–90 s, 10⁴ mGal of vertical acceleration)
+    turns a few milliseconds of it into tens of mGal in z just above the FIR cut-off.  A
+    gravimeter late by d puts ``a(t − d) − a(t) ≈ −d·ȧ(t)`` into z, so d is the least-squares
+    coefficient of z's band on the GNSS jerk's band, ``d = −Σ z_b ȧ_b / Σ ȧ_b²``.  The jerk is
+    in quadrature with the acceleration, so an anomaly that follows the flight path (a draped
+    flight: the anomaly and the acceleration both follow the terrain) does not bias it.
+
+    Parameters
+    ----------
+    segments : sequence of (t_s, z_mgal, a_mgal, usable)
+        One record per flight, each on a uniform step ``dt_s``: epoch times (s), z (mGal, NaN
+        where missing), the GNSS vertical acceleration (mGal, NaN where missing) and the epochs
+        that may be fitted (bool; the lines).  Each record is band-passed whole (zero-phase
+        Butterworth of order 4, NaNs bridged linearly); epochs within ``gap_margin_s`` of a
+        bridged NaN of z or of the record's ends are left out.
+    dt_s : float
+        Time step (s).
+    band_hz : (float, float)
+        The band fitted (Hz), ``0 < f1 < f2 <`` Nyquist.
+    gap_margin_s : float
+        Margin (s) left out around gaps and ends.
+
+    Returns
+    -------
+    BandDelay
+        NaN figures when fewer than ``10/(f2 − f1)`` s are usable.
+    """
+    f1, f2 = (float(x) for x in band_hz)
+    if not (np.isfinite(dt_s) and dt_s > 0):
+        raise ValueError(f"dt_s must be positive, got {dt_s!r}")
+    if not 0 < f1 < f2 < 0.5 / dt_s:
+        raise ValueError(f"band {band_hz} must satisfy 0 < f1 < f2 < Nyquist ({0.5 / dt_s:g} Hz)")
+    sos = signal.butter(4, (f1, f2), btype="bandpass", fs=1.0 / dt_s, output="sos")
+    margin = int(round(gap_margin_s / dt_s))
+    zs, js = [], []
+    for t, z, a, usable in segments:
+        t, z, a = (np.asarray(x, dtype=float) for x in (t, z, a))
+        use = np.asarray(usable, dtype=bool).copy()
+        if not (t.shape == z.shape == a.shape == use.shape) or t.ndim != 1:
+            raise ValueError("each segment's t_s, z_mgal, a_mgal and usable must be 1-D of one length")
+        if t.size <= 2 * margin + 12 or np.isfinite(z).sum() < 2 or np.isfinite(a).sum() < 2:
+            continue
+        bad = ~(np.isfinite(z) & np.isfinite(a))
+        if bad.any():
+            use &= np.convolve(bad.astype(float), np.ones(2 * margin + 1), mode="same") == 0
+        use[:margin] = use[-margin:] = False
+        if not use.any():
+            continue
+        zb = signal.sosfiltfilt(sos, _filled(z, t) - np.nanmean(z))
+        ab = signal.sosfiltfilt(sos, _filled(a, t) - np.nanmean(a))
+        zs.append(zb[use])
+        js.append(np.gradient(ab, dt_s)[use])
+    n = int(sum(x.size for x in zs))
+    nan = BandDelay(*(float("nan"),) * 6, n)
+    if n * dt_s < 10.0 / (f2 - f1):
+        return nan
+    zb, jb = np.concatenate(zs), np.concatenate(js)
+    sjj = float(np.dot(jb, jb))
+    if not sjj > 0:
+        return nan
+    c = float(np.dot(zb, jb) / sjj)
+    res = zb - c * jb
+    n_ind = 2.0 * (f2 - f1) * n * dt_s
+    se = float(np.sqrt(np.mean(res ** 2) / (np.mean(jb ** 2) * n_ind)))
+    return BandDelay(-c, se, -c / se if se > 0 else float("nan"), n_ind,
+                     float(np.sqrt(np.mean(zb ** 2))), float(np.sqrt(np.mean(res ** 2))), n)
+
+
+def delay_correction_mgal(t_s, a_mgal, delay_s: float, lowpass_hz: float) -> np.ndarray:
+    """What a residual delay d puts into z below ``lowpass_hz``: ``−d·ȧ`` of the GNSS
+    acceleration low-passed (zero-phase Butterworth of order 4), mGal, shape (n,).  Subtracted
+    from z it takes the delay out there and leaves z above ``lowpass_hz`` (the broad-band
+    offset fit's) as it was.  NaN where ``a_mgal`` is."""
+    t = np.asarray(t_s, dtype=float)
+    a = np.asarray(a_mgal, dtype=float)
+    if t.shape != a.shape or t.ndim != 1:
+        raise ValueError("t_s and a_mgal must be 1-D of one length")
+    dt = float(np.median(np.diff(t))) if t.size > 1 else float("nan")
+    if not (np.isfinite(dt) and dt > 0 and 0 < lowpass_hz < 0.5 / dt):
+        raise ValueError(f"lowpass_hz {lowpass_hz!r} must lie below the Nyquist frequency of a uniform record")
+    if t.size < 13:
+        return np.where(np.isfinite(a), 0.0, np.nan)
+    sos = signal.butter(4, lowpass_hz, btype="lowpass", fs=1.0 / dt, output="sos")
+    al = signal.sosfiltfilt(sos, _filled(a, t))
+    out = -float(delay_s) * np.gradient(al, t)
+    out[~np.isfinite(a)] = np.nan
     return out

@@ -232,3 +232,92 @@ def test_response_prediction_recovers_the_part_of_z_linear_in_the_acceleration()
     assert np.std(z[ok] - pred[ok]) == pytest.approx(200.0, rel=0.05)
     assert np.all(np.isfinite(pred[5000:5010]))
     np.testing.assert_allclose(pred[5000:5010], z[5000:5010] - noise[5000:5010], atol=50.0)
+
+
+# --------------------------------------------------------------------------- band delay
+def _motion(rng, t, dt):
+    """Vertical acceleration (mGal): a phugoid, a second slow mode and AR(1) turbulence."""
+    from scipy.signal import lfilter
+    a = 15_000.0 * np.sin(2 * np.pi * t / 45.0) + 3_000.0 * np.sin(2 * np.pi * t / 28.0 + 1.0)
+    return a + 300.0 * lfilter([1.0], [1.0, -0.98], rng.standard_normal(t.size))
+
+
+def _z(rng, t, dt, delay_s, anomaly=None, vel_noise_cms=1.0):
+    """z of a gravimeter late by delay_s: a(t − d) − (a(t) + e_a) + δg, with the GNSS's own
+    acceleration error e_a (white velocity noise differenced) in both z and the regressor."""
+    from app.core.measurement import gnss_acceleration_ms2
+    a = _motion(rng, t, dt)
+    v_err = rng.normal(0.0, vel_noise_cms / 100.0, t.size)
+    e_a = np.nan_to_num(gnss_acceleration_ms2(t, v_err)) * 1e5
+    dg = 5.0 * np.sin(2 * np.pi * t / 400.0) if anomaly is None else anomaly(a)
+    z = np.interp(t - delay_s, t, a) - (a + e_a) + dg
+    return z, a + e_a
+
+
+def test_band_delay_recovers_a_known_delay_and_its_correction_removes_it():
+    from app.core.measurement import band_delay_fit, delay_correction_mgal
+    rng = np.random.default_rng(3)
+    dt = 0.1
+    t = np.arange(0.0, 7200.0, dt)
+    z, a = _z(rng, t, dt, 0.02)
+    fit = band_delay_fit([(t, z, a, np.ones(t.size, bool))], dt, (0.01, 0.05))
+    assert abs(fit.delay_s - 0.02) < max(3 * fit.se_s, 1e-3)
+    assert fit.t_stat > 20 and fit.n_independent == pytest.approx(2 * 0.04 * (7200 - 2 * 100), rel=0.01)  # the ends left out
+    zc = z - delay_correction_mgal(t, a, fit.delay_s, 0.1)
+    again = band_delay_fit([(t, zc, a, np.ones(t.size, bool))], dt, (0.01, 0.05))
+    assert abs(again.t_stat) < 3
+    assert again.band_rms_mgal == pytest.approx(fit.band_rms_corrected_mgal, rel=0.01)
+    assert again.band_rms_mgal < 0.5 * fit.band_rms_mgal
+    # above the low-pass z is left as it was (the broad-band offset fit's)
+    from scipy.signal import butter, sosfiltfilt
+    hp = butter(4, 0.3, btype="highpass", fs=1 / dt, output="sos")
+    assert np.std(sosfiltfilt(hp, zc - z)) < 1e-3 * np.std(sosfiltfilt(hp, z))
+
+
+def test_band_delay_null_is_calibrated_with_the_gnss_error_in_both_sides():
+    """No delay: the t statistic (one independent sample per 1/(2B) s) behaves as N(0, 1),
+    although the GNSS acceleration error is in z and in the regressor alike."""
+    from app.core.measurement import band_delay_fit
+    rng = np.random.default_rng(11)
+    dt = 0.2
+    t = np.arange(0.0, 3600.0, dt)
+    ts = []
+    for _ in range(150):
+        z, a = _z(rng, t, dt, 0.0, vel_noise_cms=3.0)
+        ts.append(band_delay_fit([(t, z, a, np.ones(t.size, bool))], dt, (0.01, 0.05)).t_stat)
+    ts = np.abs(np.array(ts))
+    assert np.mean(ts > 2.0) < 0.12          # N(0, 1): 4.6 %
+    assert np.mean(ts > 4.0) < 0.02
+    assert 0.5 < np.sqrt(np.mean(ts ** 2)) < 1.5
+
+
+def test_band_delay_is_blind_to_an_anomaly_that_follows_the_flight_path():
+    """A draped flight: the anomaly rises and falls with the aircraft (δg ∝ its band-passed
+    acceleration); the jerk is in quadrature with it, so no delay is read into it."""
+    from scipy.signal import butter, sosfiltfilt
+
+    from app.core.measurement import band_delay_fit
+    rng = np.random.default_rng(5)
+    dt = 0.1
+    t = np.arange(0.0, 7200.0, dt)
+    sos = butter(4, (0.01, 0.05), btype="bandpass", fs=1 / dt, output="sos")
+    z, a = _z(rng, t, dt, 0.0, anomaly=lambda acc: -2e-3 * sosfiltfilt(sos, acc))
+    fit = band_delay_fit([(t, z, a, np.ones(t.size, bool))], dt, (0.01, 0.05))
+    assert abs(fit.t_stat) < 4 and abs(fit.delay_s) < 1e-3
+
+
+def test_band_delay_leaves_out_gaps_and_rejects_a_bad_band():
+    from app.core.measurement import band_delay_fit
+    rng = np.random.default_rng(2)
+    dt = 0.1
+    t = np.arange(0.0, 3600.0, dt)
+    z, a = _z(rng, t, dt, 0.015)
+    z[10_000:10_050] = np.nan                    # a gap: bridged for the filter, left out of the fit
+    use = np.ones(t.size, bool)
+    fit = band_delay_fit([(t, z, a, use)], dt, (0.01, 0.05))
+    assert abs(fit.delay_s - 0.015) < max(3 * fit.se_s, 1e-3)
+    assert fit.n_epochs < t.size - 2 * 1000       # the gap's margins and the record's ends are out
+    short = band_delay_fit([(t[:3000], z[:3000], a[:3000], use[:3000])], dt, (0.01, 0.05))
+    assert np.isnan(short.delay_s)                # 300 s, less than 10/(f2 − f1)
+    with pytest.raises(ValueError, match="Nyquist"):
+        band_delay_fit([(t, z, a, use)], dt, (0.01, 6.0))

@@ -27,6 +27,9 @@ from app.core.baselines import fir_kernel
 from app.core.calibration import CalibrationSpectra, calibrate
 from app.core.measurement import (
     anomaly_measurement_mgal,
+    band_delay_fit,
+    delay_correction_mgal,
+    gnss_acceleration_ms2,
     height_outlier_mask,
     repair_height_outliers,
     repair_spikes,
@@ -702,6 +705,8 @@ class Measurement:
     warnings : list of str
     dt_s : float
         Median GNSS step (s).
+    band_delay : dict or None
+        :func:`check_band_delay`'s fit and decision (None when off).
     """
 
     flights: dict
@@ -710,6 +715,7 @@ class Measurement:
     calibration: dict | None
     warnings: list
     dt_s: float
+    band_delay: dict | None = None
 
 
 def check_lag(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, dict | None]:
@@ -1054,6 +1060,7 @@ def measure(survey, progress=None) -> Measurement:
         if progress is not None:
             progress((i + 1) / len(names))
     choose_motion_compensation(flights, p)
+    band_delay = check_band_delay(flights, getattr(survey, "lines", None), p, warnings)
     for name in names:
         warnings.extend(f"flight {name}: {n}" for n in flights[name].notes)
         base_ties[name] = base_tie(flights[name], cfg.gravimeter.base_gravity_mgal)
@@ -1064,4 +1071,74 @@ def measure(survey, progress=None) -> Measurement:
                         "error (scale × g, easily 100+ mGal); differences along and between lines are "
                         "reliable, absolute values are not")
     dt_s = float(np.median(np.concatenate([np.diff(m.t_s) for m in flights.values()])))
-    return Measurement(flights, base_ties, lag_check, calibration, warnings, dt_s)
+    return Measurement(flights, base_ties, lag_check, calibration, warnings, dt_s, band_delay)
+
+
+def _uniform_runs(t_s: np.ndarray) -> list[slice]:
+    """Slices of a record's runs on one time step (a hole left as a hole splits it)."""
+    if t_s.size < 2:
+        return [slice(0, t_s.size)]
+    dt = np.diff(t_s)
+    cuts = np.flatnonzero(dt > 1.5 * np.median(dt)) + 1
+    edges = np.concatenate([[0], cuts, [t_s.size]])
+    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def check_band_delay(flights: dict, lines, p, warnings: list) -> dict | None:
+    """The gravimeter's timing left at the anomaly's edge, taken out of z (in place) when
+    significant; the report's ``band_delay``.
+
+    The time offset (fitted at 0.01–0.8 Hz) and the lag leave the delay that fits the
+    turbulence best; an instrument whose response is not a pure lag and shift (an anti-alias
+    filter, a platform's loop) is then still late or early at the phugoid's periods, just above
+    the FIR cut-off, where 10⁴ mGal of motion make milliseconds into tens of mGal
+    (:func:`app.core.measurement.band_delay_fit`).  Fitted at 1–5 × 1/``fir_cutoff_period_s``
+    over the lines (the airborne epochs without a line table), the flights pooled (one
+    instrument); taken out below 10 × 1/``fir_cutoff_period_s`` (:func:`delay_correction_mgal`)
+    when it exceeds ``band_delay_min_t`` standard errors, z above that left as the offset fit
+    made it.  Each record's runs on one time step are fitted apart (a hole left as a hole)."""
+    steps = [np.diff(m.t_s) for m in flights.values() if m.t_s.size > 1]
+    if not p.band_delay_check or not steps:
+        return None
+    dt = float(np.median(np.concatenate(steps)))
+    nyq = 0.5 / dt
+    band = (1.0 / p.fir_cutoff_period_s, 5.0 / p.fir_cutoff_period_s)
+    lowpass = min(10.0 / p.fir_cutoff_period_s, 0.8 * nyq)
+    rec: dict = {"band_hz": list(band), "lowpass_hz": lowpass, "min_t": p.band_delay_min_t, "applied": False}
+    if not band[1] < nyq:
+        rec["reason"] = f"the band {band[0]:g}–{band[1]:g} Hz is not below the GNSS Nyquist frequency"
+        return rec
+    segments, accel = [], {}
+    for name, m in flights.items():
+        a = gnss_acceleration_ms2(m.t_s, m.vu_ms) * geodesy.MGAL_PER_MS2
+        accel[name] = a
+        usable = np.hypot(m.ve_ms, m.vn_ms) > 20.0
+        if lines is not None and len(lines):
+            usable = np.zeros(m.t_s.size, bool)
+            for t0, t1 in lines.loc[lines["flight"] == name, ["t_start", "t_end"]].to_numpy(float):
+                usable |= (m.t_s >= t0) & (m.t_s <= t1)
+        segments.extend((m.t_s[r], m.z_mgal[r], a[r], usable[r]) for r in _uniform_runs(m.t_s))
+    fit = band_delay_fit(segments, dt, band)
+    rec.update({"delay_s": fit.delay_s, "se_s": fit.se_s, "t_stat": fit.t_stat, "n_independent": fit.n_independent,
+                "band_rms_mgal": fit.band_rms_mgal, "band_rms_corrected_mgal": fit.band_rms_corrected_mgal,
+                "n_epochs": fit.n_epochs})
+    if not np.isfinite(fit.t_stat):
+        rec["reason"] = f"too few line epochs to fit ({fit.n_epochs})"
+        return rec
+    if abs(fit.t_stat) < p.band_delay_min_t:
+        rec["reason"] = (f"residual delay {1e3 * fit.delay_s:+.1f} ms at {band[0]:g}–{band[1]:g} Hz is "
+                         f"{abs(fit.t_stat):.1f} standard errors (< {p.band_delay_min_t:g}): z kept")
+        return rec
+    for name, m in flights.items():
+        corr = np.zeros(m.t_s.size)
+        for r in _uniform_runs(m.t_s):
+            if r.stop - r.start > 1:
+                corr[r] = delay_correction_mgal(m.t_s[r], accel[name][r], fit.delay_s, lowpass)
+        m.z_mgal = np.where(np.isfinite(corr), m.z_mgal - corr, m.z_mgal)
+    rec["applied"] = True
+    rec["reason"] = (f"the gravimeter is {1e3 * abs(fit.delay_s):.1f} ms {'late' if fit.delay_s > 0 else 'early'} "
+                     f"against the GNSS at {band[0]:g}–{band[1]:g} Hz "
+                     f"({abs(fit.t_stat):.1f} standard errors) after the time offset and lag: taken out of z below "
+                     f"{lowpass:g} Hz (z's band RMS {fit.band_rms_mgal:.3g} → {fit.band_rms_corrected_mgal:.3g} mGal)")
+    warnings.append(f"gravimeter timing: {rec['reason']} (report band_delay)")
+    return rec
