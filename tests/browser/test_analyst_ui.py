@@ -141,11 +141,14 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     lag = page.locator("#report-lag-check tbody tr").first.locator("td")
     assert lag.last.inner_text().startswith("the flights' time offsets read as a lag (τ = 2.050 s)")
     assert lag.nth(2).inner_text() == "not used (first fit Δτ -0.4 ± 1.1 ms)"
+    bd = page.locator("#report-band-delay tbody tr").first.locator("td")
+    assert [bd.nth(i).inner_text() for i in range(6)] == ["18.1", "0.34", "52.7", "0.01–0.05", "59.64 → 24.08", "yes"]
+    assert bd.last.inner_text().startswith("the gravimeter is 18.1 ms late against the GNSS")
     assert page.inner_text("#report-common-level").startswith(
         "Common level of the 3 flights: their offsets at 12 crossovers spread by 4.33 mGal, so their mean — the level "
         "leveling keeps — is uncertain by 2.5 mGal; included in δg's std and the grid std")
     assert page.locator("#report-common-level-offsets tbody tr").count() == 3
-    for key in ("base_ties", "time_offsets", "lag_check", "spike_repair", "crossovers", "noise_model", "model_order",
+    for key in ("base_ties", "time_offsets", "lag_check", "band_delay", "spike_repair", "crossovers", "noise_model", "model_order",
                 "model_choice", "future_section", "counts"):
         assert page.locator(f"#report-sec-{key}").count() == 1, key
     assert "stood down" not in page.inner_text("#report-sec-spike_repair") and "repaired" in page.inner_text("#report-sec-spike_repair")

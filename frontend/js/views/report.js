@@ -149,6 +149,12 @@ const RENDER = {
     [[fmt(v.declared_tau_s, 4), (v.estimated_tau_s || []).map((x) => fmt(x, 4)).join(", "), bandFitCell(v), yes(v.applied),
       v.reason || (v.offset_as_lag && v.offset_as_lag.reason) || (v.band_fit && v.band_fit.reason) || "—"]],
     { id: "report-lag-check" })],
+  // the gravimeter's timing left at the anomaly's edge (stage 1): fitted on the GNSS jerk, taken out when significant
+  band_delay: (v) => [table(["Residual delay (ms)", "SE (ms)", "t", "Band (Hz)", "z's band RMS (mGal)", "Applied", "Reason"],
+    [[v.delay_s == null ? "—" : fmt(1e3 * v.delay_s, 3), v.se_s == null ? "—" : fmt(1e3 * v.se_s, 2), fmt(v.t_stat, 3),
+      (v.band_hz || []).map((x) => fmt(x, 3)).join("–"),
+      `${fmt(v.band_rms_mgal, 4)} → ${fmt(v.band_rms_corrected_mgal, 4)}`, yes(v.applied), v.reason || "—"]],
+    { id: "report-band-delay" })],
   spike_repair: (v) => [perFlight(v, ["Flagged epochs", "Fraction", "Epochs", "Threshold (robust σ)", "Outcome"], (d) => [
     String(d.flagged ?? "—"), pct(d.fraction), String(d.epochs ?? "—"), fmt(d.threshold, 3),
     spikeOutcome(d)])],
@@ -240,6 +246,7 @@ const RENDER = {
 
 const TITLES = {
   base_ties: "Base ties", time_offsets: "Gravimeter–GNSS time offsets and time stamps", gnss_filled_epochs: "Missing GNSS epochs", lag_check: "Lag check (τ in flight)",
+  band_delay: "Residual gravimeter delay at the anomaly's edge",
   spike_repair: "GNSS spike repair (velocity spikes; height spikes and steps where vu comes from the heights)", crossovers: "Leveling at crossovers", repeat_lines: "Repeat-line internal accuracy",
   noise_model: "Noise model", model_order: "Model order", model_choice: "Model choice", identification: "Identification (EM)",
   counts: "Counts", timings_s: "Stage timings (s)", grid: "Grid", level_refinement: "Level refinement",
@@ -283,7 +290,7 @@ export async function render(sec, ctx) {
     el("h4", {}, `Warnings (${r.warnings.length})`),
     r.warnings.length ? el("ul", { id: "report-warnings", class: "warnings" }, r.warnings.map((w) => el("li", {}, w)))
       : el("p", { class: "note", id: "report-warnings" }, "none")));
-  for (const key of ["base_ties", "time_offsets", "gnss_filled_epochs", "lag_check", "spike_repair", "crossovers", "repeat_lines"]) {
+  for (const key of ["base_ties", "time_offsets", "gnss_filled_epochs", "lag_check", "band_delay", "spike_repair", "crossovers", "repeat_lines"]) {
     if (rep[key] !== undefined && rep[key] !== null) parts.push(card(key, TITLES[key], ...RENDER[key](rep[key], r), jsonDetails(key, rep[key])));
   }
   if (r.adaptive_minus_fir.length) {
@@ -299,7 +306,7 @@ export async function render(sec, ctx) {
   parts.push(card("identification", TITLES.identification, ...identificationCard(r),
     rep.identification ? jsonDetails("identification", rep.identification) : null));
   if (rep.model_choice !== undefined) parts.push(card("model_choice", TITLES.model_choice, genericView(rep.model_choice), jsonDetails("model_choice", rep.model_choice)));
-  const shown = new Set(["base_ties", "time_offsets", "gnss_filled_epochs", "lag_check", "spike_repair", "crossovers", "repeat_lines", "noise_model", "model_order",
+  const shown = new Set(["base_ties", "time_offsets", "gnss_filled_epochs", "lag_check", "band_delay", "spike_repair", "crossovers", "repeat_lines", "noise_model", "model_order",
     "identification", "model_choice"]);
   for (const [key, v] of Object.entries(rep)) {
     if (shown.has(key) || SKIP.has(key)) continue;
