@@ -480,7 +480,8 @@ def _filled(x: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.interp(t, t[ok], x[ok]) if not ok.all() else x
 
 
-def band_delay_fit(segments, dt_s: float, band_hz: tuple[float, float], gap_margin_s: float = 100.0) -> BandDelay:
+def band_delay_fit(segments, dt_s: float | None, band_hz: tuple[float, float],
+                   gap_margin_s: float = 100.0) -> BandDelay:
     """The timing error left between z and the GNSS acceleration at the anomaly's edge.
 
     A time offset or lag fitted over a broad band (where the aircraft's turbulence rules) is
@@ -496,15 +497,17 @@ def band_delay_fit(segments, dt_s: float, band_hz: tuple[float, float], gap_marg
     Parameters
     ----------
     segments : sequence of (t_s, z_mgal, a_mgal, usable)
-        One record per flight, each on a uniform step ``dt_s``: epoch times (s), z (mGal, NaN
-        where missing), the GNSS vertical acceleration (mGal, NaN where missing) and the epochs
-        that may be fitted (bool; the lines).  Each record is band-passed whole (zero-phase
-        Butterworth of order 4, NaNs bridged linearly); epochs within ``gap_margin_s`` of a
-        bridged NaN of z or of the record's ends are left out.
-    dt_s : float
-        Time step (s).
+        Records on a uniform step each (one per flight, or per run of a flight): epoch times
+        (s), z (mGal, NaN where missing), the GNSS vertical acceleration (mGal, NaN where
+        missing) and the epochs that may be fitted (bool; the lines).  Each record is
+        band-passed whole (zero-phase Butterworth of order 4, NaNs bridged linearly); epochs
+        within ``gap_margin_s`` of a bridged NaN or of the record's ends are left out.
+    dt_s : float or None
+        The records' time step (s); None: each record's own (the median step of its times —
+        flights logged at different rates).
     band_hz : (float, float)
-        The band fitted (Hz), ``0 < f1 < f2 <`` Nyquist.
+        The band fitted (Hz), ``0 < f1 < f2 <`` Nyquist (a record whose own Nyquist frequency
+        is not above f2 is left out).
     gap_margin_s : float
         Margin (s) left out around gaps and ends.
 
@@ -514,18 +517,23 @@ def band_delay_fit(segments, dt_s: float, band_hz: tuple[float, float], gap_marg
         NaN figures when fewer than ``10/(f2 − f1)`` s are usable.
     """
     f1, f2 = (float(x) for x in band_hz)
-    if not (np.isfinite(dt_s) and dt_s > 0):
-        raise ValueError(f"dt_s must be positive, got {dt_s!r}")
-    if not 0 < f1 < f2 < 0.5 / dt_s:
-        raise ValueError(f"band {band_hz} must satisfy 0 < f1 < f2 < Nyquist ({0.5 / dt_s:g} Hz)")
-    sos = signal.butter(4, (f1, f2), btype="bandpass", fs=1.0 / dt_s, output="sos")
-    margin = int(round(gap_margin_s / dt_s))
-    zs, js = [], []
+    if dt_s is not None:
+        if not (np.isfinite(dt_s) and dt_s > 0):
+            raise ValueError(f"dt_s must be positive, got {dt_s!r}")
+        if not 0 < f1 < f2 < 0.5 / dt_s:
+            raise ValueError(f"band {band_hz} must satisfy 0 < f1 < f2 < Nyquist ({0.5 / dt_s:g} Hz)")
+    elif not 0 < f1 < f2:
+        raise ValueError(f"band {band_hz} must satisfy 0 < f1 < f2")
+    zs, js, duration = [], [], 0.0
     for t, z, a, usable in segments:
         t, z, a = (np.asarray(x, dtype=float) for x in (t, z, a))
         use = np.asarray(usable, dtype=bool).copy()
         if not (t.shape == z.shape == a.shape == use.shape) or t.ndim != 1:
             raise ValueError("each segment's t_s, z_mgal, a_mgal and usable must be 1-D of one length")
+        step = float(dt_s) if dt_s is not None else (float(np.median(np.diff(t))) if t.size > 1 else float("nan"))
+        if not (np.isfinite(step) and step > 0 and f2 < 0.5 / step):
+            continue
+        margin = int(round(gap_margin_s / step))
         if t.size <= 2 * margin + 12 or np.isfinite(z).sum() < 2 or np.isfinite(a).sum() < 2:
             continue
         bad = ~(np.isfinite(z) & np.isfinite(a))
@@ -534,13 +542,15 @@ def band_delay_fit(segments, dt_s: float, band_hz: tuple[float, float], gap_marg
         use[:margin] = use[-margin:] = False
         if not use.any():
             continue
+        sos = signal.butter(4, (f1, f2), btype="bandpass", fs=1.0 / step, output="sos")
         zb = signal.sosfiltfilt(sos, _filled(z, t) - np.nanmean(z))
         ab = signal.sosfiltfilt(sos, _filled(a, t) - np.nanmean(a))
         zs.append(zb[use])
-        js.append(np.gradient(ab, dt_s)[use])
+        js.append(np.gradient(ab, step)[use])
+        duration += float(use.sum()) * step
     n = int(sum(x.size for x in zs))
     nan = BandDelay(*(float("nan"),) * 6, n)
-    if n * dt_s < 10.0 / (f2 - f1):
+    if duration < 10.0 / (f2 - f1):
         return nan
     zb, jb = np.concatenate(zs), np.concatenate(js)
     sjj = float(np.dot(jb, jb))
@@ -548,7 +558,7 @@ def band_delay_fit(segments, dt_s: float, band_hz: tuple[float, float], gap_marg
         return nan
     c = float(np.dot(zb, jb) / sjj)
     res = zb - c * jb
-    n_ind = 2.0 * (f2 - f1) * n * dt_s
+    n_ind = 2.0 * (f2 - f1) * duration
     se = float(np.sqrt(np.mean(res ** 2) / (np.mean(jb ** 2) * n_ind)))
     return BandDelay(-c, se, -c / se if se > 0 else float("nan"), n_ind,
                      float(np.sqrt(np.mean(zb ** 2))), float(np.sqrt(np.mean(res ** 2))), n)

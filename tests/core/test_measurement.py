@@ -321,3 +321,21 @@ def test_band_delay_leaves_out_gaps_and_rejects_a_bad_band():
     assert np.isnan(short.delay_s)                # 300 s, less than 10/(f2 − f1)
     with pytest.raises(ValueError, match="Nyquist"):
         band_delay_fit([(t, z, a, use)], dt, (0.01, 6.0))
+
+
+def test_band_delay_pools_records_logged_at_different_rates():
+    """Two flights of one instrument, GNSS at 10 Hz and at 5 Hz: each is filtered on its own
+    step, and the pooled delay and its independent samples count both."""
+    from app.core.measurement import band_delay_fit
+    rng = np.random.default_rng(7)
+    segs, dur = [], 0.0
+    for dt in (0.1, 0.2):
+        t = np.arange(0.0, 3600.0, dt)
+        z, a = _z(rng, t, dt, 0.02)
+        segs.append((t, z, a, np.ones(t.size, bool)))
+        dur += 3600.0 - 2 * 100.0
+    fit = band_delay_fit(segs, None, (0.01, 0.05))
+    assert abs(fit.delay_s - 0.02) < max(3 * fit.se_s, 1e-3)
+    assert fit.n_independent == pytest.approx(2 * 0.04 * dur, rel=0.01)
+    with pytest.raises(ValueError, match="0 < f1 < f2"):
+        band_delay_fit(segs, None, (0.05, 0.01))

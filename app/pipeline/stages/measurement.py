@@ -1118,7 +1118,7 @@ def check_band_delay(flights: dict, lines, p, warnings: list) -> dict | None:
             for t0, t1 in lines.loc[lines["flight"] == name, ["t_start", "t_end"]].to_numpy(float):
                 usable |= (m.t_s >= t0) & (m.t_s <= t1)
         segments.extend((m.t_s[r], m.z_mgal[r], a[r], usable[r]) for r in _uniform_runs(m.t_s))
-    fit = band_delay_fit(segments, dt, band)
+    fit = band_delay_fit(segments, None, band)   # each run on its own step (flights may differ)
     rec.update({"delay_s": fit.delay_s, "se_s": fit.se_s, "t_stat": fit.t_stat, "n_independent": fit.n_independent,
                 "band_rms_mgal": fit.band_rms_mgal, "band_rms_corrected_mgal": fit.band_rms_corrected_mgal,
                 "n_epochs": fit.n_epochs})
@@ -1133,7 +1133,8 @@ def check_band_delay(flights: dict, lines, p, warnings: list) -> dict | None:
         corr = np.zeros(m.t_s.size)
         for r in _uniform_runs(m.t_s):
             if r.stop - r.start > 1:
-                corr[r] = delay_correction_mgal(m.t_s[r], accel[name][r], fit.delay_s, lowpass)
+                nyq_r = 0.5 / float(np.median(np.diff(m.t_s[r])))     # a flight logged slower: its own
+                corr[r] = delay_correction_mgal(m.t_s[r], accel[name][r], fit.delay_s, min(lowpass, 0.8 * nyq_r))
         m.z_mgal = np.where(np.isfinite(corr), m.z_mgal - corr, m.z_mgal)
     rec["applied"] = True
     rec["reason"] = (f"the gravimeter is {1e3 * abs(fit.delay_s):.1f} ms {'late' if fit.delay_s > 0 else 'early'} "
