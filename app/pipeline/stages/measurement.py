@@ -1074,16 +1074,6 @@ def measure(survey, progress=None) -> Measurement:
     return Measurement(flights, base_ties, lag_check, calibration, warnings, dt_s, band_delay)
 
 
-def _uniform_runs(t_s: np.ndarray) -> list[slice]:
-    """Slices of a record's runs on one time step (a hole left as a hole splits it)."""
-    if t_s.size < 2:
-        return [slice(0, t_s.size)]
-    dt = np.diff(t_s)
-    cuts = np.flatnonzero(dt > 1.5 * np.median(dt)) + 1
-    edges = np.concatenate([[0], cuts, [t_s.size]])
-    return [slice(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
-
-
 def check_band_delay(flights: dict, lines, p, warnings: list) -> dict | None:
     """The gravimeter's timing left at the anomaly's edge, taken out of z (in place) when
     significant; the report's ``band_delay``.
@@ -1117,7 +1107,7 @@ def check_band_delay(flights: dict, lines, p, warnings: list) -> dict | None:
             usable = np.zeros(m.t_s.size, bool)
             for t0, t1 in lines.loc[lines["flight"] == name, ["t_start", "t_end"]].to_numpy(float):
                 usable |= (m.t_s >= t0) & (m.t_s <= t1)
-        segments.extend((m.t_s[r], m.z_mgal[r], a[r], usable[r]) for r in _uniform_runs(m.t_s))
+        segments.extend((m.t_s[i0:i1], m.z_mgal[i0:i1], a[i0:i1], usable[i0:i1]) for i0, i1 in gnss_runs(m.t_s, 0.0))
     fit = band_delay_fit(segments, None, band)   # each run on its own step (flights may differ)
     rec.update({"delay_s": fit.delay_s, "se_s": fit.se_s, "t_stat": fit.t_stat, "n_independent": fit.n_independent,
                 "band_rms_mgal": fit.band_rms_mgal, "band_rms_corrected_mgal": fit.band_rms_corrected_mgal,
@@ -1131,8 +1121,9 @@ def check_band_delay(flights: dict, lines, p, warnings: list) -> dict | None:
         return rec
     for name, m in flights.items():
         corr = np.zeros(m.t_s.size)
-        for r in _uniform_runs(m.t_s):
-            if r.stop - r.start > 1:
+        for i0, i1 in gnss_runs(m.t_s, 0.0):       # each run on one step (a hole left as a hole)
+            r = slice(i0, i1)
+            if i1 - i0 > 1:
                 nyq_r = 0.5 / float(np.median(np.diff(m.t_s[r])))     # a flight logged slower: its own
                 corr[r] = delay_correction_mgal(m.t_s[r], accel[name][r], fit.delay_s, min(lowpass, 0.8 * nyq_r))
         m.z_mgal = np.where(np.isfinite(corr), m.z_mgal - corr, m.z_mgal)
