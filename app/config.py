@@ -373,7 +373,7 @@ class ProcessingParams(_Strict):
                                     "the gravimeter's specific force (lags ±5 epochs, band-passed): the two instruments' "
                                     "response mismatch follows the turbulence, not the GNSS noise, and has no weight in "
                                     "the anomaly band.  Off by default: over 88 surveys as good on average, but its two "
-                                    "largest changes were losses (docs/METHOD.md §4, session 20)")
+                                    "largest changes were losses (docs/MEASUREMENTS.md, session 20)")
     noise_band_hz: tuple[float, float] = Field((0.1, 0.5), description="Band (Hz) in which the 'band' noise "
                                                "model measures the local GNSS noise level")
     noise_family: Literal["auto", "white velocity", "Gauss-Markov velocity", "white height", "coloured height",
