@@ -298,6 +298,12 @@ class ProcessingParams(_Strict):
                                           "line's stationary replacement; with flatten_check)")
     fir_guard: bool = Field(True, description="Use FIR 100 s when the chosen estimate disagrees significantly more "
                             "at the crossovers than FIR does")
+    fir_long_periods_s: tuple[float, ...] = Field((200.0, 400.0, 800.0), description="Where the noisy check falls "
+                                                  "back to FIR and FIR's crossovers show an error at least its whole "
+                                                  "along-line spread (it resolves no anomaly: aliased motion on a "
+                                                  "1-2 Hz record), the shortest of these longer low-passes (s) whose lines "
+                                                  "vary by more than its crossovers' error is used (else the one with "
+                                                  "the least); () = off")
     fir_guard_smoothing_std: bool = Field(True, description="When the FIR guard switches to FIR, add to FIR's std "
                                           "the anomaly it clips as the adaptive estimate sees it (var(a − FIR(a)) "
                                           "per line): an error crossing lines share, invisible at the crossovers")
@@ -450,6 +456,13 @@ class ProcessingParams(_Strict):
     def _band_increasing(cls, v):
         if not 0 < v[0] < v[1] <= 500:
             raise ValueError("noise_band_hz must be (f1, f2) with 0 < f1 < f2 ≤ 500 (Hz)")
+        return v
+
+    @field_validator("fir_long_periods_s")
+    @classmethod
+    def _long_periods(cls, v):
+        if len(v) > 8 or not all(0 < x <= 10_000 for x in v):
+            raise ValueError("fir_long_periods_s must hold at most 8 periods, each 0 < P ≤ 10000 (s)")
         return v
 
     @field_validator("noise_fit_min_s")

@@ -19,7 +19,7 @@ from app.config import SurveyConfig
 from app.pipeline.parallel import thread_count
 from app.pipeline.stages import storage
 from app.pipeline.stages.choice import Candidate, choose_model, choose_order, count_crossovers
-from app.pipeline.stages.filtering import filter_survey, fir_baseline, fir_loss_warnings
+from app.pipeline.stages.filtering import filter_survey, fir_baseline, fir_line_column, fir_loss_warnings
 from app.pipeline.stages.gridding import grid_survey
 from app.pipeline.stages.identification import Identification, identify
 from app.pipeline.stages.leveling import add_common_level_std, level_survey
@@ -240,7 +240,10 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
                                             repeat_significance=p.std_repeat_significance)
     if blend:   # after m_best's own std: the blend's spread adds to it
         cands[m_best].filtered.blend_order(blend_est, blend["weight"])
-    choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings, order=(m_best, order_rep))
+    choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings, order=(m_best, order_rep),
+                          # renormalised across holes and the records' ends: a long kernel reaches them
+                          # from most lines, and a one-sided mean is still the heavy smoothing wanted
+                          fir_at=lambda period: fir_line_column(idf.lines, idf.flights, period))
     best = cands[choice.m]
     table = choice.table
     products = apply_products(table, idf.survey_dir, idf.crs, p, warnings)

@@ -260,3 +260,24 @@ def test_a_result_view_open_during_the_job_shows_the_result_when_it_ends(slow_se
     page.wait_for_selector("#rec-map[data-signature]", timeout=60000)
     page.wait_for_selector("#survey-list li .badge:has-text('succeeded')", timeout=5000)
     _no_errors(page)
+
+
+def test_summary_says_when_a_longer_lowpass_replaces_fir(fake_server, browser_page):  # noqa: F811
+    """Where FIR 100 s itself resolves nothing (stage 9, step 3b) the report's summary says which
+    low-pass was used and the crossovers' evidence, not just "FIR" (the figures of generated 78)."""
+    page = browser_page
+    page.goto(fake_server.url)
+    text = page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const nc = {applied: true, median_variance_ratio: 2.70, median_disagreement: 1.15,
+                    long_lowpass: {applied: true, fir_crossover_std_mgal: 86.6, fir_spread_mgal: 76.4, period_s: 800}};
+        const r = {warnings: [], report: {model_choice: {chosen: 'FIR', m: 2, noisy_check: nc, fir_guard: {applied: false}}}};
+        const off = {warnings: [], report: {model_choice: {chosen: 'FIR', m: 2,
+                     noisy_check: {...nc, long_lowpass: {applied: false}}, fir_guard: {applied: false}}}};
+        return [m.summary(r).textContent, m.summary(off).textContent];
+    }""")
+    assert ("the adaptive estimate passes noise (median variance ratio 2.7, median disagreement with FIR 1.15); "
+            "FIR 100 s resolves no anomaly either (its crossovers show 86.6 mGal of error against an along-line "
+            "spread of 76.4): the 800 s low-pass is used") in text[0]
+    assert "passes noise" in text[1] and "low-pass is used" not in text[1]
+    _no_errors(page)

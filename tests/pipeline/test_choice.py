@@ -367,3 +367,126 @@ def test_fir_std_after_the_noisy_check_covers_the_anomaly_fir_clips():
     assert np.mean(err < 2 * rep["fir_crossover_std_mgal"]) < 0.5, rep      # the crossovers' share alone
     assert rep["fir_std_floor_mgal"] == pytest.approx(max(rep["fir_spread_mgal"], rep["fir_crossover_std_mgal"]))
     assert np.mean(err < 2 * table["dg_std_mgal"].to_numpy()) >= 0.9
+
+
+def _aliased_table(rng):
+    """Four 40 km east-west lines and three north-south ties (12 crossovers) over a smooth
+    anomaly (30–50 km wavelengths, ~8 mGal), with z carrying what no noise model of the GNSS
+    sees — the fold-down of aliased motion: 30 mGal at 110–250 s periods and a level of 25
+    mGal std per line (periods longer than the line), independent between lines.  Returns
+    the table (an 'adaptive' column that passes that noise) and ``fir_at(period)``: the
+    low-pass of each line's z, run-in included, on the table's rows."""
+    rows, zs, t0 = [], [], 0.0
+    specs = ([(f"M{k}", "main", 0.0, 5.0 + 10.0 * k, 40.0, 0.0) for k in range(4)]
+             + [(f"T{k}", "tie", 5.0 + 15.0 * k, 0.0, 0.0, 40.0) for k in range(3)])
+    run_in = int(600.0 / DT_S)
+    for name, kind, e0, n0, de, dn in specs:
+        n_ep = int(np.hypot(de, dn) / SPEED_KMS / DT_S)
+        s = np.arange(-run_in, n_ep + run_in) / (n_ep - 1)
+        e, n = e0 + de * s, n0 + dn * s
+        g = 8 * np.sin(2 * np.pi * e / 50.0 + 0.3) + 6 * np.cos(2 * np.pi * n / 30.0 + 1.1)
+        t = np.arange(s.size) * DT_S
+        alias = sum(np.sqrt(2.0 / 12) * 30.0 * np.sin(2 * np.pi * t / P + rng.uniform(0, 2 * np.pi))
+                    for P in rng.uniform(110.0, 250.0, 12))
+        z = g + alias + rng.normal(0.0, 25.0) + rng.normal(0.0, 5.0, s.size)
+        zs.append((z, run_in, n_ep))
+        fir = fir_lowpass_mgal(z, DT_S, 100.0)[run_in:-run_in]
+        est = fir + rng.normal(0.0, 40.0, n_ep)
+        rows.append(pd.DataFrame({
+            "line": name, "kind": kind, "time": t0 + np.arange(n_ep) * DT_S,
+            "easting_km": e[run_in:-run_in], "northing_km": n[run_in:-run_in], "dg_true_mgal": g[run_in:-run_in],
+            "dg_fir_mgal": fir, "dg_unleveled_mgal": est, "dg_mgal": est, "dg_stationary_mgal": est,
+            "dg_std_mgal": np.full(n_ep, 40.0), "R_cm2s2": np.full(n_ep, R_CM2S2)}))
+        t0 += n_ep * DT_S + 600.0
+
+    def fir_at(period_s):
+        return np.concatenate([fir_lowpass_mgal(z, DT_S, period_s)[a:a + n] for z, a, n in zs])
+
+    return pd.concat(rows, ignore_index=True), fir_at
+
+
+def _line_demeaned_rms(table, col):
+    e = table[col] - table["dg_true_mgal"]
+    return _rms(e - e.groupby(table["line"]).transform("mean"), 0.0)
+
+
+def test_where_fir_resolves_nothing_a_longer_lowpass_is_used():
+    """z's noise at 110–250 s periods and its lines' levels are several times the anomaly:
+    FIR 100 s passes them, and its 12 crossovers show more error than its lines vary on most
+    draws (a sampling matter with so few: 6 of 8 here).  Then after the noisy check every line
+    takes a longer low-pass — 400 s, the one that removes most of that noise — far closer to the
+    truth along the lines than FIR, with a std that covers that error; the report and a
+    warning say so.  Where the crossovers do not show it, FIR stays."""
+    noise = white_velocity(DT_S, R_CM2S2)
+    p = ProcessingParams(fir_long_periods_s=(200.0, 400.0))
+    applied = 0
+    for seed in range(10, 18):
+        table, fir_at = _aliased_table(np.random.default_rng(seed))
+        warnings: list = []
+        lines = check_lines(table, noise, DT_S, p, warnings)
+        fir_err = _line_demeaned_rms(table, "dg_fir_mgal")
+        rep = noisy_check(table, lines, noise, DT_S, p, warnings, fir_at)
+        long = rep["long_lowpass"]
+        assert rep["applied"]
+        if not long["applied"]:
+            assert long["fir_crossover_std_mgal"] < long["fir_spread_mgal"]
+            assert np.array_equal(table["dg_mgal"].to_numpy(), table["dg_fir_mgal"].to_numpy())
+            continue
+        applied += 1
+        assert long["fir_crossover_std_mgal"] >= long["fir_spread_mgal"] and long["period_s"] == 400.0
+        assert np.allclose(table["dg_mgal"], fir_at(400.0))
+        assert _line_demeaned_rms(table, "dg_mgal") < 0.4 * fir_err
+        e = table["dg_mgal"] - table["dg_true_mgal"]
+        e = (e - e.groupby(table["line"]).transform("mean")).to_numpy()
+        assert np.mean(np.abs(e) < 2 * table["dg_std_mgal"].to_numpy()) >= 0.9
+        assert any("resolves no anomaly" in w for w in warnings)
+    assert applied >= 5
+
+
+def test_a_longer_lowpass_only_where_fir_resolves_nothing():
+    """An estimate that passes noise over an FIR that sees the anomaly: FIR is used, no longer
+    low-pass (the crossovers would favour one, but cannot see the anomaly it clips); and with
+    ``fir_long_periods_s = ()`` the step is off even where FIR resolves nothing."""
+    table, noise = _table(np.random.default_rng(1), 45.0)
+    p = ProcessingParams()
+    calls = []
+    rep = noisy_check(table, check_lines(table, noise, DT_S, p, []), noise, DT_S, p, [],
+                      lambda period: calls.append(period))
+    assert rep["applied"] and not rep["long_lowpass"]["applied"] and not calls
+    assert np.array_equal(table["dg_mgal"].to_numpy(), table["dg_fir_mgal"].to_numpy())
+    table, fir_at = _aliased_table(np.random.default_rng(11))
+    off = ProcessingParams(fir_long_periods_s=())
+    rep = noisy_check(table, check_lines(table, noise, DT_S, off, []), noise, DT_S, off, [], fir_at)
+    assert rep["applied"] and "long_lowpass" not in rep
+    assert np.array_equal(table["dg_mgal"].to_numpy(), table["dg_fir_mgal"].to_numpy())
+
+
+def test_the_report_gives_the_lowpass_period_used():
+    """choose_model's report: FIR at its own period where the noisy check falls back to it, the
+    longer period where step 3b replaced it (the aliased fixture, a draw where it fires)."""
+    noise = white_velocity(DT_S, R_CM2S2)
+
+    def cand(table):
+        class _Cand:
+            class filtered:
+                pass
+
+            class ident:
+                n_points = 1000
+
+                class learned:
+                    class em:
+                        Q = [1.0, 2.0]
+
+        _Cand.filtered.table = table
+        return _Cand
+
+    table, fir_at = _aliased_table(np.random.default_rng(10))
+    p = ProcessingParams(m=2, fir_long_periods_s=(200.0, 400.0))
+    choice = choose_model({2: cand(table)}, noise, DT_S, p, [], order=(2, {"m": 2}), fir_at=fir_at)
+    assert choice.report["chosen"] == "FIR" and choice.report["fir_period_s"] == 400.0
+    assert np.allclose(choice.table["dg_mgal"], fir_at(400.0))
+    table, fir_at = _aliased_table(np.random.default_rng(10))
+    choice = choose_model({2: cand(table)}, noise, DT_S, p, [], order=(2, {"m": 2}))   # no longer low-pass given
+    assert choice.report["chosen"] == "FIR" and choice.report["fir_period_s"] == 100.0
+    assert np.array_equal(choice.table["dg_mgal"].to_numpy(), table["dg_fir_mgal"].to_numpy())

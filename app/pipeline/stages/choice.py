@@ -58,6 +58,11 @@
    when the crossover RMS points the same way — a few wild crossovers blind the first:
    :func:`app.core.model_check.significantly_worse`), every line takes FIR.
 
+Between 3 and 4, **3b. FIR resolving nothing** (:func:`longer_lowpass`): after step 3, when
+FIR's own crossovers show at least as much error as its lines vary, the same low-pass at the
+longer ``fir_long_periods_s`` is tried and the shortest that varies by more than its crossovers'
+error (else the one with the least) replaces FIR on every line.
+
 Every decision is returned with its evidence (the report's ``model_choice`` section).
 """
 
@@ -287,11 +292,13 @@ def _use_fir(table: pd.DataFrame, noise, dt_s: float, p, floor_mgal: float = 0.0
         _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), std))
 
 
-def noisy_check(table: pd.DataFrame, lines: dict, noise, dt_s: float, p, warnings: list) -> dict:
+def noisy_check(table: pd.DataFrame, lines: dict, noise, dt_s: float, p, warnings: list,
+                fir_at=None) -> dict:
     """Step 3 (in place): an estimate with several times the anomaly variance FIR shows is
     noise; so is one that differs from FIR by more than FIR's whole along-line std
     (:func:`app.core.model_check.disagreement_ratio`, no noise model needed beyond which lines
-    FIR resolves)."""
+    FIR resolves).  ``fir_at(period_s)``: the low-pass of z at another period on the table's
+    rows, for :func:`longer_lowpass` where FIR itself resolves nothing."""
     # on the lines where FIR resolves the anomaly beyond its noise, as for the variance ratio: where
     # FIR is mostly noise the ratio tends to 1 whatever the estimate's error (a 0.13×-FIR estimate
     # gave 0.97), and the sampling scatter of FIR's noise variance decides which side it falls
@@ -333,6 +340,62 @@ def noisy_check(table: pd.DataFrame, lines: dict, noise, dt_s: float, p, warning
                f"differs from FIR 100 s by {rep['median_disagreement']:.2f}x FIR's along-line std (median of "
                f"{dis.size} lines): its error would exceed the anomaly")
         warnings.append(f"the adaptive estimate {why}: it passes noise, FIR used")
+        if fir_at is not None and p.fir_long_periods_s and "fir_crossover_std_mgal" in rep:
+            rep["long_lowpass"] = longer_lowpass(table, fir_at, spread, rep["fir_crossover_std_mgal"], p, warnings)
+    return rep
+
+
+def longer_lowpass(table: pd.DataFrame, fir_at, fir_spread_mgal: float, fir_crossover_std_mgal: float, p,
+                   warnings: list) -> dict:
+    """Step 3b (in place): where FIR resolves no anomaly, a longer low-pass.
+
+    When the error FIR's crossovers show (RMS of the differences over √2: the part two crossing
+    lines do not share) is at least FIR's whole along-line spread (the median of its lines'
+    std), the anomaly FIR 100 s keeps is lost in its noise — aliased motion on a 1–2 Hz
+    record that the noise model cannot see, so every model-based estimate passes it too.  The
+    same low-pass of z over each whole flight is then tried at the longer ``fir_long_periods_s``
+    (``fir_at(period_s)``), and the shortest one whose lines vary by more than its crossovers'
+    error is used on every line: the least smoothing that resolves something beyond its noise.
+    Where none does, the one with the least crossover RMS (the longest, as a rule).  Not the
+    least crossover RMS in general: the crossovers cannot see the anomaly a low-pass clips (the
+    same at both ends of a crossing), so they favour the longest period (generated 44: 800 s,
+    1.7 → 12.4 mGal).  Its std adds the two errors it has in quadrature: the noise its
+    crossovers show and the anomaly it clips, taken as of the order of what its lines keep
+    (their along-line spread).  Returns the evidence."""
+    rep: dict = {"fir_crossover_std_mgal": fir_crossover_std_mgal, "fir_spread_mgal": fir_spread_mgal,
+                 "applied": False}
+    if not fir_crossover_std_mgal >= fir_spread_mgal:
+        rep["reason"] = "FIR's crossovers show less error than its along-line spread: it resolves the anomaly"
+        return rep
+    tried = {}
+    for period in sorted(float(x) for x in p.fir_long_periods_s if x > p.fir_cutoff_period_s):
+        col = np.asarray(fir_at(period), dtype=float)
+        d = crossover_differences(table.assign(_lp=col), "_lp", p.leveling_include_repeat)
+        d = d[np.isfinite(d)]
+        if d.size < 4:
+            continue
+        spread = float(np.nanmedian([float(np.nanstd(col[pos]))
+                                     for pos in table.groupby("line", sort=False).indices.values()]))
+        tried[period] = (crossover_rms_mgal(d) / np.sqrt(2.0), spread, col)
+    rep["tried"] = {f"{k:g}": {"crossover_std_mgal": v[0], "spread_mgal": v[1]} for k, v in tried.items()}
+    if not tried:
+        rep["reason"] = "too few crossovers with a longer low-pass"
+        return rep
+    resolving = [k for k, v in tried.items() if v[1] > v[0]]
+    best = resolving[0] if resolving else min(tried, key=lambda k: tried[k][0])
+    xstd, spread, col = tried[best]
+    std = float(np.hypot(xstd, spread))
+    for pos in table.groupby("line", sort=False).indices.values():   # positions: col is in row order
+        _use(table, table.index[pos], col[pos], std)
+    rep.update(applied=True, period_s=best, resolves=bool(resolving), std_mgal=std)
+    warnings.append(f"FIR {p.fir_cutoff_period_s:g} s resolves no anomaly either (its crossovers show "
+                    f"{fir_crossover_std_mgal:.1f} mGal of error against an along-line spread of "
+                    f"{fir_spread_mgal:.1f}): the {best:g} s low-pass is used on every line ("
+                    + (f"the shortest that varies by more than its crossovers' error, {xstd:.1f} mGal" if resolving
+                       else f"none of {', '.join(f'{k:g}' for k in tried)} s resolves anything beyond its "
+                            f"crossovers' error; this one has the least, {xstd:.1f} mGal")
+                    + f"); only anomalies longer than ~{best:g} s of flight are resolved "
+                    "(model_choice.noisy_check.long_lowpass)")
     return rep
 
 
@@ -390,15 +453,15 @@ def stationary_check(table: pd.DataFrame, p, warnings: list) -> dict:
     return rep
 
 
-def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=None) -> ModelChoice:
+def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=None, fir_at=None) -> ModelChoice:
     """Stage 9 over the filtered candidates ``{m: Candidate}`` (``order``: the result of
-    :func:`choose_order` when already made)."""
+    :func:`choose_order` when already made; ``fir_at``: as in :func:`noisy_check`)."""
     m, order_rep = order if order is not None else choose_order(candidates, p)
     # shallow: with pandas' copy-on-write (pandas >= 3) the writes below copy only the columns
     # they change, and the candidates are not read after the choice (a deep copy took ~1 s on omolon)
     table = candidates[m].filtered.table.copy(deep=False)
     lines = check_lines(table, noise, dt_s, p, warnings) if p.flatten_check else {}
-    noisy = (noisy_check(table, lines, noise, dt_s, p, warnings) if p.flatten_check
+    noisy = (noisy_check(table, lines, noise, dt_s, p, warnings, fir_at) if p.flatten_check
              else {"applied": False, "reason": "off"})
     if noisy["applied"]:
         guard = {"applied": False, "reason": "FIR already used (noisy estimate)"}
@@ -411,7 +474,14 @@ def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=
     why = ("two anomaly levels (Markov-switching Q)" if n_q > 1 else
            f"one anomaly level: {candidates[m].ident.n_points} decimated points "
            f"(< {p.min_points_adaptive}) cannot tell two apart" if p.n_q is None else "n_q = 1 set")
-    rep = {"chosen": chosen, "m": m, "order": order_rep, "anomaly_levels": n_q, "anomaly_levels_reason": why,
+    if chosen == "FIR":   # the low-pass's period: FIR's, or the longer one of step 3b
+        rep_period = {"fir_period_s": float((noisy.get("long_lowpass") or {}).get("period_s")
+                                            if (noisy.get("long_lowpass") or {}).get("applied")
+                                            else p.fir_cutoff_period_s)}
+    else:
+        rep_period = {}
+    rep = {"chosen": chosen, **rep_period, "m": m, "order": order_rep, "anomaly_levels": n_q,
+           "anomaly_levels_reason": why,
            "lines": lines, "noisy_check": noisy, "fir_guard": guard,
            "stationary_check": stationary_check(table, p, warnings)}
     return ModelChoice(m, table, rep)

@@ -40,6 +40,17 @@ def fir_baseline(m: FlightMeasurement, cutoff_period_s: float, max_gap_error_mga
     return fir
 
 
+def fir_line_column(lines: list[LineData], flights: dict[str, FlightMeasurement], cutoff_period_s: float,
+                    max_gap_error_mgal: float | None = None) -> np.ndarray:
+    """:func:`fir_baseline` at ``cutoff_period_s`` over each flight, on the lines' epochs in the
+    order of :func:`filter_survey`'s table (lines in turn), mGal, shape (table rows,)."""
+    fir = {name: fir_baseline(flights[name], cutoff_period_s, max_gap_error_mgal)
+           for name in dict.fromkeys(ln.flight for ln in lines)}
+    if not lines:
+        return np.zeros(0)
+    return np.concatenate([fir[ln.flight][ln.sl] for ln in lines])
+
+
 #: Share of the line epochs with z above which FIR's absence near holes blinds the model checks.
 FIR_LOSS_BLIND = 0.5
 

@@ -29,7 +29,7 @@ function repeatRows(rep) {
 }
 
 // one line per decision, in words, for the top of the panel
-function summary(r) {
+export function summary(r) {
   const rep = r.report || {};
   const items = [];
   items.push(r.absolute_base_tie
@@ -92,6 +92,13 @@ function summary(r) {
       } else if (n.applied) {
         text += ` — the adaptive estimate passes noise (median variance ratio ${fmt(n.median_variance_ratio, 3)}, ` +
           `median disagreement with FIR ${fmt(n.median_disagreement, 3)})`;
+        const lp = n.long_lowpass || {};
+        if (lp.applied) {
+          // FIR itself resolves nothing: a longer low-pass (stage 9, step 3b)
+          text += `; FIR 100 s resolves no anomaly either (its crossovers show ${fmt(lp.fir_crossover_std_mgal, 3)} mGal ` +
+            `of error against an along-line spread of ${fmt(lp.fir_spread_mgal, 3)}): the ${fmt(lp.period_s, 4)} s ` +
+            `low-pass is used, resolving only anomalies longer than that`;
+        }
       }
     }
     items.push({ cls: mc && mc.chosen === "FIR" ? "warn" : "ok", text });
