@@ -359,7 +359,9 @@ def longer_lowpass(table: pd.DataFrame, fir_at, fir_spread_mgal: float, fir_cros
     Where none does, the one with the least crossover RMS (the longest, as a rule).  Not the
     least crossover RMS in general: the crossovers cannot see the anomaly a low-pass clips (the
     same at both ends of a crossing), so they favour the longest period (generated 44: 800 s,
-    1.7 → 12.4 mGal).  Its std adds the two errors it has in quadrature: the noise its
+    1.7 → 12.4 mGal).  And only where that period's crossover error is at most
+    ``fir_long_max_error_ratio`` of FIR's: the lines' levels (drift, offsets, not leveled yet)
+    also make crossover error, and a longer low-pass keeps them.  Its std adds the two errors it has in quadrature: the noise its
     crossovers show and the anomaly it clips, taken as of the order of what its lines keep
     (their along-line spread).  Returns the evidence."""
     rep: dict = {"fir_crossover_std_mgal": fir_crossover_std_mgal, "fir_spread_mgal": fir_spread_mgal,
@@ -384,6 +386,13 @@ def longer_lowpass(table: pd.DataFrame, fir_at, fir_spread_mgal: float, fir_cros
     resolving = [k for k, v in tried.items() if v[1] > v[0]]
     best = resolving[0] if resolving else min(tried, key=lambda k: tried[k][0])
     xstd, spread, col = tried[best]
+    if xstd > p.fir_long_max_error_ratio * fir_crossover_std_mgal:
+        # what FIR's crossovers show is mostly the lines' levels (drift, offsets: leveling comes
+        # later), which a longer low-pass keeps, not noise in the band it removes (layout 193: 200 s
+        # keeps 0.8 of FIR's crossover error and is 1.4x FIR's error against the truth)
+        rep.update(period_s=best, reason=f"the {best:g} s low-pass keeps {xstd / fir_crossover_std_mgal:.2f} of "
+                   f"FIR's crossover error (> {p.fir_long_max_error_ratio:g}): the lines' levels, not noise it removes")
+        return rep
     std = float(np.hypot(xstd, spread))
     for pos in table.groupby("line", sort=False).indices.values():   # positions: col is in row order
         _use(table, table.index[pos], col[pos], std)
