@@ -51,6 +51,23 @@ def _table(rng, adaptive_noise_mgal: float) -> tuple[pd.DataFrame, np.ndarray]:
     return pd.concat(rows, ignore_index=True), noise
 
 
+def _candidate(table: pd.DataFrame):
+    """A filtered candidate with the attributes choose_model reads besides the table."""
+    class _Cand:
+        class filtered:
+            pass
+
+        class ident:
+            n_points = 1000
+
+            class learned:
+                class em:
+                    Q = [1.0, 2.0]
+
+    _Cand.filtered.table = table
+    return _Cand
+
+
 def _rms(a, b):
     return float(np.sqrt(np.mean((np.asarray(a) - np.asarray(b)) ** 2)))
 
@@ -83,19 +100,7 @@ def test_a_sound_estimate_is_kept():
     table, noise = _table(np.random.default_rng(2), 1.0)
     before = table["dg_mgal"].to_numpy().copy()
 
-    class _Cand:  # the one attribute choose_model reads besides the table
-        class filtered:
-            pass
-
-        class ident:
-            n_points = 1000
-
-            class learned:
-                class em:
-                    Q = [1.0, 2.0]
-
-    _Cand.filtered.table = table
-    choice = choose_model({2: _Cand}, noise, DT_S, ProcessingParams(m=2), [], order=(2, {"m": 2}))
+    choice = choose_model({2: _candidate(table)}, noise, DT_S, ProcessingParams(m=2), [], order=(2, {"m": 2}))
     assert choice.report["chosen"] == "adaptive"
     assert not choice.report["noisy_check"]["applied"]
     assert 0.7 < choice.report["noisy_check"]["median_variance_ratio"] < 1.5
@@ -467,29 +472,13 @@ def test_the_report_gives_the_lowpass_period_used():
     """choose_model's report: FIR at its own period where the noisy check falls back to it, the
     longer period where step 3b replaced it (the aliased fixture, a draw where it fires)."""
     noise = white_velocity(DT_S, R_CM2S2)
-
-    def cand(table):
-        class _Cand:
-            class filtered:
-                pass
-
-            class ident:
-                n_points = 1000
-
-                class learned:
-                    class em:
-                        Q = [1.0, 2.0]
-
-        _Cand.filtered.table = table
-        return _Cand
-
     table, fir_at = _aliased_table(np.random.default_rng(11))
     p = ProcessingParams(m=2)
-    choice = choose_model({2: cand(table)}, noise, DT_S, p, [], order=(2, {"m": 2}), fir_at=fir_at)
+    choice = choose_model({2: _candidate(table)}, noise, DT_S, p, [], order=(2, {"m": 2}), fir_at=fir_at)
     period = choice.report["noisy_check"]["long_lowpass"]["period_s"]
     assert choice.report["chosen"] == "FIR" and choice.report["fir_period_s"] == period > 100.0
     assert np.allclose(choice.table["dg_mgal"], fir_at(period))
     table, fir_at = _aliased_table(np.random.default_rng(11))
-    choice = choose_model({2: cand(table)}, noise, DT_S, p, [], order=(2, {"m": 2}))   # no longer low-pass given
+    choice = choose_model({2: _candidate(table)}, noise, DT_S, p, [], order=(2, {"m": 2}))   # no longer low-pass given
     assert choice.report["chosen"] == "FIR" and choice.report["fir_period_s"] == 100.0
     assert np.array_equal(choice.table["dg_mgal"].to_numpy(), table["dg_fir_mgal"].to_numpy())
