@@ -16,6 +16,7 @@ import numpy as np
 from scipy import signal
 
 from app.core.geodesy import MGAL_PER_MS2, vertical_velocity_from_heights_ms
+from app.core.gravimeter import fill_nan
 
 
 def gnss_acceleration_ms2(t_s, vu_ms) -> np.ndarray:
@@ -472,14 +473,6 @@ class BandDelay:
     n_epochs: int
 
 
-def _filled(x: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """x with its NaNs linearly interpolated (constant beyond the ends); zeros if none finite."""
-    ok = np.isfinite(x)
-    if not ok.any():
-        return np.zeros_like(x)
-    return np.interp(t, t[ok], x[ok]) if not ok.all() else x
-
-
 def band_delay_fit(segments, dt_s: float | None, band_hz: tuple[float, float],
                    gap_margin_s: float = 100.0) -> BandDelay:
     """The timing error left between z and the GNSS acceleration at the anomaly's edge.
@@ -543,8 +536,8 @@ def band_delay_fit(segments, dt_s: float | None, band_hz: tuple[float, float],
         if not use.any():
             continue
         sos = signal.butter(4, (f1, f2), btype="bandpass", fs=1.0 / step, output="sos")
-        zb = signal.sosfiltfilt(sos, _filled(z, t) - np.nanmean(z))
-        ab = signal.sosfiltfilt(sos, _filled(a, t) - np.nanmean(a))
+        zb = signal.sosfiltfilt(sos, fill_nan(z) - np.nanmean(z))   # a uniform record: by index is by time
+        ab = signal.sosfiltfilt(sos, fill_nan(a) - np.nanmean(a))
         zs.append(zb[use])
         js.append(np.gradient(ab, step)[use])
         duration += float(use.sum()) * step
@@ -576,10 +569,10 @@ def delay_correction_mgal(t_s, a_mgal, delay_s: float, lowpass_hz: float) -> np.
     dt = float(np.median(np.diff(t))) if t.size > 1 else float("nan")
     if not (np.isfinite(dt) and dt > 0 and 0 < lowpass_hz < 0.5 / dt):
         raise ValueError(f"lowpass_hz {lowpass_hz!r} must lie below the Nyquist frequency of a uniform record")
-    if t.size < 13:
+    if t.size < 13 or not np.isfinite(a).any():
         return np.where(np.isfinite(a), 0.0, np.nan)
     sos = signal.butter(4, lowpass_hz, btype="lowpass", fs=1.0 / dt, output="sos")
-    al = signal.sosfiltfilt(sos, _filled(a, t))
+    al = signal.sosfiltfilt(sos, fill_nan(a))   # a uniform record: by index is by time
     out = -float(delay_s) * np.gradient(al, t)
     out[~np.isfinite(a)] = np.nan
     return out

@@ -279,6 +279,13 @@ def _warn_unresolved(lines: dict, warnings: list) -> None:
                        f"(median ×{np.median(wide):.2f})" if wide else ""))
 
 
+def median_line_spread_mgal(table: pd.DataFrame, values_mgal) -> float:
+    """Median over the table's lines of the along-line std of ``values_mgal`` (one value per
+    row, in row order; NaNs ignored), mGal."""
+    v = np.asarray(values_mgal, dtype=float)
+    return float(np.nanmedian([float(np.nanstd(v[pos])) for pos in table.groupby("line", sort=False).indices.values()]))
+
+
 def _use_fir(table: pd.DataFrame, noise, dt_s: float, p, floor_mgal: float = 0.0,
              extra_var_mgal2: dict | None = None) -> None:
     """Every line takes FIR 100 s, with its noise std under the fitted model (at least
@@ -325,8 +332,7 @@ def noisy_check(table: pd.DataFrame, lines: dict, noise, dt_s: float, p, warning
         # see only the error two crossing lines do not share, and the anomaly FIR clips is shared
         # (the same place): on a 4-line heights-only layout they gave 1.2 mGal against an error
         # of 12 (2σ coverage 0.13).  So the floor is the larger of the two (a NaN one ignored).
-        spread = float(np.nanmedian([float(np.nanstd(g["dg_fir_mgal"]))
-                                     for _, g in table.groupby("line", sort=False)]))
+        spread = median_line_spread_mgal(table, table["dg_fir_mgal"].to_numpy())
         d_fir = crossover_differences(table, "dg_fir_mgal", p.leveling_include_repeat)
         floor = spread
         if d_fir.size >= 4:
@@ -376,8 +382,7 @@ def longer_lowpass(table: pd.DataFrame, fir_at, fir_spread_mgal: float, fir_cros
         d = d[np.isfinite(d)]
         if d.size < 4:
             continue
-        spread = float(np.nanmedian([float(np.nanstd(col[pos]))
-                                     for pos in table.groupby("line", sort=False).indices.values()]))
+        spread = median_line_spread_mgal(table, col)
         tried[period] = (crossover_rms_mgal(d) / np.sqrt(2.0), spread, col)
     rep["tried"] = {f"{k:g}": {"crossover_std_mgal": v[0], "spread_mgal": v[1]} for k, v in tried.items()}
     if not tried:

@@ -157,11 +157,8 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
     dz_dtau = 1e5 * (gm.interval_means(series, t, tau + 1.0, k, time_offset_s=offset if applied else 0.0) - fbar)
     mask_gaps(z, t, gr["time"].to_numpy(float) + (offset if applied else 0.0), p.gravimeter_gap_margin_s, notes)
-    judged = np.hypot(ve, vn) > 20.0
-    if line_windows is not None and len(line_windows):
-        judged = np.zeros(t.size, bool)
-        for a, b in np.asarray(line_windows, float):
-            judged |= (t >= a) & (t <= b)
+    # a flight without lines is judged on its airborne epochs
+    judged = judged_epochs(t, ve, vn, line_windows if line_windows is not None and len(line_windows) else None)
     z_mc = (slow_gravimeter_z(series, (t, vu, gamma, eot, judged), (tau, k, offset if applied else 0.0), z, p,
                               offset_info) if compensation else None)
     vu_from_h = bool(getattr(flight, "vu_derived_from_h", False))
@@ -629,6 +626,27 @@ def base_tie(m: FlightMeasurement, base_gravity_mgal: float | None) -> dict:
     return info
 
 
+def line_windows(lines, flight: str) -> np.ndarray | None:
+    """The ``(t_start, t_end)`` windows (s) of one flight's lines in ``lines.csv``'s table,
+    shape (n_lines, 2); None without a line table."""
+    if lines is None or not len(lines):
+        return None
+    return lines.loc[lines["flight"] == flight, ["t_start", "t_end"]].to_numpy(float)
+
+
+def judged_epochs(t_s, ve_ms, vn_ms, windows=None, min_speed_ms: float = 20.0) -> np.ndarray:
+    """The epochs the in-flight checks judge, shape (n,) bool: inside the lines' ``windows`` (s,
+    shape (n_lines, 2); none when it is empty) when given, else (None) the airborne ones (faster
+    than ``min_speed_ms`` horizontally)."""
+    t = np.asarray(t_s, dtype=float)
+    if windows is None:
+        return np.hypot(ve_ms, vn_ms) > min_speed_ms
+    out = np.zeros(t.size, bool)
+    for a, b in np.asarray(windows, float):
+        out |= (t >= a) & (t <= b)
+    return out
+
+
 def airborne(m: FlightMeasurement, min_speed_ms: float = 20.0) -> np.ndarray:
     """Epochs of a measured flight moving faster than ``min_speed_ms`` horizontally (m/s): the
     airborne part the in-flight lag checks use, shape (n,) bool."""
@@ -1052,11 +1070,8 @@ def measure(survey, progress=None) -> Measurement:
     flights, base_ties = {}, {}
     names = list(survey.flights)
     for i, name in enumerate(names):
-        lw = None
-        if getattr(survey, "lines", None) is not None and len(survey.lines):
-            own = survey.lines[survey.lines["flight"] == name]
-            lw = own[["t_start", "t_end"]].to_numpy(float)
-        flights[name] = measure_flight(survey.flights[name], cfg, tau_s=tau_s, scale=scale, line_windows=lw)
+        flights[name] = measure_flight(survey.flights[name], cfg, tau_s=tau_s, scale=scale,
+                                       line_windows=line_windows(getattr(survey, "lines", None), name))
         if progress is not None:
             progress((i + 1) / len(names))
     choose_motion_compensation(flights, p)
@@ -1102,11 +1117,7 @@ def check_band_delay(flights: dict, lines, p, warnings: list) -> dict | None:
     for name, m in flights.items():
         a = gnss_acceleration_ms2(m.t_s, m.vu_ms) * geodesy.MGAL_PER_MS2
         accel[name] = a
-        usable = np.hypot(m.ve_ms, m.vn_ms) > 20.0
-        if lines is not None and len(lines):
-            usable = np.zeros(m.t_s.size, bool)
-            for t0, t1 in lines.loc[lines["flight"] == name, ["t_start", "t_end"]].to_numpy(float):
-                usable |= (m.t_s >= t0) & (m.t_s <= t1)
+        usable = judged_epochs(m.t_s, m.ve_ms, m.vn_ms, line_windows(lines, name))
         segments.extend((m.t_s[i0:i1], m.z_mgal[i0:i1], a[i0:i1], usable[i0:i1]) for i0, i1 in gnss_runs(m.t_s, 0.0))
     fit = band_delay_fit(segments, None, band)   # each run on its own step (flights may differ)
     rec.update({"delay_s": fit.delay_s, "se_s": fit.se_s, "t_stat": fit.t_stat, "n_independent": fit.n_independent,
