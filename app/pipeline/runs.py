@@ -248,7 +248,8 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     table = choice.table
     products = apply_products(table, idf.survey_dir, idf.crs, p, warnings)
     tr.start("leveling")
-    leveled = level_survey(table, p, warnings)
+    ties = [b.get("applied") and b.get("absolute") for b in idf.measurement_report.get("base_ties", {}).values()]
+    leveled = level_survey(table, p, warnings, tied=bool(ties) and all(ties))
     refresh_bouguer(table)
     tr.start("gridding")
     grid = grid_survey(table, p, warnings, leveled.report.get("rms_after_mgal"))
@@ -261,8 +262,7 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     if at_flight is not None:  # continued to a datum: the free-air map at flight height beside it
         # (no crossover term: the crossovers were measured at the datum)
         grid_flight = grid_survey(at_flight, p, warnings, None)
-    tied = any(b.get("applied") and b.get("absolute") for b in idf.measurement_report.get("base_ties", {}).values())
-    add_common_level_std(table, [grid, grid_bouguer, grid_flight], leveled.report, tied, p, warnings)
+    add_common_level_std(table, [grid, grid_bouguer, grid_flight], leveled.report, any(ties), p, warnings)
     tr.start("writing")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

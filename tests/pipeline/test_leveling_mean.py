@@ -145,3 +145,84 @@ def test_common_level_std_is_added_without_an_absolute_base_tie():
     off = table.copy()
     add_common_level_std(off, [], {"common_level": dict(common)}, False, p.model_copy(update={"std_common_level": False}), [])
     np.testing.assert_array_equal(off["dg_std_mgal"], table["dg_std_mgal"])
+
+
+def _offset_survey(rng, offset_std_mgal: float, err_std_mgal: float = 2.0, corr_km: float = 3.0):
+    """Three flights of three lines (two of E-W lines, one of N-S ties): each line's error is
+    correlated along it (AR(1), ``corr_km``) like a smoother's, and each flight carries a reading
+    offset drawn with ``offset_std_mgal`` (what a flight without an absolute base tie keeps)."""
+    from scipy.signal import lfilter
+
+    rows = []
+    step_s, v_kms = 1.0, 0.1
+    plan = [("A", "main", [0, 4, 8], 1000.0, 4000.0), ("B", "main", [2, 6, 10], 30000.0, 4000.0),
+            ("C", "tie", [3, 15, 27], 60000.0, 3000.0)]
+    for flight, kind, offsets_km, t0, gap in plan:
+        for i, off in enumerate(offsets_km):
+            s = np.arange(0.0, 30.0, v_kms * step_s)
+            t = t0 + i * gap + s / v_kms
+            e, n = (s, np.full_like(s, off)) if kind == "main" else (np.full_like(s, off), s - 1.0)
+            rows.append(pd.DataFrame({"line": f"{flight}{i}", "flight": flight, "kind": kind, "time": t,
+                                      "easting_km": e, "northing_km": n}))
+    table = pd.concat(rows, ignore_index=True)
+    table["dg_true_mgal"] = _field(table["easting_km"], table["northing_km"])
+    a = np.exp(-v_kms * step_s / corr_km)
+    err = np.zeros(len(table))
+    for _, g in table.groupby("line"):
+        err[g.index] = lfilter([1.0], [1.0, -a], rng.normal(0, err_std_mgal * np.sqrt(1 - a * a), len(g)))
+    offset = {f: rng.normal(0, offset_std_mgal) for f in "ABC"}
+    table["dg_unleveled_mgal"] = table["dg_true_mgal"] + err + table["flight"].map(offset)
+    table["dg_mgal"] = table["dg_unleveled_mgal"]
+    table["dg_std_mgal"] = 1.0
+    return table
+
+
+def test_flights_without_a_base_tie_are_leveled_on_weaker_held_out_evidence():
+    """A flight without an absolute base tie keeps its reading offset, so its level differs from
+    the others' for certain; the held-out check then needs only a lower held-out RMS, more
+    likely than not (``leveling_cv_significance_untied``).  Simulated against the truth (each
+    line's error correlated along it, 3 km): with flight offsets of 2 mGal the untied rule
+    levels more surveys and leaves less error than the tied rule's 0.05; with no offsets at all
+    it levels a few on the lines' correlated errors and costs at most 2 % on average."""
+    p = ProcessingParams()
+
+    def error(table):
+        e = table["dg_mgal"] - table["dg_true_mgal"]
+        return float(np.sqrt(np.mean((e - e.mean()) ** 2)))   # the survey's common level is unseen
+
+    for offset_std, draws in ((2.0, 24), (0.0, 24)):
+        rms = {True: [], False: []}
+        leveled = {True: 0, False: 0}
+        for seed in range(draws):
+            table = _offset_survey(np.random.default_rng(100 + seed), offset_std)
+            for tied in (True, False):
+                t = table.copy()
+                _, rep = level_lines_table(t, p, [], tied=tied)
+                rms[tied].append(error(t))
+                leveled[tied] += rep["status"] == "leveled"
+                if "cross_validation" in rep:
+                    assert rep["cross_validation"]["absolute_base_tie"] is tied
+                    assert rep["cross_validation"]["significance"] == (
+                        p.leveling_cv_significance if tied else p.leveling_cv_significance_untied)
+        tied_rms, untied_rms = np.mean(rms[True]), np.mean(rms[False])
+        if offset_std > 0:
+            assert leveled[False] > leveled[True], leveled
+            assert untied_rms < 0.97 * tied_rms, (untied_rms, tied_rms)
+        else:
+            assert untied_rms < 1.02 * tied_rms, (untied_rms, tied_rms)
+
+
+def test_untied_held_out_significance_is_its_own(monkeypatch):
+    """A held-out p of 0.2 is refused with every flight tied (0.05) and levels without a tie
+    (0.5); the refusal says which significance it needed."""
+    import app.pipeline.stages.leveling as lv
+
+    table, _ = _survey(np.random.default_rng(0))
+    real = lv.cross_validated_leveling
+    monkeypatch.setattr(lv, "cross_validated_leveling", lambda *a, **k: {**real(*a, **k), "p_value": 0.2})
+    _, rep = level_lines_table(table.copy(), ProcessingParams(), [], tied=True)
+    assert rep["status"].startswith("not leveled") and "needs < 0.05" in rep["status"], rep["status"]
+    _, rep = level_lines_table(table.copy(), ProcessingParams(), [], tied=False)
+    assert rep["status"] == "leveled", rep["status"]
+    _, rep = level_lines_table(table.copy(), ProcessingParams(leveling_cv_significance_untied=0.1), [], tied=False)
+    assert "needs < 0.1: a flight without an absolute base tie" in rep["status"], rep["status"]

@@ -39,8 +39,13 @@ def tracks(table: pd.DataFrame, col: str):
     return tracks
 
 
-def level_lines_table(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFrame, dict]:
-    """Crossovers and leveling; on failure keep the unleveled estimate and say why."""
+def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True) -> tuple[pd.DataFrame, dict]:
+    """Crossovers and leveling; on failure keep the unleveled estimate and say why.
+
+    ``tied``: every flight was tied to an absolute base reading (stage 1), which removed its
+    reading offset.  Where one was not, that flight keeps its own offset, so the flights
+    differ in level for certain: the held-out check of the drift is then at
+    ``leveling_cv_significance_untied`` instead of ``leveling_cv_significance``."""
     cols = ["line_a", "line_b", "easting_km", "northing_km", "diff_before_mgal", "diff_after_mgal"]
     try:
         cx = find_crossovers(tracks(table, "dg_unleveled_mgal"), include_repeat=p.leveling_include_repeat)
@@ -88,11 +93,13 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list) -> tuple[pd.DataFr
         # crossover errors are correlated along lines: the F-test can call smoothing errors a
         # drift; the drift must also predict the crossovers of lines left out of its fit
         cv = cross_validated_leveling(cx, ranges, degree=p.leveling_degree, groups=groups)
-        rep["cross_validation"] = cv
-        if not (cv["rms_cv_mgal"] < cv["rms_before_mgal"] and cv["p_value"] < p.leveling_cv_significance):
+        sig = p.leveling_cv_significance if tied else p.leveling_cv_significance_untied
+        rep["cross_validation"] = {**cv, "significance": sig, "absolute_base_tie": bool(tied)}
+        if not (cv["rms_cv_mgal"] < cv["rms_before_mgal"] and cv["p_value"] < sig):
             reason = (f"the drift does not predict held-out lines' crossovers significantly (leave-one-line-out "
                       f"RMS {cv['rms_cv_mgal']:.3g} mGal against {cv['rms_before_mgal']:.3g} without leveling, "
-                      f"p = {cv['p_value']:.3g}, needs < {p.leveling_cv_significance})")
+                      f"p = {cv['p_value']:.3g}, needs < {sig}"
+                      + ("" if tied else ": a flight without an absolute base tie keeps its reading offset") + ")")
     corr, removed, unit = _corrections(table, cx, res, ok)
     if reason is not None:
         rep.update(status=f"not leveled: {reason}",
@@ -154,10 +161,10 @@ class Leveled:
     report: dict
 
 
-def level_survey(table: pd.DataFrame, p, warnings: list) -> Leveled:
+def level_survey(table: pd.DataFrame, p, warnings: list, tied: bool = True) -> Leveled:
     """Stage 10 on the line table (in place: ``dg_mgal`` leveled, ``dg_std_mgal`` rescaled by
-    the crossover check of the std)."""
-    crossovers, rep = level_lines_table(table, p, warnings)
+    the crossover check of the std); ``tied`` as in :func:`level_lines_table`."""
+    crossovers, rep = level_lines_table(table, p, warnings, tied)
     sc = rep.get("std_check", {})
     if p.std_crossover_check and "factor" in sc and sc["factor"] != 1.0:
         # The crossovers are an independent check of dg_std (core.accuracy.crossover_std_factor).
