@@ -4,6 +4,7 @@ request costing the server far more than its size) and the behaviour the fix giv
 from __future__ import annotations
 
 import io
+import time
 import zipfile
 from pathlib import Path
 
@@ -54,3 +55,22 @@ def test_unpaired_surrogates_in_json_are_4xx(client, tiny_src):
     assert [x["id"] for x in client.get("/api/surveys").json()] == [sid]
     after = client.get(f"/api/surveys/{sid}").json()
     assert after["settings"] == before["settings"] and after["last_job"] is None
+
+
+def test_huge_survey_toml_refused_unread(client, tiny_src):
+    """survey.toml was read whole and parsed whatever its size: a 0.3 MB zip holding a 300 MB comment
+    in it cost the server 800 MB and 10 s and was stored (and read again at every job submission).
+    It is refused from its size, naming survey.toml, and nothing is stored."""
+    from app.io.survey import MAX_CONFIG_BYTES
+
+    toml = (tiny_src / "survey.toml").read_bytes() + b"# " + b"x" * (MAX_CONFIG_BYTES + 10) + b"\n"
+    t0 = time.monotonic()
+    r = import_zip(client, _zip_with(tiny_src, {"survey.toml": toml}))
+    assert r.status_code == 422, r.text[:300]
+    d = r.json()["detail"]
+    assert d["file"] == "survey.toml" and "MB" in d["message"], d
+    assert time.monotonic() - t0 < 5.0
+    assert client.get("/api/surveys").json() == []
+    # a survey.toml just under the bound is read as before
+    ok = (tiny_src / "survey.toml").read_bytes() + b"# " + b"x" * (MAX_CONFIG_BYTES - 1000) + b"\n"
+    assert import_zip(client, _zip_with(tiny_src, {"survey.toml": ok})).status_code == 201
