@@ -56,14 +56,21 @@ def refresh_survey(db: Session, s: Survey) -> None:
 
 
 def validate(reader: Callable, root: Path):
-    """``reader(root)`` with file names in errors relative to the survey directory."""
+    """``reader(root)`` with file names in errors relative to the survey directory, and at most
+    ``MAX_SURVEY_LINES`` survey lines (InputError naming lines.csv): every line becomes QC, a map
+    track and a database row, rebuilt at every change of the survey."""
     try:
-        return reader(root)
+        survey = reader(root)
     except InputError as e:
         err = relativize(e, root)
         if err is e:
             raise
         raise err from e
+    n = len(getattr(survey, "lines", ()))
+    if n > MAX_SURVEY_LINES:
+        raise InputError("lines.csv", None, None, f"the survey has {n:,} lines; at most {MAX_SURVEY_LINES:,} "
+                                                  "allowed (one row per line flown)")
+    return survey
 
 
 def replace_metadata(db: Session, s: Survey, survey) -> None:
@@ -234,6 +241,8 @@ def flight_from_lines(lines_raw: bytes | None) -> str | None:
 
 #: Most rows of an uploaded lines file (checked before it is parsed).
 MAX_LINES_ROWS = 100_000
+#: Most lines of a survey, whichever way they came (zip, flight uploads one after another, XYZ blocks)
+MAX_SURVEY_LINES = MAX_LINES_ROWS
 #: Most columns of an uploaded lines file (line, flight, t_start, t_end, kind, track and a few of the
 #: user's own): pandas parses and concatenates a frame with 10⁵ columns for minutes.
 MAX_LINES_COLUMNS = 100

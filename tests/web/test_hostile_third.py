@@ -74,3 +74,47 @@ def test_huge_survey_toml_refused_unread(client, tiny_src):
     # a survey.toml just under the bound is read as before
     ok = (tiny_src / "survey.toml").read_bytes() + b"# " + b"x" * (MAX_CONFIG_BYTES - 1000) + b"\n"
     assert import_zip(client, _zip_with(tiny_src, {"survey.toml": ok})).status_code == 201
+
+
+def _many_lines(n: int) -> bytes:
+    """lines.csv with ``n`` short lines inside the tiny survey's flight (1005–1395 s)."""
+    step = 390.0 / n
+    return ("line,flight,t_start,t_end,kind\n" + "".join(
+        f"L{i},f1,{1005 + i * step:.6f},{1005 + (i + 0.9) * step:.6f},main\n" for i in range(n))).encode()
+
+
+def test_survey_lines_bounded_in_zips_too(client, tiny_src):
+    """An uploaded lines file may list 100,000 lines, but a zip's lines.csv had no bound: 200,000 lines
+    in a 2 MB zip took 27 s and 1.2 GB of the server and were stored (a million would take the
+    server's memory).  A survey of more lines than an upload may list is refused (422 naming
+    lines.csv) before its QC and database rows are built, and nothing is stored."""
+    from app.web.services import MAX_LINES_ROWS
+
+    t0 = time.monotonic()
+    r = import_zip(client, _zip_with(tiny_src, {"lines.csv": _many_lines(MAX_LINES_ROWS + 1)}))
+    assert r.status_code == 422, r.text[:300]
+    d = r.json()["detail"]
+    assert d["file"] == "lines.csv" and f"{MAX_LINES_ROWS + 1:,} lines" in d["message"], d
+    assert time.monotonic() - t0 < 8.0
+    assert client.get("/api/surveys").json() == []
+
+
+def test_survey_lines_bounded_across_flight_uploads(client, tiny_src, monkeypatch):
+    """Each flight upload was bounded alone, so uploads one after another grew a survey without
+    limit (every upload rebuilding every line's QC and rows); the survey's total is bounded."""
+    import app.web.services as services
+
+    sid = import_zip(client, zip_dir(tiny_src)).json()["id"]
+    monkeypatch.setattr(services, "MAX_SURVEY_LINES", 4)
+    fdir = tiny_src / "flights" / "f1"
+    files = {"gravimeter": ("g.csv", (fdir / "gravimeter.csv").read_bytes()),
+             "gnss": ("n.csv", (fdir / "gnss.csv").read_bytes())}
+    one = b"line,t_start,t_end,kind\nA1,1010,1140,main\n"
+    two = b"line,t_start,t_end,kind\nA1,1010,1140,main\nA2,1150,1280,main\n"
+    r = client.post(f"/api/surveys/{sid}/flights", files={**files, "lines": ("l.csv", two)}, data={"flight": "f2"})
+    assert r.status_code == 422, r.text[:300]
+    assert r.json()["detail"]["file"] == "lines.csv" and "5 lines" in r.json()["detail"]["message"]
+    s = client.get(f"/api/surveys/{sid}").json()
+    assert s["flights"] == ["f1"] and s["n_lines"] == 3
+    r = client.post(f"/api/surveys/{sid}/flights", files={**files, "lines": ("l.csv", one)}, data={"flight": "f2"})
+    assert r.status_code == 201 and r.json()["n_lines"] == 4, r.text[:300]
