@@ -96,6 +96,12 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
+#: a PROJ parameter naming a file by path (PROJ opens it while the CRS is built: a FIFO or a terminal
+#: would block the process), or a WKT/PROJJSON grid file given by path
+_CRS_FILE = re.compile(r"(?i)\b(?:nadgrids|geoidgrids|grids|xy_grids|z_grids|init|file)\s*=\s*[^\s/\\]*[/\\]\S*"
+                       r"|(?:parameterfile|\"filename\")[^/\\]*[/\\]")
+
+
 class SurveySection(_Strict):
     name: Name = "survey"
     crs: str | None = Field(None, max_length=200, description="Projected CRS for distances and grids, e.g. 'EPSG:32657'; UTM chosen if absent")
@@ -109,6 +115,10 @@ class SurveySection(_Strict):
 
         if v is not None:
             check_label(v, "crs")
+            m = _CRS_FILE.search(v)
+            if m:
+                raise ValueError(f"the CRS names a file ({m.group(0)[:80]}): grids and init files by path are "
+                                 "not read (a grid by its bare name from PROJ's data is, e.g. +nadgrids=@null)")
         why = None if v is None else crs_fault(v)
         if why:
             raise ValueError(why)

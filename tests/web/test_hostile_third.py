@@ -118,3 +118,41 @@ def test_survey_lines_bounded_across_flight_uploads(client, tiny_src, monkeypatc
     assert s["flights"] == ["f1"] and s["n_lines"] == 3
     r = client.post(f"/api/surveys/{sid}/flights", files={**files, "lines": ("l.csv", one)}, data={"flight": "f2"})
     assert r.status_code == 201 and r.json()["n_lines"] == 4, r.text[:300]
+
+
+def test_crs_naming_a_server_file_refused_unopened(client, tiny_src, tmp_path):
+    """A PROJ string may name grid files by path (``+nadgrids=/some/file``): PROJ opened whatever the
+    CRS named while a PATCH (or an import) was validated, and on a FIFO — or ``/dev/stdin`` of a
+    server started from a terminal — it blocked holding the GIL: the whole server froze for good.  A
+    CRS whose grid, init or other file parameter is a path is refused (422 naming survey.crs) without
+    being opened; grids by bare name from PROJ's own data and CRS names with '/' are accepted."""
+    import os
+    import subprocess
+    import sys
+
+    fifo = tmp_path / "grid.gsb"
+    os.mkfifo(fifo)
+    # in a process of its own: the old code never returns
+    crs = f"+proj=utm +zone=57 +ellps=GRS80 +nadgrids={fifo}"
+    check = f"from app.config import SurveySection\ntry:\n    SurveySection(crs={crs!r})\nexcept ValueError as e:\n    print(e)\n"
+    try:
+        out = subprocess.run([sys.executable, "-c", check], cwd=Path(__file__).resolve().parents[2],
+                             capture_output=True, text=True, timeout=30).stdout
+    except subprocess.TimeoutExpired:
+        pytest.fail("validating a CRS naming a FIFO blocked")
+    assert "names a file" in out, out
+
+    sid = import_zip(client, zip_dir(tiny_src)).json()["id"]
+    for crs in ("+proj=utm +zone=57 +ellps=GRS80 +nadgrids=/etc/passwd",
+                "+proj=utm +zone=57 +ellps=GRS80 +nadgrids=@/tmp/x.gsb,@null",
+                "+proj=utm +zone=57 +ellps=GRS80 +geoidgrids=../x.gtx",
+                "+proj=utm +zone=57 +ellps=GRS80 +towgs84=0,0,0 +init=/etc/passwd:1",
+                "+proj=utm +zone=57 +ellps=GRS80 +nadgrids=C:\\x.gsb"):
+        r = client.patch(f"/api/surveys/{sid}", json={"survey": {"crs": crs}})
+        assert r.status_code == 422, (crs, r.text[:300])
+        d = r.json()["detail"][0]
+        assert d["loc"][-2:] == ["survey", "crs"] and "names a file" in d["msg"], d
+    assert client.get(f"/api/surveys/{sid}").json()["settings"]["survey"]["crs"] == "EPSG:32657"
+    for ok in ("WGS 84 / UTM zone 57N", "+proj=utm +zone=57 +ellps=GRS80 +nadgrids=@null"):
+        r = client.patch(f"/api/surveys/{sid}", json={"survey": {"crs": ok}})
+        assert r.status_code == 200 and r.json()["crs"] == ok, r.text[:300]
