@@ -156,3 +156,41 @@ def test_crs_naming_a_server_file_refused_unopened(client, tiny_src, tmp_path):
     for ok in ("WGS 84 / UTM zone 57N", "+proj=utm +zone=57 +ellps=GRS80 +nadgrids=@null"):
         r = client.patch(f"/api/surveys/{sid}", json={"survey": {"crs": ok}})
         assert r.status_code == 200 and r.json()["crs"] == ok, r.text[:300]
+
+
+def test_profile_lowpass_cost_does_not_grow_with_its_width(client, tiny_src):
+    """The profile's z low-pass was a direct Gaussian convolution, whose cost is the line's samples ×
+    the kernel's: a 1 h line of 100 Hz GNSS at z_lowpass_s = 600 (the allowed maximum) took 23 s of
+    the server per request, any client could ask for it again with another width.  It costs about
+    the same at any width now, and gives the same values."""
+    import numpy as np
+    import pandas as pd
+    from scipy.ndimage import gaussian_filter1d
+
+    from .conftest import wait_job
+
+    sid = import_zip(client, zip_dir(tiny_src)).json()["id"]
+    job = client.post(f"/api/surveys/{sid}/jobs", json={"kind": "process"}).json()
+    assert wait_job(client, job["id"])["status"] == "succeeded"
+    rid = client.get(f"/api/surveys/{sid}").json()["current_result_id"]
+    rng = np.random.default_rng(1)
+
+    def line(n: int, dt: float) -> pd.DataFrame:
+        t = 1000.0 + dt * np.arange(n)
+        return pd.DataFrame({"line": "X", "flight": "f1", "kind": "main", "time": t, "easting_km": 0.1 * (t - 1000.0),
+                             "northing_km": 0.0, "z_mgal": np.cumsum(rng.normal(0, 1, n)) + rng.normal(0, 30, n),
+                             "dg_mgal": 0.0, "dg_std_mgal": 1.0, "dg_stationary_mgal": 0.0, "dg_fir_mgal": 0.0,
+                             "state": 0})
+
+    groups = {"LONG": line(360_000, 0.01), "SHORT": line(5_000, 0.01), "TEN_HZ": line(3_000, 0.1)}
+    client.app.state.cache.get(("lines", rid), lambda: {"groups": groups})   # the result's lines, as loaded
+    t0 = time.monotonic()
+    r = client.get(f"/api/surveys/{sid}/lines/LONG", params={"z_lowpass_s": 600, "max_points": 2000})
+    assert r.status_code == 200, r.text[:300]
+    assert time.monotonic() - t0 < 4.0
+    for name, width in (("SHORT", 600.0), ("SHORT", 30.0), ("TEN_HZ", 30.0), ("TEN_HZ", 0.5)):
+        g = groups[name]
+        p = client.get(f"/api/surveys/{sid}/lines/{name}", params={"z_lowpass_s": width, "max_points": 50000}).json()
+        want = gaussian_filter1d(g["z_mgal"].to_numpy(), width / (2.3548 * 0.01 if name == "SHORT" else 2.3548 * 0.1),
+                                 mode="nearest", truncate=3.0)
+        np.testing.assert_allclose(p["z_lowpassed"], want, atol=2e-3, err_msg=f"{name} at {width} s")
