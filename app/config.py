@@ -34,6 +34,8 @@ MAX_NAME_LENGTH = 200
 #: control characters, line/paragraph separators, and the bidirectional-text controls (a name
 #: holding U+202E displays reversed: spoofed)
 _CONTROL = re.compile(r"[\x00-\x1f\x7f-\x9f\u2028\u2029\u200e\u200f\u202a-\u202e\u2066-\u2069]")
+#: unpaired UTF-16 surrogates (a JSON string may hold one as an escape; UTF-8 cannot encode it)
+_SURROGATE = re.compile("[\ud800-\udfff]")
 
 
 def check_label(value: str, what: str = "label") -> str:
@@ -45,6 +47,9 @@ def check_label(value: str, what: str = "label") -> str:
     if m:
         raise ValueError(f"{what} contains the control character {m.group()!r} (newline, tab, NUL, "
                          "a text-direction override, …)")
+    m = _SURROGATE.search(value)
+    if m:  # JSON may escape half of a UTF-16 pair ("\\ud800"): no UTF-8 file or database takes it
+        raise ValueError(f"{what} contains {m.group()!r}, half of a UTF-16 surrogate pair (not a character)")
     return value
 
 
@@ -91,6 +96,12 @@ class _Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
+#: a PROJ parameter naming a file by path (PROJ opens it while the CRS is built: a FIFO or a terminal
+#: would block the process), or a WKT/PROJJSON grid file given by path
+_CRS_FILE = re.compile(r"(?i)\b(?:nadgrids|geoidgrids|grids|xy_grids|z_grids|init|file)\s*=\s*[^\s/\\]*[/\\]\S*"
+                       r"|(?:parameterfile|\"filename\")[^/\\]*[/\\]")
+
+
 class SurveySection(_Strict):
     name: Name = "survey"
     crs: str | None = Field(None, max_length=200, description="Projected CRS for distances and grids, e.g. 'EPSG:32657'; UTM chosen if absent")
@@ -102,6 +113,12 @@ class SurveySection(_Strict):
         # refused here, naming survey.crs, rather than by PROJ in the middle of processing
         from app.core.geodesy import crs_fault
 
+        if v is not None:
+            check_label(v, "crs")
+            m = _CRS_FILE.search(v)
+            if m:
+                raise ValueError(f"the CRS names a file ({m.group(0)[:80]}): grids and init files by path are "
+                                 "not read (a grid by its bare name from PROJ's data is, e.g. +nadgrids=@null)")
         why = None if v is None else crs_fault(v)
         if why:
             raise ValueError(why)

@@ -162,6 +162,11 @@ def _toml_key_row(text: str, loc: tuple) -> int | None:
     return header_row(".".join(loc)) or header_row(section)
 
 
+#: Largest survey.toml read (a real one is a few kB: names, the gravimeter and a few settings); it is
+#: read whole and parsed in pure Python, so a bound on the upload alone would allow gigabytes.
+MAX_CONFIG_BYTES = 1 << 20
+
+
 def read_config(path, overrides: dict | None = None, display: str = "survey.toml") -> SurveyConfig:
     """Parse ``survey.toml`` into :class:`SurveyConfig`, ``overrides`` merged over ``[processing]``.
 
@@ -175,6 +180,10 @@ def read_config(path, overrides: dict | None = None, display: str = "survey.toml
     path = Path(path)
     if not path.is_file():
         raise InputError(display, None, None, "file not found (every survey needs a survey.toml)")
+    size = path.stat().st_size
+    if size > MAX_CONFIG_BYTES:
+        raise InputError(display, None, None, f"the file is {size / 2**20:.3g} MB; at most {MAX_CONFIG_BYTES >> 20} MB "
+                                              "allowed (survey.toml holds names and settings: a few kB)")
     text = path.read_text(encoding="utf-8", errors="replace")
     try:
         data = tomllib.loads(text)

@@ -56,14 +56,21 @@ def refresh_survey(db: Session, s: Survey) -> None:
 
 
 def validate(reader: Callable, root: Path):
-    """``reader(root)`` with file names in errors relative to the survey directory."""
+    """``reader(root)`` with file names in errors relative to the survey directory, and at most
+    ``MAX_SURVEY_LINES`` survey lines (InputError naming lines.csv): every line becomes QC, a map
+    track and a database row, rebuilt at every change of the survey."""
     try:
-        return reader(root)
+        survey = reader(root)
     except InputError as e:
         err = relativize(e, root)
         if err is e:
             raise
         raise err from e
+    n = len(getattr(survey, "lines", ()))
+    if n > MAX_SURVEY_LINES:
+        raise InputError("lines.csv", None, None, f"the survey has {n:,} lines; at most {MAX_SURVEY_LINES:,} "
+                                                  "allowed (one row per line flown)")
+    return survey
 
 
 def replace_metadata(db: Session, s: Survey, survey) -> None:
@@ -234,6 +241,8 @@ def flight_from_lines(lines_raw: bytes | None) -> str | None:
 
 #: Most rows of an uploaded lines file (checked before it is parsed).
 MAX_LINES_ROWS = 100_000
+#: Most lines of a survey, whichever way they came (zip, flight uploads one after another, XYZ blocks)
+MAX_SURVEY_LINES = MAX_LINES_ROWS
 #: Most columns of an uploaded lines file (line, flight, t_start, t_end, kind, track and a few of the
 #: user's own): pandas parses and concatenates a frame with 10⁵ columns for minutes.
 MAX_LINES_COLUMNS = 100
@@ -523,6 +532,31 @@ def result_outdated(db: Session, s: Survey) -> bool:
     r = db.get(Result, s.current_result_id)
     j = db.get(Job, r.job_id) if r is not None else None
     return j is not None and j.input_dir != s.input_dir
+
+
+# ---------------------------------------------------------------- profiles
+def lowpass_z(z: np.ndarray, dt_s: float, fwhm_s: float) -> np.ndarray:
+    """z low-passed for the profile: a Gaussian of full width at half maximum ``fwhm_s`` over samples
+    ``dt_s`` apart (``scipy.ndimage.gaussian_filter1d``, edges 'nearest', truncated at 3σ); NaNs
+    take the mean.  Smooth weights matter: z holds the differenced GNSS velocity noise, which a
+    boxcar only telescopes down to σ_r·√2/T.  A wide kernel is applied by FFT (the direct
+    convolution costs samples × kernel: 23 s for a 1 h line of 100 Hz data at 600 s); a Gaussian
+    narrower than a fifth of a sample leaves z as it is."""
+    z = np.asarray(z, float)
+    sigma = fwhm_s / (2.3548 * dt_s) if dt_s > 0 and np.isfinite(dt_s) else 0.0
+    if sigma < 0.2 or z.size <= 2:
+        return z
+    from scipy.ndimage import gaussian_filter1d
+    from scipy.signal import oaconvolve
+
+    zf = np.where(np.isfinite(z), z, np.nanmean(z))
+    radius = int(3.0 * sigma + 0.5)
+    if radius <= 256:
+        return gaussian_filter1d(zf, sigma=sigma, mode="nearest", truncate=3.0)
+    x = np.arange(-radius, radius + 1, dtype=float)
+    kernel = np.exp(-0.5 * (x / sigma) ** 2)
+    kernel /= kernel.sum()
+    return oaconvolve(np.pad(zf, radius, mode="edge"), kernel, mode="valid")
 
 
 # ---------------------------------------------------------------- delete

@@ -62,7 +62,7 @@ def create_job(body: JobCreate, s: Survey = Depends(get_survey_or_404), db: Sess
     try:
         wrong = _wrong_json_types(body.params)
         if wrong:
-            raise HTTPException(422, wrong)
+            raise HTTPException(422, validation_detail(wrong))
         params = ProcessingParams.model_validate(body.params).model_dump(exclude_unset=True, mode="json")
     except ValidationError as e:
         raise HTTPException(422, validation_detail(e.errors())) from e

@@ -22,7 +22,7 @@ from app.pipeline.stages.recognition import Recognition, state_map
 from ..db import Result, Survey
 from ..deps import get_cache, get_db, get_survey_or_404
 from ..schemas import GridOut, LineOut, ProfileOut, RecognitionOut, ReportOut
-from ..services import has_dem
+from ..services import has_dem, lowpass_z
 from ..store import ResultCache
 
 router = APIRouter(prefix="/api/surveys", tags=["results"])
@@ -164,15 +164,8 @@ def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, descr
     t = g["time"].to_numpy(float)
     e, nn = g["easting_km"].to_numpy(float), g["northing_km"].to_numpy(float)
     dist = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(e), np.diff(nn)))])
-    z = g["z_mgal"].to_numpy(float)
     dt = float(np.median(np.diff(t))) if n > 1 else 0.1
-    sigma = z_lowpass_s / (2.3548 * dt) if dt > 0 and math.isfinite(dt) else 0.0
-    if sigma >= 0.2 and n > 2:  # a Gaussian narrower than a fifth of a sample leaves z as it is
-        # Gaussian low-pass with FWHM = z_lowpass_s: smooth weights matter here, because z holds
-        # the differenced GNSS velocity noise, which a boxcar only telescopes down to σ_r·√2/T.
-        from scipy.ndimage import gaussian_filter1d
-        zf = np.where(np.isfinite(z), z, np.nanmean(z))
-        z = gaussian_filter1d(zf, sigma=sigma, mode="nearest", truncate=3.0)
+    z = lowpass_z(g["z_mgal"].to_numpy(float), dt, z_lowpass_s)
     step = max(1, math.ceil(n / max_points))
     sl = slice(None, None, step)
 
