@@ -28,6 +28,13 @@ const ctx = {
     showTab("profile");
   },
   consumeLine() { const l = state.profileLine; state.profileLine = null; return l; },
+  // a job started from a view (Processing, the recognition map's "Apply h, ρ"): the survey list says
+  // so at once (and polls every 2 s while it runs); the Processing tab shows and watches it when opened
+  async jobStarted() {
+    if (state.tab !== "process") delete state.rendered.process;
+    await loadSurveys();
+    pollSurveys();
+  },
   async surveyDeleted(id) {
     if (state.surveyId === id) state.surveyId = null;
     state.rendered = {};
@@ -56,10 +63,12 @@ async function loadSurveys() {
 }
 
 // the survey list (status badges, new results) every 10 s, every 2 s while the survey's job runs
+let pollTimer = null;
 function pollSurveys() {
+  clearTimeout(pollTimer);   // one chain of polls, also when a started job re-arms it
   const s = ctx.survey;
   const busy = s && s.last_job && ["queued", "running"].includes(s.last_job.status);
-  setTimeout(async () => { await loadSurveys(); pollSurveys(); }, busy ? 2000 : 10000);
+  pollTimer = setTimeout(async () => { await loadSurveys(); pollSurveys(); }, busy ? 2000 : 10000);
 }
 
 function renderSurveyList() {

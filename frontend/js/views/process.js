@@ -215,6 +215,7 @@ export async function render(sec, ctx) {
       renderJob(jobBox, job);
       watch(jobBox, job.id, ctx, loadHistory);
       loadHistory();
+      ctx.jobStarted();
     } catch (e) { showError(jobBox, e); }
   });
   await loadHistory();

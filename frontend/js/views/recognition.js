@@ -107,6 +107,7 @@ export async function render(sec, ctx) {
       applyNote.classList.remove("error");
       applyNote.textContent = `filter job ${job.id} started (h=${hIn.value} km⁻¹, ρ=${rhoIn.value} km; the identification is reused) — see Process`;
       applyNote.dataset.job = job.id;
+      await ctx.jobStarted();
     } catch (e) { applyNote.textContent = `Error: ${e.message}`; applyNote.classList.add("error"); }
     finally { apply.disabled = false; }
   });
