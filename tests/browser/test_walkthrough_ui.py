@@ -38,3 +38,40 @@ def test_apply_h_rho_shows_the_filter_job_in_the_list_and_on_processing(paced_se
     assert "(filter," in page.inner_text("#job-box")
     page.wait_for_selector("#job-status:has-text('succeeded')", timeout=30000)   # watched to its end
     _no_errors(page)
+
+
+def _em_rows(model, n, nr=2):
+    a = [[0.9 if i == j else 0.1 / (2 * nr - 1) for j in range(2 * nr)] for i in range(2 * nr)]
+    return [{"iteration": i, "Q": [1e-5, 5e-5], "R": [1.7, 17.0][:nr], "objective": -2200.0 + i, "transition": a,
+             "model": model} for i in range(n)]
+
+
+def test_em_table_says_which_run_each_row_belongs_to(paced_server, browser_page, tmp_path):
+    """The real pipeline runs EM once per model order (rows "m=1 2x2" then "m=2 2x2", iterations from 0
+    in each) and a filter job lists the stored identification's ("stored"): the table showed one column
+    of iterations restarting at 0 halfway, and "Final iteration" only for the last run."""
+    page = browser_page
+    _open_processed(page, paced_server.url, tmp_path, "process", ".em-row")
+    rows = _em_rows("m=1 2x2", 3) + _em_rows("m=2 2x2", 4)
+    got = page.evaluate("""async (rows) => {
+        const m = await import('/js/views/process.js');
+        const t = m.emTable(rows, 6);
+        const cells = [...t.querySelectorAll('tbody tr')].map((tr) => [tr.dataset.run, tr.children[0].textContent,
+                                                                    tr.children[1].textContent, tr.classList.contains('final')]);
+        return {head: [...t.querySelectorAll('th')].map((th) => th.textContent), cells,
+                end1: m.emDetail(rows, 2, false).querySelector('h4').textContent,
+                mid2: m.emDetail(rows, 4, false).querySelector('h4').textContent,
+                last: m.emDetail(rows, 6, true).querySelector('h4').textContent};
+    }""", rows)
+    assert got["head"][:2] == ["EM run", "Iteration"]
+    assert [c[:3] for c in got["cells"]] == [["m=1 2x2", "m=1 2x2", "0"], ["m=1 2x2", "m=1 2x2", "1"], ["m=1 2x2", "m=1 2x2", "2"],
+                                             ["m=2 2x2", "m=2 2x2", "0"], ["m=2 2x2", "m=2 2x2", "1"], ["m=2 2x2", "m=2 2x2", "2"],
+                                             ["m=2 2x2", "m=2 2x2", "3"]]
+    assert [c[3] for c in got["cells"]] == [False, False, True, False, False, False, True]   # each run's last row
+    assert got["end1"].startswith("Final iteration 2 of EM run m=1 2x2 —"), got["end1"]
+    assert got["mid2"].startswith("Selected iteration 1 of EM run m=2 2x2 (of 3)"), got["mid2"]
+    assert got["last"].startswith("Latest iteration 3 of EM run m=2 2x2"), got["last"]
+    # rows without a run (older jobs, the test pipeline) keep the plain table
+    assert page.inner_text("#em-table thead tr th") == "Iteration"
+    assert page.locator("#em-runs-note").count() == 0
+    _no_errors(page)
