@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import pytest
 
-from .test_analyst_ui import _open_processed, fake_pipeline_server
+from .test_analyst_ui import _open_processed, fake_pipeline_server, fake_server  # noqa: F401  (fixture)
 
 pytestmark = [pytest.mark.browser]
 
@@ -75,3 +75,29 @@ def test_em_table_says_which_run_each_row_belongs_to(paced_server, browser_page,
     assert page.inner_text("#em-table thead tr th") == "Iteration"
     assert page.locator("#em-runs-note").count() == 0
     _no_errors(page)
+
+
+def test_profile_names_the_states_it_shades(fake_server_2x2, browser_page, tmp_path):
+    """The profile said "shaded bands: states > 0 (rougher anomaly)", wrong for a 2×2 model where
+    state 1 is (Q0, R1): the same smooth anomaly, noisier GNSS. The shaded states are now named in
+    the legend as on the recognition map."""
+    page = browser_page
+    _open_processed(page, fake_server_2x2.url, tmp_path, "profile", "#profile-plot[data-line] .main-svg")
+    assert "rougher anomaly" not in page.inner_text("#profile-status")
+    names = page.evaluate("() => document.querySelector('#profile-plot').data.map((t) => t.name)")
+    shaded = [n for n in names if n and n.startswith("shaded: ")]
+    # the test pipeline's lines are in state 0 and 1 only: state 1 shaded, named by its levels
+    assert shaded == ["shaded: state 1 (Q0, R1): Q=0.041 mGal² per step, R=17.3 (cm/s)²"], names
+    _no_errors(page)
+
+
+@pytest.fixture
+def fake_server_2x2(fake_server, browser_page):  # noqa: F811
+    """The test pipeline's result with a 2×2 identification (states 0…3 = (Q0,R0), (Q0,R1), (Q1,R0), (Q1,R1))."""
+    def report(route):
+        r = route.fetch().json()
+        r["identification"]["states"] = [{"index": 0, "Q": 0.041, "R": 1.679}, {"index": 1, "Q": 0.041, "R": 17.3},
+                                         {"index": 2, "Q": 0.353, "R": 1.679}, {"index": 3, "Q": 0.353, "R": 17.3}]
+        route.fulfill(json=r)
+    browser_page.route("**/api/surveys/*/report", report)
+    return fake_server

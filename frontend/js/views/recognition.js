@@ -8,7 +8,7 @@ export function stateLabel(states, i) {
   if (!st) return `state ${i}`;
   const qs = [...new Set(states.map((x) => x.Q))].sort((a, b) => a - b);
   const rs = [...new Set(states.map((x) => x.R))].sort((a, b) => a - b);
-  return `state ${i} (Q${qs.indexOf(st.Q)}, R${rs.indexOf(st.R)}): Q=${fmt(st.Q, 3)} mGal², R=${fmt(st.R, 3)} (cm/s)²`;
+  return `state ${i} (Q${qs.indexOf(st.Q)}, R${rs.indexOf(st.R)}): Q=${fmt(st.Q, 3)} mGal² per step, R=${fmt(st.R, 3)} (cm/s)²`;
 }
 
 function signature(arr) {
