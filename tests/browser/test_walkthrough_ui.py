@@ -56,7 +56,7 @@ def test_em_table_says_which_run_each_row_belongs_to(paced_server, browser_page,
     got = page.evaluate("""async (rows) => {
         const m = await import('/js/views/process.js');
         const t = m.emTable(rows, 6);
-        const cells = [...t.querySelectorAll('tbody tr')].map((tr) => [tr.dataset.run, tr.children[0].textContent,
+        const cells = [...t.querySelectorAll(':scope > tbody > tr')].map((tr) => [tr.dataset.run, tr.children[0].textContent,
                                                                     tr.children[1].textContent, tr.classList.contains('final')]);
         return {head: [...t.querySelectorAll('th')].map((th) => th.textContent), cells,
                 end1: m.emDetail(rows, 2, false).querySelector('h4').textContent,
@@ -101,3 +101,29 @@ def fake_server_2x2(fake_server, browser_page):  # noqa: F811
         route.fulfill(json=r)
     browser_page.route("**/api/surveys/*/report", report)
     return fake_server
+
+
+def test_model_choice_says_why_adaptive_and_reads_as_a_table(fake_server, browser_page):  # noqa: F811
+    """omolon-mini's report: "Model choice: adaptive (anomaly order m = 2, …)" said nothing of FIR 100 s,
+    the alternative it was weighed against at the crossovers, and the model-choice card drew each
+    line's record as its own key/value table (16 lines: some 160 rows in one column)."""
+    page = browser_page
+    page.goto(fake_server.url)
+    got = page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const p = await import('/js/plots.js');
+        const guard = (rms, fir, pv) => ({warnings: [], report: {model_choice: {chosen: 'adaptive', m: 2, noisy_check: {applied: false},
+            fir_guard: {n_crossovers: 30, crossover_rms_mgal: rms, crossover_rms_fir_mgal: fir, p_value: pv, p_rank: 0.89, applied: false}}}});
+        const lines = {M001: {estimate: 'adaptive', flattening_ratio: 1.21, detectable: true},
+                       M002: {estimate: 'adaptive', flattening_ratio: 1.31, detectable: false}};
+        const t = p.genericView({chosen: 'adaptive', lines}).querySelector('table table');
+        return {better: m.summary(guard(4.345, 6.574, 0.976)).textContent, worse: m.summary(guard(5.1, 4.9, 0.31)).textContent,
+                head: [...t.querySelectorAll(':scope > thead th')].map((th) => th.textContent),
+                rows: [...t.querySelectorAll(':scope > tbody > tr')].map((tr) => [...tr.children].map((td) => td.textContent))};
+    }""")
+    assert "— at the 30 crossovers it agrees better than FIR 100 s (RMS 4.345 against 6.574 mGal)" in got["better"], got
+    assert ("— at the 30 crossovers it agrees worse than FIR 100 s, but not significantly (RMS 5.1 against 4.9 mGal; "
+            "t-test p = 0.31, signed ranks p = 0.89)") in got["worse"], got
+    assert got["head"] == ["", "estimate", "flattening_ratio", "detectable"]
+    assert got["rows"] == [["M001", "adaptive", "1.21", "true"], ["M002", "adaptive", "1.31", "false"]]
+    _no_errors(page)
