@@ -71,17 +71,22 @@ function pollSurveys() {
   pollTimer = setTimeout(async () => { await loadSurveys(); pollSurveys(); }, busy ? 2000 : 10000);
 }
 
+// a survey's name, with its id when another survey has the same name (the same zip imported twice)
+function surveyName(s) {
+  return state.surveys.some((o) => o.id !== s.id && o.name === s.name) ? `${s.name} (#${s.id})` : s.name;
+}
+
 function renderSurveyList() {
   const ul = document.getElementById("survey-list");
   ul.replaceChildren(...state.surveys.map((s) => {
     const st = s.last_job ? s.last_job.status : (s.has_input ? "imported" : "empty");
     const li = el("li", { class: s.id === state.surveyId ? "active" : "", "data-survey-id": s.id },
-      el("span", {}, s.name), el("span", { class: `badge ${st}` }, st));
+      el("span", {}, surveyName(s)), el("span", { class: `badge ${st}` }, st));
     li.addEventListener("click", () => selectSurvey(s.id));
     return li;
   }));
   const s = ctx.survey;
-  document.getElementById("survey-title").textContent = s ? `${s.name} — ${s.flights.length} flight(s), ${s.n_lines} line(s)` : "";
+  document.getElementById("survey-title").textContent = s ? `${surveyName(s)} — ${s.flights.length} flight(s), ${s.n_lines} line(s)` : "";
   renderDemStatus(s);
 }
 

@@ -127,3 +127,21 @@ def test_model_choice_says_why_adaptive_and_reads_as_a_table(fake_server, browse
     assert got["head"] == ["", "estimate", "flattening_ratio", "detectable"]
     assert got["rows"] == [["M001", "adaptive", "1.21", "true"], ["M002", "adaptive", "1.31", "false"]]
     _no_errors(page)
+
+
+def test_surveys_of_one_name_can_be_told_apart(fake_server, browser_page, tmp_path):  # noqa: F811
+    """The same zip imported twice gave two list entries both reading "tiny" (and the same title)."""
+    import httpx
+
+    from tests.web.conftest import make_tiny_survey, zip_dir
+    z = zip_dir(make_tiny_survey(tmp_path / "tiny", name="tiny"))
+    with httpx.Client(base_url=fake_server.url, timeout=30) as c:
+        ids = [c.post("/api/surveys/import", files={"file": ("tiny.zip", z, "application/zip")}).json()["id"] for _ in range(2)]
+        c.post("/api/surveys", json={"name": "other"}).raise_for_status()
+    page = browser_page
+    page.goto(f"{fake_server.url}/#survey={ids[1]}&tab=qc")
+    page.wait_for_selector("#qc-lines tbody tr", timeout=20000)
+    names = page.eval_on_selector_all("#survey-list li span:first-child", "ss => ss.map((s) => s.textContent)")
+    assert sorted(names) == sorted([f"tiny (#{ids[0]})", f"tiny (#{ids[1]})", "other"]), names
+    assert page.inner_text("#survey-title").startswith(f"tiny (#{ids[1]}) —")
+    _no_errors(page)
