@@ -145,3 +145,19 @@ def test_surveys_of_one_name_can_be_told_apart(fake_server, browser_page, tmp_pa
     assert sorted(names) == sorted([f"tiny (#{ids[0]})", f"tiny (#{ids[1]})", "other"]), names
     assert page.inner_text("#survey-title").startswith(f"tiny (#{ids[1]}) —")
     _no_errors(page)
+
+
+def test_grid_summary_leaves_out_the_thread_count(fake_server, browser_page, tmp_path):  # noqa: F811
+    """The grid's summary line began "threads: 2 ·" (report.json's worker thread count) before the
+    crossover figures."""
+    page = browser_page
+
+    def grid(route):
+        g = route.fetch().json()
+        g["report"] = {**(g.get("report") or {}), "threads": 2, "grid_rmse_mgal": 0.5}
+        route.fulfill(json=g)
+    page.route("**/api/surveys/*/grid", grid)
+    _open_processed(page, fake_server.url, tmp_path, "grid", "#grid-plot .main-svg")
+    text = page.inner_text("#grid-summary")
+    assert "grid rmse mgal: 0.5" in text and "threads" not in text, text
+    _no_errors(page)
