@@ -28,6 +28,13 @@ const ctx = {
     showTab("profile");
   },
   consumeLine() { const l = state.profileLine; state.profileLine = null; return l; },
+  // a job started from a view (Processing, the recognition map's "Apply h, ρ"): the survey list says
+  // so at once (and polls every 2 s while it runs); the Processing tab shows and watches it when opened
+  async jobStarted() {
+    if (state.tab !== "process") delete state.rendered.process;
+    await loadSurveys();
+    pollSurveys();
+  },
   async surveyDeleted(id) {
     if (state.surveyId === id) state.surveyId = null;
     state.rendered = {};
@@ -56,10 +63,17 @@ async function loadSurveys() {
 }
 
 // the survey list (status badges, new results) every 10 s, every 2 s while the survey's job runs
+let pollTimer = null;
 function pollSurveys() {
+  clearTimeout(pollTimer);   // one chain of polls, also when a started job re-arms it
   const s = ctx.survey;
   const busy = s && s.last_job && ["queued", "running"].includes(s.last_job.status);
-  setTimeout(async () => { await loadSurveys(); pollSurveys(); }, busy ? 2000 : 10000);
+  pollTimer = setTimeout(async () => { await loadSurveys(); pollSurveys(); }, busy ? 2000 : 10000);
+}
+
+// a survey's name, with its id when another survey has the same name (the same zip imported twice)
+function surveyName(s) {
+  return state.surveys.some((o) => o.id !== s.id && o.name === s.name) ? `${s.name} (#${s.id})` : s.name;
 }
 
 function renderSurveyList() {
@@ -67,12 +81,12 @@ function renderSurveyList() {
   ul.replaceChildren(...state.surveys.map((s) => {
     const st = s.last_job ? s.last_job.status : (s.has_input ? "imported" : "empty");
     const li = el("li", { class: s.id === state.surveyId ? "active" : "", "data-survey-id": s.id },
-      el("span", {}, s.name), el("span", { class: `badge ${st}` }, st));
+      el("span", {}, surveyName(s)), el("span", { class: `badge ${st}` }, st));
     li.addEventListener("click", () => selectSurvey(s.id));
     return li;
   }));
   const s = ctx.survey;
-  document.getElementById("survey-title").textContent = s ? `${s.name} — ${s.flights.length} flight(s), ${s.n_lines} line(s)` : "";
+  document.getElementById("survey-title").textContent = s ? `${surveyName(s)} — ${s.flights.length} flight(s), ${s.n_lines} line(s)` : "";
   renderDemStatus(s);
 }
 

@@ -176,6 +176,13 @@ export function genericView(v, depth = 0) {
     if (v.every((x) => x === null || typeof x !== "object")) return v.map((x) => (typeof x === "number" ? fmt(x, 4) : String(x ?? "—"))).join(", ");
     return el("div", {}, v.map((x) => el("div", {}, genericView(x, depth + 1))));
   }
+  // an object of flat records (e.g. model_choice.lines: per line, the same keys): one table, a row each
+  const vals = Object.values(v);
+  if (vals.length > 1 && vals.every((x) => x && typeof x === "object" && !Array.isArray(x) &&
+      Object.values(x).every((y) => y === null || typeof y !== "object"))) {
+    const keys = [...new Set(vals.flatMap((x) => Object.keys(x)))];
+    return table(["", ...keys], Object.entries(v).map(([k, x]) => [k, ...keys.map((c) => genericView(x[c], depth + 1))]), { class: "generic records" });
+  }
   return table(["", ""], Object.entries(v).map(([k, x]) => [k, genericView(x, depth + 1)]), { class: "generic kv" });
 }
 

@@ -57,7 +57,8 @@ export async function render(sec, ctx) {
   const plot = el("div", { class: "plot square", id: "grid-plot" });
   const rep = g.report || {};
   const summary = [];
-  for (const [k, v] of Object.entries(rep)) if (typeof v === "number") summary.push(`${k.replaceAll("_", " ")}: ${fmt(v, 4)}`);
+  // the report's figures (not the worker's thread count: how it ran, not what it found)
+  for (const [k, v] of Object.entries(rep)) if (typeof v === "number" && k !== "threads") summary.push(`${k.replaceAll("_", " ")}: ${fmt(v, 4)}`);
   const xo = (rep.crossovers && typeof rep.crossovers === "object") ? rep.crossovers : null;
   if (xo && xo.rms_before_mgal !== undefined) summary.push(`crossover RMS ${fmt(xo.rms_before_mgal, 3)} → ${fmt(xo.rms_after_mgal, 3)} mGal (${xo.status})`);
   const limits = el("span", { class: "note", id: "grid-limits" });

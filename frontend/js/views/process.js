@@ -60,31 +60,44 @@ function collectParams(form) {
 // States are numbered from 0 as on the recognition map: state k = (Q level k div N2, R level k mod N2).
 function stateName(k, nr) { return `s${k} (Q${Math.floor(k / nr)}, R${k % nr})`; }
 
-function emTable(rows, selected) {
+// A job can run EM more than once (one run per anomaly model order, "m=1 2x2" then "m=2 2x2"; a
+// filter job shows the stored identification's, "stored"): each row says its run, and the last row
+// of a run is that run's final iteration.
+const runOf = (r) => r.model ?? "";
+const lastOfRun = (rows, k) => k === rows.length - 1 || runOf(rows[k + 1]) !== runOf(rows[k]);
+
+export function emTable(rows, selected) {
   if (!rows.length) return el("p", { class: "note", id: "em-empty" }, "EM iterations appear here while the identification runs.");
-  const nq = rows[0].Q.length, nr = rows[0].R.length;
-  const hasA = rows.some((r) => r.transition && r.transition.length);
-  const head = ["Iteration", ...Array.from({ length: nq }, (_, i) => `Q${i} (mGal²)`),
+  const runs = rows.some((r) => r.model);
+  const shape = rows[rows.length - 1];   // columns named by the newest run's levels; shorter rows leave cells empty
+  const nq = Math.max(...rows.map((r) => r.Q.length)), nr = Math.max(...rows.map((r) => r.R.length));
+  const nstates = Math.max(0, ...rows.map((r) => (r.transition ? r.transition.length : 0)));
+  const head = [...(runs ? ["EM run"] : []), "Iteration", ...Array.from({ length: nq }, (_, i) => `Q${i} (mGal²)`),
     ...Array.from({ length: nr }, (_, j) => `R${j} ((cm/s)²)`), "Objective"];
-  const nstates = hasA ? rows.find((r) => r.transition && r.transition.length).transition.length : 0;
-  for (let i = 0; i < nstates; i++) head.push(`stay ${stateName(i, nr)}`);
+  for (let i = 0; i < nstates; i++) head.push(`stay ${stateName(i, shape.R.length || nr)}`);
+  const pad = (vals, n) => Array.from({ length: n }, (_, i) => el("td", {}, i < vals.length ? fmt(vals[i], 4) : ""));
   return el("table", { id: "em-table" }, el("thead", {}, el("tr", {}, head.map((h) => el("th", {}, h)))),
-    el("tbody", {}, rows.map((r, k) => el("tr", { class: `em-row${k === selected ? " selected" : ""}${k === rows.length - 1 ? " final" : ""}`, "data-index": k },
-      el("td", {}, r.iteration), r.Q.map((q) => el("td", {}, fmt(q, 4))), r.R.map((x) => el("td", {}, fmt(x, 4))),
+    el("tbody", {}, rows.map((r, k) => el("tr", { class: `em-row${k === selected ? " selected" : ""}${lastOfRun(rows, k) ? " final" : ""}`, "data-index": k,
+      ...(runs ? { "data-run": runOf(r) } : {}) },
+      runs ? el("td", { class: "l" }, runOf(r) || "—") : null,
+      el("td", {}, r.iteration), pad(r.Q, nq), pad(r.R, nr),
       el("td", {}, fmt(r.objective, 6)),
-      Array.from({ length: nstates }, (_, i) => el("td", {}, r.transition && r.transition.length ? fmt(r.transition[i][i], 4) : "—"))))));
+      Array.from({ length: nstates }, (_, i) => el("td", {}, r.transition && r.transition[i] ? fmt(r.transition[i][i], 4) : "—"))))));
 }
 
 // One iteration in full: each state's (Q, R) levels and the whole transition matrix a_ij.
-function emDetail(rows, k, live) {
+export function emDetail(rows, k, live) {
   const r = rows[k];
   if (!r) return el("div", { id: "em-detail" });
   const nr = r.R.length, n = r.Q.length * nr;
   const states = Array.from({ length: n }, (_, s) => ({ name: stateName(s, nr), Q: r.Q[Math.floor(s / nr)], R: r.R[s % nr] }));
   const a = r.transition && r.transition.length === n ? r.transition : null;
-  const caption = `${k === rows.length - 1 ? (live ? "Latest" : "Final") : "Selected"} iteration ${r.iteration}` +
-    (k === rows.length - 1 ? "" : ` (of ${rows[rows.length - 1].iteration})`) + " — click a row above to see another";
-  return el("div", { id: "em-detail", "data-iteration": r.iteration },
+  let end = k;
+  while (!lastOfRun(rows, end)) end += 1;
+  const word = k === rows.length - 1 ? (live ? "Latest" : "Final") : k === end ? "Final" : "Selected";
+  const caption = `${word} iteration ${r.iteration}` + (r.model ? ` of EM run ${r.model}` : "") +
+    (k === end ? "" : ` (of ${rows[end].iteration})`) + " — click a row above to see another";
+  return el("div", { id: "em-detail", "data-iteration": r.iteration, ...(r.model ? { "data-run": r.model } : {}) },
     el("h4", {}, caption),
     el("div", { class: "row" },
       el("table", { id: "em-states" }, el("thead", {}, el("tr", {}, ["State", "Q (mGal² per step)", "R ((cm/s)²)"].map((h, i) => el("th", { class: i ? "" : "l" }, h)))),
@@ -120,13 +133,15 @@ function renderJob(box, job) {
     job.error ? el("div", { class: "error", id: "job-error" }, job.error) : null,
     el("h3", {}, "EM iterations (identification of Q, R and the transition matrix)"),
     el("p", { class: "note" }, "States are numbered from 0 as on the recognition map: state k has Q level k div N2 and R level k mod N2 (N2 = number of R levels)."),
+    rows.some((r) => r.model) ? el("p", { class: "note", id: "em-runs-note" }, "EM run: EM is run once per anomaly model order m (m=1, m=2, with the model's Q×R levels), " +
+      "iterations counted from 0 in each; “stored” rows are the identification a filter job reuses, not run again.") : null,
     el("div", { class: "scroll" }, emTable(rows, sel)),
     rows.length ? emDetail(rows, sel, live) : null].filter(Boolean));
   const sc = box.querySelector(".scroll");
   if (sc && emSelected === null) sc.scrollTop = sc.scrollHeight;  // the newest (final) iteration in view
   for (const tr of box.querySelectorAll(".em-row")) {
     const pick = () => { emSelected = +tr.dataset.index; renderJob(box, job); box.querySelector(`.em-row[data-index="${tr.dataset.index}"]`).focus(); };
-    clickable(tr, pick, `show EM iteration ${tr.firstChild.textContent} in full`);
+    clickable(tr, pick, `show EM iteration ${tr.dataset.run ? `${tr.dataset.run} ` : ""}${tr.children[tr.dataset.run === undefined ? 0 : 1].textContent} in full`);
   }
   const cancel = el("button", { id: "job-cancel", disabled: !["queued", "running"].includes(job.status) }, "Cancel job");
   cancel.addEventListener("click", async () => {
@@ -215,6 +230,7 @@ export async function render(sec, ctx) {
       renderJob(jobBox, job);
       watch(jobBox, job.id, ctx, loadHistory);
       loadHistory();
+      ctx.jobStarted();
     } catch (e) { showError(jobBox, e); }
   });
   await loadHistory();

@@ -3,6 +3,7 @@
 // terrain effect (shown from the legend).
 import { endpoints } from "../api.js";
 import { el, esc, fmt, plotConfig, pngButton, stateColor } from "../plots.js";
+import { stateLabel } from "./recognition.js";
 
 function stateShapes(x, state) {
   const shapes = [];
@@ -36,6 +37,7 @@ export async function render(sec, ctx) {
   }
   const [lines, report] = await Promise.all([endpoints.lines(s.id), endpoints.report(s.id).catch(() => null)]);
   const leveled = !!(report && report.leveled);
+  const states = (report && report.identification && report.identification.states) || [];
   const levStatus = report ? report.leveling_status : null;
   const diffs = Object.fromEntries(((report && report.adaptive_minus_fir) || []).map((d) => [d.line, d]));
   const withData = lines.filter((l) => l.stats);
@@ -106,6 +108,12 @@ export async function render(sec, ctx) {
       products.push("terrain");
       traces.push({ x, y: p.terrain, name: "terrain effect (DEM)", visible: "legendonly", mode: "lines", line: { color: "#bf812d", width: 1, dash: "dot" }, customdata: cd, hovertemplate: ht("terrain effect") });
     }
+    // the shaded states (all but state 0), named by their (Q, R) levels as on the recognition map
+    const shaded = [...new Set(p.state.filter((v) => v !== null && v > 0))].sort((a, b) => a - b);
+    for (const k of shaded) {
+      traces.push({ x: [null], y: [null], type: "scatter", mode: "markers", name: `shaded: ${esc(stateLabel(states, k))}`, legendgroup: "states",
+        marker: { symbol: "square", size: 13, color: stateColor(k), opacity: 0.35 }, hoverinfo: "skip" });
+    }
     // y range from the filtered series (z can carry large transients at the line ends)
     const vals = [...lo, ...hi, ...p.dg_stationary, ...p.dg_fir, ...(p.dg_bouguer || []), ...(atDatum ? p.dg_flight : [])]
       .filter((v) => v !== null && Number.isFinite(v));
@@ -124,7 +132,7 @@ export async function render(sec, ctx) {
     if (!pngAdded) { plot.after(pngButton(plot, `${s.name}-line-profile`)); pngAdded = true; }
     const sigma = p.dg_std.filter((v) => v !== null);
     const d = diffs[p.line];
-    status.textContent = `${p.n_total} epochs (${p.step === 1 ? "all" : `1 in ${p.step}`} shown) · shaded bands: states > 0 (rougher anomaly) · mean σ ${fmt(sigma.reduce((a, b) => a + b, 0) / Math.max(1, sigma.length), 3)} mGal` +
+    status.textContent = `${p.n_total} epochs (${p.step === 1 ? "all" : `1 in ${p.step}`} shown) · shaded bands: the recognised state where it is not state 0 (legend; colours as on the recognition map) · mean σ ${fmt(sigma.reduce((a, b) => a + b, 0) / Math.max(1, sigma.length), 3)} mGal` +
       (d ? ` · adaptive − FIR: RMS ${fmt(d.rms_mgal, 3)} mGal (std ${fmt(d.std_mgal, 3)})` : "");
     plot.dataset.line = p.line;
     plot.dataset.leveled = leveled ? "1" : "0";

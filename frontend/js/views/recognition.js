@@ -8,7 +8,7 @@ export function stateLabel(states, i) {
   if (!st) return `state ${i}`;
   const qs = [...new Set(states.map((x) => x.Q))].sort((a, b) => a - b);
   const rs = [...new Set(states.map((x) => x.R))].sort((a, b) => a - b);
-  return `state ${i} (Q${qs.indexOf(st.Q)}, R${rs.indexOf(st.R)}): Q=${fmt(st.Q, 3)} mGal², R=${fmt(st.R, 3)} (cm/s)²`;
+  return `state ${i} (Q${qs.indexOf(st.Q)}, R${rs.indexOf(st.R)}): Q=${fmt(st.Q, 3)} mGal² per step, R=${fmt(st.R, 3)} (cm/s)²`;
 }
 
 function signature(arr) {
@@ -107,6 +107,7 @@ export async function render(sec, ctx) {
       applyNote.classList.remove("error");
       applyNote.textContent = `filter job ${job.id} started (h=${hIn.value} km⁻¹, ρ=${rhoIn.value} km; the identification is reused) — see Process`;
       applyNote.dataset.job = job.id;
+      await ctx.jobStarted();
     } catch (e) { applyNote.textContent = `Error: ${e.message}`; applyNote.classList.add("error"); }
     finally { apply.disabled = false; }
   });

@@ -99,6 +99,12 @@ export function summary(r) {
             `of error against an along-line spread of ${fmt(lp.fir_spread_mgal, 3)}): the ${fmt(lp.period_s, 4)} s ` +
             `low-pass is used, resolving only anomalies longer than that`;
         }
+      } else if (g.n_crossovers && g.crossover_rms_fir_mgal !== undefined) {
+        // the adaptive estimate kept: the crossovers' evidence against FIR 100 s, the alternative
+        const better = g.crossover_rms_mgal <= g.crossover_rms_fir_mgal;
+        text += ` — at the ${g.n_crossovers} crossovers it agrees ${better ? "better than FIR 100 s" : "worse than FIR 100 s, but not significantly"} ` +
+          `(RMS ${fmt(g.crossover_rms_mgal, 3)} against ${fmt(g.crossover_rms_fir_mgal, 3)} mGal` +
+          (better ? ")" : `; t-test p = ${fmt(g.p_value, 3)}, signed ranks p = ${fmt(g.p_rank, 3)})`);
       }
     }
     items.push({ cls: mc && mc.chosen === "FIR" ? "warn" : "ok", text });

@@ -1,0 +1,163 @@
+"""What an analyst walking through the application met (test pipeline): a filter job started from the
+recognition map shows up in the survey list and on the Processing tab; the EM table says which EM run
+(model order, or the stored identification) each row belongs to; the profile names the states it
+shades; the report's model choice reads as a table and says why the adaptive estimate beat FIR."""
+
+from __future__ import annotations
+
+import pytest
+
+from .test_analyst_ui import _open_processed, fake_pipeline_server, fake_server  # noqa: F401  (fixture)
+
+pytestmark = [pytest.mark.browser]
+
+
+def _no_errors(page):
+    assert not [e for e in page.errors if "favicon" not in e], page.errors
+
+
+@pytest.fixture
+def paced_server(tmp_path, monkeypatch):
+    with fake_pipeline_server(tmp_path, monkeypatch, 0.3) as srv:
+        yield srv
+
+
+def test_apply_h_rho_shows_the_filter_job_in_the_list_and_on_processing(paced_server, browser_page, tmp_path):
+    """"Apply h, ρ" said "filter job N started — see Process", but the survey list kept the old badge
+    (polled every 10 s) and the Processing tab showed the previous job, not watching the new one."""
+    page = browser_page
+    _open_processed(page, paced_server.url, tmp_path, "recognition", "#rec-map[data-signature]")
+    page.wait_for_selector("#survey-list li.active .badge:has-text('succeeded')")
+    page.click("#rec-apply")
+    page.wait_for_selector("#rec-apply-note[data-job]", timeout=5000)
+    job = page.get_attribute("#rec-apply-note", "data-job")
+    # the list says the survey is busy at once (not at the next 10 s poll)
+    page.wait_for_selector("#survey-list li.active .badge:is(:has-text('queued'), :has-text('running'))", timeout=2500)
+    page.click("#tabs button[data-tab=process]")
+    page.wait_for_selector(f"#job-box strong:has-text('Job {job}')", timeout=5000)
+    assert "(filter," in page.inner_text("#job-box")
+    page.wait_for_selector("#job-status:has-text('succeeded')", timeout=30000)   # watched to its end
+    _no_errors(page)
+
+
+def _em_rows(model, n, nr=2):
+    a = [[0.9 if i == j else 0.1 / (2 * nr - 1) for j in range(2 * nr)] for i in range(2 * nr)]
+    return [{"iteration": i, "Q": [1e-5, 5e-5], "R": [1.7, 17.0][:nr], "objective": -2200.0 + i, "transition": a,
+             "model": model} for i in range(n)]
+
+
+def test_em_table_says_which_run_each_row_belongs_to(paced_server, browser_page, tmp_path):
+    """The real pipeline runs EM once per model order (rows "m=1 2x2" then "m=2 2x2", iterations from 0
+    in each) and a filter job lists the stored identification's ("stored"): the table showed one column
+    of iterations restarting at 0 halfway, and "Final iteration" only for the last run."""
+    page = browser_page
+    _open_processed(page, paced_server.url, tmp_path, "process", ".em-row")
+    rows = _em_rows("m=1 2x2", 3) + _em_rows("m=2 2x2", 4)
+    got = page.evaluate("""async (rows) => {
+        const m = await import('/js/views/process.js');
+        const t = m.emTable(rows, 6);
+        const cells = [...t.querySelectorAll(':scope > tbody > tr')].map((tr) => [tr.dataset.run, tr.children[0].textContent,
+                                                                    tr.children[1].textContent, tr.classList.contains('final')]);
+        return {head: [...t.querySelectorAll('th')].map((th) => th.textContent), cells,
+                end1: m.emDetail(rows, 2, false).querySelector('h4').textContent,
+                mid2: m.emDetail(rows, 4, false).querySelector('h4').textContent,
+                last: m.emDetail(rows, 6, true).querySelector('h4').textContent};
+    }""", rows)
+    assert got["head"][:2] == ["EM run", "Iteration"]
+    assert [c[:3] for c in got["cells"]] == [["m=1 2x2", "m=1 2x2", "0"], ["m=1 2x2", "m=1 2x2", "1"], ["m=1 2x2", "m=1 2x2", "2"],
+                                             ["m=2 2x2", "m=2 2x2", "0"], ["m=2 2x2", "m=2 2x2", "1"], ["m=2 2x2", "m=2 2x2", "2"],
+                                             ["m=2 2x2", "m=2 2x2", "3"]]
+    assert [c[3] for c in got["cells"]] == [False, False, True, False, False, False, True]   # each run's last row
+    assert got["end1"].startswith("Final iteration 2 of EM run m=1 2x2 —"), got["end1"]
+    assert got["mid2"].startswith("Selected iteration 1 of EM run m=2 2x2 (of 3)"), got["mid2"]
+    assert got["last"].startswith("Latest iteration 3 of EM run m=2 2x2"), got["last"]
+    # rows without a run (older jobs, the test pipeline) keep the plain table
+    assert page.inner_text("#em-table thead tr th") == "Iteration"
+    assert page.locator("#em-runs-note").count() == 0
+    _no_errors(page)
+
+
+def test_profile_names_the_states_it_shades(fake_server_2x2, browser_page, tmp_path):
+    """The profile said "shaded bands: states > 0 (rougher anomaly)", wrong for a 2×2 model where
+    state 1 is (Q0, R1): the same smooth anomaly, noisier GNSS. The shaded states are now named in
+    the legend as on the recognition map."""
+    page = browser_page
+    _open_processed(page, fake_server_2x2.url, tmp_path, "profile", "#profile-plot[data-line] .main-svg")
+    assert "rougher anomaly" not in page.inner_text("#profile-status")
+    names = page.evaluate("() => document.querySelector('#profile-plot').data.map((t) => t.name)")
+    shaded = [n for n in names if n and n.startswith("shaded: ")]
+    # the test pipeline's lines are in state 0 and 1 only: state 1 shaded, named by its levels
+    assert shaded == ["shaded: state 1 (Q0, R1): Q=0.041 mGal² per step, R=17.3 (cm/s)²"], names
+    _no_errors(page)
+
+
+@pytest.fixture
+def fake_server_2x2(fake_server, browser_page):  # noqa: F811
+    """The test pipeline's result with a 2×2 identification (states 0…3 = (Q0,R0), (Q0,R1), (Q1,R0), (Q1,R1))."""
+    def report(route):
+        r = route.fetch().json()
+        r["identification"]["states"] = [{"index": 0, "Q": 0.041, "R": 1.679}, {"index": 1, "Q": 0.041, "R": 17.3},
+                                         {"index": 2, "Q": 0.353, "R": 1.679}, {"index": 3, "Q": 0.353, "R": 17.3}]
+        route.fulfill(json=r)
+    browser_page.route("**/api/surveys/*/report", report)
+    return fake_server
+
+
+def test_model_choice_says_why_adaptive_and_reads_as_a_table(fake_server, browser_page):  # noqa: F811
+    """omolon-mini's report: "Model choice: adaptive (anomaly order m = 2, …)" said nothing of FIR 100 s,
+    the alternative it was weighed against at the crossovers, and the model-choice card drew each
+    line's record as its own key/value table (16 lines: some 160 rows in one column)."""
+    page = browser_page
+    page.goto(fake_server.url)
+    got = page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const p = await import('/js/plots.js');
+        const guard = (rms, fir, pv) => ({warnings: [], report: {model_choice: {chosen: 'adaptive', m: 2, noisy_check: {applied: false},
+            fir_guard: {n_crossovers: 30, crossover_rms_mgal: rms, crossover_rms_fir_mgal: fir, p_value: pv, p_rank: 0.89, applied: false}}}});
+        const lines = {M001: {estimate: 'adaptive', flattening_ratio: 1.21, detectable: true},
+                       M002: {estimate: 'adaptive', flattening_ratio: 1.31, detectable: false}};
+        const t = p.genericView({chosen: 'adaptive', lines}).querySelector('table table');
+        return {better: m.summary(guard(4.345, 6.574, 0.976)).textContent, worse: m.summary(guard(5.1, 4.9, 0.31)).textContent,
+                head: [...t.querySelectorAll(':scope > thead th')].map((th) => th.textContent),
+                rows: [...t.querySelectorAll(':scope > tbody > tr')].map((tr) => [...tr.children].map((td) => td.textContent))};
+    }""")
+    assert "— at the 30 crossovers it agrees better than FIR 100 s (RMS 4.345 against 6.574 mGal)" in got["better"], got
+    assert ("— at the 30 crossovers it agrees worse than FIR 100 s, but not significantly (RMS 5.1 against 4.9 mGal; "
+            "t-test p = 0.31, signed ranks p = 0.89)") in got["worse"], got
+    assert got["head"] == ["", "estimate", "flattening_ratio", "detectable"]
+    assert got["rows"] == [["M001", "adaptive", "1.21", "true"], ["M002", "adaptive", "1.31", "false"]]
+    _no_errors(page)
+
+
+def test_surveys_of_one_name_can_be_told_apart(fake_server, browser_page, tmp_path):  # noqa: F811
+    """The same zip imported twice gave two list entries both reading "tiny" (and the same title)."""
+    import httpx
+
+    from tests.web.conftest import make_tiny_survey, zip_dir
+    z = zip_dir(make_tiny_survey(tmp_path / "tiny", name="tiny"))
+    with httpx.Client(base_url=fake_server.url, timeout=30) as c:
+        ids = [c.post("/api/surveys/import", files={"file": ("tiny.zip", z, "application/zip")}).json()["id"] for _ in range(2)]
+        c.post("/api/surveys", json={"name": "other"}).raise_for_status()
+    page = browser_page
+    page.goto(f"{fake_server.url}/#survey={ids[1]}&tab=qc")
+    page.wait_for_selector("#qc-lines tbody tr", timeout=20000)
+    names = page.eval_on_selector_all("#survey-list li span:first-child", "ss => ss.map((s) => s.textContent)")
+    assert sorted(names) == sorted([f"tiny (#{ids[0]})", f"tiny (#{ids[1]})", "other"]), names
+    assert page.inner_text("#survey-title").startswith(f"tiny (#{ids[1]}) —")
+    _no_errors(page)
+
+
+def test_grid_summary_leaves_out_the_thread_count(fake_server, browser_page, tmp_path):  # noqa: F811
+    """The grid's summary line began "threads: 2 ·" (report.json's worker thread count) before the
+    crossover figures."""
+    page = browser_page
+
+    def grid(route):
+        g = route.fetch().json()
+        g["report"] = {**(g.get("report") or {}), "threads": 2, "grid_rmse_mgal": 0.5}
+        route.fulfill(json=g)
+    page.route("**/api/surveys/*/grid", grid)
+    _open_processed(page, fake_server.url, tmp_path, "grid", "#grid-plot .main-svg")
+    text = page.inner_text("#grid-summary")
+    assert "grid rmse mgal: 0.5" in text and "threads" not in text, text
+    _no_errors(page)
