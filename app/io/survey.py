@@ -856,8 +856,10 @@ def _read_flight_series(name: str, d: Path, root: Path, config: SurveyConfig,
 
 
 def _check_line_windows(name: str, fs: _FlightSeries, lines: pd.DataFrame, origins: list, max_gap_s: float) -> None:
-    """Every line window of flight ``name`` lies within both files' data and has no gap longer
-    than ``max_gap_s`` (processing.max_gap_s) inside it."""
+    """Every line window of flight ``name`` lies within both files' data, holds at least two
+    GNSS epochs (the epochs a line is estimated at: a window between two of them has none, and
+    processing failed on it after the identification) and has no gap longer than ``max_gap_s``
+    (processing.max_gap_s) inside it."""
     tg = fs.grav["time"].to_numpy()
     tn = fs.gnss["time"].to_numpy()
     sel = np.flatnonzero((lines["flight"] == name).to_numpy())
@@ -873,6 +875,15 @@ def _check_line_windows(name: str, fs: _FlightSeries, lines: pd.DataFrame, origi
                 raise InputError(ofile, orow, col,
                                  f"line {lines['line'].iloc[i]} window {ts[k]:.3f}–{te[k]:.3f} s is outside "
                                  f"the data of {disp} ({t[0]:.3f}–{t[-1]:.3f} s): {col} = {val:.3f}")
+    n_epochs = np.searchsorted(tn, te, side="right") - np.searchsorted(tn, ts, side="left")
+    few = np.flatnonzero(n_epochs < 2)
+    if few.size:
+        k = int(few[0])
+        ofile, orow = origins[sel[k]]
+        raise InputError(ofile, orow, "t_end",
+                         f"line {lines['line'].iloc[sel[k]]} window {ts[k]:.3f}–{te[k]:.3f} s "
+                         f"({te[k] - ts[k]:.3g} s) holds {int(n_epochs[k])} epoch(s) of {fs.gnss_disp}: a line "
+                         f"needs at least 2 (check t_start and t_end)")
     for t, rows, disp in ((tg, fs.grav_rows, fs.grav_disp), (tn, fs.gnss_rows, fs.gnss_disp)):
         g = gap_rows_in_windows(t, ts, te, max_gap_s)
         hit = np.flatnonzero(g >= 0)

@@ -337,6 +337,22 @@ def test_line_window_outside_data(survey_dir):
     assert "gnss.csv" in str(err)
 
 
+def test_line_window_between_two_gnss_epochs(survey_dir):
+    """A window holding no GNSS epoch (shorter than the epochs' spacing) is refused at reading
+    with its row: before, it passed the checks and processing failed after the identification
+    (IndexError in the filtering stage)."""
+    root, lines, tabs = survey_dir
+    t = tabs["F1"][1]["time"].to_numpy()
+    l2 = lines.copy()
+    l2.loc[1, "t_start"], l2.loc[1, "t_end"] = t[100] + 0.25 * (t[101] - t[100]), t[100] + 0.75 * (t[101] - t[100])
+    l2.to_csv(root / "lines.csv", index=False)
+    expect_error(root, "lines.csv", 3, "t_end", match="holds 0 epoch")
+    # two epochs are a line (short lines are left out of the identification, not refused)
+    l2.loc[1, "t_start"], l2.loc[1, "t_end"] = t[100], t[101]
+    l2.to_csv(root / "lines.csv", index=False)
+    read_survey(root)
+
+
 def test_unknown_flight(survey_dir):
     root, lines, _ = survey_dir
     l2 = lines.copy()
