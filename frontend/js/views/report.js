@@ -39,7 +39,10 @@ export function summary(r) {
   if (xo.status !== undefined) {
     items.push(r.leveled
       ? { cls: "ok", text: `Leveling applied (F-test p = ${fmt(xo.p_value, 3)}` +
-          (xo.cross_validation ? `; held-out lines' crossovers ${fmt(xo.cross_validation.rms_before_mgal, 3)} → ${fmt(xo.cross_validation.rms_cv_mgal, 3)} mGal, p = ${fmt(xo.cross_validation.p_value, 3)}` : "") +
+          (xo.cross_validation ? `; held-out lines' crossovers ${fmt(xo.cross_validation.rms_before_mgal, 3)} → ${fmt(xo.cross_validation.rms_cv_mgal, 3)} mGal, p = ${fmt(xo.cross_validation.p_value, 3)}` +
+            (xo.cross_validation.absolute_base_tie === false
+              ? ` < ${fmt(xo.cross_validation.significance, 3)}, the check where a flight has no absolute base tie: it keeps its own reading offset, so the flights differ in level for certain`
+              : "") : "") +
           `); crossover RMS ${fmt(xo.rms_before_mgal, 3)} → ${fmt(xo.rms_after_mgal, 3)} mGal.` }
       : { cls: "warn", text: `Leveling NOT applied — ${String(xo.status).replace(/^not leveled:\s*/, "")}; crossover RMS ${fmt(xo.rms_before_mgal, 3)} mGal` +
         (xo.rms_after_if_leveled_mgal !== undefined ? ` (${fmt(xo.rms_after_if_leveled_mgal, 3)} if leveled).` : ".") });
@@ -178,8 +181,10 @@ const RENDER = {
     if (v.cross_validation) {
       const cv = v.cross_validation;
       out.push(el("p", { class: "note" }, "Leave-one-line-out check of the drift (each line's crossovers predicted by the drift fitted without them):"),
-        table(["RMS without leveling (mGal)", "Held-out RMS after (mGal)", "p (one-sided)", "Lines left out"],
-          [[fmt(cv.rms_before_mgal, 4), fmt(cv.rms_cv_mgal, 4), fmt(cv.p_value, 3), String(cv.n_folds ?? "—")]], { id: "report-leveling-cv" }));
+        table(["RMS without leveling (mGal)", "Held-out RMS after (mGal)", "p (one-sided)", "Needs p below", "Lines left out"],
+          [[fmt(cv.rms_before_mgal, 4), fmt(cv.rms_cv_mgal, 4), fmt(cv.p_value, 3),
+            cv.significance === undefined ? "—" : fmt(cv.significance, 3) + (cv.absolute_base_tie === false ? " (a flight without an absolute base tie)" : ""),
+            String(cv.n_folds ?? "—")]], { id: "report-leveling-cv" }));
     }
     if (v.std_check) out.push(el("p", { class: "note" }, `σ check at the crossovers: `), genericView(v.std_check));
     // the level leveling leaves common to the flights (no absolute base tie: it is in the std)
