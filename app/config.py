@@ -588,6 +588,9 @@ class ProcessingParams(_Strict):
                                                    "Independent generator (no ties): 13 of 112 surveys closer to "
                                                    "the truth by > 3 %, none further; the own simulator's surveys "
                                                    "with their ties dropped: 5 of 30 closer, none further")
+    leveling_offset_fallback: bool = Field(True, description="Where the drift of leveling_degree is refused, try "
+                                           "one offset per flight (degree 0) under the same tests: half the "
+                                           "parameters, more power for the flights' level differences alone")
     leveling_per_flight: bool = Field(True, description="One drift polynomial per flight (the instrument drifts, not the line); False: one per line")
     leveling_include_repeat: bool = Field(False, description="Use repeat lines' crossings in leveling (repeats of one track overlap along their whole length; with per-flight leveling they are corrected through their flight)")
     grid_line_error_fraction: float = Field(0.0, ge=0, le=1, description="Share of the lines' posterior variance "

@@ -147,16 +147,21 @@ def test_common_level_std_is_added_without_an_absolute_base_tie():
     np.testing.assert_array_equal(off["dg_std_mgal"], table["dg_std_mgal"])
 
 
-def _offset_survey(rng, offset_std_mgal: float, err_std_mgal: float = 2.0, corr_km: float = 3.0):
-    """Three flights of three lines (two of E-W lines, one of N-S ties): each line's error is
-    correlated along it (AR(1), ``corr_km``) like a smoother's, and each flight carries a reading
-    offset drawn with ``offset_std_mgal`` (what a flight without an absolute base tie keeps)."""
+_THREE_FLIGHTS = [("A", "main", [0, 4, 8], 1000.0, 4000.0), ("B", "main", [2, 6, 10], 30000.0, 4000.0),
+                  ("C", "tie", [3, 15, 27], 60000.0, 3000.0)]
+_TWO_FLIGHTS = [("A", "main", [0, 4, 8], 1000.0, 4000.0), ("C", "tie", [3, 15, 27], 60000.0, 3000.0)]
+
+
+def _offset_survey(rng, offset_std_mgal: float, err_std_mgal: float = 2.0, corr_km: float = 3.0,
+                   plan=_THREE_FLIGHTS):
+    """Flights of three lines (E-W lines, or N-S ties; ``plan``: flight, kind, line offsets (km),
+    first start (s), spacing in time (s)): each line's error is correlated along it (AR(1),
+    ``corr_km``) like a smoother's, and each flight carries a reading offset drawn with
+    ``offset_std_mgal`` (what a flight without an absolute base tie keeps)."""
     from scipy.signal import lfilter
 
     rows = []
     step_s, v_kms = 1.0, 0.1
-    plan = [("A", "main", [0, 4, 8], 1000.0, 4000.0), ("B", "main", [2, 6, 10], 30000.0, 4000.0),
-            ("C", "tie", [3, 15, 27], 60000.0, 3000.0)]
     for flight, kind, offsets_km, t0, gap in plan:
         for i, off in enumerate(offsets_km):
             s = np.arange(0.0, 30.0, v_kms * step_s)
@@ -170,7 +175,7 @@ def _offset_survey(rng, offset_std_mgal: float, err_std_mgal: float = 2.0, corr_
     err = np.zeros(len(table))
     for _, g in table.groupby("line"):
         err[g.index] = lfilter([1.0], [1.0, -a], rng.normal(0, err_std_mgal * np.sqrt(1 - a * a), len(g)))
-    offset = {f: rng.normal(0, offset_std_mgal) for f in "ABC"}
+    offset = {f: rng.normal(0, offset_std_mgal) for f in table["flight"].unique()}
     table["dg_unleveled_mgal"] = table["dg_true_mgal"] + err + table["flight"].map(offset)
     table["dg_mgal"] = table["dg_unleveled_mgal"]
     table["dg_std_mgal"] = 1.0
@@ -183,8 +188,9 @@ def test_flights_without_a_base_tie_are_leveled_on_weaker_held_out_evidence():
     likely than not (``leveling_cv_significance_untied``).  Simulated against the truth (each
     line's error correlated along it, 3 km): with flight offsets of 2 mGal the untied rule
     levels more surveys and leaves less error than the tied rule's 0.05; with no offsets at all
-    it levels a few on the lines' correlated errors and costs at most 2 % on average."""
-    p = ProcessingParams()
+    it levels a few on the lines' correlated errors and costs at most 2 % on average.  (The offset
+    fallback is off here: it is tested on its own below.)"""
+    p = ProcessingParams(leveling_offset_fallback=False)
 
     def error(table):
         e = table["dg_mgal"] - table["dg_true_mgal"]
@@ -226,3 +232,35 @@ def test_untied_held_out_significance_is_its_own(monkeypatch):
     assert rep["status"] == "leveled", rep["status"]
     _, rep = level_lines_table(table.copy(), ProcessingParams(leveling_cv_significance_untied=0.1), [], tied=False)
     assert "needs < 0.1: a flight without an absolute base tie" in rep["status"], rep["status"]
+
+
+def test_a_refused_drift_is_followed_by_one_offset_per_flight():
+    """Where the drift (degree 1 per flight) is refused, one offset per flight (degree 0) is
+    tried under the same tests: half the parameters.  Simulated against the truth (two flights,
+    along-line correlated errors, every flight tied so the tests are at their strictest): with
+    2 mGal offsets between the flights the fallback levels more surveys and leaves less error;
+    with none it levels none.  A fallback says so (degree 0, the refused drift's evidence)."""
+    def error(table):
+        e = table["dg_mgal"] - table["dg_true_mgal"]
+        return float(np.sqrt(np.mean((e - e.mean()) ** 2)))
+
+    for offset_std in (2.0, 0.0):
+        rms = {True: [], False: []}
+        leveled = {True: 0, False: 0}
+        for seed in range(40):
+            table = _offset_survey(np.random.default_rng(200 + seed), offset_std, plan=_TWO_FLIGHTS)
+            for fallback in (True, False):
+                t = table.copy()
+                _, rep = level_lines_table(t, ProcessingParams(leveling_offset_fallback=fallback), [], tied=True)
+                rms[fallback].append(error(t))
+                leveled[fallback] += rep["status"] == "leveled"
+                if "refused_drift" in rep:
+                    assert fallback and rep["degree"] == 0 and rep["refused_drift"]["degree"] == 1
+                    assert rep["refused_drift"]["status"].startswith("not leveled")
+                elif fallback and rep["status"] == "leveled":
+                    assert rep["degree"] == 1
+        if offset_std > 0:
+            assert leveled[True] > leveled[False], leveled
+            assert np.mean(rms[True]) < np.mean(rms[False]), (np.mean(rms[True]), np.mean(rms[False]))
+        else:
+            assert leveled == {True: 0, False: 0}, leveled

@@ -8,6 +8,7 @@ is as uncertain as the flights' offsets say (:func:`add_common_level_std`, after
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -39,13 +40,89 @@ def tracks(table: pd.DataFrame, col: str):
     return tracks
 
 
+class _TestedDrift(NamedTuple):
+    """A drift polynomial fitted to the crossovers and tested: the fit, the crossover differences
+    before and after it (mGal), which are finite, their predicted variance (mGal²), the report
+    entries, and why it is refused (None: accepted)."""
+
+    res: object
+    before: np.ndarray
+    after: np.ndarray
+    ok: np.ndarray
+    pred_var: np.ndarray
+    rep: dict
+    reason: str | None
+
+
+def _tested_drift(cx: pd.DataFrame, ranges: dict, groups: dict | None, degree: int, p, tied: bool) -> _TestedDrift:
+    """Fit a drift of ``degree`` per unit (flight, or line without ``groups``) to the crossovers
+    and test it: an F-test against no correction, then the leave-one-line-out check (at
+    ``leveling_cv_significance``, or ``leveling_cv_significance_untied`` where a flight has no
+    absolute base tie).  Raises ValueError when the drift cannot be fitted."""
+    res = level_lines(cx, ranges, degree=degree, groups=groups)
+    before = (cx["dg_a"] - cx["dg_b"]).to_numpy(float)
+    after = np.asarray(res.diff_after, float)
+    # Is the drift model supported by the crossovers at all?  F-test of the drift
+    # parameters against "no correction": after base ties the crossover differences are
+    # mostly the lines' own errors, and fitting them only adds noise to the lines.
+    ok = np.isfinite(before) & np.isfinite(after)
+    pred_var = (cx["std_a"] ** 2 + cx["std_b"] ** 2).to_numpy(float)
+    lines_x = set(cx["line_a"].astype(str)) | set(cx["line_b"].astype(str))
+    units = {groups[l] for l in lines_x} if groups else lines_x
+    k = max(1, (len(units) - 1) * (degree + 1))
+    n = int(ok.sum())
+    ssr0 = float(np.sum(before[ok] ** 2))
+    ssr1 = float(np.sum(after[ok] ** 2))
+    p_value = 0.0
+    if n > k + 1 and ssr1 > 0:
+        F = ((ssr0 - ssr1) / k) / (ssr1 / (n - k))
+        p_value = float(f_dist.sf(F, k, n - k))
+    rep = {"degree": degree, "per_flight": bool(p.leveling_per_flight), "n_crossovers": int(len(cx)),
+           "rms_before_mgal": float(res.rms_before), "n_drift_parameters": k, "p_value": p_value}
+    reason = None
+    if p_value > p.leveling_significance:
+        reason = ("the drift model is not significant at the crossovers "
+                  f"(F-test p = {p_value:.3g} > {p.leveling_significance})")
+    elif p.leveling_cross_validate:
+        # crossover errors are correlated along lines: the F-test can call smoothing errors a
+        # drift; the drift must also predict the crossovers of lines left out of its fit
+        cv = cross_validated_leveling(cx, ranges, degree=degree, groups=groups)
+        sig = p.leveling_cv_significance if tied else p.leveling_cv_significance_untied
+        rep["cross_validation"] = {**cv, "significance": sig, "absolute_base_tie": bool(tied)}
+        if not (cv["rms_cv_mgal"] < cv["rms_before_mgal"] and cv["p_value"] < sig):
+            reason = (f"the drift does not predict held-out lines' crossovers significantly (leave-one-line-out "
+                      f"RMS {cv['rms_cv_mgal']:.3g} mGal against {cv['rms_before_mgal']:.3g} without leveling, "
+                      f"p = {cv['p_value']:.3g}, needs < {sig}"
+                      + ("" if tied else ": a flight without an absolute base tie keeps its reading offset") + ")")
+    return _TestedDrift(res, before, after, ok, pred_var, rep, reason)
+
+
+def _drift_or_offsets(cx: pd.DataFrame, ranges: dict, groups: dict | None, p, tied: bool) -> _TestedDrift:
+    """The drift of ``leveling_degree``; where it is refused, one offset per unit (degree 0)
+    under the same tests (``leveling_offset_fallback``), which has half the parameters: the
+    refused drift's evidence stays in the report (``refused_drift``)."""
+    drift = _tested_drift(cx, ranges, groups, p.leveling_degree, p, tied)
+    if drift.reason is None or p.leveling_degree == 0 or not p.leveling_offset_fallback:
+        return drift
+    offsets = _tested_drift(cx, ranges, groups, 0, p, tied)
+    if offsets.reason is not None:
+        return drift
+    offsets.rep["refused_drift"] = {**{k: drift.rep[k] for k in ("degree", "n_drift_parameters", "p_value")},
+                                    **({"cross_validation": drift.rep["cross_validation"]}
+                                       if "cross_validation" in drift.rep else {}),
+                                    "status": f"not leveled: {drift.reason}"}
+    return offsets
+
+
 def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True) -> tuple[pd.DataFrame, dict]:
     """Crossovers and leveling; on failure keep the unleveled estimate and say why.
 
     ``tied``: every flight was tied to an absolute base reading (stage 1), which removed its
     reading offset.  Where one was not, that flight keeps its own offset, so the flights
     differ in level for certain: the held-out check of the drift is then at
-    ``leveling_cv_significance_untied`` instead of ``leveling_cv_significance``."""
+    ``leveling_cv_significance_untied`` instead of ``leveling_cv_significance``.  A drift
+    refused is followed by one offset per flight under the same tests
+    (:func:`_drift_or_offsets`)."""
     cols = ["line_a", "line_b", "easting_km", "northing_km", "diff_before_mgal", "diff_after_mgal"]
     try:
         cx = find_crossovers(tracks(table, "dg_unleveled_mgal"), include_repeat=p.leveling_include_repeat)
@@ -61,55 +138,22 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True)
         groups = None
         if p.leveling_per_flight:
             groups = {str(l): str(g["flight"].iloc[0]) for l, g in table.groupby("line", sort=False)}
-        res = level_lines(cx, ranges, degree=p.leveling_degree, groups=groups)
+        fit = _drift_or_offsets(cx, ranges, groups, p, tied)
     except ValueError as exc:
         warnings.append(f"leveling: {exc}")
         cx = cx.assign(diff_before_mgal=cx["dg_a"] - cx["dg_b"], diff_after_mgal=cx["dg_a"] - cx["dg_b"])
         return cx[cols], {"status": f"not leveled: {exc}"}
-    before = (cx["dg_a"] - cx["dg_b"]).to_numpy(float)
-    after = np.asarray(res.diff_after, float)
-    # Is the drift model supported by the crossovers at all?  F-test of the drift
-    # parameters against "no correction": after base ties the crossover differences are
-    # mostly the lines' own errors, and fitting them only adds noise to the lines.
-    ok = np.isfinite(before) & np.isfinite(after)
-    pred_var = (cx["std_a"] ** 2 + cx["std_b"] ** 2).to_numpy(float)
-    lines_x = set(cx["line_a"].astype(str)) | set(cx["line_b"].astype(str))
-    units = {groups[l] for l in lines_x} if groups else lines_x
-    k = max(1, (len(units) - 1) * (p.leveling_degree + 1))
-    n = int(ok.sum())
-    ssr0 = float(np.sum(before[ok] ** 2))
-    ssr1 = float(np.sum(after[ok] ** 2))
-    p_value = 0.0
-    if n > k + 1 and ssr1 > 0:
-        F = ((ssr0 - ssr1) / k) / (ssr1 / (n - k))
-        p_value = float(f_dist.sf(F, k, n - k))
-    rep = {"degree": p.leveling_degree, "per_flight": bool(p.leveling_per_flight), "n_crossovers": int(len(cx)),
-           "rms_before_mgal": float(res.rms_before), "n_drift_parameters": k, "p_value": p_value}
-    reason = None
-    if p_value > p.leveling_significance:
-        reason = ("the drift model is not significant at the crossovers "
-                  f"(F-test p = {p_value:.3g} > {p.leveling_significance})")
-    elif p.leveling_cross_validate:
-        # crossover errors are correlated along lines: the F-test can call smoothing errors a
-        # drift; the drift must also predict the crossovers of lines left out of its fit
-        cv = cross_validated_leveling(cx, ranges, degree=p.leveling_degree, groups=groups)
-        sig = p.leveling_cv_significance if tied else p.leveling_cv_significance_untied
-        rep["cross_validation"] = {**cv, "significance": sig, "absolute_base_tie": bool(tied)}
-        if not (cv["rms_cv_mgal"] < cv["rms_before_mgal"] and cv["p_value"] < sig):
-            reason = (f"the drift does not predict held-out lines' crossovers significantly (leave-one-line-out "
-                      f"RMS {cv['rms_cv_mgal']:.3g} mGal against {cv['rms_before_mgal']:.3g} without leveling, "
-                      f"p = {cv['p_value']:.3g}, needs < {sig}"
-                      + ("" if tied else ": a flight without an absolute base tie keeps its reading offset") + ")")
-    corr, removed, unit = _corrections(table, cx, res, ok)
-    if reason is not None:
-        rep.update(status=f"not leveled: {reason}",
+    res, before, after, rep = fit.res, fit.before, fit.after, fit.rep
+    corr, removed, unit = _corrections(table, cx, res, fit.ok)
+    if fit.reason is not None:
+        rep.update(status=f"not leveled: {fit.reason}",
                    rms_after_mgal=float(res.rms_before), rms_after_if_leveled_mgal=float(res.rms_after))
         # what the refused drift would have subtracted, per drift unit (a flight), on average:
         # evidence for the analyst, not a warning — on simulated surveys with base ties the
         # refused drifts reach 2–7 mGal from the crossovers' own correlated errors (unseen 1664:
         # 6.9), as large as the real flight offsets the generator without base ties leaves (4–5)
         rep["if_leveled_mean_correction_mgal"] = _mean_by_unit(corr, unit)
-        rep["std_check"] = std_check(before, pred_var, p)
+        rep["std_check"] = std_check(before, fit.pred_var, p)
         cx = cx.assign(diff_before_mgal=before, diff_after_mgal=before)
         return cx[cols], rep
     table["dg_mgal"] = table["dg_unleveled_mgal"].to_numpy() - corr
@@ -121,7 +165,7 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True)
         rep["common_level"] = {"std_mgal": common.std_mgal, "spread_mgal": common.spread_mgal,
                                "offsets_mgal": common.offsets_mgal, "n_units": common.n_units,
                                "n_crossovers": common.n_crossovers}
-    rep["std_check"] = std_check(after, pred_var, p)
+    rep["std_check"] = std_check(after, fit.pred_var, p)
     return cx[cols], rep
 
 
