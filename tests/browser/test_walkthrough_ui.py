@@ -163,9 +163,10 @@ def test_grid_summary_leaves_out_the_thread_count(fake_server, browser_page, tmp
     _no_errors(page)
 
 
-def test_leveling_summary_says_why_an_untied_survey_was_leveled(fake_server, browser_page):  # noqa: F811
+def test_leveling_summary_says_why_and_how_a_survey_was_leveled(fake_server, browser_page):  # noqa: F811
     """Where a flight has no absolute base tie the held-out check of the drift is at p < 0.5 (stage 10):
-    the summary says so and why, and says nothing of it where every flight is tied."""
+    the summary says so and why, and says nothing of it where every flight is tied; a drift refused and
+    offsets applied instead is said too."""
     page = browser_page
     page.goto(fake_server.url)
     got = page.evaluate("""async () => {
@@ -173,9 +174,15 @@ def test_leveling_summary_says_why_an_untied_survey_was_leveled(fake_server, bro
         const rep = (tied) => ({warnings: [], leveled: true, report: {crossovers: {status: 'leveled', p_value: 0.004,
             rms_before_mgal: 14.3, rms_after_mgal: 8.44, cross_validation: {rms_before_mgal: 14.3, rms_cv_mgal: 10.33,
             p_value: 0.084, n_folds: 10, significance: tied ? 0.05 : 0.5, absolute_base_tie: tied}}}});
-        return {untied: m.summary(rep(false)).textContent, tied: m.summary(rep(true)).textContent};
+        const offsets = rep(true);
+        offsets.report.crossovers.refused_drift = {degree: 1, status: 'not leveled: the drift model is not significant at the crossovers (F-test p = 0.034 > 0.01)'};
+        return {untied: m.summary(rep(false)).textContent, tied: m.summary(rep(true)).textContent,
+                offsets: m.summary(offsets).textContent};
     }""")
     assert ("held-out lines' crossovers 14.3 → 10.33 mGal, p = 0.084 < 0.5, the check where a flight has no absolute "
             "base tie: it keeps its own reading offset, so the flights differ in level for certain") in got["untied"], got
     assert "p = 0.084); crossover RMS 14.3 → 8.44 mGal" in got["tied"] and "reading offset" not in got["tied"], got
+    assert "one offset per flight" not in got["tied"]
+    assert ("Leveling applied as one offset per flight — the drift (degree 1) was refused: the drift model is not "
+            "significant at the crossovers (F-test p = 0.034 > 0.01) — (F-test p = 0.004") in got["offsets"], got
     _no_errors(page)

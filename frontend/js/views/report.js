@@ -38,7 +38,7 @@ export function summary(r) {
   const xo = rep.crossovers || {};
   if (xo.status !== undefined) {
     items.push(r.leveled
-      ? { cls: "ok", text: `Leveling applied (F-test p = ${fmt(xo.p_value, 3)}` +
+      ? { cls: "ok", text: `Leveling applied${xo.refused_drift ? ` as one offset per flight — the drift (degree ${xo.refused_drift.degree}) was refused: ${String(xo.refused_drift.status).replace(/^not leveled:\s*/, "")} —` : ""} (F-test p = ${fmt(xo.p_value, 3)}` +
           (xo.cross_validation ? `; held-out lines' crossovers ${fmt(xo.cross_validation.rms_before_mgal, 3)} → ${fmt(xo.cross_validation.rms_cv_mgal, 3)} mGal, p = ${fmt(xo.cross_validation.p_value, 3)}` +
             (xo.cross_validation.absolute_base_tie === false
               ? ` < ${fmt(xo.cross_validation.significance, 3)}, the check where a flight has no absolute base tie: it keeps its own reading offset, so the flights differ in level for certain`
