@@ -534,11 +534,20 @@ def derive_vu_from_h(df: pd.DataFrame, rows: np.ndarray, display: str, max_gap_s
 def finish_gnss(df: pd.DataFrame, rows: np.ndarray, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, bool]:
     """Validate a parsed GNSS table (any file format) and derive ``vu`` when absent.
 
+    ``sigma_v`` is not used by the processing: with empty cells it is dropped (a warning),
+    not refused as missing values.
+
     Returns
     -------
     (DataFrame[time, lat, lon, h, vu, (ve, vn, sigma_v)], vu_derived_from_h)
     """
     p = config.processing
+    if "sigma_v" in df:
+        miss = np.flatnonzero(df["sigma_v"].isna().to_numpy())
+        if 0 < miss.size < len(df):   # (a column left wholly empty is dropped as absent, silently)
+            df = df.drop(columns="sigma_v")
+            warnings.warn(f"{display}: sigma_v has {miss.size} empty cell(s) (first at row {int(rows[miss[0]])}); "
+                          f"the processing does not use it: column dropped", stacklevel=2)
     df = _finish_series(df, rows, display, p.max_nan_run, GNSS_REQUIRED, GNSS_OPTIONAL)
     check_range(df, "lat", -90.0, 90.0, rows, display, "latitude")
     check_range(df, "lon", -180.0, 360.0, rows, display, "longitude")

@@ -232,6 +232,24 @@ def test_nan_default_is_error(survey_dir):
     expect_error(root, "flights/F1/gnss.csv", 40, "vu", match="missing")
 
 
+def test_sigma_v_with_missing_cells_does_not_refuse_the_survey(tmp_path):
+    """sigma_v (optional) is not used by the processing: a receiver that leaves it empty on some
+    epochs (no solution quality there) refused the whole survey as 'missing value'.  The column
+    is dropped with a note naming its first empty row; the data are read."""
+    lines, tabs = make_tables()
+    grav, gnss = tabs["F1"]
+    gnss = gnss.assign(sigma_v=0.02)
+    gnss.loc[100:105, "sigma_v"] = np.nan   # rows 102-107
+    tabs["F1"] = (grav, gnss)
+    root = write_survey(tmp_path / "s", lines, tabs)
+    with pytest.warns(UserWarning, match="sigma_v"):
+        s = read_survey(root)
+    assert "sigma_v" not in s.flights["F1"].gnss
+    assert [n for n in s.notes if "flights/F1/gnss.csv" in n and "row 102" in n and "sigma_v" in n], s.notes
+    edit_cell(root / "flights/F1/gnss.csv", 40, "vu", "")   # a column the processing uses: still an error
+    expect_error(root, "flights/F1/gnss.csv", 40, "vu", match="missing")
+
+
 def test_nan_runs_interpolated_or_rejected(tmp_path):
     lines, tabs = make_tables()
     grav, gnss = tabs["F1"]
