@@ -534,11 +534,20 @@ def derive_vu_from_h(df: pd.DataFrame, rows: np.ndarray, display: str, max_gap_s
 def finish_gnss(df: pd.DataFrame, rows: np.ndarray, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, bool]:
     """Validate a parsed GNSS table (any file format) and derive ``vu`` when absent.
 
+    ``sigma_v`` is not used by the processing: with empty cells it is dropped (a warning),
+    not refused as missing values.
+
     Returns
     -------
     (DataFrame[time, lat, lon, h, vu, (ve, vn, sigma_v)], vu_derived_from_h)
     """
     p = config.processing
+    if "sigma_v" in df:
+        miss = np.flatnonzero(df["sigma_v"].isna().to_numpy())
+        if 0 < miss.size < len(df):   # (a column left wholly empty is dropped as absent, silently)
+            df = df.drop(columns="sigma_v")
+            warnings.warn(f"{display}: sigma_v has {miss.size} empty cell(s) (first at row {int(rows[miss[0]])}); "
+                          f"the processing does not use it: column dropped", stacklevel=2)
     df = _finish_series(df, rows, display, p.max_nan_run, GNSS_REQUIRED, GNSS_OPTIONAL)
     check_range(df, "lat", -90.0, 90.0, rows, display, "latitude")
     check_range(df, "lon", -180.0, 360.0, rows, display, "longitude")
@@ -783,7 +792,37 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
                              f"blocks{which}: add a lines.csv")
     for name, fs in series.items():
         _check_line_windows(name, fs, lines, origins, config.processing.max_gap_s)
+    for n in repeat_track_notes(lines, origins):
+        warnings.warn(n, stacklevel=2)
+        notes.append(n)
     return Survey(root=root, config=config, lines=lines, flights=flights, notes=notes)
+
+
+def repeat_track_notes(lines: pd.DataFrame, origins: list) -> list[str]:
+    """Notes on repeat lines that no other pass is compared with: a repeat line is left out of
+    the crossovers and only its track's other passes measure it (the repeat-line accuracy), so
+    one without a track, or its track's only pass, gave no figure and no word of why."""
+    out = []
+    rep = np.flatnonzero((lines["kind"] == "repeat").to_numpy())
+    tracks: dict[str, list[int]] = {}
+    for i in rep:
+        tr = lines["track"].iloc[i]
+        if tr is None:
+            ofile, orow = origins[i]
+            out.append(f"{ofile} row {orow}: line {lines['line'].iloc[i]} is kind repeat but has no track: it is "
+                       f"left out of the crossovers (as repeat lines are) and compared with no other pass, so no "
+                       f"repeat-line accuracy — give every pass of one track the same track id (or make it kind "
+                       f"main)")
+        else:
+            tracks.setdefault(str(tr), []).append(int(i))
+    for tr, idx in tracks.items():
+        if len(idx) == 1:
+            i = idx[0]
+            ofile, orow = origins[i]
+            out.append(f"{ofile} row {orow}: track {tr} has one pass (line {lines['line'].iloc[i]}): it is left out "
+                       f"of the crossovers (as repeat lines are) and a repeat-line accuracy needs at least two "
+                       f"passes — check the track ids (or make it kind main)")
+    return out
 
 
 def _flight_dirs(root: Path, lines: pd.DataFrame | None, origins: list) -> dict[str, Path]:

@@ -232,6 +232,24 @@ def test_nan_default_is_error(survey_dir):
     expect_error(root, "flights/F1/gnss.csv", 40, "vu", match="missing")
 
 
+def test_sigma_v_with_missing_cells_does_not_refuse_the_survey(tmp_path):
+    """sigma_v (optional) is not used by the processing: a receiver that leaves it empty on some
+    epochs (no solution quality there) refused the whole survey as 'missing value'.  The column
+    is dropped with a note naming its first empty row; the data are read."""
+    lines, tabs = make_tables()
+    grav, gnss = tabs["F1"]
+    gnss = gnss.assign(sigma_v=0.02)
+    gnss.loc[100:105, "sigma_v"] = np.nan   # rows 102-107
+    tabs["F1"] = (grav, gnss)
+    root = write_survey(tmp_path / "s", lines, tabs)
+    with pytest.warns(UserWarning, match="sigma_v"):
+        s = read_survey(root)
+    assert "sigma_v" not in s.flights["F1"].gnss
+    assert [n for n in s.notes if "flights/F1/gnss.csv" in n and "row 102" in n and "sigma_v" in n], s.notes
+    edit_cell(root / "flights/F1/gnss.csv", 40, "vu", "")   # a column the processing uses: still an error
+    expect_error(root, "flights/F1/gnss.csv", 40, "vu", match="missing")
+
+
 def test_nan_runs_interpolated_or_rejected(tmp_path):
     lines, tabs = make_tables()
     grav, gnss = tabs["F1"]
@@ -408,6 +426,24 @@ def test_duplicate_line_id(survey_dir):
     l2.to_csv(root / "lines.csv", index=False)
     expect_error(root, "lines.csv", 4, "line", match="twice")
 
+
+
+def test_repeat_line_without_track_or_second_pass_is_said(survey_dir):
+    """A repeat line is left out of the crossovers and compared only with the other passes of
+    its track: without a track (or as its track's only pass) it silently gave no repeat-line
+    accuracy.  Said in the notes (→ the report's warnings) with lines.csv's row."""
+    root, lines, _ = survey_dir
+    s = read_survey(root)    # the fixture's line 0003 is track A's only pass
+    assert [n for n in s.notes if "track A" in n and "0003" in n and "row 4" in n and "one pass" in n], s.notes
+    l2 = lines.copy()
+    l2.loc[2, "track"] = ""
+    l2.to_csv(root / "lines.csv", index=False)
+    s = read_survey(root)
+    assert [n for n in s.notes if "0003" in n and "row 4" in n and "no track" in n], s.notes
+    l2.loc[1, ["kind", "track"]] = ["repeat", "A"]   # 0002 and 0003: two passes of A
+    l2.loc[2, "track"] = "A"
+    l2.to_csv(root / "lines.csv", index=False)
+    assert not [n for n in read_survey(root).notes if "track" in n]
 
 def test_gravimeter_rate_inferred_declared_is_a_check(tmp_path):
     """No rate in survey.toml: a 2 Hz and a 10 Hz gravimeter are read; a declared rate is checked."""
