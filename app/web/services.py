@@ -59,6 +59,10 @@ def validate(reader: Callable, root: Path):
     """``reader(root)`` with file names in errors relative to the survey directory, and at most
     ``MAX_SURVEY_LINES`` survey lines (InputError naming lines.csv): every line becomes QC, a map
     track and a database row, rebuilt at every change of the survey."""
+    lines_csv = Path(root) / "lines.csv"
+    if lines_csv.is_file():   # counted before the reader checks every line's window
+        with lines_csv.open("rb") as fh:
+            _too_many_lines(sum(1 for row in fh if row.strip()) - 1)
     try:
         survey = reader(root)
     except InputError as e:
@@ -66,11 +70,14 @@ def validate(reader: Callable, root: Path):
         if err is e:
             raise
         raise err from e
-    n = len(getattr(survey, "lines", ()))
+    _too_many_lines(len(getattr(survey, "lines", ())))
+    return survey
+
+
+def _too_many_lines(n: int) -> None:
     if n > MAX_SURVEY_LINES:
         raise InputError("lines.csv", None, None, f"the survey has {n:,} lines; at most {MAX_SURVEY_LINES:,} "
                                                   "allowed (one row per line flown)")
-    return survey
 
 
 def replace_metadata(db: Session, s: Survey, survey) -> None:
