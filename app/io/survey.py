@@ -792,10 +792,44 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
                              f"blocks{which}: add a lines.csv")
     for name, fs in series.items():
         _check_line_windows(name, fs, lines, origins, config.processing.max_gap_s)
-    for n in repeat_track_notes(lines, origins):
+    for n in [n for name, fs in series.items() for n in stuck_sensor_notes(name, fs, lines)] + \
+            repeat_track_notes(lines, origins):
         warnings.warn(n, stacklevel=2)
         notes.append(n)
     return Survey(root=root, config=config, lines=lines, flights=flights, notes=notes)
+
+
+def stuck_sensor_notes(name: str, fs, lines: pd.DataFrame, min_s: float = 5.0, min_samples: int = 10) -> list[str]:
+    """Notes on runs of one unchanging f_z value inside flight ``name``'s line windows: in the air
+    the vertical specific force varies by thousands of mGal from one second to the next, so a
+    value repeated for ``min_s`` s and ``min_samples`` samples is a stuck or saturated sensor —
+    those epochs are not a measurement (processing goes on: the analyst decides where to cut)."""
+    t = fs.grav["time"].to_numpy(float)
+    f = fs.grav["f_z"].to_numpy(float)
+    out = []
+    sel = lines.loc[lines["flight"] == name]
+    for line, a, b in zip(sel["line"], sel["t_start"].to_numpy(float), sel["t_end"].to_numpy(float)):
+        i0, i1 = np.searchsorted(t, a, side="left"), np.searchsorted(t, b, side="right")
+        if i1 - i0 < min_samples:
+            continue
+        same = np.diff(f[i0:i1]) == 0.0
+        if not same.any():
+            continue
+        edges = np.diff(np.r_[0, same.astype(np.int8), 0])
+        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)   # runs of equal steps
+        n = stops - starts + 1                                                        # samples per run
+        dur = t[i0 + stops] - t[i0 + starts]
+        k = np.flatnonzero((n >= min_samples) & (dur >= min_s))
+        if not k.size:
+            continue
+        j = int(k[np.argmax(dur[k])])
+        r0, r1 = i0 + int(starts[j]), i0 + int(stops[j])
+        out.append(f"{fs.grav_disp}: f_z is constant ({f[r0]:.6g} m/s²) for {dur[j]:.1f} s, {int(n[j])} samples "
+                   f"(rows {int(fs.grav_rows[r0])}–{int(fs.grav_rows[r1])}) inside line {line}"
+                   + (f", and in {k.size - 1} more run(s) there" if k.size > 1 else "")
+                   + ": a stuck or saturated sensor? Those epochs are not a measurement — cut the line there "
+                   "in lines.csv (two windows)")
+    return out
 
 
 def repeat_track_notes(lines: pd.DataFrame, origins: list) -> list[str]:

@@ -371,6 +371,32 @@ def test_line_window_between_two_gnss_epochs(survey_dir):
     read_survey(root)
 
 
+def test_stuck_gravimeter_inside_a_line_is_said():
+    """A gravimeter whose f_z stops changing in the air (stuck or saturated) is not a measurement:
+    processing went on and the crossovers grew from 4 to 226 mGal with no word of the sensor.  A
+    run of one value for ≥ 5 s inside a line is now a note naming the file's rows; a 2 s run, or
+    one outside every line (parked), is not."""
+    import warnings as w
+
+    def notes_for(first: int, n: int):
+        lines, tabs = make_tables()
+        grav = tabs["F1"][0]
+        grav.loc[first:first + n - 1, "f_z"] = 9.80123
+        with w.catch_warnings():
+            w.simplefilter("ignore")
+            return [x for x in read_survey(write_survey(Path(tmp) / f"s{first}-{n}", lines, tabs)).notes
+                    if "constant" in x]
+
+    import tempfile
+    with tempfile.TemporaryDirectory() as tmp:
+        start = int(100 * GRAV_HZ)                       # 100 s after the flight starts: line 0001
+        (note,) = notes_for(start, int(8 * GRAV_HZ))
+        assert "flights/F1/gravimeter.csv" in note and "inside line 0001" in note, note
+        assert f"rows {start + 2}–{start + int(8 * GRAV_HZ) + 1}" in note, note   # header = row 1
+        assert notes_for(start, int(2 * GRAV_HZ)) == []
+        assert notes_for(int(5 * GRAV_HZ), int(8 * GRAV_HZ)) == []   # before the first line (20 s)
+
+
 def test_unknown_flight(survey_dir):
     root, lines, _ = survey_dir
     l2 = lines.copy()
