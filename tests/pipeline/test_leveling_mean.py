@@ -18,13 +18,11 @@ def _field(e_km, n_km):
     return 12.0 * np.sin(e_km / 7.0) * np.cos(n_km / 9.0) + 0.3 * n_km
 
 
-def _survey(rng):
-    """Three flights: E-W lines early in flight A and late in flight B, N-S ties in flight C;
-    each flight drifts linearly in time; the drifts have zero mean over all epochs."""
+def _lines(plan, step_s: float = 1.0, v_kms: float = 0.1) -> pd.DataFrame:
+    """30 km lines, E-W (kind main) or N-S (tie), per ``plan`` entry (flight, kind, offsets of its
+    lines (km), first start (s), spacing in time (s)), one epoch per ``step_s``, with the true
+    anomaly of :func:`_field`."""
     rows = []
-    step_s, v_kms = 1.0, 0.1
-    plan = [("A", "main", [0, 2, 4], 1000.0, 4000.0), ("B", "main", [6, 8, 10, 12, 14], 30000.0, 33000.0),
-            ("C", "tie", [3, 9, 15, 21, 27], 60000.0, 3000.0)]
     for flight, kind, offsets_km, t0, gap in plan:
         for i, off in enumerate(offsets_km):
             s = np.arange(0.0, 30.0, v_kms * step_s)
@@ -34,6 +32,14 @@ def _survey(rng):
                                       "easting_km": e, "northing_km": n}))
     table = pd.concat(rows, ignore_index=True)
     table["dg_true_mgal"] = _field(table["easting_km"], table["northing_km"])
+    return table
+
+
+def _survey(rng):
+    """Three flights: E-W lines early in flight A and late in flight B, N-S ties in flight C;
+    each flight drifts linearly in time; the drifts have zero mean over all epochs."""
+    table = _lines([("A", "main", [0, 2, 4], 1000.0, 4000.0), ("B", "main", [6, 8, 10, 12, 14], 30000.0, 33000.0),
+                    ("C", "tie", [3, 9, 15, 21, 27], 60000.0, 3000.0)])
     slope = {"A": 2.0e-3, "B": -1.5e-3, "C": 1.0e-3}                      # mGal/s
     drift = np.zeros(len(table))
     for f, g in table.groupby("flight"):
@@ -160,18 +166,8 @@ def _offset_survey(rng, offset_std_mgal: float, err_std_mgal: float = 2.0, corr_
     ``offset_std_mgal`` (what a flight without an absolute base tie keeps)."""
     from scipy.signal import lfilter
 
-    rows = []
-    step_s, v_kms = 1.0, 0.1
-    for flight, kind, offsets_km, t0, gap in plan:
-        for i, off in enumerate(offsets_km):
-            s = np.arange(0.0, 30.0, v_kms * step_s)
-            t = t0 + i * gap + s / v_kms
-            e, n = (s, np.full_like(s, off)) if kind == "main" else (np.full_like(s, off), s - 1.0)
-            rows.append(pd.DataFrame({"line": f"{flight}{i}", "flight": flight, "kind": kind, "time": t,
-                                      "easting_km": e, "northing_km": n}))
-    table = pd.concat(rows, ignore_index=True)
-    table["dg_true_mgal"] = _field(table["easting_km"], table["northing_km"])
-    a = np.exp(-v_kms * step_s / corr_km)
+    table = _lines(plan)
+    a = np.exp(-0.1 / corr_km)                                             # 0.1 km per epoch
     err = np.zeros(len(table))
     for _, g in table.groupby("line"):
         err[g.index] = lfilter([1.0], [1.0, -a], rng.normal(0, err_std_mgal * np.sqrt(1 - a * a), len(g)))
