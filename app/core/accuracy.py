@@ -250,6 +250,36 @@ def repeat_line_accuracy(easting_km, northing_km=None, dg_mgal=None, step_km: fl
     return RepeatAccuracy(internal_accuracy(vals), pos - lo, vals, vals.mean(axis=0))
 
 
+def across_track_spread_km(easting_km, northing_km) -> float:
+    """How far apart K passes of one track lie across it (km): the range of the passes' median
+    positions across the principal axis of all their points.  Repeats flown on one track lie
+    within some 100 m of each other; passes kilometres apart are not repeats, and their
+    :func:`repeat_line_accuracy` compares different ground.
+
+    Parameters
+    ----------
+    easting_km, northing_km : sequence of K array_like
+        One array per pass (km).
+
+    Returns
+    -------
+    float
+        0 for fewer than two passes.
+    """
+    es = [np.asarray(a, dtype=float).ravel() for a in easting_km]
+    ns = [np.asarray(a, dtype=float).ravel() for a in northing_km]
+    if len(es) != len(ns) or any(e.size != n.size for e, n in zip(es, ns)):
+        raise ValueError("one easting and one northing array of the same size per pass")
+    if len(es) < 2:
+        return 0.0
+    allp = np.column_stack([np.concatenate(es), np.concatenate(ns)])
+    ok = np.all(np.isfinite(allp), axis=1)
+    centre = allp[ok].mean(axis=0)
+    _, _, vt = np.linalg.svd(allp[ok] - centre, full_matrices=False)
+    across = [np.nanmedian((e - centre[0]) * vt[1][0] + (n - centre[1]) * vt[1][1]) for e, n in zip(es, ns)]
+    return float(np.nanmax(across) - np.nanmin(across))
+
+
 def _error_vs_reference(estimate_mgal, reference_mgal) -> np.ndarray:
     """``estimate − reference`` (NaN where either is not finite), shapes checked."""
     a = np.asarray(estimate_mgal, dtype=float)

@@ -297,3 +297,27 @@ def test_repeat_error_parts_errors():
         repeat_error_parts(np.zeros((3, 5)), np.zeros((3, 4)))
     with pytest.raises(ValueError, match="finite"):
         repeat_error_parts(np.full((3, 5), np.nan), np.zeros((3, 5)))
+
+
+def test_across_track_spread_of_repeat_passes():
+    """Passes of one track flown both ways with 30 m of wander spread by ~0.06 km; a pass 2 km to
+    the side of the others spreads them by 2 km, whatever the track's heading; one pass: 0."""
+    from app.core.accuracy import across_track_spread_km
+
+    rng = np.random.default_rng(3)
+    s = np.linspace(0.0, 40.0, 401)
+    heading = np.deg2rad(37.0)
+    u, v = np.array([np.cos(heading), np.sin(heading)]), np.array([-np.sin(heading), np.cos(heading)])
+
+    def pass_(offset_km, reverse=False):
+        a = s[::-1] if reverse else s
+        w = offset_km + 0.03 * rng.standard_normal(a.size)
+        return 500.0 + a * u[0] + w * v[0], 7000.0 + a * u[1] + w * v[1]
+
+    same = [pass_(0.0), pass_(0.0, True), pass_(0.0), pass_(0.0, True)]
+    assert across_track_spread_km([p[0] for p in same], [p[1] for p in same]) < 0.01
+    apart = same[:3] + [pass_(2.0, True)]
+    assert abs(across_track_spread_km([p[0] for p in apart], [p[1] for p in apart]) - 2.0) < 0.01
+    assert across_track_spread_km([same[0][0]], [same[0][1]]) == 0.0
+    with pytest.raises(ValueError):
+        across_track_spread_km([same[0][0], same[1][0]], [same[0][1]])

@@ -79,6 +79,7 @@ def build_report(survey_name: str, crs: str, table: pd.DataFrame, flights: dict,
         "warnings": warnings,
     }
     rep["repeat_lines"] = repeat_accuracy(table)
+    warnings.extend(repeat_track_warnings(rep["repeat_lines"]))
     if grid is not None:
         rep["grid"] = {"nx": int(len(grid.easting_km)), "ny": int(len(grid.northing_km)),
                        "valid_cells": int(np.isfinite(grid.dg_mgal).sum())}
@@ -104,8 +105,23 @@ def repeat_accuracy(table: pd.DataFrame) -> dict:
                      for gg in groups]))
             except (ValueError, AttributeError, TypeError) as exc:
                 res[col] = f"n/a: {exc}"
-        out[str(track)] = {"repeats": len(groups), "internal_accuracy_mgal": res}
+        spread = accuracy.across_track_spread_km([gg["easting_km"].to_numpy() for gg in groups],
+                                                 [gg["northing_km"].to_numpy() for gg in groups])
+        out[str(track)] = {"repeats": len(groups), "internal_accuracy_mgal": res, "across_track_spread_km": spread}
     return out
+
+
+#: passes of one repeat track farther apart across it than this (km) are said not to be repeats
+REPEAT_MAX_SPREAD_KM = 0.5
+
+
+def repeat_track_warnings(repeat_lines: dict) -> list[str]:
+    """Warnings for the tracks of :func:`repeat_accuracy` whose passes lie more than
+    ``REPEAT_MAX_SPREAD_KM`` apart across the track."""
+    return [f"repeat track {t}: its {r['repeats']} passes lie {r['across_track_spread_km']:.2f} km apart across "
+            f"the track (more than {REPEAT_MAX_SPREAD_KM} km) — not repeats of one track? Its internal accuracy "
+            "compares different ground (check the track column of lines.csv)"
+            for t, r in repeat_lines.items() if r.get("across_track_spread_km", 0.0) > REPEAT_MAX_SPREAD_KM]
 
 
 LINE_COLUMNS = ["line", "flight", "kind", "time", "lat", "lon", "h", "easting_km", "northing_km", "z_mgal",
