@@ -4,6 +4,7 @@
   seed 004), with renormalised weights at line ends and around NaNs.
 * :func:`stationary_smooth` — the seed-000 smoother with one (Q, R) pair.
 * :func:`estimate_stationary_qr` — maximum-likelihood (Q, R) for one or several lines.
+* :func:`gaussian_lowpass` — the Gaussian low-pass of the line profiles' z.
 
 The seed-003 random-walk filter and the seed-004 position-domain filter, which the
 product never runs, are in :mod:`app.research.random_walk_kf` and
@@ -182,6 +183,39 @@ def _gap_error(x, gap, h, w) -> np.ndarray:
                 weight[a:b] = 1.4826 * float(np.median(np.abs(near - np.median(near))))
     r = signal.oaconvolve(weight, h, mode="same")
     return np.where(r > 1e-9 * h.max() * sigma_all, r, 0.0)   # FFT round-off is no weight
+
+
+def gaussian_lowpass(x, dt_s: float, fwhm_s: float) -> np.ndarray:
+    """``x`` low-passed by a Gaussian of full width at half maximum ``fwhm_s`` (s), samples
+    ``dt_s`` (s) apart: ``scipy.ndimage.gaussian_filter1d`` (edges 'nearest', truncated at 3σ),
+    a wide kernel by FFT with the same edge padding and truncation (the direct convolution costs
+    samples × kernel).  NaNs take the mean of the rest; a Gaussian narrower than a fifth of a
+    sample returns ``x`` as it is.  Used for the line profiles' z (smooth weights matter there:
+    z holds the differenced GNSS velocity noise, which a boxcar only telescopes down).
+
+    Parameters
+    ----------
+    x : array_like, shape (n,)
+    dt_s, fwhm_s : float
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    from scipy.ndimage import gaussian_filter1d
+
+    x = np.asarray(x, float)
+    sigma = fwhm_s / (2.3548 * dt_s) if dt_s > 0 and np.isfinite(dt_s) else 0.0
+    if sigma < 0.2 or x.size <= 2:
+        return x
+    xf = np.where(np.isfinite(x), x, np.nanmean(x))
+    radius = int(3.0 * sigma + 0.5)
+    if radius <= 256:
+        return gaussian_filter1d(xf, sigma=sigma, mode="nearest", truncate=3.0)
+    k = np.arange(-radius, radius + 1, dtype=float)
+    kernel = np.exp(-0.5 * (k / sigma) ** 2)
+    kernel /= kernel.sum()
+    return signal.oaconvolve(np.pad(xf, radius, mode="edge"), kernel, mode="valid")
 
 
 def stationary_smooth(z_mgal, Q_mgal2: float, R_cm2s2: float, dt_s: float, m: int = 2,

@@ -65,6 +65,7 @@ from app.io.tables import (
     gap_rows_in_windows,
     median_rate_hz,
     read_csv_table,
+    true_runs,
 )
 from app.io.xyz import XyzTable, scan_xyz, xyz_table
 
@@ -812,12 +813,8 @@ def stuck_sensor_notes(name: str, fs, lines: pd.DataFrame, min_s: float = 5.0, m
         i0, i1 = np.searchsorted(t, a, side="left"), np.searchsorted(t, b, side="right")
         if i1 - i0 < min_samples:
             continue
-        same = np.diff(f[i0:i1]) == 0.0
-        if not same.any():
-            continue
-        edges = np.diff(np.r_[0, same.astype(np.int8), 0])
-        starts, stops = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)   # runs of equal steps
-        n = stops - starts + 1                                                        # samples per run
+        starts, steps = true_runs(np.diff(f[i0:i1]) == 0.0)   # runs of unchanged steps
+        stops, n = starts + steps, steps + 1                    # last sample, samples per run
         dur = t[i0 + stops] - t[i0 + starts]
         k = np.flatnonzero((n >= min_samples) & (dur >= min_s))
         if not k.size:

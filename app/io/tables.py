@@ -39,6 +39,7 @@ __all__ = [
     "locate_bad_cell",
     "check_finite",
     "fill_short_nan_runs",
+    "true_runs",
     "check_time_increasing",
     "median_rate_hz",
     "check_rate",
@@ -334,7 +335,7 @@ def check_finite(df: pd.DataFrame, columns: Sequence[str], rows: np.ndarray, dis
         raise InputError(display, int(rows[i]), col, f"not a finite number: {df[col].iloc[i]!r}")
 
 
-def _nan_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def true_runs(mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Start indices and lengths of the runs of True in a boolean vector."""
     m = np.concatenate(([False], mask, [False])).astype(np.int8)
     d = np.diff(m)
@@ -364,7 +365,7 @@ def fill_short_nan_runs(df: pd.DataFrame, columns: Sequence[str], rows: np.ndarr
         mask = np.isnan(v)
         if not mask.any():
             continue
-        starts, lengths = _nan_runs(mask)
+        starts, lengths = true_runs(mask)
         too_long = np.flatnonzero(lengths > max_nan_run)
         if too_long.size:
             k = too_long[0]

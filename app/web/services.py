@@ -541,31 +541,6 @@ def result_outdated(db: Session, s: Survey) -> bool:
     return j is not None and j.input_dir != s.input_dir
 
 
-# ---------------------------------------------------------------- profiles
-def lowpass_z(z: np.ndarray, dt_s: float, fwhm_s: float) -> np.ndarray:
-    """z low-passed for the profile: a Gaussian of full width at half maximum ``fwhm_s`` over samples
-    ``dt_s`` apart (``scipy.ndimage.gaussian_filter1d``, edges 'nearest', truncated at 3σ); NaNs
-    take the mean.  Smooth weights matter: z holds the differenced GNSS velocity noise, which a
-    boxcar only telescopes down to σ_r·√2/T.  A wide kernel is applied by FFT (the direct
-    convolution costs samples × kernel: 23 s for a 1 h line of 100 Hz data at 600 s); a Gaussian
-    narrower than a fifth of a sample leaves z as it is."""
-    z = np.asarray(z, float)
-    sigma = fwhm_s / (2.3548 * dt_s) if dt_s > 0 and np.isfinite(dt_s) else 0.0
-    if sigma < 0.2 or z.size <= 2:
-        return z
-    from scipy.ndimage import gaussian_filter1d
-    from scipy.signal import oaconvolve
-
-    zf = np.where(np.isfinite(z), z, np.nanmean(z))
-    radius = int(3.0 * sigma + 0.5)
-    if radius <= 256:
-        return gaussian_filter1d(zf, sigma=sigma, mode="nearest", truncate=3.0)
-    x = np.arange(-radius, radius + 1, dtype=float)
-    kernel = np.exp(-0.5 * (x / sigma) ** 2)
-    kernel /= kernel.sum()
-    return oaconvolve(np.pad(zf, radius, mode="edge"), kernel, mode="valid")
-
-
 # ---------------------------------------------------------------- delete
 def delete_survey(db: Session, store: Store, s: Survey) -> list[int]:
     """Remove a survey: its rows (flights, lines, jobs, results) and then its files.  Refused

@@ -176,3 +176,25 @@ def test_fir_gap_error_weighs_a_hole_with_the_spread_next_to_it():
     h0 = abs(fir_kernel(dt, 100.0)).max()
     bound = fir_gap_error_mgal(z, dt, 100.0)
     assert bound[3400] == pytest.approx(5000.0 * h0, rel=0.1)
+
+
+def test_gaussian_lowpass_matches_scipy_at_any_width():
+    """The profiles' Gaussian low-pass against scipy's gaussian_filter1d (the peer), on both of its
+    paths: narrow kernels call it, wide ones (> 256 samples of radius) convolve by FFT with the
+    same 'nearest' edges and 3σ truncation; NaNs take the mean; sub-sample widths change nothing."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from app.core.baselines import gaussian_lowpass
+
+    rng = np.random.default_rng(4)
+    x = np.cumsum(rng.normal(0, 1, 20_000)) + rng.normal(0, 30, 20_000)
+    for dt, fwhm in ((0.1, 30.0), (0.01, 600.0), (0.1, 600.0)):
+        sigma = fwhm / (2.3548 * dt)
+        ref = gaussian_filter1d(x, sigma=sigma, mode="nearest", truncate=3.0)
+        np.testing.assert_allclose(gaussian_lowpass(x, dt, fwhm), ref, rtol=0, atol=1e-9 * np.abs(x).max())
+    y = x.copy()
+    y[100:110] = np.nan
+    ref = gaussian_filter1d(np.where(np.isfinite(y), y, np.nanmean(y)), sigma=30.0 / (2.3548 * 0.1),
+                            mode="nearest", truncate=3.0)
+    np.testing.assert_allclose(gaussian_lowpass(y, 0.1, 30.0), ref)
+    np.testing.assert_array_equal(gaussian_lowpass(x, 0.1, 0.01), x)

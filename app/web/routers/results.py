@@ -15,6 +15,7 @@ from fastapi import APIRouter, Depends, HTTPException, Query
 from fastapi.responses import FileResponse
 from sqlalchemy.orm import Session
 
+from app.core.baselines import gaussian_lowpass
 from app.core.nlmeans import RecognitionMap
 from app.jsonsafe import finite_float, float_list, int_list, to_jsonable
 from app.pipeline.stages.recognition import Recognition, state_map
@@ -22,7 +23,7 @@ from app.pipeline.stages.recognition import Recognition, state_map
 from ..db import Result, Survey
 from ..deps import get_cache, get_db, get_survey_or_404
 from ..schemas import GridOut, LineOut, ProfileOut, RecognitionOut, ReportOut
-from ..services import has_dem, lowpass_z
+from ..services import has_dem
 from ..store import ResultCache
 
 router = APIRouter(prefix="/api/surveys", tags=["results"])
@@ -165,7 +166,7 @@ def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, descr
     e, nn = g["easting_km"].to_numpy(float), g["northing_km"].to_numpy(float)
     dist = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(e), np.diff(nn)))])
     dt = float(np.median(np.diff(t))) if n > 1 else 0.1
-    z = lowpass_z(g["z_mgal"].to_numpy(float), dt, z_lowpass_s)
+    z = gaussian_lowpass(g["z_mgal"].to_numpy(float), dt, z_lowpass_s)
     step = max(1, math.ceil(n / max_points))
     sl = slice(None, None, step)
 
