@@ -250,6 +250,11 @@ def repeat_line_accuracy(easting_km, northing_km=None, dg_mgal=None, step_km: fl
     return RepeatAccuracy(internal_accuracy(vals), pos - lo, vals, vals.mean(axis=0))
 
 
+#: passes of one repeat track farther apart across it than this (km) are not repeats: they are
+#: kept out of every use of the track (noise fit, model checks, std sizing) and warned about
+REPEAT_MAX_SPREAD_KM = 0.5
+
+
 def across_track_spread_km(easting_km, northing_km) -> float:
     """How far apart K passes of one track lie across it (km): the range of the passes' median
     positions across the principal axis of all their points.  Repeats flown on one track lie

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from app.core.accuracy import repeat_error_parts, repeat_line_accuracy
+from app.core.accuracy import REPEAT_MAX_SPREAD_KM, across_track_spread_km, repeat_error_parts, repeat_line_accuracy
 from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
 from app.core.level_ml import cap_lifted_smooth_level, refine_levels
 from app.core.model_check import blend_estimates
@@ -310,6 +310,14 @@ class Filtered:
         done, figures = set(), {}
         for track, passes in tracks.items():
             if len(passes) < 2:
+                continue
+            spread = across_track_spread_km([self.prepared[i].line.easting_km for i, _, _ in passes],
+                                            [self.prepared[i].line.northing_km for i, _, _ in passes])
+            if spread > REPEAT_MAX_SPREAD_KM:
+                # not repeats of one track: their scatter holds the anomaly's change across it
+                figures[str(track)] = {"scale": None, "passes": len(passes), "across_track_spread_km": spread,
+                                       "reason": f"passes {spread:.2f} km apart across the track (more than "
+                                                 f"{REPEAT_MAX_SPREAD_KM} km): not repeats, level spread kept"}
                 continue
             xs, ds, ss, geo = [], [], [], []
             for i, off, n in passes:

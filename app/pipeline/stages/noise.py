@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from app.core.accuracy import REPEAT_MAX_SPREAD_KM, across_track_spread_km
 from app.core.geodesy import MGAL_PER_MS2
 from app.core.measurement import gnss_acceleration_ms2, height_velocity_misfit_m, response_prediction_mgal
 from app.core.model_check import difference_nll, fir_noise_variance_mgal2, noise_overstated, repeat_contrasts
@@ -145,7 +146,10 @@ def bridged(ln: LineData, bridges, dt_s: float) -> np.ndarray:
 def repeat_tracks(lines: list[LineData]) -> list[tuple[list[LineData], list[np.ndarray]]]:
     """Every repeat track with at least two passes: the passes in time order and their
     along-track positions (m, the projection on the principal axis of all the track's points,
-    so passes flown in opposite directions line up)."""
+    so passes flown in opposite directions line up).  A track whose passes lie more than
+    :data:`app.core.accuracy.REPEAT_MAX_SPREAD_KM` apart across it is left out: its pass
+    differences hold the anomaly's change across the track as well as the noise (the report
+    warns about it, :func:`app.pipeline.stages.outputs.repeat_track_warnings`)."""
     tracks: dict = {}
     for ln in lines:
         if ln.kind == "repeat" and ln.track is not None:
@@ -155,6 +159,9 @@ def repeat_tracks(lines: list[LineData]) -> list[tuple[list[LineData], list[np.n
         if len(passes) < 2:
             continue
         passes = sorted(passes, key=lambda ln: float(ln.t_s[0]))
+        if across_track_spread_km([ln.easting_km for ln in passes],
+                                  [ln.northing_km for ln in passes]) > REPEAT_MAX_SPREAD_KM:
+            continue
         e = np.concatenate([ln.easting_km for ln in passes])
         n = np.concatenate([ln.northing_km for ln in passes])
         axis = np.linalg.svd(np.column_stack([e - e.mean(), n - n.mean()]), full_matrices=False)[2][0]

@@ -7,6 +7,7 @@ import numpy as np
 import pandas as pd
 
 from app.core import accuracy
+from app.core.accuracy import REPEAT_MAX_SPREAD_KM
 from app.core.ma_approx import model_vs_true_spectrum
 
 
@@ -111,16 +112,13 @@ def repeat_accuracy(table: pd.DataFrame) -> dict:
     return out
 
 
-#: passes of one repeat track farther apart across it than this (km) are said not to be repeats
-REPEAT_MAX_SPREAD_KM = 0.5
-
-
 def repeat_track_warnings(repeat_lines: dict) -> list[str]:
     """Warnings for the tracks of :func:`repeat_accuracy` whose passes lie more than
     ``REPEAT_MAX_SPREAD_KM`` apart across the track."""
     return [f"repeat track {t}: its {r['repeats']} passes lie {r['across_track_spread_km']:.2f} km apart across "
             f"the track (more than {REPEAT_MAX_SPREAD_KM} km) — not repeats of one track? Its internal accuracy "
-            "compares different ground (check the track column of lines.csv)"
+            "compares different ground (check the track column of lines.csv); the noise fit, the model checks "
+            "and the std sizing left the track out"
             for t, r in repeat_lines.items() if r.get("across_track_spread_km", 0.0) > REPEAT_MAX_SPREAD_KM]
 
 
