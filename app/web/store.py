@@ -48,6 +48,8 @@ MAX_ZIP_NAME = 200
 #: most bytes of a zip's central directory (its table of contents: 46 bytes and the name per entry)
 MAX_ZIP_DIRECTORY = 16 << 20
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
+#: the temporary file of an atomic write (``app.io.export.atomic_path``: ``.<stem>.<12 hex>.tmp<suffix>``)
+ATOMIC_TMP = re.compile(r"^\..+\.[0-9a-f]{12}\.tmp(\.[^.]+)?\Z")
 
 
 class Store:
@@ -57,6 +59,7 @@ class Store:
         self.tmp.mkdir(parents=True, exist_ok=True)
         (self.root / "surveys").mkdir(parents=True, exist_ok=True)
         self._locks: dict[int, threading.RLock] = {}
+        self._file_locks: dict[str, threading.Lock] = {}
         self._locks_guard = threading.Lock()
 
     def survey_lock(self, survey_id: int) -> threading.RLock:
@@ -64,6 +67,15 @@ class Store:
         process; the database's conditional updates catch writers from other processes)."""
         with self._locks_guard:
             return self._locks.setdefault(int(survey_id), threading.RLock())
+
+    def file_lock(self, path: Path) -> threading.Lock:
+        """The lock serializing the writing of one file made on demand beside a result (e.g. its
+        ``lines.xyz``, written at the first export), in this process: concurrent first requests
+        write it once, the others wait for it.  (The write itself is atomic — a temporary file
+        renamed into place — so servers in other processes sharing the data directory may at
+        worst write it twice, never show a part of it.)  One small lock per file ever exported."""
+        with self._locks_guard:
+            return self._file_locks.setdefault(str(Path(path).resolve()), threading.Lock())
 
     def staging_dir(self) -> Path:
         d = self.tmp / uuid.uuid4().hex
@@ -126,8 +138,10 @@ class Store:
         return removed
 
     def clean_start(self, active_out_dirs: set[str], tmp_age_s: float = 3600.0) -> list[Path]:
-        """At start-up: ``.partial`` result folders of jobs not active, and staging folders older
-        than ``tmp_age_s`` (another server may share the data directory), are removed."""
+        """At start-up: ``.partial`` result folders of jobs not active, and staging folders and the
+        temporary files of atomic writes in result folders (an export written on demand when the
+        server stopped) older than ``tmp_age_s`` (another server may share the data directory),
+        are removed."""
         removed = []
         active = {str(Path(d).resolve()) + ".partial" for d in active_out_dirs if d}
         for p in (self.root / "surveys").glob("*/results/*.partial"):
@@ -135,7 +149,8 @@ class Store:
                 shutil.rmtree(p, ignore_errors=True)
                 removed.append(p)
         now = time.time()
-        for p in self.tmp.iterdir():
+        leftovers = [p for p in (self.root / "surveys").glob("*/results/*/.*.tmp*") if ATOMIC_TMP.match(p.name)]
+        for p in leftovers + list(self.tmp.iterdir()):
             try:
                 old = now - p.stat().st_mtime > tmp_age_s
             except OSError:
