@@ -35,6 +35,13 @@ def get_cache(request: Request) -> ResultCache:
     return request.app.state.cache
 
 
+def store_has_room(store: Store = Depends(get_store), settings: Settings = Depends(get_settings)) -> None:
+    """Refuse a request that would store more (a new survey, an upload) while the store holds its
+    limit already (:class:`~app.web.store.StoreFull`, HTTP 507), before anything is extracted or
+    validated; what an upload adds is checked once it is staged (:meth:`Store.reserve`)."""
+    store.check_room(settings.max_store_bytes)
+
+
 def get_survey_reader(request: Request) -> Callable:
     """``read_survey(path)`` validating a survey directory (raises InputError), with the upload
     limits on every table file (size, decompressed while reading, and rows)."""

@@ -45,7 +45,7 @@ from .errors import validation_detail
 from .jobs import JobManager
 from .schemas import HealthOut, ParamsSchemaOut
 from .settings import Settings
-from .store import ResultCache, Store
+from .store import ResultCache, Store, StoreFull
 
 log = logging.getLogger("aerograv.web")
 
@@ -241,7 +241,8 @@ def _lifespan(jobs: JobManager):
 
 
 def _add_job_hooks(app: FastAPI, jobs: JobManager, Session, store: Store) -> None:
-    """After a job ended: warm the recognition cache (successful jobs) and prune the survey's files."""
+    """After a job ended: recount the store (its results), warm the recognition cache (successful jobs)
+    and prune the survey's files."""
 
     def _warm(job_id: int) -> None:
         """After a successful job, load its recognition map so the first slider move is fast."""
@@ -271,6 +272,7 @@ def _add_job_hooks(app: FastAPI, jobs: JobManager, Session, store: Store) -> Non
                 log.exception("pruning after job %s failed", job_id)
         threading.Thread(target=run, name=f"aerograv-prune-{job_id}", daemon=True).start()
 
+    jobs.on_finished.append(lambda _job_id: store.invalidate_usage())   # its results count from now on
     jobs.on_finished.append(_warm)
     jobs.on_finished.append(_prune)
 
@@ -311,6 +313,10 @@ def _add_exception_handlers(app: FastAPI) -> None:
                                                                 f"later ({str(exc.orig)[:200]})"},
                             headers={"Retry-After": "10"})
 
+    @app.exception_handler(StoreFull)
+    async def _store_full(_req: Request, exc: StoreFull):
+        return JSONResponse(status_code=507, content={"detail": str(exc)})
+
     @app.exception_handler(OSError)
     async def _os_error(_req: Request, exc: OSError):
         if exc.errno in (errno.ENOSPC, errno.EDQUOT):
@@ -320,7 +326,8 @@ def _add_exception_handlers(app: FastAPI) -> None:
 
 
 def _storage_reporter(settings: Settings, store: Store, Session):
-    """``storage_report()``: disk used by each survey against its budget (walked at most every 10 s)."""
+    """``storage_report()``: disk used by each survey against its budget (walked at most every 10 s),
+    and by the whole store against its limit (:meth:`Store.store_usage_bytes`)."""
     usage_cache: dict = {"t": -1e9, "v": None}
     usage_lock = threading.Lock()
 
@@ -339,7 +346,8 @@ def _storage_reporter(settings: Settings, store: Store, Session):
                 usage_cache["v"] = {"budget_mb_per_survey": round(budget / 2**20, 3), "surveys": rows,
                                     "used_mb_total": round(sum(r["used_mb"] for r in rows), 3)}
                 usage_cache["t"] = time.monotonic()
-            return usage_cache["v"]
+            return {**usage_cache["v"], "max_store_mb": round(settings.max_store_bytes / 2**20, 3),
+                    "store_used_mb": round(store.store_usage_bytes() / 2**20, 3)}
 
     return storage_report
 

@@ -197,6 +197,9 @@ class StorageOut(Out):
     budget_mb_per_survey: float
     surveys: list[SurveyStorage]
     used_mb_total: float
+    max_store_mb: float = Field(..., description="Most the data directory may hold (AEROGRAV_MAX_STORE_MB)")
+    store_used_mb: float = Field(..., description="What the data directory holds: every survey's files and the "
+                                 "SQLite file (recounted at most every 30 s, kept current in between)")
 
 
 class HealthOut(Out):

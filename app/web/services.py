@@ -18,7 +18,8 @@ import json
 import os
 import re
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -108,6 +109,17 @@ def check_budget(store: Store, survey_id: int | None, staged: Path, budget_bytes
                                     f"budget of {budget_bytes / 2**20:.0f} MB (AEROGRAV_SURVEY_STORAGE_MB)")
 
 
+@contextmanager
+def room_for(store: Store, survey_id: int | None, staged: Path, budget_bytes: int | None,
+             store_limit_bytes: int | None) -> Iterator[None]:
+    """The staged snapshot fits in the survey's storage budget (:class:`StorageBudgetExceeded`)
+    and in the store's limit (:class:`~app.web.store.StoreFull`); its new bytes are reserved in the
+    store while the block installs it."""
+    check_budget(store, survey_id, staged, budget_bytes)
+    with store.reserve(staged, store_limit_bytes):
+        yield
+
+
 def install_snapshot(db: Session, store: Store, s: Survey, staged_root: Path, survey,
                      expect_input_dir: str | None = None, check_expected: bool = False) -> None:
     """Rename the validated staging dir into place and switch the pointer in one commit.
@@ -193,21 +205,21 @@ def has_dem(s: Survey) -> bool:
 
 
 def import_survey_tree(db: Session, store: Store, reader: Callable, root: Path, fallback_name: str,
-                       budget_bytes: int | None = None) -> Survey:
+                       budget_bytes: int | None = None, store_limit_bytes: int | None = None) -> Survey:
     """Validate the survey directory ``root`` (already staged under the store's tmp; its optional
     ``dem.tif`` too) and store it."""
     try:
         survey = validate(reader, root)
         check_survey_dem(root, survey)
-        check_budget(store, None, root, budget_bytes)
-        s = Survey(name=survey_name(survey, fallback_name))
-        db.add(s)
-        db.flush()
-        try:
-            install_snapshot(db, store, s, root, survey)
-        except Exception:
-            db.rollback()
-            raise
+        with room_for(store, None, root, budget_bytes, store_limit_bytes):
+            s = Survey(name=survey_name(survey, fallback_name))
+            db.add(s)
+            db.flush()
+            try:
+                install_snapshot(db, store, s, root, survey)
+            except Exception:
+                db.rollback()
+                raise
         return s
     finally:
         survey = None
@@ -309,7 +321,8 @@ def _unused_flight_name(s: Survey) -> str:
 
 
 def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str | None, write_files: Callable,
-               lines_raw: bytes | None, budget_bytes: int | None = None) -> Survey:
+               lines_raw: bytes | None, budget_bytes: int | None = None,
+               store_limit_bytes: int | None = None) -> Survey:
     """Build the next snapshot (hard links to the current one + this flight's files), validate it and
     switch to it, under the survey's lock; ``write_files(flight_dir)`` writes gravimeter.csv and gnss.csv.
     Without a name the flight is called as the uploaded lines.csv calls it (when it names one flight),
@@ -353,8 +366,8 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
                 os.replace(tmp, lp)  # a new file: the linked one of the current snapshot is untouched
             survey = validate(reader, root)
             prune_survey(db, store, s.id)
-            check_budget(store, s.id, root, budget_bytes)
-            install_snapshot(db, store, s, root, survey, expect_input_dir=base, check_expected=True)
+            with room_for(store, s.id, root, budget_bytes, store_limit_bytes):
+                install_snapshot(db, store, s, root, survey, expect_input_dir=base, check_expected=True)
         finally:
             shutil.rmtree(staging, ignore_errors=True)
             release_memory()
@@ -443,7 +456,8 @@ def validate_config(data: dict) -> None:
         raise SettingsRejected(validation_detail(e.errors())) from None
 
 
-def patch_survey(db: Session, store: Store, reader: Callable, s: Survey, patch, budget_bytes: int | None = None) -> Survey:
+def patch_survey(db: Session, store: Store, reader: Callable, s: Survey, patch, budget_bytes: int | None = None,
+                 store_limit_bytes: int | None = None) -> Survey:
     """Apply a :class:`~app.web.schemas.SurveyPatch`: a new input snapshot whose survey.toml carries the
     changes (hard links to the current files, survey.toml replaced), validated with the survey reader and
     switched to under the survey's lock like a flight upload.  A survey without data takes a new name
@@ -484,9 +498,9 @@ def patch_survey(db: Session, store: Store, reader: Callable, s: Survey, patch, 
             tmp.write_text(dumps_toml(data), encoding="utf-8")
             os.replace(tmp, root / "survey.toml")  # a new file: the linked one of the current snapshot is untouched
             survey = validate(reader, root)
-            check_budget(store, s.id, root, budget_bytes)
-            s.name = data["survey"].get("name", s.name)
-            install_snapshot(db, store, s, root, survey, expect_input_dir=base, check_expected=True)
+            with room_for(store, s.id, root, budget_bytes, store_limit_bytes):
+                s.name = data["survey"].get("name", s.name)
+                install_snapshot(db, store, s, root, survey, expect_input_dir=base, check_expected=True)
         except Exception:
             db.rollback()
             raise
@@ -498,7 +512,7 @@ def patch_survey(db: Session, store: Store, reader: Callable, s: Survey, patch, 
 
 
 def replace_dem(db: Session, store: Store, reader: Callable, s: Survey, write_dem: Callable[[Path], None] | None,
-                budget_bytes: int | None = None) -> Survey:
+                budget_bytes: int | None = None, store_limit_bytes: int | None = None) -> Survey:
     """Add, replace (``write_dem(path)`` writes the new file) or remove (``write_dem=None``) the
     survey's terrain model: a new input snapshot (hard links to the current files, ``dem.tif`` a new
     file or gone), the DEM checked against the survey's lines (:func:`check_survey_dem`) and switched
@@ -519,8 +533,8 @@ def replace_dem(db: Session, store: Store, reader: Callable, s: Survey, write_de
                 write_dem(root / DEM_NAME)
             survey = validate(reader, root)
             check_survey_dem(root, survey)
-            check_budget(store, s.id, root, budget_bytes)
-            install_snapshot(db, store, s, root, survey, expect_input_dir=base, check_expected=True)
+            with room_for(store, s.id, root, budget_bytes, store_limit_bytes):
+                install_snapshot(db, store, s, root, survey, expect_input_dir=base, check_expected=True)
         except Exception:
             db.rollback()
             raise
@@ -560,12 +574,10 @@ def delete_survey(db: Session, store: Store, s: Survey) -> list[int]:
         db.delete(s)
         db.commit()
         # the rows are gone: the files follow (moved aside in one rename first, so a half-removed
-        # folder is never under surveys/)
+        # folder is never under surveys/; the bytes freed are taken off the store's count)
         d = store.survey_dir(sid)
         if d.exists():
-            trash = store.staging_dir() / "deleted"
-            os.replace(d, trash)
-            shutil.rmtree(trash.parent, ignore_errors=True)
+            store.remove_tree(d)
     return result_ids
 
 

@@ -10,6 +10,9 @@
 ``AEROGRAV_MAX_TABLE_ROWS`` most data rows of one uploaded table file
 ``AEROGRAV_SURVEY_STORAGE_MB`` storage budget per survey (inputs and results kept on disk;
                            default 10 × the upload limit); reported in ``/api/health``
+``AEROGRAV_MAX_STORE_MB``  most disk the whole data directory may hold (every survey's inputs and
+                           results, the SQLite file; default 20 GB): new surveys and uploads that
+                           would go above it are refused (507); reported in ``/api/health``
 ``AEROGRAV_ALLOWED_HOSTS`` comma-separated Host header values accepted (``*`` = any); default: the
                            bind address, ``localhost``, ``127.0.0.1`` and ``::1``
 ``AEROGRAV_MAX_JOBS``      most local job processes running at once (default: the CPUs); later
@@ -45,6 +48,9 @@ class Settings(BaseSettings):
     max_table_rows: int = Field(10_000_000, ge=1, description="Most data rows of one uploaded table file")
     survey_storage_mb: float | None = Field(None, gt=0, description="Storage budget per survey (MB); "
                                             "10 × max_upload_mb when unset")
+    max_store_mb: float = Field(20480.0, gt=0, description="Most disk the data directory may hold (MB): every "
+                                "survey's inputs and results and the SQLite file; new surveys and uploads that "
+                                "would take it above are refused (HTTP 507)")
     allowed_hosts: str | None = Field(None, description="Comma-separated Host header values accepted ('*' = any); "
                                       "default the bind address, localhost, 127.0.0.1, ::1")
     bind_host: str | None = Field(None, description="The address `aerograv serve` binds (set by serve)")
@@ -72,6 +78,10 @@ class Settings(BaseSettings):
     def survey_storage_bytes(self) -> int:
         mb = self.survey_storage_mb if self.survey_storage_mb is not None else 10 * self.max_upload_mb
         return int(mb * 1024 * 1024)
+
+    @property
+    def max_store_bytes(self) -> int:
+        return int(self.max_store_mb * 1024 * 1024)
 
     def allowed_host_set(self) -> set[str] | None:
         """Host names (lower case, no port) accepted; None = any (``*``, or a wildcard bind address

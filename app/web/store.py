@@ -15,6 +15,13 @@ current one (no copy).  Changes to one survey's files are serialized by :meth:`S
 :meth:`Store.prune` removes the snapshots and result folders no longer needed (everything but the
 current input, the inputs of active jobs, and the current and previous results with their
 inputs); :meth:`Store.clean_start` removes what a stopped server left half-written.
+
+The whole store is bounded too (``AEROGRAV_MAX_STORE_MB``): :meth:`Store.reserve` admits a staged
+snapshot only when the bytes it adds fit, :meth:`Store.check_room` refuses new surveys and uploads
+while the store is at its limit (:class:`StoreFull`, HTTP 507).  The count is the data directory
+walked (each file once) at most every ``USAGE_TTL_S`` seconds, kept current in between: admitted
+snapshots are added, removed folders (:meth:`Store.remove_tree`) subtracted, and a finished job
+makes the next check walk again (its results).
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ import errno
 import os
 import re
 import shutil
+import stat
 import struct
 import threading
 import time
@@ -30,7 +38,8 @@ import uuid
 import zipfile
 import zlib
 from collections import OrderedDict
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +57,44 @@ MAX_ZIP_NAME = 200
 #: most bytes of a zip's central directory (its table of contents: 46 bytes and the name per entry)
 MAX_ZIP_DIRECTORY = 16 << 20
 DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
+#: seconds the store's measured size is trusted before the data directory is walked again
+USAGE_TTL_S = 30.0
+#: the temporary file of an atomic write (``app.io.export.atomic_path``: ``.<stem>.<12 hex>.tmp<suffix>``)
+ATOMIC_TMP = re.compile(r"^\..+\.[0-9a-f]{12}\.tmp(\.[^.]+)?\Z")
+
+
+def size_text(n: int) -> str:
+    """A byte count for people: kB, MB or GB."""
+    if n >= 2**30:
+        return f"{n / 2**30:.2f} GB"
+    return f"{n / 2**20:.1f} MB" if n >= 2**20 else f"{n / 1024:.0f} kB"
+
+
+class StoreFull(Exception):
+    """The store is at its limit (``AEROGRAV_MAX_STORE_MB``), or would go above it with what a
+    request adds; nothing was stored."""
+
+    def __init__(self, used: int, adding: int, limit: int):
+        self.used, self.adding, self.limit = used, adding, limit
+        what = f" and this upload adds {size_text(adding)}" if adding else ""
+        super().__init__(f"the server's store is full: it holds {size_text(used)} of its {size_text(limit)} limit{what} "
+                         "(AEROGRAV_MAX_STORE_MB); nothing was stored — delete surveys no longer needed, or "
+                         "ask the administrator to raise the limit")
+
+
+def own_bytes(path: Path) -> int:
+    """Bytes that removing ``path`` frees: the files under it whose every hard link is under it
+    too (a snapshot's files linked from another snapshot stay on disk)."""
+    seen: dict[tuple[int, int], list[int]] = {}
+    for dirpath, _dirs, files in os.walk(path):
+        for f in files:
+            try:
+                st = os.lstat(os.path.join(dirpath, f))
+            except OSError:
+                continue
+            c = seen.setdefault((st.st_dev, st.st_ino), [0, st.st_nlink, st.st_size])
+            c[0] += 1
+    return sum(size for n, nlink, size in seen.values() if n >= nlink)
 
 
 class Store:
@@ -57,13 +104,27 @@ class Store:
         self.tmp.mkdir(parents=True, exist_ok=True)
         (self.root / "surveys").mkdir(parents=True, exist_ok=True)
         self._locks: dict[int, threading.RLock] = {}
+        self._file_locks: dict[str, threading.Lock] = {}
         self._locks_guard = threading.Lock()
+        self._usage_lock = threading.Lock()
+        self._usage: int | None = None     # bytes of the data directory (staging left out) at the last walk, kept current
+        self._usage_t = 0.0                 # when it was walked (time.monotonic)
+        self._pending = 0                   # bytes admitted by reserve() whose snapshot is not installed yet
 
     def survey_lock(self, survey_id: int) -> threading.RLock:
         """The lock serializing changes to one survey's input snapshot, jobs and files (in this
         process; the database's conditional updates catch writers from other processes)."""
         with self._locks_guard:
             return self._locks.setdefault(int(survey_id), threading.RLock())
+
+    def file_lock(self, path: Path) -> threading.Lock:
+        """The lock serializing the writing of one file made on demand beside a result (e.g. its
+        ``lines.xyz``, written at the first export), in this process: concurrent first requests
+        write it once, the others wait for it.  (The write itself is atomic — a temporary file
+        renamed into place — so servers in other processes sharing the data directory may at
+        worst write it twice, never show a part of it.)  One small lock per file ever exported."""
+        with self._locks_guard:
+            return self._file_locks.setdefault(str(Path(path).resolve()), threading.Lock())
 
     def staging_dir(self) -> Path:
         d = self.tmp / uuid.uuid4().hex
@@ -109,6 +170,89 @@ class Store:
     def survey_usage_bytes(self, survey_id: int) -> int:
         return self.usage_bytes([self.survey_dir(survey_id)])
 
+    def _walk_usage(self) -> int:
+        """Bytes of the data directory, each file once: surveys, results, the SQLite file — not the
+        staging area (a request's staged files are counted by its :meth:`reserve`)."""
+        dirs, total = [], 0
+        for p in self.root.iterdir():
+            if p.name == self.tmp.name:
+                continue
+            try:
+                st = p.lstat()
+            except OSError:
+                continue
+            if stat.S_ISDIR(st.st_mode):
+                dirs.append(p)
+            else:
+                total += st.st_size
+        return total + self.usage_bytes(dirs)
+
+    def _usage_now(self) -> int:
+        """The store's bytes, admitted snapshots included (call under ``_usage_lock``)."""
+        if self._usage is None or time.monotonic() - self._usage_t > USAGE_TTL_S:
+            self._usage = self._walk_usage()
+            self._usage_t = time.monotonic()
+        return self._usage + self._pending
+
+    def store_usage_bytes(self) -> int:
+        """Bytes the store holds (see the module's docstring for how it is kept current)."""
+        with self._usage_lock:
+            return self._usage_now()
+
+    def invalidate_usage(self) -> None:
+        """The next count walks the data directory (e.g. a job wrote its results)."""
+        with self._usage_lock:
+            self._usage = None
+
+    def check_room(self, limit: int | None) -> None:
+        """:class:`StoreFull` when the store already holds ``limit`` bytes or more (no limit: None)."""
+        if not limit:
+            return
+        with self._usage_lock:
+            used = self._usage_now()
+        if used >= limit:
+            raise StoreFull(used, 0, limit)
+
+    @contextmanager
+    def reserve(self, staged: Path, limit: int | None) -> Iterator[int]:
+        """Room in the store for the files written fresh under ``staged`` (its hard links to stored
+        files add nothing): :class:`StoreFull` when the store would go above ``limit`` bytes.  The
+        check and the reservation are one step, so concurrent requests cannot all pass on the same
+        free space.  The bytes count as stored when the block ends normally (the snapshot was
+        installed), and are released when it raises."""
+        if not limit:
+            yield 0
+            return
+        n = own_bytes(staged)
+        with self._usage_lock:
+            used = self._usage_now()
+            if used + n > limit:
+                raise StoreFull(used, n, limit)
+            self._pending += n
+        ok = False
+        try:
+            yield n
+            ok = True
+        finally:
+            with self._usage_lock:
+                self._pending -= n
+                if ok and self._usage is not None:
+                    self._usage += n
+
+    def remove_tree(self, path: Path) -> None:
+        """Remove the folder ``path`` (a survey, a snapshot, a result): moved into the staging area in
+        one rename — nothing half-removed stays in place — and the bytes it frees taken off the
+        store's count, then deleted."""
+        freed = own_bytes(path)
+        trash = self.staging_dir() / "removed"
+        try:
+            with self._usage_lock:
+                os.replace(path, trash)
+                if self._usage is not None:
+                    self._usage = max(0, self._usage - freed)
+        finally:
+            shutil.rmtree(trash.parent, ignore_errors=True)
+
     def prune(self, survey_id: int, keep: set[str]) -> list[Path]:
         """Remove the input snapshots and result folders of a survey whose paths are not in ``keep``
         (``.partial`` folders of running jobs are left alone); returns what was removed."""
@@ -121,13 +265,18 @@ class Store:
             for p in d.iterdir():
                 if p.name.endswith(".partial") or str(p.resolve()) in keep:
                     continue
-                shutil.rmtree(p, ignore_errors=True)
+                try:
+                    self.remove_tree(p)
+                except OSError:   # gone meanwhile, or not removable now: the next prune tries again
+                    continue
                 removed.append(p)
         return removed
 
     def clean_start(self, active_out_dirs: set[str], tmp_age_s: float = 3600.0) -> list[Path]:
-        """At start-up: ``.partial`` result folders of jobs not active, and staging folders older
-        than ``tmp_age_s`` (another server may share the data directory), are removed."""
+        """At start-up: ``.partial`` result folders of jobs not active, and staging folders and the
+        temporary files of atomic writes in result folders (an export written on demand when the
+        server stopped) older than ``tmp_age_s`` (another server may share the data directory),
+        are removed."""
         removed = []
         active = {str(Path(d).resolve()) + ".partial" for d in active_out_dirs if d}
         for p in (self.root / "surveys").glob("*/results/*.partial"):
@@ -135,7 +284,8 @@ class Store:
                 shutil.rmtree(p, ignore_errors=True)
                 removed.append(p)
         now = time.time()
-        for p in self.tmp.iterdir():
+        leftovers = [p for p in (self.root / "surveys").glob("*/results/*/.*.tmp*") if ATOMIC_TMP.match(p.name)]
+        for p in leftovers + list(self.tmp.iterdir()):
             try:
                 old = now - p.stat().st_mtime > tmp_age_s
             except OSError:

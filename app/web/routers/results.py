@@ -21,10 +21,10 @@ from app.jsonsafe import finite_float, float_list, int_list, to_jsonable
 from app.pipeline.stages.recognition import Recognition, state_map
 
 from ..db import Result, Survey
-from ..deps import get_cache, get_db, get_survey_or_404
+from ..deps import get_cache, get_db, get_store, get_survey_or_404
 from ..schemas import GridOut, LineOut, ProfileOut, RecognitionOut, ReportOut
 from ..services import has_dem
-from ..store import ResultCache
+from ..store import ResultCache, Store
 
 router = APIRouter(prefix="/api/surveys", tags=["results"])
 
@@ -414,16 +414,26 @@ def grid(product: Literal["free_air", "bouguer"] = Query("free_air", description
                    datum=_datum_of(r), available=available, unavailable=why)
 
 
-def _lines_xyz(s: Survey, r: Result) -> Path:
-    """``lines.xyz`` of a result (Geosoft XYZ line data), written beside lines.parquet on first use."""
+def _lines_xyz(s: Survey, r: Result, store: Store) -> Path:
+    """``lines.xyz`` of a result (Geosoft XYZ line data), written beside lines.parquet on first use
+    (404 naming lines.parquet when the result has none).
+
+    Concurrent first requests: the file is written atomically (``write_lines_xyz`` writes a
+    temporary file in the result folder and renames it into place), so no request — in this
+    process or another sharing the data directory — ever serves a part of it; and it is written
+    once, under the file's lock (:meth:`Store.file_lock`): the other requests wait and serve it,
+    instead of each reading the whole lines.parquet and writing a copy of its own."""
     from app.io.export import write_lines_xyz
 
     p = Path(r.dir) / "lines.xyz"
-    src = Path(r.dir) / "lines.parquet"
-    if not p.exists() and src.exists():
-        crs = (r.report or {}).get("crs") or s.crs
-        write_lines_xyz(p, pd.read_parquet(src), crs,
-                        comments=(f"Aerograv line data: survey {s.name[:100]!r}, result {r.id}",))
+    if p.exists():
+        return p
+    src = _result_file(r, "lines.parquet")
+    with store.file_lock(p):
+        if not p.exists():
+            crs = (r.report or {}).get("crs") or s.crs
+            write_lines_xyz(p, pd.read_parquet(src), crs,
+                            comments=(f"Aerograv line data: survey {s.name[:100]!r}, result {r.id}",))
     return p
 
 
@@ -435,13 +445,14 @@ def export(format: Literal["geotiff", "netcdf", "surfer", "csv", "parquet", "xyz
            product: Literal["free_air", "bouguer"] = Query("free_air", description="grids: free_air or bouguer"),
            height: Literal["flight", "datum"] | None = Query(None, description="grids: flight or datum (default: "
                                                              "the height the result's values are given at)"),
-           s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db)):
+           s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+           store: Store = Depends(get_store)):
     """Download a stored output of the current result (grids: the product and height asked for,
     404 naming why when the result has none)."""
     r = current_result(s, db)
     fname, media = EXPORTS[format]
     if format in GRID_EXT and (product != "free_air" or height is not None):
         fname = _grid_stem(s, r, product, height)[0] + GRID_EXT[format]
-    p = _lines_xyz(s, r) if format == "xyz" else _result_file(r, fname)
+    p = _lines_xyz(s, r, store) if format == "xyz" else _result_file(r, fname)
     safe = "".join(ch if ch.isalnum() or ch in "-_." else "_" for ch in s.name)
     return FileResponse(p, media_type=media, filename=f"{safe}_{fname}")

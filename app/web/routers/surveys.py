@@ -11,7 +11,7 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from ..db import Job, Line, Survey
-from ..deps import get_cache, get_db, get_settings, get_store, get_survey_or_404, get_survey_reader
+from ..deps import get_cache, get_db, get_settings, get_store, get_survey_or_404, get_survey_reader, store_has_room
 from ..schemas import (
     FlightOut,
     JobOut,
@@ -63,7 +63,12 @@ def survey_out(db: Session, s: Survey) -> SurveyOut:
                      settings=survey_settings(s), last_job=job_out(last) if last else None, has_dem=has_dem(s))
 
 
-@router.post("", response_model=SurveyOut, status_code=201)
+#: the answer when the store is at its limit (AEROGRAV_MAX_STORE_MB)
+STORE_FULL = {507: {"description": "the server's store is full: the detail says how much it holds and its limit"}}
+
+
+@router.post("", response_model=SurveyOut, status_code=201, dependencies=[Depends(store_has_room)],
+             responses=STORE_FULL)
 def create_survey(body: SurveyCreate, db: Session = Depends(get_db)) -> SurveyOut:
     """An empty survey; add flights with POST /api/surveys/{id}/flights."""
     s = Survey(name=body.name)
@@ -85,7 +90,8 @@ def get_survey(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get
 @router.patch("/{survey_id}", response_model=SurveyOut,
               responses={401: {"description": "token missing or wrong"}, 404: {"description": "no such survey"},
                          409: {"description": "no data yet (only the name can be set), or changed meanwhile"},
-                         422: {"description": "invalid value: the detail names the field (section.key)"}})
+                         422: {"description": "invalid value: the detail names the field (section.key)"},
+                         **STORE_FULL})
 def update_survey(body: SurveyPatch, s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
                   store: Store = Depends(get_store), reader: Callable = Depends(get_survey_reader),
                   settings: Settings = Depends(get_settings)) -> SurveyOut:
@@ -93,7 +99,8 @@ def update_survey(body: SurveyPatch, s: Survey = Depends(get_survey_or_404), db:
     gravity): validated like survey.toml, stored as a new input snapshot (the current result stays
     until the survey is processed again; ``result_outdated`` says so)."""
     try:
-        patch_survey(db, store, reader, s, body, budget_bytes=settings.survey_storage_bytes)
+        patch_survey(db, store, reader, s, body, budget_bytes=settings.survey_storage_bytes,
+                     store_limit_bytes=settings.max_store_bytes)
     except SettingsRejected as e:
         raise HTTPException(422, e.detail) from e
     except (NoInput, SurveyConflict) as e:
@@ -117,7 +124,8 @@ def remove_survey(s: Survey = Depends(get_survey_or_404), db: Session = Depends(
     return Response(status_code=204)
 
 
-@router.post("/import", response_model=SurveyOut, status_code=201)
+@router.post("/import", response_model=SurveyOut, status_code=201, dependencies=[Depends(store_has_room)],
+             responses=STORE_FULL)
 def import_survey(file: UploadFile = File(..., description="zip of a survey directory (may be nested one level)"),
                   db: Session = Depends(get_db), store: Store = Depends(get_store),
                   reader: Callable = Depends(get_survey_reader),
@@ -128,7 +136,8 @@ def import_survey(file: UploadFile = File(..., description="zip of a survey dire
     try:
         root = extract_survey_zip(file.file, staging, max_bytes=settings.max_uncompressed_bytes)
         s = import_survey_tree(db, store, reader, root, Path(file.filename or "survey.zip").stem[:300],
-                               budget_bytes=settings.survey_storage_bytes)
+                               budget_bytes=settings.survey_storage_bytes,
+                               store_limit_bytes=settings.max_store_bytes)
         return survey_out(db, s)
     except StorageBudgetExceeded as e:
         raise HTTPException(413, str(e)) from e
@@ -149,7 +158,8 @@ def _write_upload(up: UploadFile, dest: Path) -> None:
         shutil.copyfileobj(up.file, fh, 1 << 20)
 
 
-@router.post("/{survey_id}/flights", response_model=SurveyOut, status_code=201)
+@router.post("/{survey_id}/flights", response_model=SurveyOut, status_code=201,
+             dependencies=[Depends(store_has_room)], responses=STORE_FULL)
 def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv (or GT-1A/GT-2A G file)"),
                   gnss: UploadFile = File(..., description="gnss.csv"),
                   lines: UploadFile | None = File(None, description="lines.csv rows for this flight"),
@@ -171,7 +181,7 @@ def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv
     try:
         add_flight(db, store, reader, s, flight, write_files,
                    lines.file.read(MAX_LINES_BYTES + 1) if lines is not None else None,
-                   budget_bytes=settings.survey_storage_bytes)
+                   budget_bytes=settings.survey_storage_bytes, store_limit_bytes=settings.max_store_bytes)
     except SurveyConflict as e:
         raise HTTPException(409, str(e)) from e
     except StorageBudgetExceeded as e:
@@ -179,8 +189,8 @@ def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv
     return survey_out(db, s)
 
 
-@router.put("/{survey_id}/dem", response_model=SurveyOut,
-            responses={404: {"description": "no such survey"},
+@router.put("/{survey_id}/dem", response_model=SurveyOut, dependencies=[Depends(store_has_room)],
+            responses={404: {"description": "no such survey"}, **STORE_FULL,
                        409: {"description": "no data yet, or changed meanwhile"},
                        413: {"description": "over the upload limit or the survey's storage budget"},
                        422: {"description": "the DEM is not usable: the detail names dem.tif and what is wrong"}})
@@ -205,7 +215,8 @@ def put_dem(dem: UploadFile = File(..., description="terrain model: a GeoTIFF wi
                 fh.write(chunk)
 
     try:
-        replace_dem(db, store, reader, s, write, budget_bytes=settings.survey_storage_bytes)
+        replace_dem(db, store, reader, s, write, budget_bytes=settings.survey_storage_bytes,
+                    store_limit_bytes=settings.max_store_bytes)
     except (NoInput, SurveyConflict) as e:
         raise HTTPException(409, str(e)) from None
     except StorageBudgetExceeded as e:
