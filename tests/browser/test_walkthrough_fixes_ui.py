@@ -44,3 +44,74 @@ def test_a_cancelled_rerun_leaves_the_list_saying_the_result_is_there(fake_serve
     page.click("#tabs button[data-tab=report]")
     page.wait_for_selector("#report-summary li", timeout=10000)
     _no_errors(page)
+
+
+# every line label on a map (lone labels: the text trace; a repeat track's passes: annotations) with its box
+_LABEL_BOXES = """(sel) => [...document.querySelectorAll(`${sel} .textpoint text, ${sel} .annotation-text`)].map((t) => {
+  const r = t.getBoundingClientRect();
+  return {text: t.textContent, left: r.left, right: r.right, top: r.top, bottom: r.bottom}; })"""
+
+
+def _run_together(boxes, gap=3.0):
+    """Pairs of labels that overlap, or sit on one row closer than ``gap`` px (read as one word)."""
+    out = []
+    for i, a in enumerate(boxes):
+        for b in boxes[i + 1:]:
+            rows = min(a["bottom"], b["bottom"]) - max(a["top"], b["top"])      # > 0: they share a row
+            cols = min(a["right"], b["right"]) - max(a["left"], b["left"])      # > -gap: touching or overlapping
+            if rows > 1 and cols > -gap:
+                out.append(f"{a['text']} / {b['text']}")
+    return out
+
+
+def _omolon(url, tmp_path, process):
+    import shutil
+    import time
+    from pathlib import Path
+
+    import httpx
+
+    from tests.web.conftest import zip_dir
+    src = tmp_path / "omolon-mini"
+    shutil.copytree(Path(__file__).resolve().parents[2] / "sample_surveys" / "omolon-mini", src,
+                    ignore=shutil.ignore_patterns("truth"))
+    with httpx.Client(base_url=url, timeout=120) as c:
+        sid = c.post("/api/surveys/import", files={"file": ("s.zip", zip_dir(src), "application/zip")}).json()["id"]
+        if process:
+            job = c.post(f"/api/surveys/{sid}/jobs", json={"kind": "process"}).json()
+            t_end = time.monotonic() + 120
+            while c.get(f"/api/jobs/{job['id']}").json()["status"] in ("queued", "running"):
+                assert time.monotonic() < t_end
+                time.sleep(0.2)
+            assert c.get(f"/api/jobs/{job['id']}").json()["status"] == "succeeded"
+    return sid
+
+
+def test_repeat_pass_labels_read_one_per_pass(fake_server, browser_page, tmp_path):  # noqa: F811
+    """omolon-mini's repeat track R1 is flown three times from one point: its labels read "R1-1R1-3"
+    above "R1-2" on the QC map and the grid (above-left and above-right of the point, touching). The
+    passes' labels are now a column left of the point, one row per pass in order, each opening its
+    own profile."""
+    sid = _omolon(fake_server.url, tmp_path, process=True)
+    page = browser_page
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=qc")
+    page.wait_for_selector("#line-map .textpoint text", timeout=30000)
+    for sel in ("#line-map", "#grid-plot"):
+        if sel == "#grid-plot":
+            page.click("#tabs button[data-tab=grid]")
+            page.wait_for_selector("#grid-plot .textpoint text", timeout=30000)
+        boxes = page.evaluate(_LABEL_BOXES, sel)
+        assert sorted(b["text"] for b in boxes) == sorted([f"M{i:03d}" for i in range(1, 11)] + ["T01", "T02", "T03",
+                                                                                          "R1-1", "R1-2", "R1-3"]), boxes
+        assert not _run_together(boxes), (sel, _run_together(boxes))
+        passes = sorted((b for b in boxes if b["text"].startswith("R1-")), key=lambda b: b["top"])
+        assert [b["text"] for b in passes] == ["R1-1", "R1-2", "R1-3"]               # one row per pass, in order
+        assert all(p["bottom"] <= q["top"] + 1 for p, q in zip(passes, passes[1:]))
+        assert max(b["right"] for b in passes) - min(b["right"] for b in passes) < 1   # one column
+    # a click on a pass's label opens that pass's profile
+    page.click("#grid-plot .annotation-text:text-is('R1-3')")
+    page.wait_for_selector("#profile-plot[data-line='R1-3'] .main-svg", timeout=20000)
+    # the rule itself: lines starting at one point share a column, the others stand alone
+    got = page.evaluate("async () => (await import('/js/plots.js')).labelGroups([0, 0.001, 10, 0], [0, 0, 5, 0.0005])")
+    assert got == {"group": [0, 0, 2, 0], "rank": [0, 1, 0, 2], "size": [3, 3, 1, 3]}
+    _no_errors(page)
