@@ -56,6 +56,15 @@ export function el(tag, attrs = {}, ...children) {
   return e;
 }
 
+// A drop-down's title is its chosen option's whole text: a narrow window cuts the text shown (CSS).
+// Returns the function that sets it, for a choice made by code (no change event).
+export function titleFromChoice(select) {
+  const set = () => { select.title = select.selectedOptions.length ? select.selectedOptions[0].textContent : ""; };
+  select.addEventListener("change", set);
+  set();
+  return set;
+}
+
 export function showError(container, err) {
   let box = container.querySelector(":scope > .error");
   if (!box) { box = el("div", { class: "error" }); container.prepend(box); }

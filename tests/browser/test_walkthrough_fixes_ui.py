@@ -115,3 +115,42 @@ def test_repeat_pass_labels_read_one_per_pass(fake_server, browser_page, tmp_pat
     got = page.evaluate("async () => (await import('/js/plots.js')).labelGroups([0, 0.001, 10, 0], [0, 0, 5, 0.0005])")
     assert got == {"group": [0, 0, 2, 0], "rank": [0, 1, 0, 2], "size": [3, 3, 1, 3]}
     _no_errors(page)
+
+
+_BOXES = """(sel) => {
+  const e = document.querySelector(sel), r = e.getBoundingClientRect();
+  const card = e.closest('.card').getBoundingClientRect();
+  // the same select free of any container: its natural width
+  const free = e.cloneNode(true);
+  free.style.position = 'absolute'; free.style.visibility = 'hidden';
+  document.body.append(free);
+  const natural = free.getBoundingClientRect().width;
+  free.remove();
+  return {left: r.left, right: r.right, width: r.width, natural, card: [card.left, card.right], vw: innerWidth,
+          docw: document.documentElement.scrollWidth, title: e.title, text: e.selectedOptions[0].textContent}; }"""
+
+
+def test_the_job_dropdown_fits_a_700_px_window(fake_server, browser_page, tmp_path):  # noqa: F811
+    """At 700 px the job drop-down ("process — identification, recognition, filtering, leveling, grid",
+    472 px wide) ran 65 px past its card and the window (a horizontal scroll bar for the whole page). It
+    now shrinks to its card, its text cut with an ellipsis and whole in its tooltip; wide windows keep
+    it at its full width."""
+    sid = _processed_survey(fake_server.url, tmp_path)
+    page = browser_page
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=process")
+    page.wait_for_selector("#job-box .badge", timeout=20000)
+    wide = page.evaluate(_BOXES, "#job-kind")
+    assert abs(wide["width"] - wide["natural"]) < 1, wide          # a wide window: not cut
+    assert wide["title"] == wide["text"]
+    page.set_viewport_size({"width": 700, "height": 1000})
+    page.wait_for_timeout(300)
+    b = page.evaluate(_BOXES, "#job-kind")
+    assert b["card"][0] <= b["left"] and b["right"] <= b["card"][1], b   # inside its card …
+    assert b["right"] <= b["vw"] and b["docw"] <= b["vw"], b             # … and the window: no page scroll bar
+    assert b["width"] < b["natural"], b
+    assert b["title"] == b["text"] == "process — identification, recognition, filtering, leveling, grid"
+    assert page.evaluate("() => getComputedStyle(document.querySelector('#job-kind')).textOverflow") == "ellipsis"
+    # another choice: its text in the tooltip
+    page.select_option("#job-kind", "filter")
+    assert page.get_attribute("#job-kind", "title").startswith("filter — from the stored identification")
+    _no_errors(page)
