@@ -104,6 +104,9 @@ class SurveyOut(Out):
     n_lines: int = 0
     has_input: bool = False
     current_result_id: int | None = None
+    result_job_id: int | None = Field(None, description="The job that computed the current result (null: no result). "
+                                      "``last_job`` is the newest job, which may have been cancelled or failed "
+                                      "since: the current result stays")
     result_outdated: bool = Field(False, description="The survey's input (data or survey.toml) changed after the "
                                   "current result was computed: run processing again")
     settings: SurveySettings | None = Field(None, description="survey.toml fields of the current input")

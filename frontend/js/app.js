@@ -76,12 +76,32 @@ function surveyName(s) {
   return state.surveys.some((o) => o.id !== s.id && o.name === s.name) ? `${s.name} (#${s.id})` : s.name;
 }
 
+// A survey's badge says what the analyst has: a job at work, else the current result, else the newest
+// job's end. A re-run cancelled or failed leaves the previous result current (and shown in every
+// view): the badge stays "succeeded" for that result, and a note under it says how the last run ended.
+function surveyBadge(s) {
+  const last = s.last_job;
+  if (last && ["queued", "running"].includes(last.status)) {
+    return { status: last.status, title: `job ${last.id} ${last.status}` };
+  }
+  if (s.current_result_id) {
+    const job = s.result_job_id ?? "?";
+    const other = last && last.id !== s.result_job_id && last.status !== "succeeded" ? last : null;
+    return { status: "succeeded", title: `current result: the result of job ${job}` +
+        (other ? `; the last run (job ${other.id}) was ${other.status} and changed nothing` : ""),
+      note: other ? `last run ${other.status}` : null, noteClass: other ? other.status : null };
+  }
+  if (last) return { status: last.status, title: `job ${last.id} ${last.status}; no result yet` };
+  return { status: s.has_input ? "imported" : "empty", title: s.has_input ? "not processed yet" : "no data yet" };
+}
+
 function renderSurveyList() {
   const ul = document.getElementById("survey-list");
   ul.replaceChildren(...state.surveys.map((s) => {
-    const st = s.last_job ? s.last_job.status : (s.has_input ? "imported" : "empty");
+    const b = surveyBadge(s);
     const li = el("li", { class: s.id === state.surveyId ? "active" : "", "data-survey-id": s.id },
-      el("span", {}, surveyName(s)), el("span", { class: `badge ${st}` }, st));
+      el("span", {}, surveyName(s)), el("span", { class: `badge ${b.status}`, title: b.title }, b.status),
+      b.note ? el("small", { class: `last-run ${b.noteClass}`, title: b.title }, b.note) : null);
     li.addEventListener("click", () => selectSurvey(s.id));
     return li;
   }));

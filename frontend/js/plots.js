@@ -56,6 +56,15 @@ export function el(tag, attrs = {}, ...children) {
   return e;
 }
 
+// A drop-down's title is its chosen option's whole text: a narrow window cuts the text shown (CSS).
+// Returns the function that sets it, for a choice made by code (no change event).
+export function titleFromChoice(select) {
+  const set = () => { select.title = select.selectedOptions.length ? select.selectedOptions[0].textContent : ""; };
+  select.addEventListener("change", set);
+  set();
+  return set;
+}
+
 export function showError(container, err) {
   let box = container.querySelector(":scope > .error");
   if (!box) { box = el("div", { class: "error" }); container.prepend(box); }
@@ -131,26 +140,48 @@ export function hillshade(z, dx, dy, azimuthDeg = 315, altitudeDeg = 45) {
   }));
 }
 
-// Text labels of lines at their first point (a scatter "text" trace), names as text.
-// Lines that start at (nearly) the same point, e.g. repeats flown over one track, would print their
-// labels on top of each other: such labels go above / below / right of the point, each still clickable.
-const STACKED = ["top left", "bottom left", "top right", "bottom right", "middle right", "middle left"];
-export function labelPositions(x, y) {
+// Line labels at each line's first point, names as text. Lines that start at (nearly) one point — the
+// passes of a repeat track flown the same way — would print their labels over or against each other
+// (above-left and above-right of the point read "R1-1R1-3"): they go in a column left of the point
+// instead, one row per line in their order, each an annotation of its own (named by its line: a click
+// on it opens that line's profile). Lines starting alone keep a text trace (cheap for many lines).
+export function labelGroups(x, y) {
   const span = Math.max(Math.max(...x) - Math.min(...x), Math.max(...y) - Math.min(...y), 1e-9);
   const tol = 0.015 * span;
   const group = x.map((xi, i) => x.findIndex((xj, j) => Math.abs(xj - xi) < tol && Math.abs(y[j] - y[i]) < tol));
   const rank = group.map((g, i) => group.slice(0, i).filter((h) => h === g).length);
   const size = group.map((g) => group.filter((h) => h === g).length);
-  return rank.map((r, i) => (size[i] === 1 ? "middle left" : STACKED[r % STACKED.length]));
+  return { group, rank, size };
 }
 
+const LABEL_FONT = { size: 10, color: "rgba(20,20,20,0.85)" };
+const LABEL_ROW_PX = 13;
+
+// { trace, annotations }: the text trace of the lone labels and the annotations of the stacked ones
+// (for the layout); ``axes`` puts both on a subplot ({xaxis: "x2", yaxis: "y2"}).
 export function lineLabels(lines, axes = {}) {
   const ok = lines.filter((l) => l.easting_km.length);
   const x = ok.map((l) => l.easting_km[0]), y = ok.map((l) => l.northing_km[0]);
-  return { x, y, text: ok.map((l) => esc(l.line)),
-    customdata: ok.map((l) => l.line), type: "scatter", mode: "text", textposition: ok.length ? labelPositions(x, y) : "middle left",
-    textfont: { size: 10, color: "rgba(20,20,20,0.85)" }, name: "line labels", showlegend: false,
+  const { group, rank, size } = ok.length ? labelGroups(x, y) : { group: [], rank: [], size: [] };
+  const alone = ok.map((_, i) => i).filter((i) => size[i] === 1);
+  const trace = { x: alone.map((i) => x[i]), y: alone.map((i) => y[i]), text: alone.map((i) => esc(ok[i].line)),
+    customdata: alone.map((i) => ok[i].line), type: "scatter", mode: "text", textposition: "middle left",
+    textfont: LABEL_FONT, name: "line labels", showlegend: false,
     hovertemplate: "line %{text} — click for its profile<extra></extra>", ...axes };
+  const annotations = ok.map((l, i) => (size[i] === 1 ? null : {
+    x: x[group[i]], y: y[group[i]], xref: axes.xaxis || "x", yref: axes.yaxis || "y", text: esc(l.line), name: l.line,
+    showarrow: false, xanchor: "right", yanchor: "middle", xshift: -4, yshift: ((size[i] - 1) / 2 - rank[i]) * LABEL_ROW_PX,
+    font: LABEL_FONT, captureevents: true, hovertext: `line ${esc(l.line)} — click for its profile`,
+  })).filter(Boolean);
+  return { trace, annotations };
+}
+
+// A click on a stacked label (an annotation from lineLabels): its line.
+export function onLabelClick(plotDiv, open) {
+  plotDiv.on("plotly_clickannotation", (ev) => {
+    const line = ev && ev.annotation && ev.annotation.name;
+    if (line !== undefined && line !== null) open(line);
+  });
 }
 
 // ---- tables for the report panel (every cell is text)

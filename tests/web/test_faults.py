@@ -74,6 +74,27 @@ def test_cancel_running_job(client, tiny_zip, monkeypatch):
     assert client.get(f"/api/surveys/{sid}").json()["current_result_id"] is None
 
 
+def test_cancelled_rerun_keeps_the_result_and_says_whose_it_is(client, tiny_zip, monkeypatch):
+    """A processed survey whose next job was cancelled: ``last_job`` is the cancelled job, the result
+    stays current and ``result_job_id`` names the job that computed it (the survey list said
+    "cancelled" from ``last_job`` alone, as if the survey had no result)."""
+    sid = import_zip(client, tiny_zip).json()["id"]
+    assert client.get(f"/api/surveys/{sid}").json()["result_job_id"] is None
+    done = _run_ok(client, sid)
+    before = client.get(f"/api/surveys/{sid}").json()
+    assert before["result_job_id"] == done["id"] and before["last_job"]["id"] == done["id"]
+    monkeypatch.setenv("AEROGRAV_FAKE_DELAY_S", "2")
+    job = client.post(f"/api/surveys/{sid}/jobs", json={"kind": "process"}).json()
+    _wait_running(client, job["id"])
+    assert client.post(f"/api/jobs/{job['id']}/cancel").json()["status"] == "cancelled"
+    after = client.get(f"/api/surveys/{sid}").json()
+    assert after["last_job"]["id"] == job["id"] and after["last_job"]["status"] == "cancelled"
+    assert after["current_result_id"] == before["current_result_id"]
+    assert after["result_job_id"] == done["id"]
+    listed = {s["id"]: s for s in client.get("/api/surveys").json()}[sid]
+    assert listed["result_job_id"] == done["id"] and listed["last_job"]["status"] == "cancelled"
+
+
 def test_restart_keeps_everything_and_fails_running_jobs(make_client, tiny_zip, monkeypatch):
     c1 = make_client()
     sid = import_zip(c1, tiny_zip).json()["id"]

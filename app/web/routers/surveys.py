@@ -10,7 +10,7 @@ from fastapi import APIRouter, Depends, File, Form, HTTPException, Response, Upl
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
-from ..db import Job, Line, Survey
+from ..db import Job, Line, Result, Survey
 from ..deps import get_cache, get_db, get_settings, get_store, get_survey_or_404, get_survey_reader, store_has_room
 from ..schemas import (
     FlightOut,
@@ -57,9 +57,13 @@ def survey_out(db: Session, s: Survey) -> SurveyOut:
     # to load for every listing of the surveys)
     n_lines = len(s.lines) if "lines" in s.__dict__ else db.scalar(
         select(func.count()).select_from(Line).where(Line.survey_id == s.id))
+    # the job whose result is current: the newest job may since have been cancelled or failed, and the
+    # survey list must not read that as "no result"
+    res = db.get(Result, s.current_result_id) if s.current_result_id is not None else None
     return SurveyOut(id=s.id, name=s.name, created_at=s.created_at, crs=s.crs,
                      flights=[f.name for f in s.flights], n_lines=n_lines, has_input=bool(s.input_dir),
-                     current_result_id=s.current_result_id, result_outdated=result_outdated(db, s),
+                     current_result_id=s.current_result_id, result_job_id=res.job_id if res is not None else None,
+                     result_outdated=result_outdated(db, s),
                      settings=survey_settings(s), last_job=job_out(last) if last else None, has_dem=has_dem(s))
 
 

@@ -48,7 +48,7 @@ export async function render(sec, ctx) {
   const noBouguer = s.has_dem
     ? "the current result was computed without the survey's DEM: process the survey again"
     : "the survey has no DEM (dem.tif): add one under “Terrain model (DEM)” on the left and process again";
-  sec.replaceChildren(el("div", { class: "card" }, el("h3", {}, `Exports of result ${s.current_result_id} (job ${s.last_job ? s.last_job.id : "?"})`),
+  sec.replaceChildren(el("div", { class: "card" }, el("h3", {}, `Exports of result ${s.current_result_id} (job ${s.result_job_id ?? "?"})`),
     el("h4", {}, `Free-air anomaly grid δg ${at}`), links(s, "", {}),
     g.flight ? el("h4", {}, "Free-air anomaly grid at flight height (before continuation)") : null,
     g.flight ? links(s, "flight-", { height: "flight" }) : null,

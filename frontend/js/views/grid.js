@@ -3,7 +3,7 @@
 // Products: free-air or Bouguer (with a DEM), at flight height or at the datum (when one was used);
 // a choice the result does not have is disabled with the reason as its tooltip.
 import { endpoints } from "../api.js";
-import { divergingScale, el, esc, fmt, hillshade, lineLabels, mapLayout, plotConfig, pngButton, showError, symmetricLimit } from "../plots.js";
+import { divergingScale, el, esc, fmt, hillshade, lineLabels, mapLayout, onLabelClick, plotConfig, pngButton, showError, symmetricLimit } from "../plots.js";
 
 export function baseTieMissing(report) {
   return ((report && report.warnings) || []).some((w) => String(w).startsWith("no absolute base tie"));
@@ -114,7 +114,8 @@ export async function render(sec, ctx) {
     };
   };
 
-  const overlays = (isStd, axes, first) => {
+  // ``notes`` collects the layout's annotations (the labels of lines starting at one point)
+  const overlays = (isStd, axes, first, notes) => {
     const t = [];
     if (shadeIn.checked && !isStd) {
       t.push({ x: g.easting_km, y: g.northing_km, z: shade(), type: "heatmap", colorscale: [[0, "rgb(0,0,0)"], [1, "rgb(255,255,255)"]],
@@ -126,7 +127,11 @@ export async function render(sec, ctx) {
         name: "lines", legendgroup: "lines", showlegend: first && i === 0, customdata: l.easting_km.map(() => l.line),
         hovertemplate: `line ${esc(l.line)} (${esc(l.kind)}) — click for its profile<extra></extra>`, ...axes }));
     }
-    if (labelsIn.checked) t.push(lineLabels(g.lines, axes));
+    if (labelsIn.checked) {
+      const labels = lineLabels(g.lines, axes);
+      t.push(labels.trace);
+      notes.push(...labels.annotations);
+    }
     if (xoIn.checked && crossings.length) {
       t.push({ x: crossings.map((c) => c.easting_km), y: crossings.map((c) => c.northing_km), type: "scatter", mode: "markers",
         name: "crossovers", legendgroup: "xo", showlegend: first, marker: { symbol: "x-thin", size: 7, color: "rgba(0,0,0,0.7)", line: { width: 1.5, color: "rgba(0,0,0,0.7)" } },
@@ -142,9 +147,10 @@ export async function render(sec, ctx) {
     const title = `${s.name}: ` + (v === "dg_std" ? `posterior σ of ${symbol()} ${heightText()}`
       : `${what} ${heightText()}${relative ? " — relative level (no absolute base tie)" : ""}` + (v === "both" ? " and its σ" : ""));
     let traces, layout;
+    const notes = [];
     if (v === "both") {
       const a1 = {}, a2 = { xaxis: "x2", yaxis: "y2" };
-      traces = [fieldTrace(false, a1, 0.41), ...overlays(false, a1, true), fieldTrace(true, a2, 0.99), ...overlays(true, a2, false)];
+      traces = [fieldTrace(false, a1, 0.41), ...overlays(false, a1, true, notes), fieldTrace(true, a2, 0.99), ...overlays(true, a2, false, notes)];
       layout = mapLayout(title, {
         xaxis: { title: { text: "Easting (km)" }, domain: [0, 0.39], zeroline: false },
         yaxis: { title: { text: "Northing (km)" }, scaleanchor: "x", scaleratio: 1, zeroline: false },
@@ -154,10 +160,11 @@ export async function render(sec, ctx) {
       plot.classList.add("wide");
     } else {
       const isStd = v === "dg_std";
-      traces = [fieldTrace(isStd, {}), ...overlays(isStd, {}, true)];
+      traces = [fieldTrace(isStd, {}), ...overlays(isStd, {}, true, notes)];
       layout = mapLayout(title);
       plot.classList.remove("wide");
     }
+    layout.annotations = notes;
     await Plotly.react(plot, traces, layout, plotConfig(`${s.name}-grid`));
     plot.dataset.variable = v;
     plot.dataset.product = g.product;
@@ -194,5 +201,6 @@ export async function render(sec, ctx) {
     const p = ev && ev.points && ev.points.find((q) => q.customdata !== undefined && q.data.name !== "crossovers");
     if (p) ctx.openProfile(p.customdata);
   });
+  onLabelClick(plot, (line) => ctx.openProfile(line));
   plot.after(pngButton(plot, `${s.name}-grid`));
 }

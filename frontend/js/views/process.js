@@ -1,6 +1,6 @@
 // Processing: parameters form (defaults + explanations from ProcessingParams), job progress, live EM table.
 import { endpoints } from "../api.js";
-import { el, fmt, showError } from "../plots.js";
+import { el, fmt, showError, titleFromChoice } from "../plots.js";
 
 let poller = null;
 let schemaCache = null;
@@ -185,6 +185,7 @@ export async function render(sec, ctx) {
     el("option", { value: "process" }, "process — identification, recognition, filtering, leveling, grid"),
     el("option", { value: "identify" }, "identify — measurement, noise model, EM learning, recognition (stored)"),
     el("option", { value: "filter" }, "filter — from the stored identification: NL-means (h, ρ), filtering, leveling, grid"));
+  titleFromChoice(kind);
   const run = el("button", { type: "submit", class: "primary", id: "run-job", disabled: !s.has_input }, "Run processing");
   const reset = el("button", { type: "button" }, "Reset to defaults");
   form.append(el("div", { class: "controls" }, el("label", {}, "Job ", kind), run, reset),

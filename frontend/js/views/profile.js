@@ -2,7 +2,7 @@
 // products the result has: δg at flight height beside the datum values, the Bouguer anomaly, the
 // terrain effect (shown from the legend).
 import { endpoints } from "../api.js";
-import { el, esc, fmt, plotConfig, pngButton, stateColor } from "../plots.js";
+import { el, esc, fmt, plotConfig, pngButton, stateColor, titleFromChoice } from "../plots.js";
 import { stateLabel } from "./recognition.js";
 
 function stateShapes(x, state) {
@@ -138,14 +138,17 @@ export async function render(sec, ctx) {
     plot.dataset.leveled = leveled ? "1" : "0";
     plot.dataset.products = products.join(" ");
   };
+  const syncTitle = titleFromChoice(sel);
   drawLine = (line) => {
     if (![...sel.options].some((o) => o.value === line)) return;
     sel.value = line;
+    syncTitle();
     draw();
   };
   sel.addEventListener("change", draw);
   lp.addEventListener("change", draw);
   const wanted = ctx.consumeLine();
   if (wanted !== null && withData.some((l) => l.line === wanted)) sel.value = wanted;
+  syncTitle();
   if (withData.length) await draw(); else status.textContent = "No line has results.";
 }

@@ -1,6 +1,6 @@
 // QC: per-flight and per-line rates, gaps, durations, lengths; the line map (km, equal aspect).
 import { endpoints } from "../api.js";
-import { el, esc, fmt, lineLabels, mapLayout, plotConfig, pngButton, showError } from "../plots.js";
+import { el, esc, fmt, lineLabels, mapLayout, onLabelClick, plotConfig, pngButton, showError } from "../plots.js";
 
 const KIND_STYLE = { main: { color: "#1f4e79", width: 2 }, tie: { color: "#c0504d", width: 2, dash: "dash" },
   repeat: { color: "#7f7f7f", width: 2, dash: "dot" } };
@@ -42,12 +42,15 @@ export async function render(sec, ctx) {
       showlegend: first, line: KIND_STYLE[l.kind] || KIND_STYLE.main, text: esc(l.line), customdata: l.easting_km.map(() => l.line),
       hovertemplate: `line ${esc(l.line)} (${esc(l.kind)}, flight ${esc(l.flight)})${s.current_result_id ? " — click for its profile" : ""}<br>E %{x:.2f} km, N %{y:.2f} km<extra></extra>` };
   });
-  traces.push(lineLabels(tracks.lines));
-  await Plotly.newPlot(mapDiv, traces, mapLayout(`${s.name}: survey lines`), plotConfig(`${s.name}-line-map`));
+  const labels = lineLabels(tracks.lines);
+  traces.push(labels.trace);
+  await Plotly.newPlot(mapDiv, traces, mapLayout(`${s.name}: survey lines`, { annotations: labels.annotations }),
+    plotConfig(`${s.name}-line-map`));
   mapDiv.on("plotly_click", (ev) => {
     const p = ev && ev.points && ev.points.find((q) => q.customdata !== undefined);
     if (p) ctx.openProfile(p.customdata);
   });
+  onLabelClick(mapDiv, (line) => ctx.openProfile(line));
   mapDiv.after(pngButton(mapDiv, `${s.name}-line-map`));
   showError(sec, null);
 }
