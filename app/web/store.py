@@ -82,18 +82,24 @@ class StoreFull(Exception):
                          "ask the administrator to raise the limit")
 
 
+def file_stats(dirs: Iterable[Path]) -> Iterator[os.stat_result]:
+    """``lstat`` of every file under ``dirs`` (files that vanish while walking are skipped)."""
+    for d in dirs:
+        for dirpath, _dirs, files in os.walk(d):
+            for f in files:
+                try:
+                    yield os.lstat(os.path.join(dirpath, f))
+                except OSError:
+                    continue
+
+
 def own_bytes(path: Path) -> int:
     """Bytes that removing ``path`` frees: the files under it whose every hard link is under it
     too (a snapshot's files linked from another snapshot stay on disk)."""
     seen: dict[tuple[int, int], list[int]] = {}
-    for dirpath, _dirs, files in os.walk(path):
-        for f in files:
-            try:
-                st = os.lstat(os.path.join(dirpath, f))
-            except OSError:
-                continue
-            c = seen.setdefault((st.st_dev, st.st_ino), [0, st.st_nlink, st.st_size])
-            c[0] += 1
+    for st in file_stats([path]):
+        c = seen.setdefault((st.st_dev, st.st_ino), [0, st.st_nlink, st.st_size])
+        c[0] += 1
     return sum(size for n, nlink, size in seen.values() if n >= nlink)
 
 
@@ -154,17 +160,11 @@ class Store:
         """Bytes on disk under ``dirs``, each file counted once (snapshots share hard links)."""
         seen: set[tuple[int, int]] = set()
         total = 0
-        for d in dirs:
-            for dirpath, _dirs, files in os.walk(d):
-                for f in files:
-                    try:
-                        st = os.lstat(os.path.join(dirpath, f))
-                    except OSError:
-                        continue
-                    key = (st.st_dev, st.st_ino)
-                    if key not in seen:
-                        seen.add(key)
-                        total += st.st_size
+        for st in file_stats(dirs):
+            key = (st.st_dev, st.st_ino)
+            if key not in seen:
+                seen.add(key)
+                total += st.st_size
         return total
 
     def survey_usage_bytes(self, survey_id: int) -> int:
