@@ -547,7 +547,8 @@ class ProcessingParams(_Strict):
     std_unresolved_bound: bool = Field(True, description="On a line that does not resolve the anomaly (FIR shows "
                                        "none beyond its predicted noise and the estimate varies by less than its "
                                        "std), widen dg_std_mgal to Var(FIR) - Var(estimate), the error a smooth "
-                                       "estimate can have")
+                                       "estimate can have; also on every line FIR cannot judge alone when the lines' "
+                                       "median flattening ratio is below flatten_min_ratio (flattened as a whole)")
     std_common_level: bool = Field(True, description="Without an absolute base tie, add to dg_std_mgal and the grid "
                                    "std the std of the level leveling leaves common to the flights: the flights' "
                                    "offsets at the crossovers, read as draws of one drift, spread by s; their mean is "
