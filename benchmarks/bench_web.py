@@ -103,19 +103,9 @@ def _hostile_payloads(src: Path) -> dict[str, bytes]:
     import io
     import zipfile
 
+    from tests.web.conftest import zip_with
     from tests.web.server_proc import inflated_survey_zip
     from tests.web.test_hostile import _patch_headers
-
-    def zip_with(replace: dict[str, bytes]) -> bytes:
-        buf = io.BytesIO()
-        with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
-            for q in sorted(src.rglob("*")):
-                rel = q.relative_to(src).as_posix()
-                if q.is_file() and rel not in replace:
-                    zf.write(q, "s/" + rel)
-            for rel, data in replace.items():
-                zf.writestr("s/" + rel, data)
-        return buf.getvalue()
 
     from app.io.survey import MAX_CONFIG_BYTES
     from app.web.services import MAX_LINES_ROWS
@@ -126,9 +116,9 @@ def _hostile_payloads(src: Path) -> dict[str, bytes]:
         f"L{i},f1,{1005 + i * 390 / n:.6f},{1005 + (i + 0.9) * 390 / n:.6f},main\n" for i in range(n))
     cols = 300_000
     return {"bomb": bomb, "liar": _patch_headers(bomb, "flights/f1/gnss.csv", size=1000),
-            "toml": zip_with({"survey.toml": (src / "survey.toml").read_bytes() + b"# "
+            "toml": zip_with(src, {"survey.toml": (src / "survey.toml").read_bytes() + b"# "
                               + b"x" * (MAX_CONFIG_BYTES + 10) + b"\n"}),
-            "many_lines": zip_with({"lines.csv": many.encode()}),
+            "many_lines": zip_with(src, {"lines.csv": many.encode()}),
             "wide_lines": (",".join(["line", "t_start", "t_end", "kind"] + [f"c{i}" for i in range(cols)]) + "\n"
                            + ",".join(["X1", "1010", "1140", "main"] + ["1"] * cols) + "\n").encode()}
 

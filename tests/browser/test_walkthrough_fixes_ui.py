@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from .test_analyst_ui import _processed_survey, fake_server  # noqa: F401  (fixture)
+from .test_analyst_ui import _processed_survey, _run, fake_server  # noqa: F401  (fixture)
 
 pytestmark = [pytest.mark.browser]
 
@@ -66,7 +66,6 @@ def _run_together(boxes, gap=3.0):
 
 def _omolon(url, tmp_path, process):
     import shutil
-    import time
     from pathlib import Path
 
     import httpx
@@ -78,12 +77,7 @@ def _omolon(url, tmp_path, process):
     with httpx.Client(base_url=url, timeout=120) as c:
         sid = c.post("/api/surveys/import", files={"file": ("s.zip", zip_dir(src), "application/zip")}).json()["id"]
         if process:
-            job = c.post(f"/api/surveys/{sid}/jobs", json={"kind": "process"}).json()
-            t_end = time.monotonic() + 120
-            while c.get(f"/api/jobs/{job['id']}").json()["status"] in ("queued", "running"):
-                assert time.monotonic() < t_end
-                time.sleep(0.2)
-            assert c.get(f"/api/jobs/{job['id']}").json()["status"] == "succeeded"
+            _run(c, sid)
     return sid
 
 

@@ -69,6 +69,20 @@ def zip_dir(root: Path, nested: bool = True) -> bytes:
     return buf.getvalue()
 
 
+def zip_with(src: Path, replace: dict[str, bytes]) -> bytes:
+    """The survey ``src`` zipped under ``s/``, with the files named in ``replace`` (paths relative
+    to the survey directory) holding other content."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
+        for p in sorted(Path(src).rglob("*")):
+            rel = p.relative_to(src).as_posix()
+            if p.is_file() and rel not in replace:
+                zf.write(p, "s/" + rel)
+        for rel, data in replace.items():
+            zf.writestr("s/" + rel, data)
+    return buf.getvalue()
+
+
 @pytest.fixture(scope="session")
 def tiny_survey(tmp_path_factory) -> Path:
     return make_tiny_survey(tmp_path_factory.mktemp("surveys") / "tiny")

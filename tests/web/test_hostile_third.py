@@ -3,32 +3,16 @@ request costing the server far more than its size) and the behaviour the fix giv
 
 from __future__ import annotations
 
-import io
-import zipfile
 from pathlib import Path
 
 import pytest
 
-from .conftest import import_zip, make_tiny_survey, zip_dir
+from .conftest import import_zip, make_tiny_survey, zip_dir, zip_with
 
 
 @pytest.fixture(scope="module")
 def tiny_src(tmp_path_factory) -> Path:
     return make_tiny_survey(tmp_path_factory.mktemp("third") / "tiny", name="tiny")
-
-
-def _zip_with(src: Path, replace: dict[str, bytes]) -> bytes:
-    """The survey ``src`` zipped under ``s/``, with the files named in ``replace`` (paths relative
-    to the survey directory) holding other content."""
-    buf = io.BytesIO()
-    with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf:
-        for p in sorted(src.rglob("*")):
-            rel = p.relative_to(src).as_posix()
-            if p.is_file() and rel not in replace:
-                zf.write(p, "s/" + rel)
-        for rel, data in replace.items():
-            zf.writestr("s/" + rel, data)
-    return buf.getvalue()
 
 
 def test_unpaired_surrogates_in_json_are_4xx(client, tiny_src):
@@ -75,7 +59,7 @@ def test_huge_survey_toml_refused_unread(client, tiny_src, monkeypatch):
 
     monkeypatch.setattr(tomllib, "loads", spy)
     toml = (tiny_src / "survey.toml").read_bytes() + b"# " + b"x" * (MAX_CONFIG_BYTES + 10) + b"\n"
-    r = import_zip(client, _zip_with(tiny_src, {"survey.toml": toml}))
+    r = import_zip(client, zip_with(tiny_src, {"survey.toml": toml}))
     assert r.status_code == 422, r.text[:300]
     d = r.json()["detail"]
     assert d["file"] == "survey.toml" and "MB" in d["message"], d
@@ -83,7 +67,7 @@ def test_huge_survey_toml_refused_unread(client, tiny_src, monkeypatch):
     assert client.get("/api/surveys").json() == []
     # a survey.toml just under the bound is read as before
     ok = (tiny_src / "survey.toml").read_bytes() + b"# " + b"x" * (MAX_CONFIG_BYTES - 1000) + b"\n"
-    assert import_zip(client, _zip_with(tiny_src, {"survey.toml": ok})).status_code == 201
+    assert import_zip(client, zip_with(tiny_src, {"survey.toml": ok})).status_code == 201
 
 
 def _many_lines(n: int) -> bytes:
@@ -118,7 +102,7 @@ def test_survey_lines_bounded_in_zips_too(client, tiny_src, monkeypatch):
 
     monkeypatch.setattr(survey_io, "read_survey", spy("read_survey", survey_io.read_survey))
     monkeypatch.setattr(services, "survey_qc", spy("survey_qc", services.survey_qc))
-    r = import_zip(client, _zip_with(tiny_src, {"lines.csv": _many_lines(MAX_LINES_ROWS + 1)}))
+    r = import_zip(client, zip_with(tiny_src, {"lines.csv": _many_lines(MAX_LINES_ROWS + 1)}))
     assert r.status_code == 422, r.text[:300]
     d = r.json()["detail"]
     assert d["file"] == "lines.csv" and f"{MAX_LINES_ROWS + 1:,} lines" in d["message"], d
@@ -126,7 +110,7 @@ def test_survey_lines_bounded_in_zips_too(client, tiny_src, monkeypatch):
     assert client.get("/api/surveys").json() == []
     # the spies see a survey within the bound: it is read and its QC built
     hostile = False
-    assert import_zip(client, _zip_with(tiny_src, {"lines.csv": _many_lines(5)})).status_code == 201
+    assert import_zip(client, zip_with(tiny_src, {"lines.csv": _many_lines(5)})).status_code == 201
     assert calls == ["read_survey", "survey_qc"], calls
 
 
