@@ -110,7 +110,6 @@ class Store:
         self.tmp.mkdir(parents=True, exist_ok=True)
         (self.root / "surveys").mkdir(parents=True, exist_ok=True)
         self._locks: dict[int, threading.RLock] = {}
-        self._file_locks: dict[str, threading.Lock] = {}
         self._locks_guard = threading.Lock()
         self._usage_lock = threading.Lock()
         self._usage: int | None = None     # bytes of the data directory (staging left out) at the last walk, kept current
@@ -122,15 +121,6 @@ class Store:
         process; the database's conditional updates catch writers from other processes)."""
         with self._locks_guard:
             return self._locks.setdefault(int(survey_id), threading.RLock())
-
-    def file_lock(self, path: Path) -> threading.Lock:
-        """The lock serializing the writing of one file made on demand beside a result (e.g. its
-        ``lines.xyz``, written at the first export), in this process: concurrent first requests
-        write it once, the others wait for it.  (The write itself is atomic — a temporary file
-        renamed into place — so servers in other processes sharing the data directory may at
-        worst write it twice, never show a part of it.)  One small lock per file ever exported."""
-        with self._locks_guard:
-            return self._file_locks.setdefault(str(Path(path).resolve()), threading.Lock())
 
     def staging_dir(self) -> Path:
         d = self.tmp / uuid.uuid4().hex

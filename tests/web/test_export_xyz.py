@@ -65,7 +65,7 @@ def test_concurrent_first_xyz_exports_write_once_and_serve_the_whole_file(proces
     assert first_inside.wait(60), "the first request never reached the writer"
     b = threading.Thread(target=get, args=("b",))
     b.start()
-    b.join(1.0)                    # new code: b waits on the file's lock; old code: b is writing
+    b.join(1.0)                    # new code: b waits on the survey's lock; old code: b is writing
     release.set()
     a.join(60)
     b.join(60)

@@ -421,15 +421,16 @@ def _lines_xyz(s: Survey, r: Result, store: Store) -> Path:
     Concurrent first requests: the file is written atomically (``write_lines_xyz`` writes a
     temporary file in the result folder and renames it into place), so no request — in this
     process or another sharing the data directory — ever serves a part of it; and it is written
-    once, under the file's lock (:meth:`Store.file_lock`): the other requests wait and serve it,
-    instead of each reading the whole lines.parquet and writing a copy of its own."""
+    once, under the survey's lock (:meth:`Store.survey_lock`, which also keeps a prune from
+    removing the result folder meanwhile): the other requests wait and serve it, instead of
+    each reading the whole lines.parquet and writing a copy of its own."""
     from app.io.export import write_lines_xyz
 
     p = Path(r.dir) / "lines.xyz"
     if p.exists():
         return p
     src = _result_file(r, "lines.parquet")
-    with store.file_lock(p):
+    with store.survey_lock(s.id):
         if not p.exists():
             crs = (r.report or {}).get("crs") or s.crs
             write_lines_xyz(p, pd.read_parquet(src), crs,
