@@ -371,6 +371,49 @@ def smooth_error_bound_mgal2(estimate_mgal, fir_mgal) -> float:
     return float(np.var(f[ok]) - np.var(e[ok]))
 
 
+def repeat_noise_variance_mgal2(values_mgal, min_points: int = 10) -> np.ndarray:
+    """Each pass's noise variance (mGal²) from K ≥ 2 passes of one repeat track.
+
+    At common along-track positions every pass holds the same anomaly and its own noise,
+    independent between passes flown at different times, so the difference of passes j and k
+    holds their noise alone: ``D_jk = var(v_j − v_k) = σ_j² + σ_k²``.  The K variances are the
+    least-squares solution of those K(K − 1)/2 equations (the "three-cornered hat" of clock
+    comparisons; K = 3: ``σ_1² = (D_12 + D_13 − D_23)/2``); with K = 2 the two passes share
+    ``D_12`` equally.  No noise model enters — the model's level misses noise below its band (a
+    GNSS noise episode of slowly varying error), the passes do not — and no anomaly: a
+    covariance with the other passes would carry the anomaly times the noise, by chance
+    several times the noise variance itself under a strong anomaly.  Whatever else differs
+    between the passes (drift, a different height) counts as noise here.
+
+    Parameters
+    ----------
+    values_mgal : array_like, shape (K, n)
+        The passes' values at n common positions (mGal, finite;
+        :func:`app.core.accuracy.repeat_line_accuracy` ``.values_mgal``).
+    min_points : int
+        Fewer common positions than this give NaN.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        mGal² (may come out negative by chance where one pass is much quieter than the others).
+    """
+    v = np.asarray(values_mgal, dtype=float)
+    if v.ndim != 2 or v.shape[0] < 2:
+        raise ValueError(f"values_mgal must be (K >= 2, n), got shape {v.shape}")
+    k = v.shape[0]
+    if v.shape[1] < min_points or not np.isfinite(v).all():
+        return np.full(k, np.nan)
+    j, i = np.triu_indices(k, 1)
+    d = np.var(v[j] - v[i], axis=1)
+    if k == 2:
+        return np.full(2, d[0] / 2.0)
+    design = np.zeros((d.size, k))
+    design[np.arange(d.size), j] = 1.0
+    design[np.arange(d.size), i] = 1.0
+    return np.linalg.lstsq(design, d, rcond=None)[0]
+
+
 def disagreement_ratio(estimate_mgal, fir_mgal) -> float:
     """RMS of ``estimate − fir`` over the std of ``fir``, both with their means removed.
 

@@ -386,3 +386,25 @@ def test_flattening_ratio_without_samples_is_the_point_ratio():
     assert flattening_ratio(est, fir, 1.0, independent_samples=3).ratio_bound > f.ratio
     with pytest.raises(ValueError, match="confidence"):
         flattening_ratio(est, fir, 1.0, independent_samples=5, confidence=1.0)
+
+
+def test_repeat_noise_variance_is_each_pass_own_and_blind_to_the_anomaly():
+    """Four passes of one track: a common anomaly of 20 mGal std and white noise of 1, 2, 3 and
+    6 mGal on the passes.  The three-cornered hat gives each pass's own noise variance (within
+    the sampling error of 4000 points), the same to rounding when the anomaly is 100× larger
+    (pass differences cancel it); two passes share their difference's variance equally."""
+    from app.core.model_check import repeat_noise_variance_mgal2
+
+    rng = np.random.default_rng(11)
+    n = 4000
+    anomaly = 20.0 * np.sin(np.linspace(0, 9 * np.pi, n)) + rng.normal(0, 5.0, n).cumsum() / 30
+    sd = np.array([1.0, 2.0, 3.0, 6.0])
+    noise = rng.normal(0.0, 1.0, (4, n)) * sd[:, None]
+    est = repeat_noise_variance_mgal2(anomaly + noise)
+    assert est == pytest.approx(sd ** 2, rel=0.15, abs=0.3)
+    assert repeat_noise_variance_mgal2(100 * anomaly + noise) == pytest.approx(est, abs=1e-6)
+    two = repeat_noise_variance_mgal2(anomaly + noise[:2])
+    assert two == pytest.approx(np.full(2, np.var(noise[0] - noise[1]) / 2))
+    assert np.isnan(repeat_noise_variance_mgal2((anomaly + noise)[:, :5])).all()
+    with pytest.raises(ValueError):
+        repeat_noise_variance_mgal2(anomaly[None, :])

@@ -532,3 +532,72 @@ def test_a_survey_flattened_as_a_whole_gets_the_smooth_error_bound():
     table, noise = _noisy_fir_table(np.random.default_rng(11), 10.0, 0.3)
     check_lines(table, noise, DT_S, ProcessingParams(std_unresolved_bound=False), [])
     assert STD_FLOOR not in table
+
+
+def _repeat_table(rng, slow_noise_mgal: float) -> tuple[pd.DataFrame, object]:
+    """Three passes of one 40 km track (alternate directions, 20 min apart); z = anomaly + the
+    GNSS noise of R_CM2S2, and on pass R1-3 also a slow error of the given std (periods
+    150–400 s, in FIR's band: a noise episode the model's level does not see); FIR 100 s of z;
+    the 'adaptive' column = anomaly + 2 mGal of white noise, the stationary one = FIR."""
+    noise = white_velocity(DT_S, R_CM2S2)
+    rows, t0 = [], 0.0
+    for k in range(3):
+        n_ep = int(40.0 / SPEED_KMS / DT_S)
+        run_in = int(200.0 / DT_S)
+        s = np.arange(-run_in, n_ep + run_in) / (n_ep - 1)
+        e = 40.0 * (s if k % 2 == 0 else 1.0 - s)
+        n = np.full(s.size, 20.0)
+        g = _anomaly(e, n)
+        v = rng.normal(0.0, np.sqrt(R_CM2S2), s.size + 1) * 1e3
+        z = g + np.diff(v) / DT_S
+        if k == 2 and slow_noise_mgal > 0:
+            t = np.arange(s.size) * DT_S
+            slow = sum(np.sin(2 * np.pi * t / rng.uniform(150, 400) + rng.uniform(0, 2 * np.pi)) for _ in range(6))
+            z = z + slow_noise_mgal * slow / np.std(slow)
+        fir = fir_lowpass_mgal(z, DT_S, 100.0)[run_in:-run_in]
+        e, n, g = e[run_in:-run_in], n[run_in:-run_in], g[run_in:-run_in]
+        est = g + rng.normal(0.0, 2.0, n_ep)
+        rows.append(pd.DataFrame({
+            "line": f"R1-{k + 1}", "kind": "repeat", "track": "R1", "time": t0 + np.arange(n_ep) * DT_S,
+            "easting_km": e, "northing_km": n, "dg_true_mgal": g, "dg_fir_mgal": fir,
+            "dg_unleveled_mgal": est, "dg_mgal": est, "dg_stationary_mgal": fir,
+            "dg_std_mgal": np.full(n_ep, 2.0), "R_cm2s2": np.full(n_ep, R_CM2S2)}))
+        t0 += n_ep * DT_S + 1200.0
+    return pd.concat(rows, ignore_index=True), noise
+
+
+def test_repeat_passes_overturn_a_flattening_verdict_that_reads_noise_as_anomaly():
+    """Pass R1-3's FIR carries a slow error of 3× the anomaly's std that the noise model does
+    not see, and its sound estimate (2 mGal from the truth) looks flattened against that FIR.
+    Its two sister passes measure FIR's noise on it (the three-cornered hat), the check no
+    longer holds against that, and the adaptive estimate stays; as a plain line (no repeat
+    track) the same pass would take the stationary estimate, several times farther from the
+    truth.  Control: the same track without the slow error and R1-3's estimate flattened to its
+    mean — the passes confirm FIR's anomaly, and the line is replaced."""
+    rng = np.random.default_rng(21)
+    table, noise = _repeat_table(rng, 3.0 * 9.0)
+    k = table["line"] == "R1-3"
+    assert np.std(table.loc[k, "dg_true_mgal"]) < 11.0
+    alone = table.copy()
+    alone["track"] = None
+    lines = check_lines(alone, noise, DT_S, ProcessingParams(), [])
+    assert lines["R1-3"]["estimate"] == "stationary" and lines["R1-3"]["flattening_ratio_bound"] < 0.5
+    assert (_rms(alone.loc[k, "dg_mgal"], alone.loc[k, "dg_true_mgal"])
+            > 4 * _rms(table.loc[k, "dg_unleveled_mgal"], table.loc[k, "dg_true_mgal"]))
+
+    before = table["dg_unleveled_mgal"].to_numpy().copy()
+    warnings: list = []
+    lines = check_lines(table, noise, DT_S, ProcessingParams(), warnings)
+    assert all(r["estimate"] == "adaptive" for r in lines.values())
+    veto = lines["R1-3"]["flattening_vetoed"]
+    slow_fir = np.std(table.loc[k, "dg_fir_mgal"] - table.loc[k, "dg_true_mgal"])
+    assert veto["fir_noise_std_repeats_mgal"] == pytest.approx(slow_fir, rel=0.35)
+    assert any("line R1-3" in w and "repeat passes" in w for w in warnings)
+    assert np.array_equal(table["dg_unleveled_mgal"].to_numpy(), before)
+
+    table, noise = _repeat_table(np.random.default_rng(22), 0.0)
+    k = table["line"] == "R1-3"
+    table.loc[k, "dg_unleveled_mgal"] = table.loc[k, "dg_true_mgal"].mean()
+    table.loc[k, "dg_stationary_mgal"] = table.loc[k, "dg_true_mgal"] + 1.0
+    lines = check_lines(table, noise, DT_S, ProcessingParams(), [])
+    assert lines["R1-3"]["estimate"] == "stationary" and "flattening_vetoed" not in lines["R1-3"]

@@ -30,7 +30,10 @@
    the anomaly: that line takes the stationary estimate, or FIR if that is flattened too or
    differs from FIR by more than FIR's own along-line std (step 3's disagreement test: on a
    line with a noise episode the stationary estimate, blind to the episode, had 66 mGal of
-   error against FIR's 27).  Where FIR shows no anomaly beyond its noise the check cannot run;
+   error against FIR's 27).  On a pass of a repeat track the sister passes measure FIR's
+   noise without a model (:func:`repeat_fir_noise_mgal2`); where that is significantly above
+   the model's and the check fails against it, the verdict read noise as anomaly and the
+   adaptive estimate stays (:func:`_repeats_veto`).  Where FIR shows no anomaly beyond its noise the check cannot run;
    a line whose estimate also varies by less than its own posterior std is reported as not
    resolving the anomaly (``resolved``), and when that holds for at least half of the lines a
    warning says so — the estimate is then close to a smooth trend, right or flattened.  Such
@@ -74,7 +77,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from scipy import stats
 
+from app.core.accuracy import REPEAT_MAX_SPREAD_KM, across_track_spread_km, repeat_line_accuracy
 from app.core.leveling import find_crossovers
 from app.core.model_check import (
     crossover_blend_weight,
@@ -85,6 +90,7 @@ from app.core.model_check import (
     fir_noise_variance_mgal2,
     fir_smoothing_variance_mgal2,
     flattening_ratio,
+    repeat_noise_variance_mgal2,
     significantly_worse,
     smooth_error_bound_mgal2,
 )
@@ -194,10 +200,38 @@ def _use(table: pd.DataFrame, rows, values, std) -> None:
         table.loc[rows, STD_FLOOR] = np.nan
 
 
+def repeat_fir_noise_mgal2(table: pd.DataFrame) -> dict[str, float]:
+    """FIR's noise variance (mGal²) on every pass of a repeat track, measured by the passes
+    (:func:`app.core.model_check.repeat_noise_variance_mgal2` on FIR 100 s at common positions
+    every 0.1 km): {line: mGal²}.  Tracks with one pass, passes more than
+    ``REPEAT_MAX_SPREAD_KM`` apart or no common stretch are left out."""
+    out: dict[str, float] = {}
+    if "track" not in table or "kind" not in table:
+        return out
+    rep = table[(table["kind"] == "repeat") & table["track"].notna()]
+    for _, g in rep.groupby("track", sort=False):
+        passes = [(str(line), gg) for line, gg in g.groupby("line", sort=False)]
+        if len(passes) < 2:
+            continue
+        e = [gg["easting_km"].to_numpy() for _, gg in passes]
+        n = [gg["northing_km"].to_numpy() for _, gg in passes]
+        if across_track_spread_km(e, n) > REPEAT_MAX_SPREAD_KM:
+            continue
+        try:
+            acc = repeat_line_accuracy(e, n, [gg["dg_fir_mgal"].to_numpy() for _, gg in passes])
+        except ValueError:   # no common stretch where every pass has FIR
+            continue
+        for (line, _), v in zip(passes, repeat_noise_variance_mgal2(acc.values_mgal)):
+            if np.isfinite(v):
+                out[line] = float(v)
+    return out
+
+
 def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dict:
     """Step 2 (in place): flattened lines take the stationary or the FIR estimate."""
     out = {}
     bandwidth_hz = fir_noise_bandwidth_hz(noise, dt_s, p.fir_cutoff_period_s)
+    repeat_noise = repeat_fir_noise_mgal2(table)
     for line, g in table.groupby("line", sort=False):
         level = float(np.nanmean(g["R_cm2s2"]))
         fir_var = fir_noise_variance_mgal2(noise, level, dt_s, p.fir_cutoff_period_s)
@@ -214,7 +248,8 @@ def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> d
                "resolved": bool(fl.detectable or est_std >= post_std)}
         if not rec["resolved"] and p.std_unresolved_bound:
             _bound_std(table, g, rec)
-        if fl.detectable and fl.ratio_bound < p.flatten_min_ratio:
+        if (fl.detectable and fl.ratio_bound < p.flatten_min_ratio
+                and not _repeats_veto(g, fir_var, repeat_noise.get(str(line)), nu, p, rec, warnings)):
             st = flattening_ratio(g["dg_stationary_mgal"], g["dg_fir_mgal"], fir_var, independent_samples=nu)
             # the stationary estimate must not be flattened either, nor pass noise: an error
             # beyond the anomaly's own spread (a noise episode the stationary level ignores)
@@ -239,6 +274,35 @@ def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> d
         _bound_flattened_survey(table, out, p.flatten_min_ratio, warnings)
     _warn_unresolved(out, warnings)
     return out
+
+
+def _repeats_veto(g: pd.DataFrame, fir_var: float, measured: float | None, nu: float, p, rec: dict,
+                  warnings: list) -> bool:
+    """Whether a repeat pass's sister passes overturn its flattening verdict (in place: ``rec``
+    and ``warnings`` say so).
+
+    The verdict reads FIR's variance beyond the noise model's as anomaly.  Where the passes
+    measure FIR's noise on this pass (:func:`repeat_fir_noise_mgal2`) significantly above the
+    model's (one-sided 95 % over its ν samples: by chance alone the measure is up to twice the
+    model's on a short pass) and the check no longer holds against that noise, the "anomaly"
+    was noise the model's level misses — a noise episode of slowly varying GNSS error — and
+    the adaptive estimate stays.  Generated survey 116: a pass in a ×9 noise episode, whose
+    sound estimate (11.9 mGal from the truth) was swapped for the stationary one (69)."""
+    if measured is None or not np.isfinite(measured):
+        return False
+    nu_eff = max(float(nu), 2.0) if np.isfinite(nu) else 2.0
+    if not measured > fir_var * stats.chi2.ppf(0.95, nu_eff) / nu_eff:
+        return False
+    fl = flattening_ratio(g["dg_unleveled_mgal"], g["dg_fir_mgal"], measured, independent_samples=nu)
+    if fl.detectable and fl.ratio_bound < p.flatten_min_ratio:
+        return False
+    rec["flattening_vetoed"] = {"fir_noise_std_repeats_mgal": float(np.sqrt(measured)),
+                                "flattening_ratio_bound": fl.ratio_bound, "detectable": fl.detectable}
+    warnings.append(f"line {g['line'].iloc[0]}: the adaptive estimate looked flattened against FIR, but its repeat "
+                    f"passes measure FIR's noise on it at {np.sqrt(measured):.1f} mGal (the noise model: "
+                    f"{np.sqrt(fir_var):.1f}): what FIR shows beyond the model's noise is noise, the adaptive "
+                    "estimate kept")
+    return True
 
 
 def _bound_flattened_survey(table: pd.DataFrame, lines: dict, min_ratio: float, warnings: list) -> None:
