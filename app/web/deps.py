@@ -35,10 +35,15 @@ def get_cache(request: Request) -> ResultCache:
     return request.app.state.cache
 
 
+#: the OpenAPI description of :func:`store_has_room`'s refusal
+STORE_FULL = {507: {"description": "the server's store is full: the detail says how much it holds and its limit"}}
+
+
 def store_has_room(store: Store = Depends(get_store), settings: Settings = Depends(get_settings)) -> None:
-    """Refuse a request that would store more (a new survey, an upload) while the store holds its
-    limit already (:class:`~app.web.store.StoreFull`, HTTP 507), before anything is extracted or
-    validated; what an upload adds is checked once it is staged (:meth:`Store.reserve`)."""
+    """Refuse a request that would store more (a new survey, an upload, a job's results) while the
+    store holds its limit already (:class:`~app.web.store.StoreFull`, HTTP 507), before anything is
+    extracted, validated or queued; what an upload adds is checked once it is staged
+    (:meth:`Store.reserve`)."""
     store.check_room(settings.max_store_bytes)
 
 

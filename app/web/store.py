@@ -17,8 +17,8 @@ current input, the inputs of active jobs, and the current and previous results w
 inputs); :meth:`Store.clean_start` removes what a stopped server left half-written.
 
 The whole store is bounded too (``AEROGRAV_MAX_STORE_MB``): :meth:`Store.reserve` admits a staged
-snapshot only when the bytes it adds fit, :meth:`Store.check_room` refuses new surveys and uploads
-while the store is at its limit (:class:`StoreFull`, HTTP 507).  The count is the data directory
+snapshot only when the bytes it adds fit, :meth:`Store.check_room` refuses new surveys, uploads and
+jobs while the store is at its limit (:class:`StoreFull`, HTTP 507).  The count is the data directory
 walked (each file once) at most every ``USAGE_TTL_S`` seconds, kept current in between: admitted
 snapshots are added, removed folders (:meth:`Store.remove_tree`) subtracted, and a finished job
 makes the next check walk again (its results).

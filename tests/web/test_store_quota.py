@@ -218,3 +218,18 @@ def test_job_results_counted_when_the_job_ends(client, tiny_zip, no_rewalk):
     while _used(client) < used + results:
         assert time.monotonic() < t_end, (used, results, _used(client))
         time.sleep(0.05)
+
+
+def test_full_store_queues_no_job(client, tiny_zip):
+    """A job writes results: at its limit the store queues none (507 naming the limit, no job
+    recorded, the survey's result unchanged); with room again the same job runs."""
+    sid = import_zip(client, tiny_zip).json()["id"]
+    _limit(client, _used(client))
+    r = client.post(f"/api/surveys/{sid}/jobs", json={"kind": "process", "params": {}})
+    assert r.status_code == 507 and "AEROGRAV_MAX_STORE_MB" in r.json()["detail"], r.text[:300]
+    assert client.get(f"/api/surveys/{sid}/jobs").json() == []
+    assert client.get(f"/api/surveys/{sid}").json()["result_job_id"] is None
+    _limit(client, _used(client) + 2**30)
+    r = client.post(f"/api/surveys/{sid}/jobs", json={"kind": "process", "params": {}})
+    assert r.status_code == 201, r.text[:300]
+    assert wait_job(client, r.json()["id"])["status"] == "succeeded"

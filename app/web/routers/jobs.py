@@ -13,7 +13,7 @@ from sqlalchemy.orm import Session
 from app.config import ProcessingParams
 
 from ..db import ACTIVE_STATES, Job, Survey
-from ..deps import JobId, get_db, get_jobs, get_store, get_survey_or_404
+from ..deps import STORE_FULL, JobId, get_db, get_jobs, get_store, get_survey_or_404, store_has_room
 from ..errors import validation_detail
 from ..jobs import JobManager
 from ..schemas import JobCreate, JobOut
@@ -55,10 +55,12 @@ def _wrong_json_types(params: dict) -> list[dict]:
     return errors
 
 
-@router.post("/api/surveys/{survey_id}/jobs", response_model=JobOut, status_code=201)
+@router.post("/api/surveys/{survey_id}/jobs", response_model=JobOut, status_code=201,
+             dependencies=[Depends(store_has_room)], responses=STORE_FULL)
 def create_job(body: JobCreate, s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
                store: Store = Depends(get_store), jobs: JobManager = Depends(get_jobs)) -> JobOut:
-    """Queue a job.  ``params`` are ProcessingParams overrides (422 when invalid)."""
+    """Queue a job.  ``params`` are ProcessingParams overrides (422 when invalid); 507 while the store
+    is at its limit (the job's results would go above it)."""
     try:
         wrong = _wrong_json_types(body.params)
         if wrong:

@@ -11,7 +11,16 @@ from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
 from ..db import Job, Line, Result, Survey
-from ..deps import get_cache, get_db, get_settings, get_store, get_survey_or_404, get_survey_reader, store_has_room
+from ..deps import (
+    STORE_FULL,
+    get_cache,
+    get_db,
+    get_settings,
+    get_store,
+    get_survey_or_404,
+    get_survey_reader,
+    store_has_room,
+)
 from ..schemas import (
     FlightOut,
     JobOut,
@@ -68,7 +77,6 @@ def survey_out(db: Session, s: Survey) -> SurveyOut:
 
 
 #: the answer when the store is at its limit (AEROGRAV_MAX_STORE_MB)
-STORE_FULL = {507: {"description": "the server's store is full: the detail says how much it holds and its limit"}}
 
 
 @router.post("", response_model=SurveyOut, status_code=201, dependencies=[Depends(store_has_room)],
