@@ -433,6 +433,54 @@ def cross_validated_leveling(crossovers: pd.DataFrame, line_time_ranges: dict, d
             "p_value": 1.0 if not np.isfinite(p) else p, "n_folds": n_folds}
 
 
+def drift_free_differences(crossovers: pd.DataFrame, diffs_mgal, line_time_ranges: dict, degree: int = 1,
+                           groups: dict | None = None) -> np.ndarray:
+    """Crossover differences with all that a drift of the leveling model explains removed.
+
+    The least-squares residuals of :func:`level_lines`'s model — one polynomial of ``degree``
+    in time per line, or per group of lines (``groups``: a flight) — fitted without weights to
+    each column of ``diffs_mgal`` over the crossovers where every column is finite.  Two
+    estimates of the same lines share the lines' drift and offsets exactly, so their drift-free
+    differences compare what the estimates themselves get wrong: a flight offset of several
+    mGal against estimate errors of one, left in, decides any comparison of the two at a few
+    crossovers by chance.
+
+    Parameters
+    ----------
+    crossovers : DataFrame
+        :func:`find_crossovers`' table (``line_a``, ``line_b``, ``time_a``, ``time_b``).
+    diffs_mgal : array_like, shape (n,) or (n, k)
+        Differences at the table's rows (mGal), one column per estimate.
+    line_time_ranges, degree, groups
+        As for :func:`level_lines`.
+
+    Returns
+    -------
+    ndarray
+        The residuals, the shape of ``diffs_mgal``; NaN on rows where a column is not finite.
+    """
+    d = np.asarray(diffs_mgal, dtype=float)
+    one = d.ndim == 1
+    d2 = d[:, None] if one else d
+    if d2.ndim != 2 or d2.shape[0] != len(crossovers):
+        raise ValueError(f"diffs_mgal has shape {d.shape} for {len(crossovers)} crossovers")
+    ta = crossovers["time_a"].to_numpy(float)
+    tb = crossovers["time_b"].to_numpy(float)
+    keep = np.all(np.isfinite(d2), axis=1) & np.isfinite(ta) & np.isfinite(tb)
+    out = np.full(d2.shape, np.nan)
+    if keep.sum() < 2:
+        return out[:, 0] if one else out
+    la = crossovers["line_a"].astype(str).to_numpy()[keep]
+    lb = crossovers["line_b"].astype(str).to_numpy()[keep]
+    obs = _Observations(la, lb, ta[keep], tb[keep], d2[keep, 0], np.ones(int(keep.sum())), keep, d2[:, 0])
+    units = _drift_units(line_time_ranges, obs, groups)
+    involved = sorted(set(units.unit_a) | set(units.unit_b))
+    A = _design_matrix(units, obs, _column_layout(units, involved, degree, None))   # min-norm: the common constant
+    y = d2[keep]
+    out[keep] = y - A @ np.linalg.lstsq(A, y, rcond=None)[0]
+    return out[:, 0] if one else out
+
+
 def _rms(x):
     x = np.asarray(x, dtype=float)
     x = x[np.isfinite(x)]

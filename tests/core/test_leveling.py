@@ -395,3 +395,44 @@ def test_common_level_std_needs_two_connected_flights():
     assert res.spread_mgal == pytest.approx(np.sqrt(8.0)) and res.std_mgal == pytest.approx(2.0)
     with pytest.raises(ValueError, match="1-D of one length"):
         common_level_std(["F1"], ["F2", "F3"], [1.0])
+
+
+def test_drift_free_differences_are_the_residuals_of_the_drift_model():
+    """Two flights with a linear drift each, crossover differences = the drift's difference
+    plus noise: the drift-free differences equal the residuals of a least-squares fit of a
+    design matrix built here by hand (offset and slope in each flight's normalised time), and
+    the drift alone leaves nothing; two columns are treated alike."""
+    from app.core.leveling import drift_free_differences
+
+    lines, _, ranges = _survey(drift_deg=0, noise=0.0, seed=11)
+    flight = {k: ("F1" if k in ("M0", "M1", "M2", "M3", "T0", "T1") else "F2") for k in lines}
+    span = {}
+    for k, f in flight.items():
+        t0, t1 = ranges[k]
+        span[f] = (min(t0, span.get(f, (t0, t1))[0]), max(t1, span.get(f, (t0, t1))[1]))
+    x = find_crossovers(lines)
+
+    def design_row(line, t):
+        f = flight[line]
+        tau = 2 * (t - span[f][0]) / (span[f][1] - span[f][0]) - 1
+        row = np.zeros(4)
+        row[0 if f == "F1" else 2] = 1.0
+        row[1 if f == "F1" else 3] = tau
+        return row
+
+    A = np.array([design_row(a, ta) - design_row(b, tb)
+                  for a, b, ta, tb in zip(x["line_a"], x["line_b"], x["time_a"], x["time_b"])])
+    rng = np.random.default_rng(3)
+    drift = A @ np.array([5.0, -3.0, -2.0, 4.0])
+    noise = rng.normal(0.0, 1.0, (len(x), 2))
+    d = drift[:, None] + noise
+    got = drift_free_differences(x, d, ranges, degree=1, groups=flight)
+    expected = noise - A @ np.linalg.lstsq(A, noise, rcond=None)[0]
+    np.testing.assert_allclose(got, expected, atol=1e-9)
+    np.testing.assert_allclose(drift_free_differences(x, drift, ranges, 1, flight), 0.0, atol=1e-9)
+    # a NaN row stays NaN and leaves the fit
+    d[0, 1] = np.nan
+    got = drift_free_differences(x, d, ranges, 1, flight)
+    assert np.isnan(got[0]).all() and np.isfinite(got[1:]).all()
+    with pytest.raises(ValueError, match="shape"):
+        drift_free_differences(x, d[:-1], ranges, 1, flight)

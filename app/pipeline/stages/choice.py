@@ -15,7 +15,10 @@
    Without enough crossovers the SPEC default m = 2 is used.  Where m = 1 is not
    significantly better, the estimate is the blend ``w·(m = 1) + (1 − w)·(m = 2)`` whose
    crossover differences have the least mean square (``order_blend``;
-   :func:`app.core.model_check.crossover_blend_weight`): read as above, the combination of
+   :func:`app.core.model_check.crossover_blend_weight`), on the differences less what a drift
+   of the leveling model explains (:func:`app.core.leveling.drift_free_differences`: both
+   orders carry the same flight offsets and drift, several mGal against their own errors of
+   one, and left in they set the weight by chance): read as above, the combination of
    the two orders with the least unshared error — it takes what each order gets right (m = 1
    the sharp anomalies m = 2's smoother prior rounds off, m = 2 the noise m = 1 lets through)
    where the crossovers see it, and is m = 2 alone (w = 0) where they see no gain.  The
@@ -80,7 +83,7 @@ import pandas as pd
 from scipy import stats
 
 from app.core.accuracy import REPEAT_MAX_SPREAD_KM, across_track_spread_km, repeat_line_accuracy
-from app.core.leveling import find_crossovers
+from app.core.leveling import drift_free_differences, find_crossovers
 from app.core.model_check import (
     crossover_blend_weight,
     crossover_comparison,
@@ -128,15 +131,38 @@ class ModelChoice:
     report: dict
 
 
+def _crossover_table(table: pd.DataFrame, col: str, include_repeat: bool) -> pd.DataFrame:
+    """The crossovers of the table's lines carrying ``col`` (empty when there are none)."""
+    try:
+        return find_crossovers(tracks(table, col), include_repeat=include_repeat)
+    except ValueError:
+        return pd.DataFrame()
+
+
 def crossover_differences(table: pd.DataFrame, col: str, include_repeat: bool) -> np.ndarray:
     """Differences of ``col`` at the crossovers of the table's lines (line_a − line_b)."""
-    try:
-        cx = find_crossovers(tracks(table, col), include_repeat=include_repeat)
-    except ValueError:
-        return np.zeros(0)
+    cx = _crossover_table(table, col, include_repeat)
     if len(cx) == 0:
         return np.zeros(0)
     return (cx["dg_a"] - cx["dg_b"]).to_numpy(float)
+
+
+def _drift_free(table: pd.DataFrame, diffs: list[np.ndarray], p) -> list[np.ndarray] | None:
+    """``diffs`` (each order's differences at the crossovers of ``table``'s lines, in the same
+    order) with what a drift of the leveling model explains removed
+    (:func:`app.core.leveling.drift_free_differences`: ``leveling_degree``, one polynomial per
+    flight with ``leveling_per_flight``); None when that cannot be done."""
+    cx = _crossover_table(table, "dg_unleveled_mgal", p.leveling_include_repeat)
+    if len(cx) == 0 or any(d.size != len(cx) for d in diffs):
+        return None
+    ranges = {str(ln): (float(g["time"].min()), float(g["time"].max())) for ln, g in table.groupby("line", sort=False)}
+    groups = ({str(ln): str(g["flight"].iloc[0]) for ln, g in table.groupby("line", sort=False)}
+              if p.leveling_per_flight and "flight" in table else None)
+    try:
+        out = drift_free_differences(cx, np.column_stack(diffs), ranges, p.leveling_degree, groups)
+    except ValueError:
+        return None
+    return [out[:, k] for k in range(out.shape[1])]
 
 
 def count_crossovers(lines: list, include_repeat: bool) -> int:
@@ -175,12 +201,18 @@ def choose_order(candidates: dict, p) -> tuple[int, dict]:
            f"p_m{hi}_worse_than_m{lo}": cmp.p_value, f"p_rank_m{hi}_worse_than_m{lo}": cmp.p_rank, "m": best}
     if best == hi and p.order_blend:
         # neither order shown better: the blend the crossovers find least in error (module docstring)
-        w = crossover_blend_weight(diffs[lo], diffs[hi])
+        # on the crossover differences less what the leveling's drift explains: the orders
+        # share the lines' drift and offsets exactly, and left in (several mGal against
+        # estimate errors of one) they decide the weight by chance (generated survey 185:
+        # w = 1 and 1.31x FIR; drift removed w = 0.23)
+        free = _drift_free(candidates[hi].filtered.table, [diffs[lo], diffs[hi]], p)
+        da, db = free if free is not None else (diffs[lo], diffs[hi])
+        w = crossover_blend_weight(da, db)
         if np.isfinite(w) and w > 0.0:
             rep["blend"] = {"m": lo, "weight": w, "crossover_rms_mgal": crossover_rms_mgal(
-                w * diffs[lo] + (1.0 - w) * diffs[hi])}
+                w * diffs[lo] + (1.0 - w) * diffs[hi]), "drift_removed": free is not None}
         rep["criterion"] += (f"; else the blend w·(m = {lo}) + (1 − w)·(m = {hi}) with the least crossover mean "
-                             "square (w = 0: m = 2 alone)")
+                             "square once what the leveling's drift explains is removed (w = 0: m = 2 alone)")
     return best, rep
 
 
