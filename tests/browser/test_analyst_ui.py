@@ -111,7 +111,8 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     assert "adaptive (final) estimate is the least repeatable (3.73 mGal)" in summary
     # why FIR: the guard's evidence, both tests
     assert ("Model choice: FIR (anomaly order m = 2, blended with m = 1 at weight 0.296 — the least crossover mean "
-            "square (RMS 4.53 mGal against 4.58 for m = 2 and 4.8 for m = 1 alone)) — the adaptive estimate disagrees "
+            "square once the flights' drift is removed (RMS 4.53 mGal against 4.58 for m = 2 and 4.8 for m = 1 alone)) "
+            "— the adaptive estimate disagrees "
             "more at the 30 crossovers "
             "than FIR 100 s (RMS 48.5 against 21.9 mGal; t-test p = 0.104, signed ranks p = 0.002)") in summary
     assert page.locator("#report-warnings li").count() == 2

@@ -119,7 +119,8 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                          # unseen 1301's order choice: m = 1 not significantly better, the blend
                          "order": {"crossover_rms_mgal": {"1": 4.80, "2": 4.58}, "n_crossovers": 30,
                                    "p_m2_worse_than_m1": 0.677, "m": 2,
-                                   "blend": {"m": 1, "weight": 0.2956, "crossover_rms_mgal": 4.534}},
+                                   "blend": {"m": 1, "weight": 0.2956, "crossover_rms_mgal": 4.534,
+                                             "drift_removed": True}},
                          "fir_guard": {"n_crossovers": 30, "crossover_rms_mgal": 48.5, "crossover_rms_fir_mgal": 21.9,
                                        "p_value": 0.104, "p_rank": 0.002, "applied": True}},
         "future_section": {"note": "<b>not markup</b>", "value": 1},

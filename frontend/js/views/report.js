@@ -81,6 +81,7 @@ export function summary(r) {
         let order = `anomaly order m = ${mc.m}`;
         if (b) {
           order += `, blended with m = ${b.m} at weight ${fmt(b.weight, 3)} — the least crossover mean square ` +
+            (b.drift_removed ? "once the flights' drift is removed " : "") +
             `(RMS ${fmt(b.crossover_rms_mgal, 2)} mGal against ${fmt(xr[String(mc.m)], 2)} for m = ${mc.m} and ` +
             `${fmt(xr[String(b.m)], 2)} for m = ${b.m} alone)`;
         }
