@@ -220,14 +220,21 @@ def test_leveling_errors():
         LineTrack([0, 1], [0, 1], [1, 0], [0, 0], [0, 0])
 
 
-def test_per_flight_drift_with_groups():
-    """Seed 001's alternative: one drift polynomial per flight, shared by its lines."""
-    lines, truth, ranges = _survey(drift_deg=0, noise=0.0, seed=11)
+def _two_flights(lines, ranges):
+    """The survey's lines split into flights F1 (M0–M3, T0, T1) and F2 (the rest), and each
+    flight's time span (s)."""
     flight = {k: ("F1" if k in ("M0", "M1", "M2", "M3", "T0", "T1") else "F2") for k in lines}
     span = {}
     for k, f in flight.items():
         t0, t1 = ranges[k]
         span[f] = (min(t0, span.get(f, (t0, t1))[0]), max(t1, span.get(f, (t0, t1))[1]))
+    return flight, span
+
+
+def test_per_flight_drift_with_groups():
+    """Seed 001's alternative: one drift polynomial per flight, shared by its lines."""
+    lines, truth, ranges = _survey(drift_deg=0, noise=0.0, seed=11)
+    flight, span = _two_flights(lines, ranges)
     coef = {"F1": (2.0, -4.0), "F2": (-1.0, 3.0)}            # mGal, mGal per half span
     new_truth = {}
     for k, tr in lines.items():
@@ -405,11 +412,7 @@ def test_drift_free_differences_are_the_residuals_of_the_drift_model():
     from app.core.leveling import drift_free_differences
 
     lines, _, ranges = _survey(drift_deg=0, noise=0.0, seed=11)
-    flight = {k: ("F1" if k in ("M0", "M1", "M2", "M3", "T0", "T1") else "F2") for k in lines}
-    span = {}
-    for k, f in flight.items():
-        t0, t1 = ranges[k]
-        span[f] = (min(t0, span.get(f, (t0, t1))[0]), max(t1, span.get(f, (t0, t1))[1]))
+    flight, span = _two_flights(lines, ranges)
     x = find_crossovers(lines)
 
     def design_row(line, t):

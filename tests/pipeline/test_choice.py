@@ -281,6 +281,21 @@ def test_order_choice_is_not_blinded_by_one_wild_crossover():
     assert m == 1 and rep["m"] == 1
 
 
+def _grid_table() -> pd.DataFrame:
+    """Ten 40 km mains and ten ties crossing them (100 crossovers), the anomaly as truth; each
+    main and its tie flown as one flight (``flight`` F0–F9), 10 s between samples."""
+    step_km, rows, t0 = 0.05, [], 0.0
+    s_km = np.arange(0.0, 40.0 + step_km / 2, step_km)
+    for k in range(10):
+        for name, kind, e, n in ((f"M{k}", "main", s_km, np.full_like(s_km, 2.0 + 4.0 * k)),
+                                 (f"T{k}", "tie", np.full_like(s_km, 2.0 + 4.0 * k), s_km)):
+            rows.append(pd.DataFrame({"line": name, "kind": kind, "flight": f"F{k}",
+                                      "time": t0 + 10.0 * np.arange(s_km.size),
+                                      "easting_km": e, "northing_km": n, "dg_true_mgal": _anomaly(e, n)}))
+            t0 += 10.0 * s_km.size + 600.0
+    return pd.concat(rows, ignore_index=True)
+
+
 def test_orders_that_cannot_be_told_apart_are_blended_by_their_crossovers():
     """Ten 40 km mains and ten ties (100 crossovers); m = 1's and m = 2's estimates with smooth,
     independent errors of the same size (3 mGal, wavelengths 6–15 km): neither is
@@ -293,15 +308,7 @@ def test_orders_that_cannot_be_told_apart_are_blended_by_their_crossovers():
     from app.pipeline.stages.filtering import Filtered
 
     rng = np.random.default_rng(21)
-    step_km, rows, t0 = 0.05, [], 0.0
-    s_km = np.arange(0.0, 40.0 + step_km / 2, step_km)
-    for k in range(10):
-        for name, kind, e, n in ((f"M{k}", "main", s_km, np.full_like(s_km, 2.0 + 4.0 * k)),
-                                 (f"T{k}", "tie", np.full_like(s_km, 2.0 + 4.0 * k), s_km)):
-            rows.append(pd.DataFrame({"line": name, "kind": kind, "time": t0 + 10.0 * np.arange(s_km.size),
-                                      "easting_km": e, "northing_km": n, "dg_true_mgal": _anomaly(e, n)}))
-            t0 += 10.0 * s_km.size + 600.0
-    table = pd.concat(rows, ignore_index=True)
+    table = _grid_table()
 
     def smooth_error():
         err = np.zeros(len(table))
@@ -614,16 +621,7 @@ def test_blend_weight_is_not_decided_by_the_flights_offsets():
     from app.pipeline.stages.choice import choose_order
 
     rng = np.random.default_rng(5)
-    step_km, rows, t0 = 0.05, [], 0.0
-    s_km = np.arange(0.0, 40.0 + step_km / 2, step_km)
-    for k in range(10):
-        for name, kind, e, n in ((f"M{k}", "main", s_km, np.full_like(s_km, 2.0 + 4.0 * k)),
-                                 (f"T{k}", "tie", np.full_like(s_km, 2.0 + 4.0 * k), s_km)):
-            rows.append(pd.DataFrame({"line": name, "kind": kind, "flight": f"F{k}",
-                                      "time": t0 + 10.0 * np.arange(s_km.size),
-                                      "easting_km": e, "northing_km": n, "dg_true_mgal": _anomaly(e, n)}))
-            t0 += 10.0 * s_km.size + 600.0
-    table = pd.concat(rows, ignore_index=True)
+    table = _grid_table()
 
     def smooth_error(size):
         err = np.zeros(len(table))

@@ -147,12 +147,11 @@ def crossover_differences(table: pd.DataFrame, col: str, include_repeat: bool) -
     return (cx["dg_a"] - cx["dg_b"]).to_numpy(float)
 
 
-def _drift_free(table: pd.DataFrame, diffs: list[np.ndarray], p) -> list[np.ndarray] | None:
-    """``diffs`` (each order's differences at the crossovers of ``table``'s lines, in the same
-    order) with what a drift of the leveling model explains removed
+def _drift_free(table: pd.DataFrame, cx: pd.DataFrame, diffs: list[np.ndarray], p) -> list[np.ndarray] | None:
+    """``diffs`` (each order's differences at the crossovers ``cx`` of ``table``'s lines, in
+    the same order) with what a drift of the leveling model explains removed
     (:func:`app.core.leveling.drift_free_differences`: ``leveling_degree``, one polynomial per
     flight with ``leveling_per_flight``); None when that cannot be done."""
-    cx = _crossover_table(table, "dg_unleveled_mgal", p.leveling_include_repeat)
     if len(cx) == 0 or any(d.size != len(cx) for d in diffs):
         return None
     ranges = {str(ln): (float(g["time"].min()), float(g["time"].max())) for ln, g in table.groupby("line", sort=False)}
@@ -178,8 +177,9 @@ def choose_order(candidates: dict, p) -> tuple[int, dict]:
     if len(orders) == 1:
         return orders[0], {"criterion": f"default: fewer than {p.choice_min_crossovers} crossovers to tell the "
                                         "orders apart", "m": orders[0]}
-    diffs = {m: crossover_differences(candidates[m].filtered.table, "dg_unleveled_mgal",
-                                      p.leveling_include_repeat) for m in orders}
+    tables = {m: _crossover_table(candidates[m].filtered.table, "dg_unleveled_mgal", p.leveling_include_repeat)
+              for m in orders}
+    diffs = {m: (cx["dg_a"] - cx["dg_b"]).to_numpy(float) if len(cx) else np.zeros(0) for m, cx in tables.items()}
     if min(d.size for d in diffs.values()) < p.choice_min_crossovers:
         n = min(d.size for d in diffs.values())
         return 2, {"criterion": f"default: {n} crossovers (< {p.choice_min_crossovers}) cannot tell the orders apart",
@@ -205,7 +205,7 @@ def choose_order(candidates: dict, p) -> tuple[int, dict]:
         # share the lines' drift and offsets exactly, and left in (several mGal against
         # estimate errors of one) they decide the weight by chance (generated survey 185:
         # w = 1 and 1.31x FIR; drift removed w = 0.23)
-        free = _drift_free(candidates[hi].filtered.table, [diffs[lo], diffs[hi]], p)
+        free = _drift_free(candidates[hi].filtered.table, tables[hi], [diffs[lo], diffs[hi]], p)
         da, db = free if free is not None else (diffs[lo], diffs[hi])
         w = crossover_blend_weight(da, db)
         if np.isfinite(w) and w > 0.0:
