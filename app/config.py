@@ -334,6 +334,18 @@ class ProcessingParams(_Strict):
                                "paired t-test on the squared crossover differences, or of the signed-rank test on "
                                "their magnitudes when the crossover RMS agrees; on the 13 regimes of "
                                "benchmarks/bench_regimes.py, all better than FIR, both p ≥ 0.19)")
+    repeat_blend: bool = Field(True, description="Where the crossovers are too few for the FIR guard (a test-line "
+                               "survey), blend FIR 100 s into the estimate with the weight whose repeat passes agree "
+                               "best with the other passes' light low-pass of z "
+                               "(app.core.model_check.repeat_blend_weight); the report's model_choice.repeat_blend")
+    repeat_blend_reference_period_s: float = Field(50.0, gt=0, le=100, description="The repeat blend's reference: "
+                                                   "FIR of z at this period (s), half FIR's, so that it rounds off "
+                                                   "little of the anomaly; its noise, independent between passes, "
+                                                   "only adds scatter")
+    repeat_blend_reference_periods: float = Field(6.0, ge=1, le=20, description="Length of the reference's kernel "
+                                                  "in periods: sharp (the default FIR's 2 periods let its transition "
+                                                  "band round off what it should keep)")
+    repeat_blend_min_passes: int = Field(3, ge=2, le=1000, description="Passes of one track the repeat blend needs")
     # --- regularization (SPEC §2 step 1)
     decimation_n: int | None = Field(None, ge=2, le=MAX_DECIMATION_N, description="Decimation factor n; chosen for ~1 km steps when None")
     decimation_step_km: float = Field(1.0, gt=0, le=50)

@@ -25,6 +25,11 @@ why (``app.pipeline`` model choice).
   crossover differences have the least mean square: by the same reading of the
   crossovers, the blend with the least error two crossing lines do not share;
   :func:`blend_estimates` — that blend and its std.
+* :func:`leave_one_out_msd_mgal2` — on a repeat track, each pass of an estimate against the
+  other passes' mean of a lightly smoothed reference: the passes share the anomaly and not
+  the noise, so the difference of two estimates' figures is the difference of their mean
+  square errors (the test-line survey's counterpart of the crossovers);
+  :func:`repeat_blend_weight` — the blend of two estimates with the least such figure.
 """
 
 from __future__ import annotations
@@ -412,6 +417,88 @@ def repeat_noise_variance_mgal2(values_mgal, min_points: int = 10) -> np.ndarray
     design[np.arange(d.size), j] = 1.0
     design[np.arange(d.size), i] = 1.0
     return np.linalg.lstsq(design, d, rcond=None)[0]
+
+
+def leave_one_out_msd_mgal2(values_mgal, reference_mgal) -> np.ndarray:
+    """Each pass's mean square difference (mGal²) from the other passes' mean reference.
+
+    At common along-track positions pass j of an estimate holds ``v_j = g + e_j`` (the anomaly
+    g, its error e_j) and the reference ``r_k = g + b + ν_k`` (b its smoothing error, shared;
+    ν_k its noise, independent between passes flown at different times).  Against the mean
+    ``r̄₋ⱼ`` of the other passes, ``E[(v_j − r̄₋ⱼ)²] = E[e_j²] − 2E[e_j b] + E[(b + ν̄₋ⱼ)²]``:
+    the last term is the same for every estimate compared on the same pass, so the difference
+    of two estimates' figures estimates the difference of their mean square errors against the
+    truth, up to ``2E[(e_a − e_b) b]`` — small when the reference is a light low-pass of the
+    measurement (b small) while its noise, however large, only adds scatter.  No noise model
+    and no anomaly model enter.  Each pass's values and reference are taken about their mean
+    (a pass's level is the leveling's business, as in the crossovers).
+
+    Parameters
+    ----------
+    values_mgal, reference_mgal : array_like, shape (K, n)
+        The estimate and the reference on K ≥ 2 passes at n common positions (mGal;
+        :func:`app.core.accuracy.repeat_line_accuracy` ``.values_mgal``).  Positions where any
+        value is not finite are left out.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        mGal²; NaN when fewer than 2 positions are complete.
+    """
+    v = np.asarray(values_mgal, dtype=float)
+    r = np.asarray(reference_mgal, dtype=float)
+    if v.ndim != 2 or v.shape != r.shape or v.shape[0] < 2:
+        raise ValueError(f"values_mgal and reference_mgal must both be (K >= 2, n), got {v.shape} and {r.shape}")
+    ok = np.isfinite(v).all(axis=0) & np.isfinite(r).all(axis=0)
+    k = v.shape[0]
+    if ok.sum() < 2:
+        return np.full(k, np.nan)
+    v = v[:, ok] - v[:, ok].mean(axis=1, keepdims=True)
+    r = r[:, ok] - r[:, ok].mean(axis=1, keepdims=True)
+    others = (r.sum(axis=0, keepdims=True) - r) / (k - 1)
+    return np.mean((v - others) ** 2, axis=1)
+
+
+def repeat_blend_weight(a_mgal, b_mgal, reference_mgal) -> float:
+    """The weight w of the blend ``(1 − w)·a + w·b`` of two estimates on repeat tracks whose
+    :func:`leave_one_out_msd_mgal2` summed over the passes is least, clipped to [0, 1].
+
+    The figure is quadratic in w with its minimum at
+    ``w = Σ (a_j − r̄₋ⱼ)(a_j − b_j) / Σ (a_j − b_j)²`` (sums over tracks, passes and positions,
+    every pass and reference about its mean, r̄₋ⱼ over the other passes of the same track).
+    The reference's noise is independent of pass j's estimates, so in expectation the
+    numerator is ``E[e_a(e_a − e_b)]`` and the weight is the one that minimises the blend's
+    mean square error against the truth (two estimates with independent errors of variances
+    σ_a², σ_b²: ``σ_a²/(σ_a² + σ_b²)``), up to the reference's smoothing error as in
+    :func:`leave_one_out_msd_mgal2`.
+
+    Parameters
+    ----------
+    a_mgal, b_mgal, reference_mgal : array_like, shape (K, n), or lists of them (one per track)
+        The two estimates and the reference on K ≥ 2 passes at n common positions (mGal).
+        Positions where any value of a track is not finite are left out.
+
+    Returns
+    -------
+    float
+        w in [0, 1]; 0 when the two estimates do not differ (or no track has 2 complete positions).
+    """
+    tracks = (zip(a_mgal, b_mgal, reference_mgal) if isinstance(a_mgal, (list, tuple))
+              else [(a_mgal, b_mgal, reference_mgal)])
+    num = den = 0.0
+    for a, b, r in tracks:
+        a, b, r = (np.asarray(x, dtype=float) for x in (a, b, r))
+        if a.ndim != 2 or not (a.shape == b.shape == r.shape) or a.shape[0] < 2:
+            raise ValueError(f"a_mgal, b_mgal and reference_mgal must all be (K >= 2, n), got {a.shape}, "
+                             f"{b.shape}, {r.shape}")
+        ok = np.isfinite(a).all(axis=0) & np.isfinite(b).all(axis=0) & np.isfinite(r).all(axis=0)
+        if ok.sum() < 2:
+            continue
+        a, b, r = (x[:, ok] - x[:, ok].mean(axis=1, keepdims=True) for x in (a, b, r))
+        others = (r.sum(axis=0, keepdims=True) - r) / (a.shape[0] - 1)
+        num += float(np.sum((a - others) * (a - b)))
+        den += float(np.sum((a - b) ** 2))
+    return float(np.clip(num / den, 0.0, 1.0)) if den > 0 else 0.0
 
 
 def disagreement_ratio(estimate_mgal, fir_mgal) -> float:

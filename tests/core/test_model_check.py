@@ -408,3 +408,73 @@ def test_repeat_noise_variance_is_each_pass_own_and_blind_to_the_anomaly():
     assert np.isnan(repeat_noise_variance_mgal2((anomaly + noise)[:, :5])).all()
     with pytest.raises(ValueError):
         repeat_noise_variance_mgal2(anomaly[None, :])
+
+
+def test_leave_one_out_msd_by_hand():
+    """Three passes at two positions: each pass and reference about its mean, then the mean
+    square difference from the other two passes' mean reference, computed by hand."""
+    from app.core.model_check import leave_one_out_msd_mgal2
+
+    v = np.array([[1.0, 3.0], [0.0, 4.0], [2.0, 2.0]])
+    r = np.array([[0.0, 2.0], [5.0, 1.0], [1.0, 1.0]])
+    # about their means: v -> [-1, 1], [-2, 2], [0, 0]; r -> [-1, 1], [2, -2], [0, 0]
+    # other passes' mean of r: pass 0 -> [1, -1], pass 1 -> [-0.5, 0.5], pass 2 -> [0.5, -0.5]
+    expected = [((-1 - 1) ** 2 + (1 + 1) ** 2) / 2, ((-2 + 0.5) ** 2 + (2 - 0.5) ** 2) / 2,
+                ((0 - 0.5) ** 2 + (0 + 0.5) ** 2) / 2]
+    assert leave_one_out_msd_mgal2(v, r) == pytest.approx(expected)
+    # a position where any value is missing is left out everywhere
+    vn = np.column_stack([v, [np.nan, 7.0, 7.0]])
+    rn = np.column_stack([r, [9.0, 9.0, 9.0]])
+    assert leave_one_out_msd_mgal2(vn, rn) == pytest.approx(expected)
+    with pytest.raises(ValueError):
+        leave_one_out_msd_mgal2(v[:1], r[:1])
+    with pytest.raises(ValueError):
+        leave_one_out_msd_mgal2(v, r[:, :1])
+
+
+def test_leave_one_out_msd_differences_are_the_mean_square_error_differences():
+    """Four passes of a common anomaly (30 mGal std); a reference with white noise of 8 mGal on
+    each pass and no smoothing error; estimate a with 1 mGal of noise, estimate b with 2 mGal
+    and a shared error (a bias of 1.5 mGal std the passes repeat).  The difference of the two
+    estimates' figures is their difference in mean square error against the truth,
+    1 − (4 + 2.25) mGal², though the reference's noise alone is 64/3 mGal² in each figure."""
+    from app.core.model_check import leave_one_out_msd_mgal2
+
+    rng = np.random.default_rng(5)
+    k, n = 4, 50_000
+    g = 30.0 * np.sin(np.linspace(0, 40 * np.pi, n))
+    bias = 1.5 * np.sin(np.linspace(0, 97 * np.pi, n) + 0.3) * np.sqrt(2.0)
+    ref = g + rng.normal(0.0, 8.0, (k, n))
+    a = g + rng.normal(0.0, 1.0, (k, n))
+    b = g + bias + rng.normal(0.0, 2.0, (k, n))
+    d = leave_one_out_msd_mgal2(a, ref) - leave_one_out_msd_mgal2(b, ref)
+    true = np.mean((a - g) ** 2, axis=1) - np.mean((b - g - np.mean(b - g, axis=1, keepdims=True)) ** 2, axis=1)
+    assert np.mean(d) == pytest.approx(1.0 - 6.25, abs=0.3)
+    assert d == pytest.approx(true, abs=0.4)
+    assert leave_one_out_msd_mgal2(a, ref) == pytest.approx(1.0 + 64.0 / 3.0, rel=0.05)
+
+
+def test_repeat_blend_weight_is_the_least_error_blend_of_independent_estimates():
+    """Four passes; estimates a and b with independent errors of 2 and 1 mGal std (b's partly
+    shared by the passes: a smoothing error), a reference with 8 mGal of noise.  The weight of
+    b is the truth's least-error weight σ_a²/(σ_a² + σ_b²) = 0.8; swapped, 0.2; an estimate
+    against itself, 0; one that would extrapolate beyond b, clipped at 1."""
+    from app.core.model_check import repeat_blend_weight
+
+    rng = np.random.default_rng(8)
+    k, n = 4, 100_000
+    g = 25.0 * np.sin(np.linspace(0, 60 * np.pi, n))
+    ref = g + rng.normal(0.0, 8.0, (k, n))
+    a = g + rng.normal(0.0, 2.0, (k, n))
+    shared = 0.6 * np.sin(np.linspace(0, 173 * np.pi, n)) * np.sqrt(2.0)
+    b = g + shared + rng.normal(0.0, 0.8, (k, n))
+    assert repeat_blend_weight(a, b, ref) == pytest.approx(0.8, abs=0.02)
+    # two tracks: the sums over both
+    assert repeat_blend_weight([a[:, :n // 2], a[:2, n // 2:]], [b[:, :n // 2], b[:2, n // 2:]],
+                               [ref[:, :n // 2], ref[:2, n // 2:]]) == pytest.approx(0.8, abs=0.03)
+    assert repeat_blend_weight(b, a, ref) == pytest.approx(0.2, abs=0.02)
+    assert repeat_blend_weight(a, a, ref) == 0.0
+    # b's error half of a's, the same error: the least-error blend would extrapolate (w = 2)
+    assert repeat_blend_weight(a, g + 0.5 * (a - g), ref) == 1.0
+    with pytest.raises(ValueError):
+        repeat_blend_weight(a[:1], b[:1], ref[:1])

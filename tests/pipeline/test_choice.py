@@ -648,3 +648,91 @@ def test_blend_weight_is_not_decided_by_the_flights_offsets():
     w = weights[1.0]
     blend = w * errs[1] + (1 - w) * errs[2]
     assert _rms(blend, 0) < 0.9 * min(_rms(errs[1], 0), _rms(errs[2], 0))
+
+
+def _test_line_table(rng, estimate, passes: int = 4, std_mgal: float = 1.0) -> pd.DataFrame:
+    """A test-line survey: ``passes`` passes of one 40 km track (alternate directions, 20 min
+    apart, each with its own level offset); z = anomaly + the GNSS noise of R_CM2S2, FIR 100 s
+    of z, and the 'adaptive' column ``estimate(anomaly, rng)`` with a std of ``std_mgal``."""
+    rows, t0 = [], 0.0
+    for k in range(passes):
+        n_ep = int(40.0 / SPEED_KMS / DT_S)
+        run_in = int(200.0 / DT_S)
+        s = np.arange(-run_in, n_ep + run_in) / (n_ep - 1)
+        e = 40.0 * (s if k % 2 == 0 else 1.0 - s)
+        n = np.full(s.size, 20.0)
+        g = _anomaly(e, n)
+        v = rng.normal(0.0, np.sqrt(R_CM2S2), s.size + 1) * 1e3
+        z = g + np.diff(v) / DT_S + rng.normal(0.0, 3.0)
+        fir = fir_lowpass_mgal(z, DT_S, 100.0)[run_in:-run_in]
+        est = estimate(g, rng)[run_in:-run_in] + rng.normal(0.0, 3.0)
+        e, n, g, z = e[run_in:-run_in], n[run_in:-run_in], g[run_in:-run_in], z[run_in:-run_in]
+        rows.append(pd.DataFrame({
+            "line": f"R1-{k + 1}", "kind": "repeat", "track": "R1", "time": t0 + np.arange(n_ep) * DT_S,
+            "easting_km": e, "northing_km": n, "z_mgal": z, "dg_true_mgal": g, "dg_fir_mgal": fir,
+            "dg_unleveled_mgal": est, "dg_mgal": est, "dg_stationary_mgal": est,
+            "dg_std_mgal": np.full(n_ep, std_mgal), "R_cm2s2": np.full(n_ep, R_CM2S2)}))
+        t0 += n_ep * DT_S + 1200.0
+    return pd.concat(rows, ignore_index=True)
+
+
+def _line_demeaned(table, col):
+    e = table[col] - table["dg_true_mgal"]
+    return float(np.sqrt(np.mean((e - e.groupby(table["line"]).transform("mean")) ** 2)))
+
+
+def _truth_weight(table) -> float:
+    """The weight of FIR in the blend with the least error against the truth (line-demeaned)."""
+    dm = lambda c: (table[c] - table["dg_true_mgal"]).groupby(table["line"]).transform(lambda x: x - x.mean())  # noqa: E731
+    ea, ef = dm("dg_unleveled_mgal"), dm("dg_fir_mgal")
+    return float(np.clip(np.sum(ea * (ea - ef)) / np.sum((ea - ef) ** 2), 0, 1))
+
+
+def test_repeat_passes_blend_fir_into_a_test_line_estimate_as_the_truth_would():
+    """A 4-pass test line (no crossovers, so the FIR guard cannot judge) whose estimate rounds
+    off the anomaly (a 220 s low-pass of it: its 12 km wavelengths lost, 2x FIR's error).  The
+    passes, against each other's 50 s low-pass of z, blend FIR in with about the weight the
+    truth would pick (here all of it: FIR's error is the estimate's, less the rounding), and
+    the blend is far more accurate than the estimate; its std (the two-point mixture of the
+    estimate's, right here, and FIR's) covers its error.
+    Controls: a sound estimate (0.5 mGal of noise) keeps nearly all its weight; two passes are
+    too few; the blend can be switched off."""
+    rounded = lambda g, rng: fir_lowpass_mgal(g, DT_S, 220.0)   # noqa: E731
+    noise = white_velocity(DT_S, R_CM2S2)
+    table = _test_line_table(np.random.default_rng(3), rounded, std_mgal=5.5)   # its error, 5.55 mGal
+    est0, fir0 = _line_demeaned(table, "dg_unleveled_mgal"), _line_demeaned(table, "dg_fir_mgal")
+    assert est0 > 2 * fir0
+    w_true = _truth_weight(table)
+    warnings: list = []
+    choice = choose_model({2: _candidate(table)}, noise, DT_S, ProcessingParams(), warnings, order=(2, {}))
+    rep, out = choice.report, choice.table
+    assert rep["fir_guard"]["applied"] is False and "p_value" not in rep["fir_guard"]
+    blend = rep["repeat_blend"]
+    assert w_true > 0.95
+    assert blend["applied"] and blend["passes"] == 4 and blend["weight_fir"] == pytest.approx(w_true, abs=0.25)
+    assert rep["chosen"] in ("blend with FIR", "FIR")
+    assert _line_demeaned(out, "dg_mgal") < min(0.6 * est0, 1.15 * fir0)
+    assert any("repeat passes" in w and "blend" in w for w in warnings)
+    err = (out["dg_mgal"] - out["dg_true_mgal"]).groupby(out["line"]).transform(lambda x: x - x.mean())
+    assert np.mean(np.abs(err) < 2 * out["dg_std_mgal"]) > 0.9
+
+    sound = _test_line_table(np.random.default_rng(4), lambda g, rng: g + rng.normal(0.0, 0.5, g.size))
+    out = choose_model({2: _candidate(sound)}, noise, DT_S, ProcessingParams(), [], order=(2, {}))
+    assert out.report["repeat_blend"]["weight_fir"] < 0.15
+    assert _line_demeaned(out.table, "dg_mgal") < 1.05 * _line_demeaned(sound, "dg_unleveled_mgal")
+
+    two = _test_line_table(np.random.default_rng(3), rounded, passes=2)
+    rep = choose_model({2: _candidate(two)}, noise, DT_S, ProcessingParams(), [], order=(2, {})).report
+    assert rep["repeat_blend"]["applied"] is False and "passes or more" in rep["repeat_blend"]["reason"]
+    off = _test_line_table(np.random.default_rng(3), rounded)
+    rep = choose_model({2: _candidate(off)}, noise, DT_S, ProcessingParams(repeat_blend=False), [],
+                       order=(2, {})).report
+    assert rep["repeat_blend"] == {"applied": False, "reason": "off"} and rep["chosen"] == "adaptive"
+
+
+def test_repeat_blend_stands_aside_where_the_crossovers_judge():
+    """A grid survey with crossovers: the FIR guard's test runs, and the repeat blend does not."""
+    table, noise = _table(np.random.default_rng(6), 1.0)
+    rep = choose_model({2: _candidate(table)}, noise, DT_S, ProcessingParams(), [], order=(2, {})).report
+    assert "p_value" in rep["fir_guard"]
+    assert rep["repeat_blend"]["applied"] is False and "crossovers" in rep["repeat_blend"]["reason"]

@@ -66,6 +66,11 @@
    when the crossover RMS points the same way — a few wild crossovers blind the first:
    :func:`app.core.model_check.significantly_worse`), every line takes FIR.
 
+4b. **Repeat blend** (:func:`repeat_blend`).  Where the crossovers are too few for step 4 (a
+   test-line survey) and a repeat track has at least ``repeat_blend_min_passes`` passes, every
+   line takes the blend of the estimate and FIR 100 s whose passes agree best with the other
+   passes' light low-pass of z (the passes share the anomaly, not the noise).
+
 Between 3 and 4, **3b. FIR resolving nothing** (:func:`longer_lowpass`): after step 3, when
 FIR's own crossovers show at least as much error as its lines vary, the same low-pass at the
 longer ``fir_long_periods_s`` is tried and the shortest that varies by more than its crossovers'
@@ -83,8 +88,10 @@ import pandas as pd
 from scipy import stats
 
 from app.core.accuracy import REPEAT_MAX_SPREAD_KM, across_track_spread_km, repeat_line_accuracy
+from app.core.baselines import fir_lowpass_mgal
 from app.core.leveling import drift_free_differences, find_crossovers
 from app.core.model_check import (
+    blend_estimates,
     crossover_blend_weight,
     crossover_comparison,
     crossover_rms_mgal,
@@ -93,6 +100,8 @@ from app.core.model_check import (
     fir_noise_variance_mgal2,
     fir_smoothing_variance_mgal2,
     flattening_ratio,
+    leave_one_out_msd_mgal2,
+    repeat_blend_weight,
     repeat_noise_variance_mgal2,
     significantly_worse,
     smooth_error_bound_mgal2,
@@ -232,12 +241,11 @@ def _use(table: pd.DataFrame, rows, values, std) -> None:
         table.loc[rows, STD_FLOOR] = np.nan
 
 
-def repeat_fir_noise_mgal2(table: pd.DataFrame) -> dict[str, float]:
-    """FIR's noise variance (mGal²) on every pass of a repeat track, measured by the passes
-    (:func:`app.core.model_check.repeat_noise_variance_mgal2` on FIR 100 s at common positions
-    every 0.1 km): {line: mGal²}.  Tracks with one pass, passes more than
-    ``REPEAT_MAX_SPREAD_KM`` apart or no common stretch are left out."""
-    out: dict[str, float] = {}
+def repeat_passes(table: pd.DataFrame, column: str | None = None) -> list[list[tuple[str, pd.DataFrame]]]:
+    """The passes of every repeat track in the line table: per track, ``[(line, rows)]`` in
+    table order.  Tracks with one pass or passes more than ``REPEAT_MAX_SPREAD_KM`` apart
+    across the track (not repeats of one track) are left out."""
+    out = []
     if "track" not in table or "kind" not in table:
         return out
     rep = table[(table["kind"] == "repeat") & table["track"].notna()]
@@ -245,10 +253,22 @@ def repeat_fir_noise_mgal2(table: pd.DataFrame) -> dict[str, float]:
         passes = [(str(line), gg) for line, gg in g.groupby("line", sort=False)]
         if len(passes) < 2:
             continue
+        if across_track_spread_km([gg["easting_km"].to_numpy() for _, gg in passes],
+                                  [gg["northing_km"].to_numpy() for _, gg in passes]) > REPEAT_MAX_SPREAD_KM:
+            continue
+        out.append(passes)
+    return out
+
+
+def repeat_fir_noise_mgal2(table: pd.DataFrame) -> dict[str, float]:
+    """FIR's noise variance (mGal²) on every pass of a repeat track, measured by the passes
+    (:func:`app.core.model_check.repeat_noise_variance_mgal2` on FIR 100 s at common positions
+    every 0.1 km): {line: mGal²}.  Tracks with one pass, passes more than
+    ``REPEAT_MAX_SPREAD_KM`` apart or no common stretch are left out."""
+    out: dict[str, float] = {}
+    for passes in repeat_passes(table):
         e = [gg["easting_km"].to_numpy() for _, gg in passes]
         n = [gg["northing_km"].to_numpy() for _, gg in passes]
-        if across_track_spread_km(e, n) > REPEAT_MAX_SPREAD_KM:
-            continue
         try:
             acc = repeat_line_accuracy(e, n, [gg["dg_fir_mgal"].to_numpy() for _, gg in passes])
         except ValueError:   # no common stretch where every pass has FIR
@@ -566,19 +586,105 @@ def fir_guard(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dic
         # the FIR's std: its noise under the fitted model, but never below what its crossovers
         # show (each line's share of the crossover difference) — the guard fired because the
         # fitted model misjudged the data
-        floor = cmp.rms_b_mgal / np.sqrt(2.0)
-        # plus the anomaly FIR clips, as the adaptive estimate sees it: an error two crossing
-        # lines share, which the crossovers cannot show (unseen seed 50: 2σ coverage 0.78 -> 0.91)
-        clipped = {line: fir_smoothing_variance_mgal2(g["dg_unleveled_mgal"].to_numpy(), dt_s,
-                                                      p.fir_cutoff_period_s)
-                   for line, g in table.groupby("line", sort=False)} if p.fir_guard_smoothing_std else {}
-        _use_fir(table, noise, dt_s, p, floor, clipped)
-        rep["fir_std_floor_mgal"] = float(floor)
-        if clipped:
-            rep["fir_smoothing_std_mgal"] = float(np.nanmedian(np.sqrt(np.fmax(list(clipped.values()), 0.0))))
+        _guarded_fir(table, noise, dt_s, p, cmp.rms_b_mgal / np.sqrt(2.0), rep)
         warnings.append(f"the adaptive estimate disagrees more at the crossovers than FIR 100 s "
                         f"({cmp.rms_a_mgal:.2f} vs {cmp.rms_b_mgal:.2f} mGal RMS, p = {cmp.p_value:.3g}; by the ranks "
                         f"of the differences' magnitudes p = {cmp.p_rank:.3g}): FIR used")
+    return rep
+
+
+def _guarded_fir(table: pd.DataFrame, noise, dt_s: float, p, floor_mgal: float, rep: dict) -> None:
+    """A guard's switch to FIR (in place): every line takes FIR 100 s with its std from
+    :func:`_fir_std_by_line`: at least ``floor_mgal`` (what the guard measured of FIR's error),
+    plus the anomaly FIR clips as the adaptive estimate sees it — an error two crossing lines
+    share, which the crossovers cannot show (unseen seed 50: 2σ coverage 0.78 -> 0.91)."""
+    std, clipped = _fir_std_by_line(table, noise, dt_s, p, floor_mgal)
+    for line, g in table.groupby("line", sort=False):
+        _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), std[line]))
+    rep["fir_std_floor_mgal"] = float(floor_mgal)
+    if clipped:
+        rep["fir_smoothing_std_mgal"] = float(np.nanmedian(np.sqrt(np.fmax(list(clipped.values()), 0.0))))
+
+
+def _track_values(passes: list, dt_s: float, period_s: float, length_periods: float):
+    """One track's estimate, FIR 100 s and reference (FIR of z at ``period_s``, kernel of
+    ``length_periods`` periods), each (passes, common positions) at the positions every pass
+    has all three (:func:`app.core.accuracy.repeat_line_accuracy`); None without a common stretch."""
+    e = [g["easting_km"].to_numpy() for _, g in passes]
+    n = [g["northing_km"].to_numpy() for _, g in passes]
+    cols = []
+    for _, g in passes:
+        est, fir = g["dg_unleveled_mgal"].to_numpy(float), g["dg_fir_mgal"].to_numpy(float)
+        ref = fir_lowpass_mgal(g["z_mgal"].to_numpy(float), dt_s, period_s, length_periods)
+        ok = np.isfinite(est) & np.isfinite(fir) & np.isfinite(ref)  # the same positions for all three
+        cols.append([np.where(ok, v, np.nan) for v in (est, fir, ref)])
+    try:
+        return [np.asarray(repeat_line_accuracy(e, n, [c[k] for c in cols]).values_mgal) for k in range(3)]
+    except ValueError:
+        return None
+
+
+def _fir_std_by_line(table: pd.DataFrame, noise, dt_s: float, p, floor_mgal: float) -> tuple[dict, dict]:
+    """FIR 100 s's std on every line (mGal) and the part of its variance that is the anomaly
+    FIR clips (mGal², with ``fir_guard_smoothing_std``; else empty): its noise under the fitted
+    model, at least ``floor_mgal``, plus var(a − FIR(a)) of the adaptive estimate a."""
+    std, clipped = {}, {}
+    for line, g in table.groupby("line", sort=False):
+        s = max(np.sqrt(fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s,
+                                                 p.fir_cutoff_period_s)), floor_mgal)
+        if p.fir_guard_smoothing_std:
+            clipped[line] = c = fir_smoothing_variance_mgal2(g["dg_unleveled_mgal"].to_numpy(), dt_s,
+                                                             p.fir_cutoff_period_s)
+            if np.isfinite(c) and c > 0:
+                s = np.sqrt(s ** 2 + c)
+        std[line] = float(s)
+    return std, clipped
+
+
+def repeat_blend(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dict:
+    """Step 4b (in place): where the crossovers are too few for step 4 (a test-line survey) and
+    repeat tracks have at least ``repeat_blend_min_passes`` passes, every line takes the blend
+    ``(1 − w)·estimate + w·FIR 100 s`` whose passes agree best with the other passes' light
+    low-pass of z (:func:`app.core.model_check.repeat_blend_weight`; FIR of z at
+    ``repeat_blend_reference_period_s`` with a kernel of ``repeat_blend_reference_periods``
+    periods: sharp, so that it rounds off little of the anomaly; its noise, independent
+    between passes, only adds scatter).  The passes share the anomaly and not the noise, so
+    this is the blend with the least error against the truth as far as the passes can tell —
+    the test line's counterpart of the crossovers.  Its std is that of the two-point mixture:
+    ``(1 − w)·σ² + w·σ_FIR² + w(1 − w)·(estimate − FIR)²``, σ_FIR at least the noise the
+    passes measure on FIR (three-cornered hat).  A significance test over 4 passes has little
+    power (a jackknife over the passes gives t ≈ 1.6 where the estimate is 1.2-1.3x FIR's
+    error); the blend needs none — it loses little where w is off (module docstring)."""
+    tracks = [t for t in repeat_passes(table) if len(t) >= p.repeat_blend_min_passes]
+    if not tracks:
+        return {"applied": False, "reason": f"no repeat track of {p.repeat_blend_min_passes} passes or more"}
+    vals = [v for v in (_track_values(t, dt_s, p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods)
+                        for t in tracks) if v is not None]
+    if not vals:
+        return {"applied": False, "reason": "no common stretch of the passes"}
+    est, fir, ref = ([v[k] for v in vals] for k in range(3))
+    w = repeat_blend_weight(est, fir, ref)   # one weight for the survey, over every track
+    msd = [float(np.nanmean(np.concatenate([leave_one_out_msd_mgal2(x, r) for x, r in zip(xs, ref)])))
+           for xs in (est, fir, [(1 - w) * e + w * f for e, f in zip(est, fir)])]
+    rep = {"weight_fir": w, "passes": int(sum(x.shape[0] for x in est)), "tracks": len(vals),
+           "reference_period_s": p.repeat_blend_reference_period_s,
+           "msd_estimate_mgal2": msd[0], "msd_fir_mgal2": msd[1], "msd_blend_mgal2": msd[2], "applied": w > 0}
+    if not rep["applied"]:
+        return rep
+    measured = [v for v in repeat_fir_noise_mgal2(table).values() if v > 0]
+    rep["fir_std_floor_mgal"] = float(np.sqrt(np.mean(measured))) if measured else 0.0
+    fir_std = _fir_std_by_line(table, noise, dt_s, p, rep["fir_std_floor_mgal"])[0]
+    for line, g in table.groupby("line", sort=False):
+        sa = g["dg_std_mgal"].to_numpy(float)
+        mix = np.sqrt((1 - w) * sa ** 2 + w * fir_std[line] ** 2)
+        fir_v = g["dg_fir_mgal"].to_numpy(float)
+        blended, std = blend_estimates(fir_v, g["dg_unleveled_mgal"].to_numpy(float), mix, w)
+        # where FIR has no value the estimate stays, with its own std
+        _use(table, g.index, blended, np.where(np.isfinite(fir_v), std, sa))
+    warnings.append(f"test line: the repeat passes agree best with the other passes' "
+                    f"{p.repeat_blend_reference_period_s:g} s low-pass of z when {w:.2f} of FIR 100 s is blended into "
+                    f"the adaptive estimate ({rep['passes']} passes; mean square {msd[0]:.2f} adaptive, {msd[1]:.2f} FIR, "
+                    f"{msd[2]:.2f} blend, mGal², the reference's noise included): that blend used")
     return rep
 
 
@@ -617,8 +723,16 @@ def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=
         guard = {"applied": False, "reason": "FIR already used (noisy estimate)"}
     else:
         guard = fir_guard(table, noise, dt_s, p, warnings) if p.fir_guard else {"applied": False, "reason": "off"}
+    if noisy["applied"] or guard.get("applied"):
+        repeats = {"applied": False, "reason": "FIR already used"}
+    elif "p_value" in guard:
+        repeats = {"applied": False, "reason": "the crossovers judged (step 4)"}
+    else:
+        repeats = (repeat_blend(table, noise, dt_s, p, warnings) if p.repeat_blend
+                   else {"applied": False, "reason": "off"})
     used = {r["estimate"] for r in lines.values()} or {"adaptive"}
-    chosen = ("FIR" if guard.get("applied") or noisy["applied"] else
+    chosen = ("FIR" if guard.get("applied") or noisy["applied"] or repeats.get("weight_fir") == 1.0 else
+              "blend with FIR" if repeats["applied"] else
               ("adaptive" if used == {"adaptive"} else "mixed"))
     n_q = len(candidates[m].ident.learned.em.Q)
     why = ("two anomaly levels (Markov-switching Q)" if n_q > 1 else
@@ -632,6 +746,6 @@ def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=
         rep_period = {}
     rep = {"chosen": chosen, **rep_period, "m": m, "order": order_rep, "anomaly_levels": n_q,
            "anomaly_levels_reason": why,
-           "lines": lines, "noisy_check": noisy, "fir_guard": guard,
+           "lines": lines, "noisy_check": noisy, "fir_guard": guard, "repeat_blend": repeats,
            "stationary_check": stationary_check(table, p, warnings)}
     return ModelChoice(m, table, rep)

@@ -103,6 +103,13 @@ export function summary(r) {
             `of error against an along-line spread of ${fmt(lp.fir_spread_mgal, 3)}): the ${fmt(lp.period_s, 4)} s ` +
             `low-pass is used, resolving only anomalies longer than that`;
         }
+      } else if (mc.repeat_blend && mc.repeat_blend.weight_fir !== undefined) {
+        // a test line: the passes' least-error blend with FIR 100 s (stage 9, step 4b)
+        const rb = mc.repeat_blend;
+        text += ` — too few crossovers to judge; the ${rb.passes} repeat passes agree best with each other's ` +
+          `${fmt(rb.reference_period_s, 3)} s low-pass of z when ${fmt(rb.weight_fir, 3)} of FIR 100 s is blended in ` +
+          `(mean square ${fmt(rb.msd_estimate_mgal2, 4)} adaptive, ${fmt(rb.msd_fir_mgal2, 4)} FIR, ` +
+          `${fmt(rb.msd_blend_mgal2, 4)} blend, mGal², the reference's noise included)`;
       } else if (g.n_crossovers && g.crossover_rms_fir_mgal !== undefined) {
         // the adaptive estimate kept: the crossovers' evidence against FIR 100 s, the alternative
         const better = g.crossover_rms_mgal <= g.crossover_rms_fir_mgal;
@@ -111,7 +118,7 @@ export function summary(r) {
           (better ? ")" : `; t-test p = ${fmt(g.p_value, 3)}, signed ranks p = ${fmt(g.p_rank, 3)})`);
       }
     }
-    items.push({ cls: mc && mc.chosen === "FIR" ? "warn" : "ok", text });
+    items.push({ cls: mc && (mc.chosen === "FIR" || mc.chosen === "blend with FIR") ? "warn" : "ok", text });
   }
   return el("ul", { id: "report-summary", class: "decisions" }, items.map((i) => el("li", { class: i.cls }, i.text)));
 }
