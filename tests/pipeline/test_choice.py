@@ -541,6 +541,20 @@ def test_a_survey_flattened_as_a_whole_gets_the_smooth_error_bound():
     assert STD_FLOOR not in table
 
 
+def _track_pass(rng, k: int):
+    """Pass k of one 40 km east-west track at northing 20 km (alternate directions), with
+    200 s of run-in at both ends: ``(n_ep, run_in, easting_km, northing_km, anomaly, z)`` over
+    the extended pass, z = anomaly + the GNSS noise of R_CM2S2 (mGal)."""
+    n_ep = int(40.0 / SPEED_KMS / DT_S)
+    run_in = int(200.0 / DT_S)
+    s = np.arange(-run_in, n_ep + run_in) / (n_ep - 1)
+    e = 40.0 * (s if k % 2 == 0 else 1.0 - s)
+    n = np.full(s.size, 20.0)
+    g = _anomaly(e, n)
+    v = rng.normal(0.0, np.sqrt(R_CM2S2), s.size + 1) * 1e3   # cm/s -> mGal·s
+    return n_ep, run_in, e, n, g, g + np.diff(v) / DT_S
+
+
 def _repeat_table(rng, slow_noise_mgal: float) -> tuple[pd.DataFrame, object]:
     """Three passes of one 40 km track (alternate directions, 20 min apart); z = anomaly + the
     GNSS noise of R_CM2S2, and on pass R1-3 also a slow error of the given std (periods
@@ -549,16 +563,9 @@ def _repeat_table(rng, slow_noise_mgal: float) -> tuple[pd.DataFrame, object]:
     noise = white_velocity(DT_S, R_CM2S2)
     rows, t0 = [], 0.0
     for k in range(3):
-        n_ep = int(40.0 / SPEED_KMS / DT_S)
-        run_in = int(200.0 / DT_S)
-        s = np.arange(-run_in, n_ep + run_in) / (n_ep - 1)
-        e = 40.0 * (s if k % 2 == 0 else 1.0 - s)
-        n = np.full(s.size, 20.0)
-        g = _anomaly(e, n)
-        v = rng.normal(0.0, np.sqrt(R_CM2S2), s.size + 1) * 1e3
-        z = g + np.diff(v) / DT_S
+        n_ep, run_in, e, n, g, z = _track_pass(rng, k)
         if k == 2 and slow_noise_mgal > 0:
-            t = np.arange(s.size) * DT_S
+            t = np.arange(z.size) * DT_S
             slow = sum(np.sin(2 * np.pi * t / rng.uniform(150, 400) + rng.uniform(0, 2 * np.pi)) for _ in range(6))
             z = z + slow_noise_mgal * slow / np.std(slow)
         fir = fir_lowpass_mgal(z, DT_S, 100.0)[run_in:-run_in]
@@ -656,14 +663,8 @@ def _test_line_table(rng, estimate, passes: int = 4, std_mgal: float = 1.0) -> p
     of z, and the 'adaptive' column ``estimate(anomaly, rng)`` with a std of ``std_mgal``."""
     rows, t0 = [], 0.0
     for k in range(passes):
-        n_ep = int(40.0 / SPEED_KMS / DT_S)
-        run_in = int(200.0 / DT_S)
-        s = np.arange(-run_in, n_ep + run_in) / (n_ep - 1)
-        e = 40.0 * (s if k % 2 == 0 else 1.0 - s)
-        n = np.full(s.size, 20.0)
-        g = _anomaly(e, n)
-        v = rng.normal(0.0, np.sqrt(R_CM2S2), s.size + 1) * 1e3
-        z = g + np.diff(v) / DT_S + rng.normal(0.0, 3.0)
+        n_ep, run_in, e, n, g, z = _track_pass(rng, k)
+        z = z + rng.normal(0.0, 3.0)
         fir = fir_lowpass_mgal(z, DT_S, 100.0)[run_in:-run_in]
         est = estimate(g, rng)[run_in:-run_in] + rng.normal(0.0, 3.0)
         e, n, g, z = e[run_in:-run_in], n[run_in:-run_in], g[run_in:-run_in], z[run_in:-run_in]
