@@ -55,6 +55,9 @@ def test_testline_with_stamp_jitter_is_not_flattened(tmp_path):
     rep = json.loads((out / "report.json").read_text())["repeat_lines"]
     acc = next(iter(rep.values()))["internal_accuracy_mgal"]
     assert acc["dg_mgal"] <= acc["dg_fir_mgal"]
+    # no crossovers: the passes judged the estimate against FIR (stage 9 step 4b), all four
+    rb = report["model_choice"]["repeat_blend"]
+    assert rb["passes"] == 4 and 0.0 <= rb["weight_fir"] <= 1.0 and "crossovers" in report["model_choice"]["fir_guard"]["reason"]
 
 
 def test_testline_with_a_missing_gnss_epoch_and_gravimeter_sample(tmp_path):
