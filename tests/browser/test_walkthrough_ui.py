@@ -129,6 +129,28 @@ def test_model_choice_says_why_adaptive_and_reads_as_a_table(fake_server, browse
     _no_errors(page)
 
 
+def test_model_choice_on_a_test_line_gives_the_repeat_blend(fake_server, browser_page):  # noqa: F811
+    """A test line has no crossovers for the FIR guard: the report says that its passes judged,
+    and with what weight FIR was blended in (generated survey 208's figures), marked as a
+    departure from the adaptive estimate."""
+    page = browser_page
+    page.goto(fake_server.url)
+    got = page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const rep = {warnings: [], report: {model_choice: {chosen: 'blend with FIR', m: 2, noisy_check: {applied: false},
+            fir_guard: {applied: false, reason: '0 crossovers (< 4)'},
+            repeat_blend: {weight_fir: 0.6412, passes: 4, tracks: 1, reference_period_s: 50, msd_estimate_mgal2: 61.23,
+                           msd_fir_mgal2: 60.87, msd_blend_mgal2: 60.31, applied: true, fir_std_floor_mgal: 2.1}}}};
+        const li = [...m.summary(rep).querySelectorAll('li')].find((l) => l.textContent.startsWith('Model choice'));
+        return {text: li.textContent, cls: li.className};
+    }""")
+    assert got["text"].startswith("Model choice: blend with FIR (anomaly order m = 2) — too few crossovers to judge; "
+                                  "the 4 repeat passes agree best with each other's 50 s low-pass of z when 0.641 of "
+                                  "FIR 100 s is blended in (mean square 61.23 adaptive, 60.87 FIR, 60.31 blend"), got
+    assert got["cls"] == "warn"
+    _no_errors(page)
+
+
 def test_surveys_of_one_name_can_be_told_apart(fake_server, browser_page, tmp_path):  # noqa: F811
     """The same zip imported twice gave two list entries both reading "tiny" (and the same title)."""
     import httpx
