@@ -2,7 +2,8 @@
 
 - crossover RMS of the differences at line intersections;
 - repeat-line internal accuracy ``ε = sqrt(Σ_i Σ_j (g_ij − ḡ_j)² / (n (K−1)))``
-  over K repeats of one track at n common points;
+  over K repeats of one track at n common points; which passes fly one track
+  (:func:`same_track`, :func:`group_passes`);
 - RMS (optionally with each line's mean removed) and mean error against a reference,
   std calibration (fraction of errors within k σ);
 - grid RMS (and demeaned RMS, std calibration) against a true grid inside the convex
@@ -283,6 +284,82 @@ def across_track_spread_km(easting_km, northing_km) -> float:
     _, _, vt = np.linalg.svd(allp[ok] - centre, full_matrices=False)
     across = [np.nanmedian((e - centre[0]) * vt[1][0] + (n - centre[1]) * vt[1][1]) for e, n in zip(es, ns)]
     return float(np.nanmax(across) - np.nanmin(across))
+
+
+def _pass_axis(e: np.ndarray, n: np.ndarray) -> np.ndarray | None:
+    """Unit vector along a pass's principal axis (None with fewer than 2 finite points)."""
+    ok = np.isfinite(e) & np.isfinite(n)
+    if ok.sum() < 2:
+        return None
+    pts = np.column_stack([e[ok] - e[ok].mean(), n[ok] - n[ok].mean()])
+    return np.linalg.svd(pts, full_matrices=False)[2][0]
+
+
+def same_track(easting_km, northing_km, max_spread_km: float = REPEAT_MAX_SPREAD_KM,
+               max_angle_deg: float = 10.0, min_overlap: float = 0.5) -> bool:
+    """Whether two passes fly one track: parallel or anti-parallel within ``max_angle_deg``,
+    within ``max_spread_km`` of each other across it (:func:`across_track_spread_km`), and
+    overlapping along it by at least ``min_overlap`` of the shorter pass.
+
+    Parameters
+    ----------
+    easting_km, northing_km : sequence of 2 array_like
+        The two passes' positions (km).
+
+    Returns
+    -------
+    bool
+    """
+    es = [np.asarray(a, dtype=float).ravel() for a in easting_km]
+    ns = [np.asarray(a, dtype=float).ravel() for a in northing_km]
+    if len(es) != 2 or len(ns) != 2:
+        raise ValueError("same_track compares two passes")
+    axes = [_pass_axis(e, n) for e, n in zip(es, ns)]
+    if axes[0] is None or axes[1] is None:
+        return False
+    if abs(float(axes[0] @ axes[1])) < np.cos(np.radians(max_angle_deg)):
+        return False
+    if across_track_spread_km(es, ns) > max_spread_km:
+        return False
+    ax = axes[0]
+    spans = []
+    for e, n in zip(es, ns):
+        a = e * ax[0] + n * ax[1]
+        spans.append((float(np.nanmin(a)), float(np.nanmax(a))))
+    overlap = min(spans[0][1], spans[1][1]) - max(spans[0][0], spans[1][0])
+    shorter = min(s1 - s0 for s0, s1 in spans)
+    return bool(shorter > 0 and overlap >= min_overlap * shorter)
+
+
+def group_passes(easting_km, northing_km, **same_track_kw) -> np.ndarray:
+    """Group passes into tracks: each pass joins the first group whose first pass it shares a
+    track with (:func:`same_track`), else starts a group.
+
+    Parameters
+    ----------
+    easting_km, northing_km : sequence of K array_like
+        One array per pass (km), in the order to group them (e.g. time).
+    **same_track_kw
+        Passed to :func:`same_track`.
+
+    Returns
+    -------
+    ndarray of int, shape (K,)
+        The group of each pass, 0, 1, … in order of first appearance.
+    """
+    if len(easting_km) != len(northing_km):
+        raise ValueError("one easting and one northing array per pass")
+    labels = np.full(len(easting_km), -1, dtype=int)
+    heads: list[int] = []
+    for i in range(len(easting_km)):
+        for g, h in enumerate(heads):
+            if same_track([easting_km[h], easting_km[i]], [northing_km[h], northing_km[i]], **same_track_kw):
+                labels[i] = g
+                break
+        else:
+            labels[i] = len(heads)
+            heads.append(i)
+    return labels
 
 
 def _error_vs_reference(estimate_mgal, reference_mgal) -> np.ndarray:

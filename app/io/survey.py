@@ -841,9 +841,9 @@ def repeat_track_notes(lines: pd.DataFrame, origins: list) -> list[str]:
         if tr is None:
             ofile, orow = origins[i]
             out.append(f"{ofile} row {orow}: line {lines['line'].iloc[i]} is kind repeat but has no track: it is "
-                       f"left out of the crossovers (as repeat lines are) and compared with no other pass, so no "
-                       f"repeat-line accuracy — give every pass of one track the same track id (or make it kind "
-                       f"main)")
+                       f"left out of the crossovers (as repeat lines are) and compared with the passes it flies one "
+                       f"track with by their positions (stage 2, the report's repeat_tracks_inferred), or with none "
+                       f"— give every pass of one track the same track id to set it (or make it kind main)")
         else:
             tracks.setdefault(str(tr), []).append(int(i))
     for tr, idx in tracks.items():

@@ -129,6 +129,9 @@ def run_identify(survey, tr: Tracker) -> Identified:
     noise = check_noise_family(noise, sl.lines, fir, meas.dt_s, p)
     noise = check_noise_corners(noise, sl.lines, fir, meas.dt_s, p)
     warnings = list(meas.warnings) + fir_loss_warnings(sl.lines, fir, p)
+    warnings += [f"repeat lines {', '.join(members)} have no track in lines.csv: they fly one track and are "
+                 f"compared as track {track} (report repeat_tracks_inferred; give them a track id to set it)"
+                 for track, members in sl.inferred_tracks.items()]
     if noise.warning:
         warnings.append(noise.warning)
     extra: dict = {}
@@ -152,7 +155,7 @@ def run_identify(survey, tr: Tracker) -> Identified:
     flights = {n: FlightSeries(n, f.t_s, f.z_mgal, f.time_offset_s, f.time_offset_corr, f.time_offset_applied,
                                f.time_offset, f.despike, f.gnss_filled) for n, f in meas.flights.items()}
     mrep = {"base_ties": meas.base_ties, "lag_check": meas.lag_check, "calibration": meas.calibration,
-            "band_delay": meas.band_delay,
+            "band_delay": meas.band_delay, "repeat_tracks_inferred": sl.inferred_tracks,
             "model_order_candidates": orders, **({"model_order_likelihood": extra["likelihood"]} if extra else {})}
     return Identified(cfg.model_dump(mode="json"), sl.crs, meas.dt_s, sl.lines, flights, fir, noise, idents, n_cx,
                       mrep, warnings, dict(tr.timings), str(survey.root))

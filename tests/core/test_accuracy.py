@@ -321,3 +321,28 @@ def test_across_track_spread_of_repeat_passes():
     assert across_track_spread_km([same[0][0]], [same[0][1]]) == 0.0
     with pytest.raises(ValueError):
         across_track_spread_km([same[0][0], same[1][0]], [same[0][1]])
+
+
+def test_passes_are_grouped_by_the_track_they_fly():
+    """Four passes of one east-west track (alternate directions, 50 m apart, one a little
+    shorter) are one group; a parallel line 2 km north, a north-south line through the track's
+    middle, and the track's continuation beyond its end (collinear, no overlap) are each their
+    own; the order of appearance sets the labels."""
+    from app.core.accuracy import group_passes, same_track
+
+    e = np.linspace(0.0, 40.0, 401)
+    n0 = np.zeros_like(e)
+    passes = [(e, n0), (e[::-1], n0 + 0.05), (e[20:], n0[20:] - 0.03), (e[::-1], n0 + 0.02),
+              (e, n0 + 2.0),                                  # a parallel line 2 km away
+              (np.full_like(e, 20.0), e - 20.0),              # a north-south line through the middle
+              (e + 45.0, n0)]                                 # the continuation, collinear
+    labels = group_passes([p[0] for p in passes], [p[1] for p in passes])
+    assert labels.tolist() == [0, 0, 0, 0, 1, 2, 3]
+    # a pass at 8 degrees to the track still flies it, one at 15 degrees does not
+    for deg, same in ((8.0, True), (15.0, False)):
+        a = np.radians(deg)
+        x = np.linspace(-20.0, 20.0, 401)
+        rot = (20.0 + x * np.cos(a), x * np.sin(a))
+        assert same_track([e, rot[0]], [n0, rot[1]], max_spread_km=10.0) is same
+    with pytest.raises(ValueError):
+        same_track([e], [n0])

@@ -71,3 +71,30 @@ def test_passes_apart_are_left_out_of_the_noise_fit_and_the_std_sizing():
     far = out["track 2.0"]
     assert far["scale"] is None and abs(far["across_track_spread_km"] - 2.0) < 1e-9 and "not repeats" in far["reason"]
     assert out["factor 2.0"] == 10.0
+
+
+def test_repeat_lines_without_a_track_are_compared_by_their_positions(tmp_path):
+    """The 4-pass test line with lines.csv's track column left empty (a user's conversion that
+    marks the passes kind repeat and nothing more): they were compared with no other pass — no
+    repeat-line accuracy, no repeat checks or blend in stage 9.  Stage 2 now groups them by their
+    positions as track auto-1 and says so; the report then gives the passes' accuracy and the
+    repeat blend's evidence."""
+    import json
+
+    from app.pipeline.process import process_survey
+    from app.simulate import simulate_survey
+
+    survey = simulate_survey("testline-2hz", tmp_path / "survey", seed=1)
+    lines = pd.read_csv(survey / "lines.csv")
+    passes = sorted(lines.loc[lines["kind"] == "repeat", "line"].astype(str))
+    assert len(passes) == 4 and lines["track"].notna().all()
+    lines.drop(columns=["track"]).to_csv(survey / "lines.csv", index=False)
+    report = process_survey(survey, tmp_path / "out")
+    assert report["repeat_tracks_inferred"] == {"auto-1": passes}
+    assert any("compared as track auto-1" in w for w in report["warnings"])
+    rep = json.loads((tmp_path / "out" / "report.json").read_text())["repeat_lines"]
+    assert list(rep) == ["auto-1"] and rep["auto-1"]["repeats"] == 4
+    assert rep["auto-1"]["internal_accuracy_mgal"]["dg_mgal"] < rep["auto-1"]["internal_accuracy_mgal"]["dg_fir_mgal"]
+    assert report["model_choice"]["repeat_blend"]["passes"] == 4
+    out = pd.read_parquet(tmp_path / "out" / "lines.parquet", columns=["line", "kind"])
+    assert set(out.loc[out["kind"] == "repeat", "line"].astype(str)) == set(passes)

@@ -11,6 +11,7 @@ import pandas as pd
 
 from app.config import SurveyConfig
 from app.core import geodesy
+from app.core.accuracy import group_passes
 from app.core.leveling import LineTrack, find_crossovers
 from app.pipeline.stages.measurement import FlightMeasurement
 
@@ -87,12 +88,41 @@ def check_grid_size(lines, p) -> None:
             raise InputError(None, None, "processing.grid_spacing_km", str(exc)) from None
 
 
+def infer_repeat_tracks(lines: list[LineData]) -> dict[str, list[str]]:
+    """Repeat lines that ``lines.csv`` gives no track (in place): grouped by their positions
+    (:func:`app.core.accuracy.group_passes`, in time order: one track, parallel or not, within
+    ``REPEAT_MAX_SPREAD_KM`` across it and overlapping along it) and every group of two passes
+    or more given the track ``auto-1``, ``auto-2``, … — so that its passes are compared (the
+    repeat-line accuracy, the repeat checks and blend of stage 9) as they would be with a track
+    id.  A pass alike no other keeps no track.  Returns ``{track: [line, …]}``."""
+    free = sorted((ln for ln in lines if ln.kind == "repeat" and ln.track is None),
+                  key=lambda ln: float(ln.t_s[0]) if ln.t_s.size else 0.0)
+    if len(free) < 2:
+        return {}
+    taken = {ln.track for ln in lines if ln.track is not None}
+    labels = group_passes([ln.easting_km for ln in free], [ln.northing_km for ln in free])
+    out, k = {}, 0
+    for g in range(int(labels.max()) + 1):
+        members = [ln for ln, lab in zip(free, labels) if lab == g]
+        if len(members) < 2:
+            continue
+        k += 1
+        while f"auto-{k}" in taken:
+            k += 1
+        for ln in members:
+            ln.track = f"auto-{k}"
+        out[f"auto-{k}"] = [ln.line for ln in members]
+    return out
+
+
 @dataclass
 class SurveyLines:
-    """Result of :func:`survey_lines`: the CRS and every line (in ``lines.csv`` order)."""
+    """Result of :func:`survey_lines`: the CRS, every line (in ``lines.csv`` order) and the
+    tracks given to repeat lines that had none (:func:`infer_repeat_tracks`)."""
 
     crs: str
     lines: list
+    inferred_tracks: dict
 
 
 def survey_lines(survey, measurement) -> SurveyLines:
@@ -100,7 +130,7 @@ def survey_lines(survey, measurement) -> SurveyLines:
     crs = survey_crs(survey.config, measurement.flights)
     lines = cut_lines(survey.lines, measurement.flights, crs)
     check_grid_size(lines, survey.config.processing)
-    return SurveyLines(crs, lines)
+    return SurveyLines(crs, lines, infer_repeat_tracks(lines))
 
 
 def line_crossovers(lines: list[LineData], include_repeat: bool, values=None, std_mgal: float = 0.0) -> pd.DataFrame:
