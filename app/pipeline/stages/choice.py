@@ -442,17 +442,32 @@ def median_line_spread_mgal(table: pd.DataFrame, values_mgal) -> float:
     return float(np.nanmedian([float(np.nanstd(v[pos])) for pos in table.groupby("line", sort=False).indices.values()]))
 
 
-def _use_fir(table: pd.DataFrame, noise, dt_s: float, p, floor_mgal: float = 0.0,
-             extra_var_mgal2: dict | None = None) -> None:
-    """Every line takes FIR 100 s, with its noise std under the fitted model (at least
-    ``floor_mgal``), plus ``extra_var_mgal2[line]`` in variance when given."""
+def _fir_std_by_line(table: pd.DataFrame, noise, dt_s: float, p, floor_mgal: float = 0.0,
+                     smoothing: bool = False) -> tuple[dict, dict]:
+    """FIR 100 s's std on every line (mGal): its noise under the fitted model, at least
+    ``floor_mgal``; with ``smoothing`` also the anomaly FIR clips as the adaptive estimate a
+    sees it, var(a − FIR(a)).  Returns ``(std, clipped)``, the second that variance per line
+    (mGal²; empty without ``smoothing``)."""
+    std, clipped = {}, {}
     for line, g in table.groupby("line", sort=False):
-        fir_var = fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s, p.fir_cutoff_period_s)
-        std = max(np.sqrt(fir_var), floor_mgal)
-        extra = (extra_var_mgal2 or {}).get(line, 0.0)
-        if np.isfinite(extra) and extra > 0:
-            std = np.sqrt(std ** 2 + extra)
-        _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), std))
+        s = max(np.sqrt(fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s,
+                                                 p.fir_cutoff_period_s)), floor_mgal)
+        if smoothing:
+            clipped[line] = c = fir_smoothing_variance_mgal2(g["dg_unleveled_mgal"].to_numpy(), dt_s,
+                                                             p.fir_cutoff_period_s)
+            if np.isfinite(c) and c > 0:
+                s = np.sqrt(s ** 2 + c)
+        std[line] = float(s)
+    return std, clipped
+
+
+def _use_fir(table: pd.DataFrame, noise, dt_s: float, p, floor_mgal: float = 0.0, smoothing: bool = False) -> dict:
+    """Every line takes FIR 100 s with its std from :func:`_fir_std_by_line`; returns the
+    clipped anomaly's variance per line (empty without ``smoothing``)."""
+    std, clipped = _fir_std_by_line(table, noise, dt_s, p, floor_mgal, smoothing)
+    for line, g in table.groupby("line", sort=False):
+        _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), std[line]))
+    return clipped
 
 
 def noisy_check(table: pd.DataFrame, lines: dict, noise, dt_s: float, p, warnings: list,
@@ -594,13 +609,11 @@ def fir_guard(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dic
 
 
 def _guarded_fir(table: pd.DataFrame, noise, dt_s: float, p, floor_mgal: float, rep: dict) -> None:
-    """A guard's switch to FIR (in place): every line takes FIR 100 s with its std from
-    :func:`_fir_std_by_line`: at least ``floor_mgal`` (what the guard measured of FIR's error),
-    plus the anomaly FIR clips as the adaptive estimate sees it — an error two crossing lines
-    share, which the crossovers cannot show (unseen seed 50: 2σ coverage 0.78 -> 0.91)."""
-    std, clipped = _fir_std_by_line(table, noise, dt_s, p, floor_mgal)
-    for line, g in table.groupby("line", sort=False):
-        _use(table, g.index, g["dg_fir_mgal"].to_numpy(), np.full(len(g), std[line]))
+    """A guard's switch to FIR (in place): every line takes FIR 100 s with its std at least
+    ``floor_mgal`` (what the guard measured of FIR's error), plus (``fir_guard_smoothing_std``)
+    the anomaly FIR clips as the adaptive estimate sees it — an error two crossing lines share,
+    which the crossovers cannot show (unseen seed 50: 2σ coverage 0.78 -> 0.91)."""
+    clipped = _use_fir(table, noise, dt_s, p, floor_mgal, p.fir_guard_smoothing_std)
     rep["fir_std_floor_mgal"] = float(floor_mgal)
     if clipped:
         rep["fir_smoothing_std_mgal"] = float(np.nanmedian(np.sqrt(np.fmax(list(clipped.values()), 0.0))))
@@ -622,23 +635,6 @@ def _track_values(passes: list, dt_s: float, period_s: float, length_periods: fl
         return [np.asarray(repeat_line_accuracy(e, n, [c[k] for c in cols]).values_mgal) for k in range(3)]
     except ValueError:
         return None
-
-
-def _fir_std_by_line(table: pd.DataFrame, noise, dt_s: float, p, floor_mgal: float) -> tuple[dict, dict]:
-    """FIR 100 s's std on every line (mGal) and the part of its variance that is the anomaly
-    FIR clips (mGal², with ``fir_guard_smoothing_std``; else empty): its noise under the fitted
-    model, at least ``floor_mgal``, plus var(a − FIR(a)) of the adaptive estimate a."""
-    std, clipped = {}, {}
-    for line, g in table.groupby("line", sort=False):
-        s = max(np.sqrt(fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s,
-                                                 p.fir_cutoff_period_s)), floor_mgal)
-        if p.fir_guard_smoothing_std:
-            clipped[line] = c = fir_smoothing_variance_mgal2(g["dg_unleveled_mgal"].to_numpy(), dt_s,
-                                                             p.fir_cutoff_period_s)
-            if np.isfinite(c) and c > 0:
-                s = np.sqrt(s ** 2 + c)
-        std[line] = float(s)
-    return std, clipped
 
 
 def repeat_blend(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dict:
@@ -673,7 +669,7 @@ def repeat_blend(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> 
         return rep
     measured = [v for v in repeat_fir_noise_mgal2(table).values() if v > 0]
     rep["fir_std_floor_mgal"] = float(np.sqrt(np.mean(measured))) if measured else 0.0
-    fir_std = _fir_std_by_line(table, noise, dt_s, p, rep["fir_std_floor_mgal"])[0]
+    fir_std = _fir_std_by_line(table, noise, dt_s, p, rep["fir_std_floor_mgal"], p.fir_guard_smoothing_std)[0]
     for line, g in table.groupby("line", sort=False):
         sa = g["dg_std_mgal"].to_numpy(float)
         mix = np.sqrt((1 - w) * sa ** 2 + w * fir_std[line] ** 2)
