@@ -830,9 +830,11 @@ def stuck_sensor_notes(name: str, fs, lines: pd.DataFrame, min_s: float = 5.0, m
 
 
 def repeat_track_notes(lines: pd.DataFrame, origins: list) -> list[str]:
-    """Notes on repeat lines that no other pass is compared with: a repeat line is left out of
+    """Notes on repeat lines whose track lines.csv does not give: a repeat line is left out of
     the crossovers and only its track's other passes measure it (the repeat-line accuracy), so
-    one without a track, or its track's only pass, gave no figure and no word of why."""
+    one without a track is grouped by its position in stage 2
+    (:func:`app.pipeline.stages.lines.infer_repeat_tracks`) and its track's only pass gives no
+    figure — each says why."""
     out = []
     rep = np.flatnonzero((lines["kind"] == "repeat").to_numpy())
     tracks: dict[str, list[int]] = {}
