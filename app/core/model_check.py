@@ -419,6 +419,26 @@ def repeat_noise_variance_mgal2(values_mgal, min_points: int = 10) -> np.ndarray
     return np.linalg.lstsq(design, d, rcond=None)[0]
 
 
+def _passes_and_others(values_mgal: list, reference_mgal):
+    """Estimates and a reference on one repeat track, shape (K ≥ 2, n) each, at the positions
+    where all are finite and every pass about its mean: ``([values, …], others)`` with
+    ``others[j]`` the mean reference of the passes other than j; None with fewer than 2 such
+    positions."""
+    vs = [np.asarray(v, dtype=float) for v in values_mgal]
+    r = np.asarray(reference_mgal, dtype=float)
+    if r.ndim != 2 or r.shape[0] < 2 or any(v.shape != r.shape for v in vs):
+        raise ValueError(f"estimates and reference must all be (K >= 2, n), got "
+                         f"{', '.join(str(v.shape) for v in vs)} and {r.shape}")
+    ok = np.isfinite(r).all(axis=0)
+    for v in vs:
+        ok &= np.isfinite(v).all(axis=0)
+    if ok.sum() < 2:
+        return None
+    vs = [v[:, ok] - v[:, ok].mean(axis=1, keepdims=True) for v in vs]
+    r = r[:, ok] - r[:, ok].mean(axis=1, keepdims=True)
+    return vs, (r.sum(axis=0, keepdims=True) - r) / (r.shape[0] - 1)
+
+
 def leave_one_out_msd_mgal2(values_mgal, reference_mgal) -> np.ndarray:
     """Each pass's mean square difference (mGal²) from the other passes' mean reference.
 
@@ -445,17 +465,10 @@ def leave_one_out_msd_mgal2(values_mgal, reference_mgal) -> np.ndarray:
     ndarray, shape (K,)
         mGal²; NaN when fewer than 2 positions are complete.
     """
-    v = np.asarray(values_mgal, dtype=float)
-    r = np.asarray(reference_mgal, dtype=float)
-    if v.ndim != 2 or v.shape != r.shape or v.shape[0] < 2:
-        raise ValueError(f"values_mgal and reference_mgal must both be (K >= 2, n), got {v.shape} and {r.shape}")
-    ok = np.isfinite(v).all(axis=0) & np.isfinite(r).all(axis=0)
-    k = v.shape[0]
-    if ok.sum() < 2:
-        return np.full(k, np.nan)
-    v = v[:, ok] - v[:, ok].mean(axis=1, keepdims=True)
-    r = r[:, ok] - r[:, ok].mean(axis=1, keepdims=True)
-    others = (r.sum(axis=0, keepdims=True) - r) / (k - 1)
+    got = _passes_and_others([values_mgal], reference_mgal)
+    if got is None:
+        return np.full(np.shape(values_mgal)[0], np.nan)
+    (v,), others = got
     return np.mean((v - others) ** 2, axis=1)
 
 
@@ -487,15 +500,10 @@ def repeat_blend_weight(a_mgal, b_mgal, reference_mgal) -> float:
               else [(a_mgal, b_mgal, reference_mgal)])
     num = den = 0.0
     for a, b, r in tracks:
-        a, b, r = (np.asarray(x, dtype=float) for x in (a, b, r))
-        if a.ndim != 2 or not (a.shape == b.shape == r.shape) or a.shape[0] < 2:
-            raise ValueError(f"a_mgal, b_mgal and reference_mgal must all be (K >= 2, n), got {a.shape}, "
-                             f"{b.shape}, {r.shape}")
-        ok = np.isfinite(a).all(axis=0) & np.isfinite(b).all(axis=0) & np.isfinite(r).all(axis=0)
-        if ok.sum() < 2:
+        got = _passes_and_others([a, b], r)
+        if got is None:
             continue
-        a, b, r = (x[:, ok] - x[:, ok].mean(axis=1, keepdims=True) for x in (a, b, r))
-        others = (r.sum(axis=0, keepdims=True) - r) / (a.shape[0] - 1)
+        (a, b), others = got
         num += float(np.sum((a - others) * (a - b)))
         den += float(np.sum((a - b) ** 2))
     return float(np.clip(num / den, 0.0, 1.0)) if den > 0 else 0.0

@@ -241,7 +241,7 @@ def _use(table: pd.DataFrame, rows, values, std) -> None:
         table.loc[rows, STD_FLOOR] = np.nan
 
 
-def repeat_passes(table: pd.DataFrame, column: str | None = None) -> list[list[tuple[str, pd.DataFrame]]]:
+def repeat_passes(table: pd.DataFrame) -> list[list[tuple[str, pd.DataFrame]]]:
     """The passes of every repeat track in the line table: per track, ``[(line, rows)]`` in
     table order.  Tracks with one pass or passes more than ``REPEAT_MAX_SPREAD_KM`` apart
     across the track (not repeats of one track) are left out."""

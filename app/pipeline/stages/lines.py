@@ -94,7 +94,7 @@ def infer_repeat_tracks(lines: list[LineData]) -> dict[str, list[str]]:
     ``REPEAT_MAX_SPREAD_KM`` across it and overlapping along it) and every group of two passes
     or more given the track ``auto-1``, ``auto-2``, … — so that its passes are compared (the
     repeat-line accuracy, the repeat checks and blend of stage 9) as they would be with a track
-    id.  A pass alike no other keeps no track.  Returns ``{track: [line, …]}``."""
+    id.  A pass that flies no other pass's track keeps none.  Returns ``{track: [line, …]}``."""
     free = sorted((ln for ln in lines if ln.kind == "repeat" and ln.track is None),
                   key=lambda ln: float(ln.t_s[0]) if ln.t_s.size else 0.0)
     if len(free) < 2:
