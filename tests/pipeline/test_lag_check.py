@@ -183,3 +183,59 @@ def test_band_fit_confirms_a_small_wideband_lag_only_when_they_agree():
     assert not _band_confirms(band(0.0, 0.0072, 0.0035), 0.0204, p)
     assert not _band_confirms(band(1.59, +0.0200, 0.0055), 1.568, p)
     assert not _band_confirms(None, 1.568, p) and not _band_confirms(band(1.59, float("nan"), 0.01), 1.568, p)
+
+
+def _foreign_sim():
+    """``benchmarks/foreign_sim.py``: the generator written without ``app.simulate``."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "foreign_sim.py"
+    spec = importlib.util.spec_from_file_location("foreign_sim", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_flights_lags_compared_on_one_scale(tmp_path):
+    """Generated survey 237 (independent generator): a 1 Hz interval-mean platform meter on 10 Hz
+    GNSS heights, 3 flights, a 0.261 s lag that survey.toml does not declare.  Measured at τ = 0,
+    two flights' time offsets took the lag for a shift of the stamps (≈ −0.25 s, applied) and
+    their τ fits found almost nothing; the third flight's offset was not applied and its τ fit
+    found the lag.  As they come the τ fits disagree by 0.26 s; each minus its applied offset,
+    they agree within 0.02 s, and their median lies within 0.01 s of the truth.  Without this
+    reading the band fit pools the three and stops half-way (0.225 s; the estimate was 1.36×
+    FIR's error, 0.56× with this τ)."""
+    fs = _foreign_sim()
+    cfg = fs.draw_config(237)
+    truth = cfg["tau_true_s"] + cfg["residual_lag_s"]
+    survey_dir = fs.simulate(cfg, tmp_path / "s")
+    survey = read_survey(survey_dir)
+    warnings = []
+    tau, info = check_lag(survey, survey.config, warnings)
+    assert info["from_one_scale"] and info["applied"], info
+    assert abs(tau - truth) < 0.01
+    offsets = np.asarray(info["time_offsets_s"])
+    assert np.any(offsets < -0.2) and np.any(offsets == 0.0)       # the case: some offsets took the lag
+    assert np.ptp(info["estimated_tau_s"]) > 0.2 and np.ptp(info["flight_lags_s"]) < 0.05
+    assert info["band_rms_improvement"] >= survey.config.processing.lag_one_scale_min_improvement
+    assert any("once each one's time offset" in w for w in warnings)
+
+    off = read_survey(survey_dir, {"lag_one_scale": False})
+    tau_off, _ = check_lag(off, off.config, [])
+    assert tau_off is None or abs(tau_off - truth) > 0.03
+
+
+def test_a_real_shift_of_a_slow_meters_stamps_stays_an_offset(tmp_path):
+    """A 2 Hz point-sampled meter on 10 Hz GNSS (slower than its GNSS, so the offsets-as-a-lag
+    path does not run) with no lag and its stamps 0.1 s late: the offset is applied, and on one
+    scale the flight's lag would be 0.1 s — but as a lag it leaves z's band RMS as it was, and
+    the offset stays an offset."""
+    slow = {**PLATFORM_10HZ, "gravimeter_rate_hz": 2.0, "gnss_rate_hz": 10.0, "time_offset_s": 0.1}
+    survey_dir = simulate_survey("tiny", tmp_path / "s", seed=11, tau_true_s=0.0, **slow)
+    survey = read_survey(survey_dir)
+    tau, info = check_lag(survey, survey.config, [])
+    assert tau is None
+    one = info["one_scale"]                     # tried (an applied offset of 0.1 s) and refused
+    assert not one["applied"] and abs(one["flight_lags_s"][0] - 0.1) < 0.01, one
+    assert one["band_rms_improvement"] < survey.config.processing.lag_one_scale_min_improvement
