@@ -151,6 +151,28 @@ def test_model_choice_on_a_test_line_gives_the_repeat_blend(fake_server, browser
     _no_errors(page)
 
 
+def test_lag_from_the_flights_on_one_scale_is_told_as_such(fake_server, browser_page):  # noqa: F811
+    """Generated survey 237's lag check: two flights' offsets took the lag, the third's τ fit
+    found it.  The summary said "the flights say 0.006, 0.011, 0.269 s: the flights' value was
+    used", naming three values none of which was used; it must give the lags on one scale and
+    the τ used."""
+    page = browser_page
+    page.goto(fake_server.url)
+    got = page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const rep = {warnings: [], report: {lag_check: {declared_tau_s: 0, estimated_tau_s: [0.0061, 0.0108, 0.2687],
+            time_offsets_s: [-0.2460, -0.2446, 0], flight_lags_s: [0.2521, 0.2554, 0.2687], one_scale_tau_s: 0.2554,
+            from_one_scale: true, applied: true, band_rms_improvement: 0.091,
+            reason: 'τ fits minus applied time offsets 0.252, 0.255, 0.269 s; z RMS at 0.02–0.05 Hz 21.6 → 19.6 mGal'}}};
+        const li = [...m.summary(rep).querySelectorAll('li')].find((l) => l.textContent.startsWith('Gravimeter lag'));
+        return {text: li.textContent, cls: li.className};
+    }""")
+    assert got["text"] == ("Gravimeter lag: survey.toml says τ = 0 s; each flight's in-flight τ minus the time offset "
+                           "applied before it gives 0.252, 0.255, 0.269 s: their median 0.255 s was used."), got
+    assert got["cls"] == "warn"
+    _no_errors(page)
+
+
 def test_surveys_of_one_name_can_be_told_apart(fake_server, browser_page, tmp_path):  # noqa: F811
     """The same zip imported twice gave two list entries both reading "tiny" (and the same title)."""
     import httpx

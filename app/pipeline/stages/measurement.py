@@ -1044,7 +1044,7 @@ def lag_on_one_scale(survey, cfg: SurveyConfig, names: list, taus: list, offsets
         return None, None
     check = lag_band_check([survey.flights[n] for n in names], cfg, tau_c, [declared[n] for n in names])
     info = {"declared_tau_s": tau0, "estimated_tau_s": list(taus), "time_offsets_s": list(offsets),
-            "flight_lags_s": lags, "from_one_scale": True, **check}
+            "flight_lags_s": lags, "one_scale_tau_s": tau_c, "from_one_scale": True, **check}
     gain = check["band_rms_improvement"]
     if not _band_check_passes(check, p, p.lag_one_scale_min_improvement):
         info["applied"] = False

@@ -66,6 +66,9 @@ export function summary(r) {
     const lc = rep.lag_check;
     items.push({ cls: lc.applied ? "warn" : "ok", text: lc.applied && lc.from_band_fit
       ? `Gravimeter lag: survey.toml says τ = ${fmt(lc.declared_tau_s, 3)} s; fitted where the anomaly is estimated (0.02–0.05 Hz) the flights say ${fmt(lc.band_fit_tau_s, 4)} s: that value was used.`
+      : lc.applied && lc.from_one_scale
+      ? `Gravimeter lag: survey.toml says τ = ${fmt(lc.declared_tau_s, 3)} s; each flight's in-flight τ minus the time offset applied before it gives ` +
+        `${(lc.flight_lags_s || []).map((v) => fmt(v, 3)).join(", ")} s: their median ${fmt(lc.one_scale_tau_s, 3)} s was used.`
       : lc.applied
       ? `Gravimeter lag: survey.toml says τ = ${fmt(lc.declared_tau_s, 3)} s, the flights say ${(lc.estimated_tau_s || []).map((v) => fmt(v, 3)).join(", ")} s: the flights' value was used.`
       : `Gravimeter lag τ = ${fmt(lc.declared_tau_s, 3)} s confirmed in flight (${(lc.estimated_tau_s || []).map((v) => fmt(v, 3)).join(", ")} s).` });
@@ -171,7 +174,7 @@ const RENDER = {
   gnss_filled_epochs: (v) => [perFlight(v, ["Missing GNSS epochs put back on the clock"], (n) => [String(n)], { id: "report-gnss-filled" })],
   lag_check: (v) => [table(["Declared τ (s)", "Estimated τ per flight (s)", "Fitted in the band", "Applied", "Reason"],
     [[fmt(v.declared_tau_s, 4), (v.estimated_tau_s || []).map((x) => fmt(x, 4)).join(", "), bandFitCell(v), yes(v.applied),
-      v.reason || (v.offset_as_lag && v.offset_as_lag.reason) || (v.band_fit && v.band_fit.reason) || "—"]],
+      v.reason || (v.offset_as_lag && v.offset_as_lag.reason) || (v.one_scale && v.one_scale.reason) || (v.band_fit && v.band_fit.reason) || "—"]],
     { id: "report-lag-check" })],
   // the gravimeter's timing left at the anomaly's edge (stage 1): fitted on the GNSS jerk, taken out when significant
   band_delay: (v) => [table(["Residual delay (ms)", "SE (ms)", "t", "Band (Hz)", "z's band RMS (mGal)", "Applied", "Reason"],
