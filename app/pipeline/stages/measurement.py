@@ -1021,7 +1021,7 @@ def lag_on_one_scale(survey, cfg: SurveyConfig, names: list, taus: list, offsets
     means, 0.261 s undeclared) had offsets −0.246, −0.245 s applied and τ fits 0.006, 0.011 s
     on two flights, no offset and 0.269 s on the third; the band fit stopped at 0.225 s and
     the estimate was 1.36× FIR's error (0.61× with the true τ).  On one scale they agree
-    (0.252, 0.256, 0.269 s), and their median 0.255 s took the estimate to 0.56× FIR's error.
+    (0.252, 0.255, 0.269 s), and their median 0.255 s took the estimate to 0.56× FIR's error.
     Tried (``lag_one_scale``) when some flight's offset was applied and :func:`offset_as_lag`
     did not run (also where the gravimeter is slower than its GNSS, which that path leaves
     out); the lags must agree within ``lag_check_s``, differ from survey.toml's τ by more than
