@@ -239,3 +239,22 @@ def test_a_real_shift_of_a_slow_meters_stamps_stays_an_offset(tmp_path):
     one = info["one_scale"]                     # tried (an applied offset of 0.1 s) and refused
     assert not one["applied"] and abs(one["flight_lags_s"][0] - 0.1) < 0.01, one
     assert one["band_rms_improvement"] < survey.config.processing.lag_one_scale_min_improvement
+
+
+def test_a_flight_that_cannot_be_measured_at_the_one_scale_lag_leaves_tau_alone(tmp_path, monkeypatch):
+    """The one-scale lag's band check measures every flight again at the new τ; if one cannot be
+    measured there (a hole its lag inversion cannot cross), stage 1 keeps survey.toml's τ and
+    says why instead of stopping the run."""
+    import app.pipeline.stages.measurement as ms
+
+    slow = {**PLATFORM_10HZ, "gravimeter_rate_hz": 2.0, "gnss_rate_hz": 10.0, "time_offset_s": 0.1}
+    survey = read_survey(simulate_survey("tiny", tmp_path / "s", seed=11, tau_true_s=0.0, **slow))
+
+    def fails(*args, **kwargs):
+        raise ValueError("flight F01: no airborne segment")
+
+    monkeypatch.setattr(ms, "lag_band_check", fails)
+    tau, info = check_lag(survey, survey.config, [])
+    assert tau is None
+    one = info["one_scale"]
+    assert not one["applied"] and "could not be measured at τ = 0.100 s" in one["reason"], one

@@ -1042,12 +1042,16 @@ def lag_on_one_scale(survey, cfg: SurveyConfig, names: list, taus: list, offsets
     tau0 = cfg.gravimeter.tau_s
     if float(np.ptp(lags)) > p.lag_check_s or abs(tau_c - tau0) <= p.lag_check_s or not 0.0 <= tau_c <= MAX_TAU_S:
         return None, None
-    check = lag_band_check([survey.flights[n] for n in names], cfg, tau_c, [declared[n] for n in names])
     info = {"declared_tau_s": tau0, "estimated_tau_s": list(taus), "time_offsets_s": list(offsets),
-            "flight_lags_s": lags, "one_scale_tau_s": tau_c, "from_one_scale": True, **check}
+            "flight_lags_s": lags, "one_scale_tau_s": tau_c, "from_one_scale": True, "applied": False}
+    try:
+        check = lag_band_check([survey.flights[n] for n in names], cfg, tau_c, [declared[n] for n in names])
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        info["reason"] = f"a flight could not be measured at τ = {tau_c:.3f} s: {exc}"
+        return None, info
+    info.update(check)
     gain = check["band_rms_improvement"]
     if not _band_check_passes(check, p, p.lag_one_scale_min_improvement):
-        info["applied"] = False
         info["reason"] = (f"the flights' lags on one scale ({', '.join(f'{x:.3f}' for x in lags)} s) as τ = "
                           f"{tau_c:.3f} s change z's RMS at {check['band_hz'][0]:g}–{check['band_hz'][1]:g} Hz by "
                           f"{-100 * gain:+.1f} %: not used")
