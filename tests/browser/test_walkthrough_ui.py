@@ -173,6 +173,27 @@ def test_lag_from_the_flights_on_one_scale_is_told_as_such(fake_server, browser_
     _no_errors(page)
 
 
+def test_a_lag_tried_and_refused_is_not_called_confirmed(fake_server, browser_page):  # noqa: F811
+    """Generated survey 234: every flight's time offset (≈ −0.25 s) looked like a lag, and read
+    as one it did not lower z's band RMS.  The summary said "τ = 0 s confirmed in flight (0.001,
+    0.004, 0.001 s)", hiding that a 0.26 s lag was tried; it must say the τ was kept and why."""
+    page = browser_page
+    page.goto(fake_server.url)
+    got = page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const why = "the flights' lags on one scale (0.256, 0.255, 0.258 s) as τ = 0.256 s change z's RMS at 0.02–0.05 Hz by +0.4 %: not used";
+        const lag = (extra) => ({warnings: [], report: {lag_check: {declared_tau_s: 0, estimated_tau_s: [0.0012, 0.0038, 0.0015],
+            applied: false, ...extra}}});
+        const text = (r) => [...m.summary(r).querySelectorAll('li')].find((l) => l.textContent.startsWith('Gravimeter lag')).textContent;
+        return {refused: text(lag({one_scale: {applied: false, from_one_scale: true, reason: why}})), plain: text(lag({}))};
+    }""")
+    assert got["refused"] == ("Gravimeter lag τ = 0 s kept (in-flight τ 0.001, 0.004, 0.002 s): the flights' lags on one "
+                              "scale (0.256, 0.255, 0.258 s) as τ = 0.256 s change z's RMS at 0.02–0.05 Hz by +0.4 %: "
+                              "not used."), got
+    assert got["plain"] == "Gravimeter lag τ = 0 s confirmed in flight (0.001, 0.004, 0.002 s).", got
+    _no_errors(page)
+
+
 def test_surveys_of_one_name_can_be_told_apart(fake_server, browser_page, tmp_path):  # noqa: F811
     """The same zip imported twice gave two list entries both reading "tiny" (and the same title)."""
     import httpx

@@ -71,6 +71,10 @@ export function summary(r) {
         `${(lc.flight_lags_s || []).map((v) => fmt(v, 3)).join(", ")} s: their median ${fmt(lc.one_scale_tau_s, 3)} s was used.`
       : lc.applied
       ? `Gravimeter lag: survey.toml says τ = ${fmt(lc.declared_tau_s, 3)} s, the flights say ${(lc.estimated_tau_s || []).map((v) => fmt(v, 3)).join(", ")} s: the flights' value was used.`
+      : (lc.one_scale || lc.offset_as_lag) && !(lc.one_scale || lc.offset_as_lag).applied
+      // the flights' offsets looked like a lag and were tried as one: "confirmed" would hide that
+      ? `Gravimeter lag τ = ${fmt(lc.declared_tau_s, 3)} s kept (in-flight τ ${(lc.estimated_tau_s || []).map((v) => fmt(v, 3)).join(", ")} s): ` +
+        `${(lc.one_scale || lc.offset_as_lag).reason}.`
       : `Gravimeter lag τ = ${fmt(lc.declared_tau_s, 3)} s confirmed in flight (${(lc.estimated_tau_s || []).map((v) => fmt(v, 3)).join(", ")} s).` });
   }
   if (rep.model_choice !== undefined) {
