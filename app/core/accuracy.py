@@ -3,7 +3,10 @@
 - crossover RMS of the differences at line intersections;
 - repeat-line internal accuracy ``ε = sqrt(Σ_i Σ_j (g_ij − ḡ_j)² / (n (K−1)))``
   over K repeats of one track at n common points; which passes fly one track
-  (:func:`same_track`, :func:`group_passes`);
+  (:func:`same_track`, :func:`group_passes`); the parts of an estimate's error the repeats
+  show (:func:`repeat_error_parts`), each repeat's own noise (:func:`repeat_pass_noise_var`, over its posterior:
+  :func:`repeat_pass_noise_ratio`)
+  and whether it exceeds a posterior std (:func:`noise_excess_p_value`);
 - RMS (optionally with each line's mean removed) and mean error against a reference,
   std calibration (fraction of errors within k σ);
 - grid RMS (and demeaned RMS, std calibration) against a true grid inside the convex
@@ -18,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial import ConvexHull, Delaunay
+from scipy.stats import chi2
 from scipy.stats import f as f_dist
 
 
@@ -114,6 +118,95 @@ class RepeatErrorParts:
         if not posterior_var_mgal2 > 0:
             raise ValueError(f"posterior variance must be positive, got {posterior_var_mgal2!r}")
         return max(1.0, float(np.sqrt((self.noise_var_mgal2 + self.smoothing_var_mgal2) / posterior_var_mgal2)))
+
+
+def repeat_pass_noise_var(values_mgal) -> np.ndarray:
+    """Each repeat's own noise variance, from its departures from the mean of the others.
+
+    K repeats of one track share the anomaly and the detail of it the estimate smooths away;
+    their noise differs from repeat to repeat, and not only by chance: a pass flown through a
+    turbulent stretch carries more.  The departure of repeat i from the mean of the others,
+    ``r_i = x_i − mean_{j≠i} x_j``, has the shared part cancelled and
+    ``E[r_i²] = v_i + Σ_{j≠i} v_j / (K − 1)²`` (``v_j`` the repeats' noise variances, their
+    noise independent).  The K equations, each ``r_i²`` averaged over the common points, give
+    ``v`` (clipped at 0); their mean is the scatter ``ε²`` of :func:`internal_accuracy`
+    (the noise part of :func:`repeat_error_parts`).  Two repeats cannot tell their noise apart:
+    both get ``ε²``.
+
+    Parameters
+    ----------
+    values_mgal : array_like, shape (K, n)
+        K ≥ 2 repeats at n ≥ 1 common points (mGal), finite.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        The repeats' noise variances (mGal²).
+    """
+    g = np.asarray(values_mgal, dtype=float)
+    if g.ndim != 2 or g.shape[0] < 2 or g.shape[1] < 1:
+        raise ValueError(f"need an array of shape (K ≥ 2, n ≥ 1), got {g.shape}")
+    if not np.all(np.isfinite(g)):
+        raise ValueError("repeat values must be finite")
+    k = g.shape[0]
+    others = (g.sum(axis=0) - g) / (k - 1)
+    a = np.mean((g - others) ** 2, axis=1)
+    if k == 2:
+        return np.full(2, float(a.mean()) / 2.0)
+    m = np.eye(k) + (np.ones((k, k)) - np.eye(k)) / (k - 1) ** 2
+    return np.maximum(np.linalg.solve(m, a), 0.0)
+
+
+def repeat_pass_noise_ratio(values_mgal, posterior_var_mgal2) -> np.ndarray:
+    """Each repeat's own noise variance over the posterior variance, point by point.
+
+    :func:`repeat_pass_noise_var` of the repeats divided at every common point by the root
+    of the repeats' mean posterior variance there: the posterior widens at a line's ends and
+    holes, where every estimate departs more, and a plain mean square would let those few
+    points rule.  A ratio above 1 says the repeat carries more noise than its posterior holds.
+
+    Parameters
+    ----------
+    values_mgal : array_like, shape (K, n)
+        K ≥ 2 repeats at n common points (mGal), finite.
+    posterior_var_mgal2 : array_like, shape (K, n) or (n,)
+        Their posterior variances at the same points (mGal², > 0).
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        Dimensionless.
+    """
+    g = np.asarray(values_mgal, dtype=float)
+    v = np.asarray(posterior_var_mgal2, dtype=float)
+    scale = v.mean(axis=0) if v.ndim == 2 else v
+    if scale.shape != g.shape[-1:] or not np.all(scale > 0):
+        raise ValueError(f"posterior variances must be positive, one per common point ({g.shape[-1:]}), got "
+                         f"shape {v.shape}")
+    return repeat_pass_noise_var(g / np.sqrt(scale))
+
+
+def noise_excess_p_value(noise_var_mgal2: float, posterior_var_mgal2: float, dof: float) -> float:
+    """One-sided p-value of a noise variance measured above a posterior variance.
+
+    The repeats' scatter ``ε²`` (``dof`` degrees of freedom: independent stretches times
+    K − 1) is a scaled χ² when the error is Gaussian; under the hypothesis that the noise
+    part is no larger than the whole posterior variance, ``dof·ε²/σ²`` is at most χ²(dof),
+    so a small p says the posterior std misses noise the repeats show.
+
+    Parameters
+    ----------
+    noise_var_mgal2, posterior_var_mgal2 : float
+        The repeats' noise variance and the mean posterior variance at the same points (mGal²,
+        the latter > 0).
+    dof : float
+        Degrees of freedom of the scatter (≥ 1).
+    """
+    if not posterior_var_mgal2 > 0:
+        raise ValueError(f"posterior variance must be positive, got {posterior_var_mgal2!r}")
+    if not dof >= 1.0:
+        raise ValueError(f"dof must be at least 1, got {dof!r}")
+    return float(chi2.sf(dof * float(noise_var_mgal2) / float(posterior_var_mgal2), dof))
 
 
 def repeat_error_parts(values_mgal, diff_mgal) -> RepeatErrorParts:

@@ -13,9 +13,12 @@ from app.core.accuracy import (
     internal_accuracy,
     line_demeaned,
     mean_error_vs_reference,
+    noise_excess_p_value,
     points_in_hull,
     repeat_error_parts,
     repeat_line_accuracy,
+    repeat_pass_noise_ratio,
+    repeat_pass_noise_var,
     rms_vs_reference,
     std_calibration,
 )
@@ -346,3 +349,71 @@ def test_passes_are_grouped_by_the_track_they_fly():
         assert same_track([e, rot[0]], [n0, rot[1]], max_spread_km=10.0) is same
     with pytest.raises(ValueError):
         same_track([e], [n0])
+
+
+def test_each_repeats_own_noise_is_recovered():
+    """Simulation with known parts: five repeats share a smoothing error and carry noise of
+    their own with variances 1, 9, 0.25, 1 and 4 mGal² (a turbulent pass among calm ones).
+    Each one's departure from the mean of the others gives its variance back within 10 %;
+    their mean is the repeats' scatter ε² (internal accuracy squared), exactly."""
+    rng = np.random.default_rng(21)
+    n = 40000
+    v_true = np.array([1.0, 9.0, 0.25, 1.0, 4.0])
+    b = _smooth_noise(rng, n, 3.0, 50)          # shared by every repeat: cancels
+    x = np.array([b + rng.normal(0.0, np.sqrt(v), n) for v in v_true])
+    v = repeat_pass_noise_var(x)
+    np.testing.assert_allclose(v, v_true, rtol=0.1)
+    assert np.mean(v) == pytest.approx(internal_accuracy(x) ** 2, rel=1e-9)
+    # two repeats cannot tell their noise apart: both get ε²
+    two = repeat_pass_noise_var(x[:2])
+    assert two[0] == two[1] == pytest.approx(internal_accuracy(x[:2]) ** 2, rel=1e-12)
+    # by hand, three repeats at one point (2, 0, 0): departures from the others' mean 2, −1, −1
+    # (squares 4, 1, 1); v_i + (v_j + v_k)/4 = (4, 1, 1) is solved by v = (4, 0, 0), whose
+    # mean 4/3 is the unbiased variance of (2, 0, 0)
+    np.testing.assert_allclose(repeat_pass_noise_var(np.array([[2.0], [0.0], [0.0]])), [4.0, 0.0, 0.0], atol=1e-12)
+    # a repeat quieter than the others can come out below 0: clipped
+    assert np.all(repeat_pass_noise_var(np.array([[0.0, 0.0], [3.0, -3.0], [-3.0, 3.0]])) >= 0.0)
+    with pytest.raises(ValueError, match="K ≥ 2"):
+        repeat_pass_noise_var(np.zeros((1, 4)))
+    with pytest.raises(ValueError, match="finite"):
+        repeat_pass_noise_var(np.array([[0.0, np.nan], [1.0, 2.0]]))
+
+
+def test_noise_excess_p_value_is_calibrated_and_finds_excess_noise():
+    """Four repeats at 20 independent points (60 degrees of freedom): with noise whose
+    variance equals the posterior's, p < 0.1 on 0.1 of 1000 draws (binomial 3σ 0.07–0.13);
+    with the noise 2× the posterior variance, on nearly all of them."""
+    rng = np.random.default_rng(5)
+    k, n = 4, 20
+    dof = n * (k - 1)
+    null = np.array([noise_excess_p_value(internal_accuracy(rng.normal(0.0, 1.5, (k, n))) ** 2, 2.25, dof)
+                     for _ in range(1000)])
+    assert 0.07 <= np.mean(null < 0.1) <= 0.13
+    excess = np.array([noise_excess_p_value(internal_accuracy(rng.normal(0.0, 1.5 * np.sqrt(2), (k, n))) ** 2,
+                                            2.25, dof) for _ in range(200)])
+    assert np.mean(excess < 0.1) > 0.95
+    assert noise_excess_p_value(2.25, 2.25, 1e6) == pytest.approx(0.5, abs=0.01)
+    with pytest.raises(ValueError, match="positive"):
+        noise_excess_p_value(1.0, 0.0, 10)
+    with pytest.raises(ValueError, match="at least 1"):
+        noise_excess_p_value(1.0, 1.0, 0.5)
+
+
+def test_repeat_noise_ratio_is_not_ruled_by_the_line_ends():
+    """Four repeats whose posterior (and noise) widens 10× over the last 5 % of the points, as
+    at a line's end: the noise over the posterior, point by point, gives each repeat's ratio
+    (1, 4, 1, 1 over 1.3) within 10 %, whether the posterior comes per repeat or once."""
+    rng = np.random.default_rng(4)
+    k, n = 4, 40000
+    sd = np.ones(n)
+    sd[-n // 20:] = 10.0
+    post_var = 1.3 * sd ** 2                       # the posterior: noise 1 plus a smoothing part
+    ratio_true = np.array([1.0, 4.0, 1.0, 1.0]) / 1.3
+    b = rng.normal(0.0, 5.0, n)                    # shared: cancels
+    x = np.array([b + rng.normal(0.0, 1.0, n) * sd * np.sqrt(r * 1.3) for r in ratio_true])
+    np.testing.assert_allclose(repeat_pass_noise_ratio(x, post_var), ratio_true, rtol=0.1)
+    np.testing.assert_allclose(repeat_pass_noise_ratio(x, np.tile(post_var, (k, 1))), ratio_true, rtol=0.1)
+    with pytest.raises(ValueError, match="positive"):
+        repeat_pass_noise_ratio(x, np.zeros(n))
+    with pytest.raises(ValueError, match="one per common point"):
+        repeat_pass_noise_ratio(x, post_var[:-1])

@@ -63,9 +63,10 @@ def test_levels_from_few_points_carry_their_uncertainty():
     assert all(kept)
 
 
-def _repeat_passes(rng, n_pass, T, dt, q, R, speed_ms):
+def _repeat_passes(rng, n_pass, T, dt, q, R, speed_ms, r_factors=None):
     """One track flown ``n_pass`` times in alternating directions: the same random-walk
-    anomaly, white velocity noise of its own on each pass."""
+    anomaly, white velocity noise of its own on each pass (variance R, times
+    ``r_factors[k]`` on pass k when given)."""
     from types import SimpleNamespace
 
     dg = np.cumsum(np.cumsum(rng.normal(size=T) * np.sqrt(q))) + 30.0
@@ -73,7 +74,7 @@ def _repeat_passes(rng, n_pass, T, dt, q, R, speed_ms):
     lines, zs, truths = [], [], []
     for k in range(n_pass):
         o = slice(None) if k % 2 == 0 else slice(None, None, -1)
-        r = rng.normal(size=T + 1) * np.sqrt(R)
+        r = rng.normal(size=T + 1) * np.sqrt(R * (1.0 if r_factors is None else r_factors[k]))
         zs.append(dg[o] - 1000.0 * (r[1:] - r[:-1]) / dt)
         truths.append(dg[o])
         lines.append(SimpleNamespace(kind="repeat", track="T1", easting_km=500.0 + s_km[o],
@@ -204,3 +205,93 @@ def test_repeat_passes_without_a_measured_shared_error_keep_the_level_spread():
         seen["positive"] = seen.get("positive", 0) + int(track["smoothing_part_mgal"] > 0.0)
     # the shared part is noise here: it comes out above 0 on some seeds, significant on few
     assert seen["positive"] >= 2 and seen["kept"] >= 6, seen
+
+
+def test_a_pass_through_turbulence_gets_a_std_of_its_own_noise():
+    """One of four passes carries 16× the noise variance the model was given (a turbulent
+    stretch; generated test line 304: pass errors 22–78 mGal against one posterior of 15).
+    Each pass's own noise, from its departures from the other passes, sizes its std: with the
+    level right (the passes' shared part not significant, so the spread stays) the noisy pass
+    gets at least its own noise as a floor; with the level a decade low (the shared part
+    measured) the track's scale, and the noisy pass more: its own noise plus the shared part.
+    Its 2σ coverage (0.37–0.54 from the posterior alone) comes to 0.94–1.00 where the spread
+    would give 0.79–0.86 (and the calm passes' floor stays below 1.3), and, with the level low,
+    0.55 → 0.86 beside the track's one scale."""
+    dt, T, R, speed = 0.5, 3000, 1.0, 60.0
+    for seed, (case, q_used) in enumerate((("ok", 2e-5), ("low", 2e-6), ("ok", 2e-5))):
+        rng = np.random.default_rng(40 + seed)
+        lines, zs, truths = _repeat_passes(rng, 4, T, dt, 2e-5, R, speed, r_factors=[1.0, 16.0, 1.0, 1.0])
+        sms = [kalman_smooth(z, np.full(T, q_used), np.full(T, R), dt, m=2) for z in zs]
+        table = pd.DataFrame({"dg_mgal": np.concatenate([s.dg_mgal for s in sms]),
+                              "dg_std_mgal": np.concatenate([s.dg_std_mgal for s in sms])})
+        prepared = [PreparedLine(ln, np.zeros(T, int), np.zeros(T, int), z, slice(0, T), None, None, None)
+                    for ln, z in zip(lines, zs)]
+        f = Filtered(table.copy(), np.array([q_used]), None, 1.0, prepared=prepared,
+                     r_lines=[np.full(T, R)] * 4, n_r=1)
+        f.level_spread_std(dt, 2, "bf", None, 10.0, repeat_min_samples=8.0, fir_period_s=100.0)
+        spread = Filtered(table.copy(), np.array([q_used]), None, 1.0, prepared=prepared,
+                          r_lines=[np.full(T, R)] * 4, n_r=1)
+        spread.level_spread_std(dt, 2, "bf", None, 10.0, repeat_min_samples=None, fir_period_s=100.0)
+        track = f.std_repeat_tracks["T1"]
+        # the noisy pass's own noise is measured about 4× the others' (σ ratio √16)
+        noise = np.array(track["pass_noise_ratio"])
+        assert noise[1] > 2.0 * np.max(np.delete(noise, 1)), track
+        inner = slice(300, T - 300)
+        std = f.table["dg_std_mgal"].to_numpy().reshape(4, T)
+        post = table["dg_std_mgal"].to_numpy().reshape(4, T)
+        err = np.abs(np.array([s.dg_mgal for s in sms]) - np.array(truths))
+        cov_pass = [float(np.mean(err[k, inner] < 2 * std[k, inner])) for k in range(4)]
+        cov_spread = float(np.mean(err[1, inner] < 2 * spread.table["dg_std_mgal"].to_numpy().reshape(4, T)[1, inner]))
+        assert np.mean(err[1, inner] < 2 * post[1, inner]) < 0.75
+        if case == "ok":
+            assert cov_pass[1] >= 0.9 and cov_pass[1] > cov_spread + 0.05, (case, cov_pass, cov_spread, track)
+        else:                                 # one scale for the track would leave the noisy pass short
+            pooled = [float(np.mean(err[k, inner] < 2 * track["scale"] * post[k, inner])) for k in range(4)]
+            assert cov_pass[1] > pooled[1] + 0.1, (cov_pass, pooled)
+        if track["scale"] is None:           # the shared part not significant: the floor beside the spread
+            assert case == "ok" and track["noise_p_value"] < 0.1
+            assert track["pass_noise_scales"][1] > 2.0 and max(np.delete(track["pass_noise_scales"], 1)) < 1.3
+            np.testing.assert_array_less(spread.table["dg_std_mgal"].to_numpy() - 1e-12,
+                                         f.table["dg_std_mgal"].to_numpy())   # never below the spread
+        else:                                 # measured: each pass scaled by its own noise
+            c = np.array(track["pass_scales"])
+            np.testing.assert_allclose(std, c[:, None] * post)
+            # the calm passes keep the track's scale (never less); the noisy one gets more
+            np.testing.assert_allclose(np.delete(c, 1), track["scale"])
+            assert c[1] > 1.4 * track["scale"], track
+        # the estimate is untouched
+        np.testing.assert_array_equal(f.table["dg_mgal"].to_numpy(), table["dg_mgal"].to_numpy())
+
+
+def test_a_two_level_survey_floors_a_noisy_pass_at_its_own_noise():
+    """Two levels learned from enough points: the level spread leaves the std alone, but a
+    repeat pass whose own noise the passes show far above its posterior (16× the variance the
+    model was given) is widened to it; the calm passes and every line off the track keep their
+    std.  With every pass's noise as modelled the std is left as it is (the scatter is not
+    significantly above the posterior)."""
+    dt, T, R, speed, q = 0.5, 3000, 1.0, 60.0, 2e-5
+    for factors, noisy in (([1.0, 16.0, 1.0, 1.0], True), ([1.0, 1.0, 1.0, 1.0], False)):
+        rng = np.random.default_rng(7)
+        lines, zs, truths = _repeat_passes(rng, 4, T, dt, q, R, speed, r_factors=factors)
+        sms = [kalman_smooth(z, np.full(T, q), np.full(T, R), dt, m=2) for z in zs]
+        table = pd.DataFrame({"dg_mgal": np.concatenate([s.dg_mgal for s in sms]),
+                              "dg_std_mgal": np.concatenate([s.dg_std_mgal for s in sms])})
+        prepared = [PreparedLine(ln, np.zeros(T, int), np.zeros(T, int), z, slice(0, T), None, None, None)
+                    for ln, z in zip(lines, zs)]
+        f = Filtered(table.copy(), np.array([q, 30 * q]), None, 1.0, prepared=prepared,
+                     r_lines=[np.full(T, R)] * 4, n_r=1)
+        f.level_spread_std(dt, 2, "bf", None, 10.0, n_points=5000, min_points=200,
+                           repeat_min_samples=8.0, fir_period_s=100.0)
+        assert f.std_level_factor is None             # no spread: two levels from enough points
+        track = f.std_repeat_tracks["T1"]
+        std = f.table["dg_std_mgal"].to_numpy().reshape(4, T)
+        post = table["dg_std_mgal"].to_numpy().reshape(4, T)
+        if noisy:
+            c = np.array(track["pass_noise_scales"])
+            assert track["noise_p_value"] < 0.1 and c[1] > 2.5 and np.all(np.delete(c, 1) < 1.3), track
+            np.testing.assert_allclose(std, c[:, None] * post)
+            err = np.abs(np.array([s.dg_mgal for s in sms]) - np.array(truths))[1, 300:-300]
+            assert np.mean(err < 2 * std[1, 300:-300]) > 0.9 > np.mean(err < 2 * post[1, 300:-300])
+        else:
+            assert track["noise_p_value"] >= 0.1 and "pass_noise_scales" not in track, track
+            np.testing.assert_array_equal(std, post)

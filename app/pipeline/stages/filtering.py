@@ -11,7 +11,14 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from app.core.accuracy import REPEAT_MAX_SPREAD_KM, across_track_spread_km, repeat_error_parts, repeat_line_accuracy
+from app.core.accuracy import (
+    REPEAT_MAX_SPREAD_KM,
+    across_track_spread_km,
+    noise_excess_p_value,
+    repeat_error_parts,
+    repeat_line_accuracy,
+    repeat_pass_noise_ratio,
+)
 from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
 from app.core.level_ml import cap_lifted_smooth_level, refine_levels
 from app.core.model_check import blend_estimates
@@ -255,12 +262,14 @@ class Filtered:
         n_q = len(self.Q_levels)
         few = n_q > 1 and n_points is not None and min_points is not None and n_points < n_q * min_points
         if (n_q != 1 and not few) or factor <= 1.0 or not self.prepared or self.r_lines is None:
+            if repeat_min_samples is not None and self.prepared:
+                self.repeat_noise_floor(repeat_min_samples, fir_period_s, repeat_significance)
             return
         reason = ("one anomaly level" if n_q == 1 else
                   f"{n_q} anomaly levels from {n_points} decimated points (< {n_q} x {min_points})")
-        done = (self.repeat_calibrated_std(dt_s, m, method, noise, factor, q_from_posteriors,
-                                           repeat_min_samples, fir_period_s, repeat_significance)
-                if repeat_min_samples is not None else {})
+        done, floors = (self.repeat_calibrated_std(dt_s, m, method, noise, factor, q_from_posteriors,
+                                                   repeat_min_samples, fir_period_s, repeat_significance)
+                        if repeat_min_samples is not None else (set(), {}))
         col = self.table["dg_std_mgal"].to_numpy().copy()
         off = 0
         spread = False
@@ -269,7 +278,10 @@ class Filtered:
             if i not in done:
                 q = self.estimate_q(pr, q_from_posteriors)
                 res = level_spread_std_mgal(pr.z_ext, q, r, dt_s, factor, m=m, method=method, noise=noise)
-                col[off:off + n] = np.maximum(col[off:off + n], np.asarray(res.dg_std_mgal)[pr.inner])
+                # a pass whose own noise the repeats measured above its posterior: at least that
+                floor = floors.get(i, 1.0) * col[off:off + n]
+                col[off:off + n] = np.maximum(np.maximum(col[off:off + n], np.asarray(res.dg_std_mgal)[pr.inner]),
+                                              floor)
                 spread = True
             off += n
         self.table["dg_std_mgal"] = col
@@ -287,38 +299,27 @@ class Filtered:
         also smooths away) instead of by the levels' spread.  Per repeat track: the passes'
         scatter of the estimate (the noise part) and of its difference from the estimate at
         ``factor`` × Q (:func:`app.core.accuracy.repeat_error_parts`: the smoothing part,
-        which the passes share); the passes' std is multiplied by
-        ``c = max(1, sqrt((noise + smoothing) / mean σ²))`` (σ the posterior std at the
-        passes' common points), so it keeps its shape (wider at line ends and holes).  A
+        which the passes share); each pass's std is multiplied by
+        ``c_i = max(c, sqrt(ρ_i + smoothing / mean σ²))``, ``c = max(1, sqrt((noise +
+        smoothing) / mean σ²))`` the track's (σ the posterior std at the passes' common points,
+        ``ρ_i`` the pass's own noise over its posterior,
+        :func:`app.core.accuracy.repeat_pass_noise_ratio`: a pass through a turbulent stretch
+        carries more than the others), so it keeps its shape (wider at line ends and holes).  A
         track needs ``min_samples`` independent stretches (``period_s`` of flight each,
         times passes − 1), and a smoothing part significantly above 0 (one-sided p below
         ``significance``, :meth:`app.core.accuracy.RepeatErrorParts.smoothing_p_value`): where
         the passes' shared difference is lost in their noise the measure says nothing of the
         error they share and the track keeps the spread (test line, seed 3: 2σ coverage 0.75
-        sized by its passes, 0.90 with the spread).  Lines off the tracks are left to the
+        sized by its passes, 0.90 with the spread) — but not below each pass's own noise where
+        the passes' scatter exceeds the posterior significantly
+        (:func:`app.core.accuracy.noise_excess_p_value` of the mean ``ρ_i`` below
+        ``significance``; the floor ``max(1, sqrt(ρ_i))`` × σ_i).  Lines off the tracks are left to the
         spread: a track says little about the rest of a survey (one repeat line in the plains of a mountain survey).
-        Returns the indices of the prepared lines done; ``std_repeat_tracks`` gives the
-        figures per track for the report."""
-        tracks: dict = {}
-        off = 0
-        for i, pr in enumerate(self.prepared):
-            n = pr.inner.stop - pr.inner.start
-            if pr.line is not None and pr.line.kind == "repeat" and pr.line.track is not None:
-                tracks.setdefault(pr.line.track, []).append((i, off, n))
-            off += n
+        Returns the indices of the prepared lines done and the floors' factors by line index;
+        ``std_repeat_tracks`` gives the figures per track for the report."""
         std = self.table["dg_std_mgal"].to_numpy().copy()
-        done, figures = set(), {}
-        for track, passes in tracks.items():
-            if len(passes) < 2:
-                continue
-            spread = across_track_spread_km([self.prepared[i].line.easting_km for i, _, _ in passes],
-                                            [self.prepared[i].line.northing_km for i, _, _ in passes])
-            if spread > REPEAT_MAX_SPREAD_KM:
-                # not repeats of one track: their scatter holds the anomaly's change across it
-                figures[str(track)] = {"scale": None, "passes": len(passes), "across_track_spread_km": spread,
-                                       "reason": f"passes {spread:.2f} km apart across the track (more than "
-                                                 f"{REPEAT_MAX_SPREAD_KM} km): not repeats, level spread kept"}
-                continue
+        done, figures, floors = set(), {}, {}
+        for track, passes in self._repeat_tracks(figures, "level spread kept").items():
             xs, ds, ss, geo = [], [], [], []
             for i, off, n in passes:
                 pr, r = self.prepared[i], self.r_lines[i]
@@ -335,9 +336,7 @@ class Filtered:
             except ValueError:
                 continue
             parts = repeat_error_parts(acc[0].values_mgal, acc[1].values_mgal)
-            length_m = 1000.0 * float(acc[0].along_km[-1] - acc[0].along_km[0])
-            speed = float(np.mean([self.prepared[i].line.speed_ms for i, _, _ in passes]))
-            samples = length_m / (speed * period_s) * (parts.n_repeats - 1)
+            samples = self._track_stretches(acc[0], passes, period_s)
             post_v = float(np.mean(acc[2].values_mgal))
             if samples < min_samples or not post_v > 0:
                 continue
@@ -347,19 +346,119 @@ class Filtered:
                    "independent_stretches": float(samples), "versus_q_factor": float(factor)}
             figures[str(track)] = fig
             fig["smoothing_p_value"] = p_smooth = parts.smoothing_p_value(max(1.0, samples / (parts.n_repeats - 1)))
+            # each pass's own noise (a pass through a turbulent stretch carries more than the
+            # others): the passes' scatter of the estimate, split by pass
+            ratio = repeat_pass_noise_ratio(acc[0].values_mgal, acc[2].values_mgal)
+            fig["pass_noise_ratio"] = [float(x) for x in ratio]
             if not (parts.smoothing_var_mgal2 > 0 and p_smooth < significance):
                 # the passes' shared difference is lost in their noise: the measure says
-                # nothing of the error they share, and the level spread stays
+                # nothing of the error they share, and the level spread stays; but the
+                # noise the passes show is measured, and where it exceeds the posterior
+                # significantly each pass's std is widened to at least its own noise
                 fig["reason"] = (f"smoothing part lost in the passes' noise (p = {p_smooth:.3g}, needs "
                                  f"< {significance:g}): level spread kept")
+                fig["noise_p_value"] = p_noise = noise_excess_p_value(float(np.mean(ratio)), 1.0, samples)
+                if p_noise < significance:
+                    c_pass = np.maximum(1.0, np.sqrt(ratio))
+                    fig["pass_noise_scales"] = [float(x) for x in c_pass]
+                    fig["reason"] += (f"; the passes' noise ({np.sqrt(parts.noise_var_mgal2):.3g} mGal) exceeds "
+                                      f"the posterior std ({np.sqrt(post_v):.3g} mGal, p = {p_noise:.3g}): each "
+                                      "pass's std at least its own noise")
+                    for (i, _, _), c in zip(passes, c_pass):
+                        floors[i] = float(c)
                 continue
-            fig["scale"] = c = parts.std_scale(post_v)
-            for i, off, n in passes:
+            # the track's scale, and more on a pass whose own noise exceeds the track's (never
+            # less: a pass's share of the noise rests on a quarter of the stretches or fewer)
+            fig["scale"] = scale = parts.std_scale(post_v)
+            c_pass = np.maximum(scale, np.sqrt(ratio + parts.smoothing_var_mgal2 / post_v))
+            fig["pass_scales"] = [float(x) for x in c_pass]
+            for (i, off, n), c in zip(passes, c_pass):
                 std[off:off + n] *= c
                 done.add(i)
         self.table["dg_std_mgal"] = std
         self.std_repeat_tracks = figures or None
-        return done
+        return done, floors
+
+    def _repeat_tracks(self, figures: dict, kept: str) -> dict:
+        """The repeat tracks among the prepared lines with two passes or more: track → list of
+        (line index, offset in the table, epochs).  A track whose passes lie apart across it is
+        left out, its reason in ``figures`` (with what the std then keeps, ``kept``)."""
+        tracks: dict = {}
+        off = 0
+        for i, pr in enumerate(self.prepared):
+            n = pr.inner.stop - pr.inner.start
+            if pr.line is not None and pr.line.kind == "repeat" and pr.line.track is not None:
+                tracks.setdefault(pr.line.track, []).append((i, off, n))
+            off += n
+        out = {}
+        for track, passes in tracks.items():
+            if len(passes) < 2:
+                continue
+            spread = across_track_spread_km([self.prepared[i].line.easting_km for i, _, _ in passes],
+                                            [self.prepared[i].line.northing_km for i, _, _ in passes])
+            if spread > REPEAT_MAX_SPREAD_KM:
+                # not repeats of one track: their scatter holds the anomaly's change across it
+                figures[str(track)] = {"scale": None, "passes": len(passes), "across_track_spread_km": spread,
+                                       "reason": f"passes {spread:.2f} km apart across the track (more than "
+                                                 f"{REPEAT_MAX_SPREAD_KM} km): not repeats, {kept}"}
+                continue
+            out[track] = passes
+        return out
+
+    def _track_stretches(self, acc, passes: list, period_s: float) -> float:
+        """Independent stretches of a track's scatter: its common length over the distance one
+        ``period_s`` of flight spans, times passes − 1 (the scatter's degrees of freedom)."""
+        length_m = 1000.0 * float(acc.along_km[-1] - acc.along_km[0])
+        speed = float(np.mean([self.prepared[i].line.speed_ms for i, _, _ in passes]))
+        return length_m / (speed * period_s) * (acc.n_repeats - 1)
+
+    def repeat_noise_floor(self, min_samples: float, period_s: float, significance: float = 0.1) -> None:
+        """Where the std is not sized by the repeats (two levels learned from enough points:
+        :meth:`level_spread_std` leaves it), a repeat pass's ``dg_std_mgal`` is still widened
+        to its own noise when the passes' scatter exceeds the posterior significantly: the
+        factor ``max(1, sqrt(ρ_i))``, ρ_i the pass's noise over its posterior
+        (:func:`app.core.accuracy.repeat_pass_noise_ratio`; their mean's
+        :func:`app.core.accuracy.noise_excess_p_value` below ``significance``; a track needs
+        ``min_samples`` independent stretches of ``period_s``).  The passes' scatter measures
+        the noise part of their error directly; a pass through a turbulent stretch carries more
+        than the noise model gave it.  Never narrowed; the report's
+        ``level_refinement.std_repeat_tracks`` gives the figures."""
+        if not self.prepared:
+            return
+        std = self.table["dg_std_mgal"].to_numpy().copy()
+        est = self.table["dg_mgal"].to_numpy()
+        figures: dict = {}
+        for track, passes in self._repeat_tracks(figures, "std left as it is").items():
+            geo = [(self.prepared[i].line.easting_km, self.prepared[i].line.northing_km) for i, _, _ in passes]
+            try:
+                acc = [repeat_line_accuracy([(e, nn, col[off:off + n]) for (e, nn), (_, off, n) in zip(geo, passes)])
+                       for col in (est, std ** 2)]
+            except ValueError:
+                continue
+            samples = self._track_stretches(acc[0], passes, period_s)
+            post_v = float(np.mean(acc[1].values_mgal))
+            if samples < min_samples or not post_v > 0:
+                continue
+            noise_v = float(acc[0].epsilon_mgal) ** 2
+            ratio = repeat_pass_noise_ratio(acc[0].values_mgal, acc[1].values_mgal)
+            fig = figures[str(track)] = {
+                "scale": None, "noise_part_mgal": float(np.sqrt(noise_v)), "posterior_mgal": float(np.sqrt(post_v)),
+                "passes": len(passes), "independent_stretches": float(samples),
+                "pass_noise_ratio": [float(x) for x in ratio],
+                "noise_p_value": noise_excess_p_value(float(np.mean(ratio)), 1.0, samples)}
+            if not fig["noise_p_value"] < significance:
+                fig["reason"] = (f"the passes' noise is not significantly above the posterior std (p = "
+                                 f"{fig['noise_p_value']:.3g}, needs < {significance:g}): std left as it is")
+                continue
+            c_pass = np.maximum(1.0, np.sqrt(ratio))
+            fig["pass_noise_scales"] = [float(x) for x in c_pass]
+            fig["reason"] = (f"the passes' noise ({np.sqrt(noise_v):.3g} mGal) exceeds the posterior std "
+                             f"({np.sqrt(post_v):.3g} mGal, p = {fig['noise_p_value']:.3g}): each pass's std at "
+                             "least its own noise")
+            for (_, off, n), c in zip(passes, c_pass):
+                std[off:off + n] *= c
+        self.table["dg_std_mgal"] = std
+        self.std_repeat_tracks = figures or None
 
     def mixture_std(self, dt_s: float, m: int, method: str, noise) -> None:
         """Replace ``dg_std_mgal`` by the std of the mixture of levels (``std_state_mixture``),
