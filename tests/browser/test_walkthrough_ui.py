@@ -194,6 +194,33 @@ def test_a_lag_tried_and_refused_is_not_called_confirmed(fake_server, browser_pa
     _no_errors(page)
 
 
+def test_a_repeat_pass_widened_to_its_own_noise_is_named(fake_server, browser_page):  # noqa: F811
+    """Generated test line 304: two of four passes flew through turbulence, and their std was
+    widened to the noise their departures from the other passes show.  The summary names
+    those passes with their factors; passes at the track's own scale are not named, and a
+    track with no pass above it gives no line."""
+    page = browser_page
+    page.goto(fake_server.url)
+    got = page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const rep = (track) => ({warnings: [], report: {level_refinement: {std_repeat_tracks: {R1: track}}}});
+        const text = (r) => [...m.summary(r).querySelectorAll('li')].filter((l) => l.textContent.startsWith('Std on repeat'))
+            .map((l) => [l.textContent, l.className]);
+        const floor = {scale: null, noise_part_mgal: 49.13, posterior_mgal: 14.9, noise_p_value: 2.2e-25,
+            pass_lines: ['R1-1', 'R1-2', 'R1-3', 'R1-4'], pass_noise_scales: [1.0, 5.362, 1.0, 3.635]};
+        const sized = {scale: 1.27, pass_lines: ['R1-1', 'R1-2', 'R1-3', 'R1-4'], pass_scales: [1.27, 2.1, 1.27, 1.27]};
+        const even = {scale: 1.27, pass_lines: ['R1-1', 'R1-2'], pass_scales: [1.27, 1.27]};
+        return {floor: text(rep(floor)), sized: text(rep(sized)), even: text(rep(even)), none: text({warnings: [], report: {}})};
+    }""")
+    assert got["floor"] == [["Std on repeat track R1: the passes' scatter (49.13 mGal) exceeds the posterior std (14.9 "
+                             "mGal, p = 2.2e-25); R1-2 × 5.362, R1-4 × 3.635: these passes carry more noise than the "
+                             "others (their departures from them), and their std is widened to it.", "warn"]], got
+    assert got["sized"] == [["Std on repeat track R1: sized by its passes (× 1.27); R1-2 × 2.1: this pass carries more "
+                             "noise than the others (its departures from them), and its std is widened to it.", "warn"]], got
+    assert got["even"] == [] and got["none"] == [], got
+    _no_errors(page)
+
+
 def test_surveys_of_one_name_can_be_told_apart(fake_server, browser_page, tmp_path):  # noqa: F811
     """The same zip imported twice gave two list entries both reading "tiny" (and the same title)."""
     import httpx

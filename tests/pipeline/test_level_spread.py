@@ -234,6 +234,7 @@ def test_a_pass_through_turbulence_gets_a_std_of_its_own_noise():
         spread.level_spread_std(dt, 2, "bf", None, 10.0, repeat_min_samples=None, fir_period_s=100.0)
         track = f.std_repeat_tracks["T1"]
         # the noisy pass's own noise is measured about 4× the others' (σ ratio √16)
+        assert track["pass_lines"] == ["0", "1", "2", "3"]   # the passes, in the order of their figures
         noise = np.array(track["pass_noise_ratio"])
         assert noise[1] > 2.0 * np.max(np.delete(noise, 1)), track
         inner = slice(300, T - 300)

@@ -343,6 +343,7 @@ class Filtered:
             fig = {"scale": None, "noise_part_mgal": float(np.sqrt(parts.noise_var_mgal2)),
                    "smoothing_part_mgal": float(np.sqrt(parts.smoothing_var_mgal2)),
                    "posterior_mgal": float(np.sqrt(post_v)), "passes": parts.n_repeats,
+                   "pass_lines": self._pass_lines(passes),
                    "independent_stretches": float(samples), "versus_q_factor": float(factor)}
             figures[str(track)] = fig
             fig["smoothing_p_value"] = p_smooth = parts.smoothing_p_value(max(1.0, samples / (parts.n_repeats - 1)))
@@ -405,6 +406,10 @@ class Filtered:
             out[track] = passes
         return out
 
+    def _pass_lines(self, passes: list) -> list:
+        """The line ids of a track's passes, in the order of its per-pass figures."""
+        return [str(getattr(self.prepared[i].line, "line", i)) for i, _, _ in passes]
+
     def _track_stretches(self, acc, passes: list, period_s: float) -> float:
         """Independent stretches of a track's scatter: its common length over the distance one
         ``period_s`` of flight spans, times passes − 1 (the scatter's degrees of freedom)."""
@@ -443,7 +448,7 @@ class Filtered:
             ratio = repeat_pass_noise_ratio(acc[0].values_mgal, acc[1].values_mgal)
             fig = figures[str(track)] = {
                 "scale": None, "noise_part_mgal": float(np.sqrt(noise_v)), "posterior_mgal": float(np.sqrt(post_v)),
-                "passes": len(passes), "independent_stretches": float(samples),
+                "passes": len(passes), "pass_lines": self._pass_lines(passes), "independent_stretches": float(samples),
                 "pass_noise_ratio": [float(x) for x in ratio],
                 "noise_p_value": noise_excess_p_value(float(np.mean(ratio)), 1.0, samples)}
             if not fig["noise_p_value"] < significance:
