@@ -296,3 +296,26 @@ def test_a_two_level_survey_floors_a_noisy_pass_at_its_own_noise():
         else:
             assert track["noise_p_value"] >= 0.1 and "pass_noise_scales" not in track, track
             np.testing.assert_array_equal(std, post)
+
+
+def test_a_hole_in_one_pass_leaves_the_pass_noise_measurable():
+    """A pass with a hole (NaN) in its std but not in its estimate, and one with a zero std
+    stretch: the passes' figures come on the points they share and the survey is processed
+    (before, the per-pass ratio needed the estimates and the posteriors on the same points)."""
+    dt, T, R, speed, q = 0.5, 3000, 1.0, 60.0, 2e-5
+    rng = np.random.default_rng(3)
+    lines, zs, _ = _repeat_passes(rng, 4, T, dt, q, R, speed, r_factors=[1.0, 16.0, 1.0, 1.0])
+    sms = [kalman_smooth(z, np.full(T, q), np.full(T, R), dt, m=2) for z in zs]
+    std = np.concatenate([s.dg_std_mgal for s in sms])
+    std[T + 500:T + 520] = np.nan
+    std[2 * T + 900:2 * T + 905] = 0.0
+    table = pd.DataFrame({"dg_mgal": np.concatenate([s.dg_mgal for s in sms]), "dg_std_mgal": std})
+    prepared = [PreparedLine(ln, np.zeros(T, int), np.zeros(T, int), z, slice(0, T), None, None, None)
+                for ln, z in zip(lines, zs)]
+    for n_q, n_points in ((1, None), (2, 5000)):
+        f = Filtered(table.copy(), np.array([q, 30 * q][:n_q]), None, 1.0, prepared=prepared,
+                     r_lines=[np.full(T, R)] * 4, n_r=1)
+        f.level_spread_std(dt, 2, "bf", None, 10.0, n_points=n_points, min_points=200,
+                           repeat_min_samples=8.0, fir_period_s=100.0)
+        ratio = f.std_repeat_tracks["T1"]["pass_noise_ratio"]
+        assert len(ratio) == 4 and ratio[1] > 4.0 * max(np.delete(ratio, 1)), (n_q, ratio)

@@ -349,7 +349,7 @@ class Filtered:
             fig["smoothing_p_value"] = p_smooth = parts.smoothing_p_value(max(1.0, samples / (parts.n_repeats - 1)))
             # each pass's own noise (a pass through a turbulent stretch carries more than the
             # others): the passes' scatter of the estimate, split by pass
-            ratio = repeat_pass_noise_ratio(acc[0].values_mgal, acc[2].values_mgal)
+            ratio = _pass_noise_ratio(acc[0].values_mgal, acc[2].values_mgal, post_v)
             fig["pass_noise_ratio"] = [float(x) for x in ratio]
             if not (parts.smoothing_var_mgal2 > 0 and p_smooth < significance):
                 # the passes' shared difference is lost in their noise: the measure says
@@ -445,7 +445,7 @@ class Filtered:
             if samples < min_samples or not post_v > 0:
                 continue
             noise_v = float(acc[0].epsilon_mgal) ** 2
-            ratio = repeat_pass_noise_ratio(acc[0].values_mgal, acc[1].values_mgal)
+            ratio = _pass_noise_ratio(acc[0].values_mgal, acc[1].values_mgal, post_v)
             fig = figures[str(track)] = {
                 "scale": None, "noise_part_mgal": float(np.sqrt(noise_v)), "posterior_mgal": float(np.sqrt(post_v)),
                 "passes": len(passes), "pass_lines": self._pass_lines(passes), "independent_stretches": float(samples),
@@ -533,6 +533,17 @@ class Filtered:
             return filter_line(pr.z_ext, q, np.full_like(q, self.r_stationary), dt_s, m, method, noise)[0][pr.inner]
 
         self.table["dg_stationary_mgal"] = np.concatenate(list(line_map()(smooth, self.prepared)))
+
+
+def _pass_noise_ratio(values_mgal: np.ndarray, posterior_var_mgal2: np.ndarray, mean_var_mgal2: float) -> np.ndarray:
+    """:func:`app.core.accuracy.repeat_pass_noise_ratio` of a track's passes (shape (K, n)) over
+    their posterior variances at the same common points; where a hole left the two on different
+    points, or a posterior variance is not positive there, over their mean ``mean_var_mgal2``
+    (> 0) instead."""
+    post = np.asarray(posterior_var_mgal2, float)
+    if post.shape != values_mgal.shape or not np.all(post > 0):
+        post = np.full(values_mgal.shape[1], mean_var_mgal2)
+    return repeat_pass_noise_ratio(values_mgal, post)
 
 
 def stationary_level(prepared: list, Q_levels, r_stationary: float, dt_s: float, m: int, noise, p=None) -> float:
