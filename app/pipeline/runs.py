@@ -19,7 +19,13 @@ from app.config import SurveyConfig
 from app.pipeline.parallel import thread_count
 from app.pipeline.stages import storage
 from app.pipeline.stages.choice import Candidate, choose_model, choose_order, count_crossovers
-from app.pipeline.stages.filtering import filter_survey, fir_baseline, fir_line_column, fir_loss_warnings
+from app.pipeline.stages.filtering import (
+    filter_survey,
+    fir_baseline,
+    fir_line_column,
+    fir_loss_warnings,
+    pass_noise_warnings,
+)
 from app.pipeline.stages.gridding import grid_survey
 from app.pipeline.stages.identification import Identification, identify
 from app.pipeline.stages.leveling import add_common_level_std, level_survey
@@ -241,6 +247,7 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
                                             repeat_min_samples=p.std_repeat_min_samples or None,
                                             fir_period_s=p.fir_cutoff_period_s,
                                             repeat_significance=p.std_repeat_significance)
+    warnings.extend(pass_noise_warnings(cands[m_best].filtered.std_repeat_tracks))
     if blend:   # after m_best's own std: the blend's spread adds to it
         cands[m_best].filtered.blend_order(blend_est, blend["weight"])
     choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings, order=(m_best, order_rep),

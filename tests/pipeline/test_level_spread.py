@@ -319,3 +319,20 @@ def test_a_hole_in_one_pass_leaves_the_pass_noise_measurable():
                            repeat_min_samples=8.0, fir_period_s=100.0)
         ratio = f.std_repeat_tracks["T1"]["pass_noise_ratio"]
         assert len(ratio) == 4 and ratio[1] > 4.0 * max(np.delete(ratio, 1)), (n_q, ratio)
+
+
+def test_passes_widened_to_their_own_noise_are_warned_about():
+    """The warning names each pass widened beyond its track's scale with its noise over its
+    posterior variance (generated 304's R1-2: 28.4×, its std widened 5.33×); the
+    passes at the track's scale and tracks without per-pass figures give none."""
+    from app.pipeline.stages.filtering import pass_noise_warnings
+
+    floor = {"scale": None, "pass_lines": ["R1-1", "R1-2", "R1-3", "R1-4"], "pass_noise_scales": [1.0, 5.33, 1.0, 4.04],
+             "pass_noise_ratio": [0.2, 28.43, 0.1, 16.3]}
+    sized = {"scale": 1.27, "pass_lines": ["A", "B"], "pass_scales": [1.27, 1.3]}    # within 5 % of the track's
+    old = {"scale": 1.3, "noise_part_mgal": 2.0}
+    got = pass_noise_warnings({"R1": floor, "T2": sized, "T3": old})
+    assert got == ["repeat track R1: the noise of pass R1-2 is 28.4x, pass R1-4 is 16.3x its posterior variance "
+                   "(departures from the other passes: more noise than the noise model gave it); the std is widened "
+                   "to that noise, and the estimate carries it"], got
+    assert pass_noise_warnings(None) == [] and pass_noise_warnings({}) == []

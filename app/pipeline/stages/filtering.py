@@ -535,6 +535,26 @@ class Filtered:
         self.table["dg_stationary_mgal"] = np.concatenate(list(line_map()(smooth, self.prepared)))
 
 
+def pass_noise_warnings(tracks: dict | None) -> list[str]:
+    """Warnings naming the repeat passes whose std was widened beyond their track's to their
+    own noise (``Filtered.std_repeat_tracks``: a pass flown through turbulence the noise model
+    did not give it); none where every pass kept the track's scale."""
+    out = []
+    for track, t in (tracks or {}).items():
+        scales = t.get("pass_scales") or t.get("pass_noise_scales")
+        lines = t.get("pass_lines")
+        if not scales or not lines:
+            continue
+        base = max(1.0, t.get("scale") or 1.0)
+        ratio = t.get("pass_noise_ratio") or [c * c for c in scales]
+        more = [(ln, r) for ln, c, r in zip(lines, scales, ratio) if c > 1.05 * base]
+        if more:
+            out.append(f"repeat track {track}: the noise of " + ", ".join(f"pass {ln} is {r:.3g}x" for ln, r in more)
+                       + " its posterior variance (departures from the other passes: more noise than the noise "
+                       "model gave it); the std is widened to that noise, and the estimate carries it")
+    return out
+
+
 def _pass_noise_ratio(values_mgal: np.ndarray, posterior_var_mgal2: np.ndarray, mean_var_mgal2: float) -> np.ndarray:
     """:func:`app.core.accuracy.repeat_pass_noise_ratio` of a track's passes (shape (K, n)) over
     their posterior variances at the same common points; where a hole left the two on different
