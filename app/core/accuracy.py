@@ -5,8 +5,8 @@
   over K repeats of one track at n common points; which passes fly one track
   (:func:`same_track`, :func:`group_passes`); the parts of an estimate's error the repeats
   show (:func:`repeat_error_parts`), each repeat's own noise (:func:`repeat_pass_noise_var`, over its posterior:
-  :func:`repeat_pass_noise_ratio`)
-  and whether it exceeds a posterior std (:func:`noise_excess_p_value`);
+  :func:`repeat_pass_noise_ratio`), whether it exceeds a posterior std
+  (:func:`noise_excess_p_value`) and each repeat's std factor (:func:`repeat_pass_std_scales`);
 - RMS (optionally with each line's mean removed) and mean error against a reference,
   std calibration (fraction of errors within k σ);
 - grid RMS (and demeaned RMS, std calibration) against a true grid inside the convex
@@ -184,6 +184,35 @@ def repeat_pass_noise_ratio(values_mgal, posterior_var_mgal2) -> np.ndarray:
         raise ValueError(f"posterior variances must be positive, one per common point ({g.shape[-1:]}), got "
                          f"shape {v.shape}")
     return repeat_pass_noise_var(g / np.sqrt(scale))
+
+
+def repeat_pass_std_scales(noise_ratio, track_scale: float = 1.0, smoothing_ratio: float = 0.0) -> np.ndarray:
+    """Each repeat's std factor: ``max(track_scale, sqrt(ρ_i + smoothing_ratio))``, at least 1.
+
+    ``ρ_i`` is the repeat's noise over its posterior (:func:`repeat_pass_noise_ratio`),
+    ``smoothing_ratio`` the repeats' shared smoothing part over the mean posterior variance
+    (0 where it is not measured) and ``track_scale`` the one factor of the whole track
+    (:meth:`RepeatErrorParts.std_scale`; 1 where there is none): a repeat is widened beyond the
+    track's factor only by noise of its own, never narrowed below it (its share rests on a
+    K-th of the track's stretches).
+
+    Parameters
+    ----------
+    noise_ratio : array_like, shape (K,)
+        Dimensionless, ≥ 0.
+    track_scale, smoothing_ratio : float
+        Dimensionless, ≥ 0.
+
+    Returns
+    -------
+    ndarray, shape (K,)
+    """
+    r = np.asarray(noise_ratio, dtype=float)
+    if r.ndim != 1 or not np.all(r >= 0):
+        raise ValueError(f"noise ratios must be a 1-D array of values ≥ 0, got {r!r}")
+    if not (track_scale >= 0 and smoothing_ratio >= 0):
+        raise ValueError(f"track_scale and smoothing_ratio must be ≥ 0, got {track_scale!r}, {smoothing_ratio!r}")
+    return np.maximum(max(1.0, float(track_scale)), np.sqrt(r + float(smoothing_ratio)))
 
 
 def noise_excess_p_value(noise_var_mgal2: float, posterior_var_mgal2: float, dof: float) -> float:

@@ -197,8 +197,9 @@ def test_a_lag_tried_and_refused_is_not_called_confirmed(fake_server, browser_pa
 def test_a_repeat_pass_widened_to_its_own_noise_is_named(fake_server, browser_page):  # noqa: F811
     """Generated test line 304: two of four passes flew through turbulence, and their std was
     widened to the noise their departures from the other passes show.  The summary names
-    those passes with their factors; passes at the track's own scale are not named, and a
-    track with no pass above it gives no line."""
+    those passes (the report's ``widened_passes``) with their factors, says whether the track
+    was sized by its passes or floored at their noise, and gives no line for a track where no
+    pass was widened."""
     page = browser_page
     page.goto(fake_server.url)
     got = page.evaluate("""async () => {
@@ -207,9 +208,11 @@ def test_a_repeat_pass_widened_to_its_own_noise_is_named(fake_server, browser_pa
         const text = (r) => [...m.summary(r).querySelectorAll('li')].filter((l) => l.textContent.startsWith('Std on repeat'))
             .map((l) => [l.textContent, l.className]);
         const floor = {scale: null, noise_part_mgal: 49.13, posterior_mgal: 14.9, noise_p_value: 2.2e-25,
-            pass_lines: ['R1-1', 'R1-2', 'R1-3', 'R1-4'], pass_noise_scales: [1.0, 5.362, 1.0, 3.635]};
-        const sized = {scale: 1.27, pass_lines: ['R1-1', 'R1-2', 'R1-3', 'R1-4'], pass_scales: [1.27, 2.1, 1.27, 1.27]};
-        const even = {scale: 1.27, pass_lines: ['R1-1', 'R1-2'], pass_scales: [1.27, 1.27]};
+            pass_lines: ['R1-1', 'R1-2', 'R1-3', 'R1-4'], pass_scales: [1.0, 5.362, 1.0, 3.635],
+            widened_passes: [{line: 'R1-2', scale: 5.362, noise_ratio: 28.75}, {line: 'R1-4', scale: 3.635, noise_ratio: 13.2}]};
+        const sized = {scale: 1.27, pass_lines: ['R1-1', 'R1-2', 'R1-3', 'R1-4'], pass_scales: [1.27, 2.1, 1.27, 1.27],
+            widened_passes: [{line: 'R1-2', scale: 2.1, noise_ratio: 4.0}]};
+        const even = {scale: 1.27, pass_lines: ['R1-1', 'R1-2'], pass_scales: [1.27, 1.27], widened_passes: []};
         return {floor: text(rep(floor)), sized: text(rep(sized)), even: text(rep(even)), none: text({warnings: [], report: {}})};
     }""")
     assert got["floor"] == [["Std on repeat track R1: the passes' scatter (49.13 mGal) exceeds the posterior std (14.9 "

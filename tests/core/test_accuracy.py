@@ -19,6 +19,7 @@ from app.core.accuracy import (
     repeat_line_accuracy,
     repeat_pass_noise_ratio,
     repeat_pass_noise_var,
+    repeat_pass_std_scales,
     rms_vs_reference,
     std_calibration,
 )
@@ -417,3 +418,15 @@ def test_repeat_noise_ratio_is_not_ruled_by_the_line_ends():
         repeat_pass_noise_ratio(x, np.zeros(n))
     with pytest.raises(ValueError, match="one per common point"):
         repeat_pass_noise_ratio(x, post_var[:-1])
+
+
+def test_repeat_pass_std_scales_by_hand():
+    """max(track scale, sqrt(ρ + smoothing ratio)), never below 1: ρ = (0.25, 9, 1) alone gives
+    (1, 3, 1); with a track scale 1.5 and a smoothing ratio 0.44: (1.5, sqrt(9.44), 1.5)."""
+    np.testing.assert_allclose(repeat_pass_std_scales([0.25, 9.0, 1.0]), [1.0, 3.0, 1.0])
+    np.testing.assert_allclose(repeat_pass_std_scales([0.25, 9.0, 1.0], 1.5, 0.44), [1.5, np.sqrt(9.44), 1.5])
+    np.testing.assert_allclose(repeat_pass_std_scales([0.0, 0.0], 0.5), [1.0, 1.0])
+    with pytest.raises(ValueError, match="≥ 0"):
+        repeat_pass_std_scales([-1.0, 1.0])
+    with pytest.raises(ValueError, match="≥ 0"):
+        repeat_pass_std_scales([1.0, 1.0], smoothing_ratio=-0.1)

@@ -251,7 +251,10 @@ def test_a_pass_through_turbulence_gets_a_std_of_its_own_noise():
             assert cov_pass[1] > pooled[1] + 0.1, (cov_pass, pooled)
         if track["scale"] is None:           # the shared part not significant: the floor beside the spread
             assert case == "ok" and track["noise_p_value"] < 0.1
-            assert track["pass_noise_scales"][1] > 2.0 and max(np.delete(track["pass_noise_scales"], 1)) < 1.3
+            assert track["pass_scales"][1] > 2.0 and max(np.delete(track["pass_scales"], 1)) < 1.3
+            # named: the noisy pass, and at most a calm one widened by chance a little
+            assert "1" in [w["line"] for w in track["widened_passes"]]
+            assert all(w["scale"] < 1.3 for w in track["widened_passes"] if w["line"] != "1")
             np.testing.assert_array_less(spread.table["dg_std_mgal"].to_numpy() - 1e-12,
                                          f.table["dg_std_mgal"].to_numpy())   # never below the spread
         else:                                 # measured: each pass scaled by its own noise
@@ -288,13 +291,13 @@ def test_a_two_level_survey_floors_a_noisy_pass_at_its_own_noise():
         std = f.table["dg_std_mgal"].to_numpy().reshape(4, T)
         post = table["dg_std_mgal"].to_numpy().reshape(4, T)
         if noisy:
-            c = np.array(track["pass_noise_scales"])
+            c = np.array(track["pass_scales"])
             assert track["noise_p_value"] < 0.1 and c[1] > 2.5 and np.all(np.delete(c, 1) < 1.3), track
             np.testing.assert_allclose(std, c[:, None] * post)
             err = np.abs(np.array([s.dg_mgal for s in sms]) - np.array(truths))[1, 300:-300]
             assert np.mean(err < 2 * std[1, 300:-300]) > 0.9 > np.mean(err < 2 * post[1, 300:-300])
         else:
-            assert track["noise_p_value"] >= 0.1 and "pass_noise_scales" not in track, track
+            assert track["noise_p_value"] >= 0.1 and "pass_scales" not in track, track
             np.testing.assert_array_equal(std, post)
 
 
@@ -325,13 +328,16 @@ def test_passes_widened_to_their_own_noise_are_warned_about():
     """The warning names each pass widened beyond its track's scale with its noise over its
     posterior variance (generated 304's R1-2: 28.4×, its std widened 5.33×); the
     passes at the track's scale and tracks without per-pass figures give none."""
-    from app.pipeline.stages.filtering import pass_noise_warnings
+    from app.pipeline.stages.filtering import _record_pass_scales, pass_noise_warnings
 
-    floor = {"scale": None, "pass_lines": ["R1-1", "R1-2", "R1-3", "R1-4"], "pass_noise_scales": [1.0, 5.33, 1.0, 4.04],
-             "pass_noise_ratio": [0.2, 28.43, 0.1, 16.3]}
-    sized = {"scale": 1.27, "pass_lines": ["A", "B"], "pass_scales": [1.27, 1.3]}    # within 5 % of the track's
+    # the passes widened beyond the track's own factor by more than 5 %, as the stage records them
+    floor_fig = {"scale": None, "pass_lines": ["R1-1", "R1-2", "R1-3", "R1-4"]}
+    _record_pass_scales(floor_fig, np.array([1.0, 5.33, 1.0, 4.04]), np.array([0.2, 28.43, 0.1, 16.3]))
+    sized_fig = {"scale": 1.27, "pass_lines": ["A", "B"]}
+    _record_pass_scales(sized_fig, np.array([1.27, 1.3]), np.array([1.0, 1.69]))
+    assert [w["line"] for w in floor_fig["widened_passes"]] == ["R1-2", "R1-4"] and sized_fig["widened_passes"] == []
     old = {"scale": 1.3, "noise_part_mgal": 2.0}
-    got = pass_noise_warnings({"R1": floor, "T2": sized, "T3": old})
+    got = pass_noise_warnings({"R1": floor_fig, "T2": sized_fig, "T3": old})
     assert got == ["repeat track R1: the noise of pass R1-2 is 28.4x, pass R1-4 is 16.3x its posterior variance "
                    "(departures from the other passes: more noise than the noise model gave it); the std is widened "
                    "to that noise, and the estimate carries it"], got

@@ -18,6 +18,7 @@ from app.core.accuracy import (
     repeat_error_parts,
     repeat_line_accuracy,
     repeat_pass_noise_ratio,
+    repeat_pass_std_scales,
 )
 from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
 from app.core.level_ml import cap_lifted_smooth_level, refine_levels
@@ -358,21 +359,14 @@ class Filtered:
                 # significantly each pass's std is widened to at least its own noise
                 fig["reason"] = (f"smoothing part lost in the passes' noise (p = {p_smooth:.3g}, needs "
                                  f"< {significance:g}): level spread kept")
-                fig["noise_p_value"] = p_noise = noise_excess_p_value(float(np.mean(ratio)), 1.0, samples)
-                if p_noise < significance:
-                    c_pass = np.maximum(1.0, np.sqrt(ratio))
-                    fig["pass_noise_scales"] = [float(x) for x in c_pass]
-                    fig["reason"] += (f"; the passes' noise ({np.sqrt(parts.noise_var_mgal2):.3g} mGal) exceeds "
-                                      f"the posterior std ({np.sqrt(post_v):.3g} mGal, p = {p_noise:.3g}): each "
-                                      "pass's std at least its own noise")
-                    for (i, _, _), c in zip(passes, c_pass):
-                        floors[i] = float(c)
+                c_pass = _noise_floor(fig, ratio, parts.noise_var_mgal2, post_v, samples, significance)
+                for (i, _, _), c in zip(passes, [] if c_pass is None else c_pass):
+                    floors[i] = float(c)
                 continue
-            # the track's scale, and more on a pass whose own noise exceeds the track's (never
-            # less: a pass's share of the noise rests on a quarter of the stretches or fewer)
+            # the track's scale, and more on a pass whose own noise exceeds the track's
             fig["scale"] = scale = parts.std_scale(post_v)
-            c_pass = np.maximum(scale, np.sqrt(ratio + parts.smoothing_var_mgal2 / post_v))
-            fig["pass_scales"] = [float(x) for x in c_pass]
+            c_pass = _record_pass_scales(fig, repeat_pass_std_scales(ratio, scale, parts.smoothing_var_mgal2 / post_v),
+                                         ratio)
             for (i, off, n), c in zip(passes, c_pass):
                 std[off:off + n] *= c
                 done.add(i)
@@ -450,16 +444,10 @@ class Filtered:
                 "scale": None, "noise_part_mgal": float(np.sqrt(noise_v)), "posterior_mgal": float(np.sqrt(post_v)),
                 "passes": len(passes), "pass_lines": self._pass_lines(passes), "independent_stretches": float(samples),
                 "pass_noise_ratio": [float(x) for x in ratio],
-                "noise_p_value": noise_excess_p_value(float(np.mean(ratio)), 1.0, samples)}
-            if not fig["noise_p_value"] < significance:
-                fig["reason"] = (f"the passes' noise is not significantly above the posterior std (p = "
-                                 f"{fig['noise_p_value']:.3g}, needs < {significance:g}): std left as it is")
+                "reason": "two levels from enough points: no level spread"}
+            c_pass = _noise_floor(fig, ratio, noise_v, post_v, samples, significance)
+            if c_pass is None:
                 continue
-            c_pass = np.maximum(1.0, np.sqrt(ratio))
-            fig["pass_noise_scales"] = [float(x) for x in c_pass]
-            fig["reason"] = (f"the passes' noise ({np.sqrt(noise_v):.3g} mGal) exceeds the posterior std "
-                             f"({np.sqrt(post_v):.3g} mGal, p = {fig['noise_p_value']:.3g}): each pass's std at "
-                             "least its own noise")
             for (_, off, n), c in zip(passes, c_pass):
                 std[off:off + n] *= c
         self.table["dg_std_mgal"] = std
@@ -535,21 +523,42 @@ class Filtered:
         self.table["dg_stationary_mgal"] = np.concatenate(list(line_map()(smooth, self.prepared)))
 
 
+def _record_pass_scales(fig: dict, c_pass: np.ndarray, ratio: np.ndarray) -> np.ndarray:
+    """Put a track's per-pass std factors in its report figures (``pass_scales``) and name the
+    passes widened beyond the track's own factor (``widened_passes``: line, factor, noise over
+    the posterior) — what the warning and the report view tell.  Returns ``c_pass``."""
+    base = max(1.0, fig.get("scale") or 1.0)
+    fig["pass_scales"] = [float(x) for x in c_pass]
+    fig["widened_passes"] = [{"line": ln, "scale": float(c), "noise_ratio": float(r)}
+                             for ln, c, r in zip(fig["pass_lines"], c_pass, ratio) if c > 1.05 * base]
+    return c_pass
+
+
+def _noise_floor(fig: dict, ratio: np.ndarray, noise_var_mgal2: float, post_var_mgal2: float, dof: float,
+                 significance: float) -> np.ndarray | None:
+    """The floor of a track's passes at their own noise (factors ``max(1, sqrt(ρ_i))``) when the
+    passes' mean noise ratio exceeds 1 at p < ``significance``
+    (:func:`app.core.accuracy.noise_excess_p_value`), else None; the test and the decision go in
+    the track's report figures ``fig`` (its ``reason`` extended)."""
+    fig["noise_p_value"] = p = noise_excess_p_value(float(np.mean(ratio)), 1.0, dof)
+    if not p < significance:
+        fig["reason"] += f"; the passes' noise not significantly above the posterior (p = {p:.3g})"
+        return None
+    fig["reason"] += (f"; the passes' noise ({np.sqrt(noise_var_mgal2):.3g} mGal) exceeds the posterior std "
+                      f"({np.sqrt(post_var_mgal2):.3g} mGal, p = {p:.3g}): each pass's std at least its own noise")
+    return _record_pass_scales(fig, repeat_pass_std_scales(ratio), ratio)
+
+
 def pass_noise_warnings(tracks: dict | None) -> list[str]:
     """Warnings naming the repeat passes whose std was widened beyond their track's to their
     own noise (``Filtered.std_repeat_tracks``: a pass flown through turbulence the noise model
     did not give it); none where every pass kept the track's scale."""
     out = []
     for track, t in (tracks or {}).items():
-        scales = t.get("pass_scales") or t.get("pass_noise_scales")
-        lines = t.get("pass_lines")
-        if not scales or not lines:
-            continue
-        base = max(1.0, t.get("scale") or 1.0)
-        ratio = t.get("pass_noise_ratio") or [c * c for c in scales]
-        more = [(ln, r) for ln, c, r in zip(lines, scales, ratio) if c > 1.05 * base]
+        more = t.get("widened_passes")
         if more:
-            out.append(f"repeat track {track}: the noise of " + ", ".join(f"pass {ln} is {r:.3g}x" for ln, r in more)
+            out.append(f"repeat track {track}: the noise of "
+                       + ", ".join(f"pass {w['line']} is {w['noise_ratio']:.3g}x" for w in more)
                        + " its posterior variance (departures from the other passes: more noise than the noise "
                        "model gave it); the std is widened to that noise, and the estimate carries it")
     return out

@@ -64,16 +64,13 @@ export function summary(r) {
   }
   // a repeat pass whose std was widened to its own noise (a turbulent pass among calm ones)
   for (const [track, t] of Object.entries((rep.level_refinement || {}).std_repeat_tracks || {})) {
-    const scales = t.pass_scales || t.pass_noise_scales;
-    if (!scales || !t.pass_lines) continue;
-    const base = Math.max(1, t.scale ?? 1);
-    const more = t.pass_lines.map((ln, i) => [ln, scales[i]]).filter(([, c]) => c > 1.05 * base);
+    const more = t.widened_passes || [];
     if (!more.length) continue;
     items.push({ cls: "warn", text: `Std on repeat track ${track}: ` +
-      (t.pass_scales
+      (t.scale != null
         ? `sized by its passes (× ${fmt(t.scale, 3)}); `
         : `the passes' scatter (${fmt(t.noise_part_mgal, 3)} mGal) exceeds the posterior std (${fmt(t.posterior_mgal, 3)} mGal, p = ${fmt(t.noise_p_value, 2)}); `) +
-      `${more.map(([ln, c]) => `${ln} × ${fmt(c, 3)}`).join(", ")}: ` +
+      `${more.map((w) => `${w.line} × ${fmt(w.scale, 3)}`).join(", ")}: ` +
       (more.length > 1
         ? "these passes carry more noise than the others (their departures from them), and their std is widened to it."
         : "this pass carries more noise than the others (its departures from them), and its std is widened to it.") });
