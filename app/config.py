@@ -395,6 +395,11 @@ class ProcessingParams(_Strict):
                                           "narrowed) to that error, given at least this many independent stretches "
                                           "on the track (fir_cutoff_period_s of flight x (passes - 1)); lines off "
                                           "the tracks keep the spread; 0 = off")
+    rescale_noisy_passes: bool = Field(True, description="Repeat passes whose departures from the other passes "
+                                       "show more noise than their posterior (the passes' mean noise ratio above 1 "
+                                       "at std_repeat_significance, std_repeat_min_samples stretches) are smoothed "
+                                       "again with their noise level R(t) times their own ratio: a pass flown "
+                                       "through turbulence the noise model did not give it is smoothed more")
     std_repeat_significance: float = Field(0.1, gt=0, le=1, description="The passes size a repeat track's std only "
                                            "when their smoothing part is above 0 at this one-sided level (F-test of "
                                            "their mean difference against its noise, one degree of freedom per "

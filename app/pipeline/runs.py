@@ -25,6 +25,7 @@ from app.pipeline.stages.filtering import (
     fir_line_column,
     fir_loss_warnings,
     pass_noise_warnings,
+    rescaled_pass_warnings,
 )
 from app.pipeline.stages.gridding import grid_survey
 from app.pipeline.stages.identification import Identification, identify
@@ -237,6 +238,11 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
         # the other order's filtered lines are not read after the order is chosen: freed before
         # the std, leveling and gridding, a copy of every epoch's columns less at the peak
         del cands[m]
+    if p.rescale_noisy_passes:  # repeat passes noisier than the model: smoothed with their own level
+        cands[m_best].filtered.rescale_noisy_passes(idf.dt_s, m_best, p.smoother, idf.noise.model,
+                                                    p.q_from_posteriors, p.std_repeat_min_samples or 0.0,
+                                                    p.fir_cutoff_period_s, p.std_repeat_significance)
+        warnings.extend(rescaled_pass_warnings(cands[m_best].filtered.noisy_passes))
     if p.std_state_mixture:  # and the std of the mixture of levels
         cands[m_best].filtered.mixture_std(idf.dt_s, m_best, p.smoother, idf.noise.model)
     # levels from too few points (one level, or two from < 2 x min_points_adaptive): the std

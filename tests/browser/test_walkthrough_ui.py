@@ -224,6 +224,29 @@ def test_a_repeat_pass_widened_to_its_own_noise_is_named(fake_server, browser_pa
     _no_errors(page)
 
 
+def test_a_repeat_pass_smoothed_with_its_own_noise_is_named(fake_server, browser_page):  # noqa: F811
+    """Generated test line 304: two turbulent passes were smoothed again with their noise level
+    raised to what their departures from the other passes show.  The summary names them with
+    the factor and how much their departure fell; a pass tried and not kept is not named."""
+    page = browser_page
+    page.goto(fake_server.url)
+    got = page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const text = (t) => [...m.summary({warnings: [], report: {level_refinement: {noisy_passes_rescaled: {R1: t}}}})
+            .querySelectorAll('li')].filter((l) => l.textContent.startsWith('Estimate on repeat')).map((l) => l.textContent);
+        const a = {line: 'R1-2', R_factor: 28.43, departure_before: 10.0, departure_after: 7.86};
+        const b = {line: 'R1-4', R_factor: 16.29, departure_before: 5.0, departure_after: 2.95};
+        const c = {line: 'R1-3', R_factor: 3.5, departure_before: 2.0, departure_after: 3.1};
+        return {two: text({tried: [a, b, c], rescaled: [a, b]}), none: text({tried: [c], rescaled: []})};
+    }""")
+    assert got["two"] == ["Estimate on repeat track R1: R1-2 smoothed with its noise level × 28.43 (departure from the "
+                          "other passes −21.4 %), R1-4 smoothed with its noise level × 16.29 (departure from the other "
+                          "passes −41 %): these passes carry more noise than the noise model gave them, measured by "
+                          "their departures from the other passes."], got
+    assert got["none"] == [], got
+    _no_errors(page)
+
+
 def test_surveys_of_one_name_can_be_told_apart(fake_server, browser_page, tmp_path):  # noqa: F811
     """The same zip imported twice gave two list entries both reading "tiny" (and the same title)."""
     import httpx

@@ -221,6 +221,7 @@ class Filtered:
     std_level_reason: str | None = None
     std_repeat_tracks: dict | None = None
     smooth_lift_cap: dict | None = None
+    noisy_passes: dict | None = None
 
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
@@ -234,7 +235,7 @@ class Filtered:
                 "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations,
                 "Q_stationary_mgal2": self.Q_stationary, "Q_stationary_used_mgal2": self.Q_stationary_used,
                 "std_level_factor": self.std_level_factor,
-                "std_level_reason": self.std_level_reason, "std_repeat_tracks": self.std_repeat_tracks,
+                "std_level_reason": self.std_level_reason, "std_repeat_tracks": self.std_repeat_tracks, "noisy_passes_rescaled": self.noisy_passes,
                 "smooth_lift_capped": self.smooth_lift_cap}
 
     def estimate_q(self, pr: PreparedLine, q_from_posteriors: bool) -> np.ndarray:
@@ -411,6 +412,79 @@ class Filtered:
         speed = float(np.mean([self.prepared[i].line.speed_ms for i, _, _ in passes]))
         return length_m / (speed * period_s) * (acc.n_repeats - 1)
 
+    def rescale_noisy_passes(self, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool,
+                             min_samples: float, period_s: float, significance: float = 0.1) -> None:
+        """Repeat passes that carry more noise than the noise model gave them smoothed again with
+        their noise level raised to what they show (before any std is widened).  Per repeat
+        track with ``min_samples`` independent stretches of ``period_s``: each pass's noise
+        over its posterior, ρ_i (:func:`app.core.accuracy.repeat_pass_noise_ratio`, from the
+        passes' departures from each other); where the passes' mean ρ exceeds 1 at p below
+        ``significance`` (:func:`app.core.accuracy.noise_excess_p_value`), every pass with
+        ρ_i > 1 is smoothed again with R(t) × ρ_i — a pass flown through turbulence is smoothed
+        more, as its noise asks — and kept, with the new smoother's posterior std, where its
+        departure from the other passes falls by ``NOISY_PASS_MIN_FALL`` or more (a departure
+        that more smoothing does not remove is not noise of its own: generated test line 56's
+        third pass, ρ = 3.5, rose 7.0 → 9.2 mGal from the truth smoothed so).  Passes with
+        ρ_i ≤ 1 are left as they are (never less smoothing than the model's).  The report's
+        ``level_refinement.noisy_passes_rescaled`` gives each track's figures."""
+        if not self.prepared or self.r_lines is None:
+            return
+        est = self.table["dg_mgal"].to_numpy().copy()
+        std = self.table["dg_std_mgal"].to_numpy().copy()
+        rcol = self.table["R_cm2s2"].to_numpy().copy()
+        figures: dict = {}
+        for track, passes in self._repeat_tracks({}, "").items():
+            geo = [(self.prepared[i].line.easting_km, self.prepared[i].line.northing_km) for i, _, _ in passes]
+            try:
+                acc = [repeat_line_accuracy([(e, nn, col[off:off + n]) for (e, nn), (_, off, n) in zip(geo, passes)])
+                       for col in (est, std ** 2)]
+            except ValueError:
+                continue
+            samples = self._track_stretches(acc[0], passes, period_s)
+            post_v = float(np.mean(acc[1].values_mgal))
+            if samples < min_samples or not post_v > 0:
+                continue
+            ratio = _pass_noise_ratio(acc[0].values_mgal, acc[1].values_mgal, post_v)
+            p_val = noise_excess_p_value(float(np.mean(ratio)), 1.0, samples)
+            fig = {"pass_lines": self._pass_lines(passes), "pass_noise_ratio": [float(x) for x in ratio],
+                   "noise_p_value": float(p_val), "tried": [], "rescaled": []}
+            figures[str(track)] = fig
+            if not p_val < significance:
+                continue
+            trial, runs = est.copy(), {}
+            for (i, off, n), rho in zip(passes, ratio):
+                if rho > 1.0:
+                    pr = self.prepared[i]
+                    r = self.r_lines[i] * float(rho)
+                    x, s = filter_line(pr.z_ext, self.estimate_q(pr, q_from_posteriors), r, dt_s, m, method, noise)
+                    runs[i] = (float(rho), r, x[pr.inner], s[pr.inner])
+                    trial[off:off + n] = x[pr.inner]
+            if not runs:
+                continue
+            moved = repeat_line_accuracy([(e, nn, trial[off:off + n]) for (e, nn), (_, off, n) in zip(geo, passes)])
+            # kept where the pass departs clearly less from the other passes (as they were): noise
+            # of its own smoothed away, not anomaly detail (a slow departure more smoothing does not
+            # remove, which a smoother estimate meets only by sharing the others' smoothing error)
+            before = _pass_departures(acc[0].values_mgal, acc[0].values_mgal, acc[1].values_mgal)
+            after = _pass_departures(moved.values_mgal, acc[0].values_mgal, acc[1].values_mgal)
+            for k, (i, off, n) in enumerate(passes):
+                if i not in runs:
+                    continue
+                rho, r, x, s = runs[i]
+                entry = {"line": self._pass_lines([(i, off, n)])[0], "R_factor": rho,
+                         "departure_before": float(before[k]), "departure_after": float(after[k])}
+                fig["tried"].append(entry)
+                if not after[k] < (1.0 - NOISY_PASS_MIN_FALL) * before[k]:
+                    continue
+                est[off:off + n], std[off:off + n], rcol[off:off + n] = x, s, r[self.prepared[i].inner]
+                self.r_lines[i] = r
+                fig["rescaled"].append(entry)
+        self.table["dg_mgal"] = est
+        self.table["dg_unleveled_mgal"] = est
+        self.table["dg_std_mgal"] = std
+        self.table["R_cm2s2"] = rcol
+        self.noisy_passes = figures or None
+
     def repeat_noise_floor(self, min_samples: float, period_s: float, significance: float = 0.1) -> None:
         """Where the std is not sized by the repeats (two levels learned from enough points:
         :meth:`level_spread_std` leaves it), a repeat pass's ``dg_std_mgal`` is still widened
@@ -561,6 +635,39 @@ def pass_noise_warnings(tracks: dict | None) -> list[str]:
                        + ", ".join(f"pass {w['line']} is {w['noise_ratio']:.3g}x" for w in more)
                        + " its posterior variance (departures from the other passes: more noise than the noise "
                        "model gave it); the std is widened to that noise, and the estimate carries it")
+    return out
+
+
+#: Smallest fall of a repeat pass's departure from the other passes (a fraction) for its
+#: smoothing with its own noise level to be kept (:meth:`Filtered.rescale_noisy_passes`).  In
+#: simulation a pass with 16× the modelled noise variance falls by 14–78 %, calm passes move by
+#: at most 5 % by chance, and a slow 6 mGal swing more smoothing cannot remove by 1 %.
+NOISY_PASS_MIN_FALL = 0.10
+
+
+def _pass_departures(values_mgal: np.ndarray, reference_mgal: np.ndarray, posterior_var_mgal2: np.ndarray) -> np.ndarray:
+    """Each pass's mean square departure from the mean of the *other* passes of ``reference_mgal``
+    (shape (K, n) both), over the passes' mean posterior variance point by point (so the line
+    ends do not rule): shape (K,), dimensionless."""
+    ref = np.asarray(reference_mgal, float)
+    k = ref.shape[0]
+    others = (ref.sum(axis=0)[None, :] - ref) / (k - 1)
+    post = np.asarray(posterior_var_mgal2, float)
+    scale = post.mean(axis=0) if post.ndim == 2 and post.shape == ref.shape else np.full(ref.shape[1], np.mean(post))
+    return np.mean((np.asarray(values_mgal, float) - others) ** 2 / scale[None, :], axis=1)
+
+
+def rescaled_pass_warnings(tracks: dict | None) -> list[str]:
+    """Warnings naming the repeat passes smoothed again with their own noise level
+    (``Filtered.noisy_passes``, :meth:`Filtered.rescale_noisy_passes`)."""
+    out = []
+    for track, t in (tracks or {}).items():
+        if t.get("rescaled"):
+            out.append(f"repeat track {track}: "
+                       + ", ".join(f"pass {r['line']} smoothed with its noise level x {r['R_factor']:.3g}"
+                                   for r in t["rescaled"])
+                       + " (its departures from the other passes show more noise than the noise model gave it, "
+                       "and fall when it is smoothed so)")
     return out
 
 

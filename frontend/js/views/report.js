@@ -75,6 +75,16 @@ export function summary(r) {
         ? "these passes carry more noise than the others (their departures from them), and their std is widened to it."
         : "this pass carries more noise than the others (its departures from them), and its std is widened to it.") });
   }
+  // a repeat pass smoothed again with its own noise level (turbulence the noise model did not give it)
+  for (const [track, t] of Object.entries((rep.level_refinement || {}).noisy_passes_rescaled || {})) {
+    const done = t.rescaled || [];
+    if (!done.length) continue;
+    const fall = (r) => fmt(100 * (1 - r.departure_after / r.departure_before), 2);
+    items.push({ cls: "warn", text: `Estimate on repeat track ${track}: ` +
+      `${done.map((r) => `${r.line} smoothed with its noise level × ${fmt(r.R_factor, 3)} (departure from the other passes −${fall(r)} %)`).join(", ")}: ` +
+      (done.length > 1 ? "these passes carry" : "this pass carries") +
+      " more noise than the noise model gave them, measured by their departures from the other passes." });
+  }
   if (rep.lag_check) {
     const lc = rep.lag_check;
     items.push({ cls: lc.applied ? "warn" : "ok", text: lc.applied && lc.from_band_fit
