@@ -434,17 +434,10 @@ class Filtered:
         rcol = self.table["R_cm2s2"].to_numpy().copy()
         figures: dict = {}
         for track, passes in self._repeat_tracks({}, "").items():
-            geo = [(self.prepared[i].line.easting_km, self.prepared[i].line.northing_km) for i, _, _ in passes]
-            try:
-                acc = [repeat_line_accuracy([(e, nn, col[off:off + n]) for (e, nn), (_, off, n) in zip(geo, passes)])
-                       for col in (est, std ** 2)]
-            except ValueError:
+            sc = self._track_scatter(passes, est, std, min_samples, period_s)
+            if sc is None:
                 continue
-            samples = self._track_stretches(acc[0], passes, period_s)
-            post_v = float(np.mean(acc[1].values_mgal))
-            if samples < min_samples or not post_v > 0:
-                continue
-            ratio = _pass_noise_ratio(acc[0].values_mgal, acc[1].values_mgal, post_v)
+            geo, acc, samples, post_v, ratio = sc
             p_val = noise_excess_p_value(float(np.mean(ratio)), 1.0, samples)
             fig = {"pass_lines": self._pass_lines(passes), "pass_noise_ratio": [float(x) for x in ratio],
                    "noise_p_value": float(p_val), "tried": [], "rescaled": []}
@@ -485,6 +478,25 @@ class Filtered:
         self.table["R_cm2s2"] = rcol
         self.noisy_passes = figures or None
 
+    def _track_scatter(self, passes: list, est: np.ndarray, std: np.ndarray, min_samples: float, period_s: float):
+        """A repeat track's passes of the estimate ``est`` and of the variance ``std²`` at their
+        common points (:func:`app.core.accuracy.repeat_line_accuracy`), with the track's
+        independent stretches, the mean posterior variance there and each pass's noise ratio
+        ρ_i: (geo, (accuracy of est, of std²), stretches, mean variance, ρ); None where the
+        passes have no common points, fewer than ``min_samples`` stretches of ``period_s`` or
+        no positive variance."""
+        geo = [(self.prepared[i].line.easting_km, self.prepared[i].line.northing_km) for i, _, _ in passes]
+        try:
+            acc = [repeat_line_accuracy([(e, nn, col[off:off + n]) for (e, nn), (_, off, n) in zip(geo, passes)])
+                   for col in (est, std ** 2)]
+        except ValueError:
+            return None
+        samples = self._track_stretches(acc[0], passes, period_s)
+        post_v = float(np.mean(acc[1].values_mgal))
+        if samples < min_samples or not post_v > 0:
+            return None
+        return geo, acc, samples, post_v, _pass_noise_ratio(acc[0].values_mgal, acc[1].values_mgal, post_v)
+
     def repeat_noise_floor(self, min_samples: float, period_s: float, significance: float = 0.1) -> None:
         """Where the std is not sized by the repeats (two levels learned from enough points:
         :meth:`level_spread_std` leaves it), a repeat pass's ``dg_std_mgal`` is still widened
@@ -502,18 +514,11 @@ class Filtered:
         est = self.table["dg_mgal"].to_numpy()
         figures: dict = {}
         for track, passes in self._repeat_tracks(figures, "std left as it is").items():
-            geo = [(self.prepared[i].line.easting_km, self.prepared[i].line.northing_km) for i, _, _ in passes]
-            try:
-                acc = [repeat_line_accuracy([(e, nn, col[off:off + n]) for (e, nn), (_, off, n) in zip(geo, passes)])
-                       for col in (est, std ** 2)]
-            except ValueError:
+            sc = self._track_scatter(passes, est, std, min_samples, period_s)
+            if sc is None:
                 continue
-            samples = self._track_stretches(acc[0], passes, period_s)
-            post_v = float(np.mean(acc[1].values_mgal))
-            if samples < min_samples or not post_v > 0:
-                continue
+            _, acc, samples, post_v, ratio = sc
             noise_v = float(acc[0].epsilon_mgal) ** 2
-            ratio = _pass_noise_ratio(acc[0].values_mgal, acc[1].values_mgal, post_v)
             fig = figures[str(track)] = {
                 "scale": None, "noise_part_mgal": float(np.sqrt(noise_v)), "posterior_mgal": float(np.sqrt(post_v)),
                 "passes": len(passes), "pass_lines": self._pass_lines(passes), "independent_stretches": float(samples),
