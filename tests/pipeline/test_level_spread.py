@@ -419,3 +419,32 @@ def test_a_pass_with_a_slow_departure_is_not_smoothed_more():
     assert tried["2"]["departure_after"] > 0.95 * tried["2"]["departure_before"]
     assert "2" not in [r["line"] for r in track["rescaled"]]
     np.testing.assert_array_equal(f.table["dg_mgal"].to_numpy().reshape(4, T)[2], before.reshape(4, T)[2])
+
+
+def test_a_noisy_pass_with_a_hole_or_only_two_passes_is_smoothed_again():
+    """A hole (NaN) in the noisy pass's std and a zero-std stretch in a calm one: the noisy pass
+    is still found and smoothed again, the others left.  Two passes alone cannot tell whose
+    noise it is (each departs from the other alike): both are smoothed more, by one factor."""
+    dt, T, R, speed, q = 0.5, 3000, 1.0, 60.0, 2e-5
+    rng = np.random.default_rng(61)
+    lines, zs, truths = _repeat_passes(rng, 4, T, dt, q, R, speed, r_factors=[1.0, 16.0, 1.0, 1.0])
+    f = _track_table(lines, zs, q, R, T, dt)
+    std = f.table["dg_std_mgal"].to_numpy().copy()
+    std[T + 500:T + 520] = np.nan
+    std[2 * T + 900:2 * T + 905] = 0.0
+    f.table["dg_std_mgal"] = std
+    before = f.table["dg_mgal"].to_numpy().reshape(4, T).copy()
+    f.rescale_noisy_passes(dt, 2, "bf", None, True, 8.0, 100.0)
+    done = {r["line"]: r["R_factor"] for r in f.noisy_passes["T1"]["rescaled"]}
+    assert "1" in done and done["1"] > 3.0, f.noisy_passes
+    after = f.table["dg_mgal"].to_numpy().reshape(4, T)
+    assert np.all(np.isfinite(after)) and np.all(np.isfinite(f.table["dg_std_mgal"].to_numpy().reshape(4, T)[1]))
+    inner = slice(300, T - 300)
+    assert np.std(after[1, inner] - truths[1][inner]) < 0.85 * np.std(before[1, inner] - truths[1][inner])
+    # two passes, one of them noisy
+    g = _track_table(lines[:2], zs[:2], q, R, T, dt)
+    g.rescale_noisy_passes(dt, 2, "bf", None, True, 8.0, 100.0)
+    track = g.noisy_passes["T1"]
+    assert track["noise_p_value"] < 0.1
+    np.testing.assert_allclose(track["pass_noise_ratio"][0], track["pass_noise_ratio"][1])
+    assert {r["line"] for r in track["tried"]} == {"0", "1"}
