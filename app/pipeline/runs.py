@@ -243,6 +243,13 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
                                                     p.q_from_posteriors, p.std_repeat_min_samples or 0.0,
                                                     p.fir_cutoff_period_s, p.std_repeat_significance)
         warnings.extend(rescaled_pass_warnings(cands[m_best].filtered.noisy_passes))
+    if p.repeat_level_check and count_crossovers(idf.lines, p.leveling_include_repeat) < p.fir_guard_min_crossovers:
+        # a test line: its level chosen by its repeat passes (the crossovers cannot judge it)
+        cands[m_best].filtered.repeat_level_check(idf.dt_s, m_best, p.smoother, idf.noise.model, p.q_from_posteriors,
+                                                  (1.0 / p.repeat_level_factor, 1.0, p.repeat_level_factor),
+                                                  p.repeat_level_min_gain,
+                                                  p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods,
+                                                  p.repeat_blend_min_passes)
     if p.std_state_mixture:  # and the std of the mixture of levels
         cands[m_best].filtered.mixture_std(idf.dt_s, m_best, p.smoother, idf.noise.model)
     # levels from too few points (one level, or two from < 2 x min_points_adaptive): the std

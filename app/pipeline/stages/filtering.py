@@ -22,7 +22,7 @@ from app.core.accuracy import (
 )
 from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
 from app.core.level_ml import cap_lifted_smooth_level, refine_levels
-from app.core.model_check import blend_estimates
+from app.core.model_check import blend_estimates, leave_one_out_msd_mgal2
 from app.core.smoother import kalman_smooth, level_spread_std_mgal, mixture_std_mgal
 from app.pipeline.parallel import line_map
 from app.pipeline.stages.lines import LineData
@@ -222,6 +222,7 @@ class Filtered:
     std_repeat_tracks: dict | None = None
     smooth_lift_cap: dict | None = None
     noisy_passes: dict | None = None
+    repeat_level: dict | None = None
 
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
@@ -236,6 +237,7 @@ class Filtered:
                 "Q_stationary_mgal2": self.Q_stationary, "Q_stationary_used_mgal2": self.Q_stationary_used,
                 "std_level_factor": self.std_level_factor,
                 "std_level_reason": self.std_level_reason, "std_repeat_tracks": self.std_repeat_tracks, "noisy_passes_rescaled": self.noisy_passes,
+                "repeat_level_check": self.repeat_level,
                 "smooth_lift_capped": self.smooth_lift_cap}
 
     def estimate_q(self, pr: PreparedLine, q_from_posteriors: bool) -> np.ndarray:
@@ -477,6 +479,81 @@ class Filtered:
         self.table["dg_std_mgal"] = std
         self.table["R_cm2s2"] = rcol
         self.noisy_passes = figures or None
+
+    def repeat_level_check(self, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool, factors,
+                           min_gain: float, ref_period_s: float, ref_periods: float, min_passes: int) -> None:
+        """A test-line survey's anomaly level chosen by its repeat passes (in place; before any
+        std is widened).  Each factor f of ``factors`` scales Q(t) as a whole; the repeat passes
+        (tracks of ``min_passes`` or more) are smoothed at f·Q(t), and each pass is compared with
+        the other passes' light low-pass of z (FIR of z at ``ref_period_s``, a kernel of
+        ``ref_periods`` periods) by :func:`app.core.model_check.leave_one_out_msd_mgal2`: the
+        passes share the anomaly, not the noise, so the figure ranks the levels by their error
+        against the truth, up to the reference's own noise (the same for every f) and smoothing
+        error.  The factor with the least figure is used — every line smoothed again at f·Q(t),
+        the levels scaled — where it lowers the figure by ``min_gain`` (a fraction) or more;
+        else the levels stay.  The report's ``level_refinement.repeat_level_check`` gives the
+        figure of each factor.  Only where the crossovers are too few to judge the estimate
+        (the caller's condition): a repeat track says little about the lines off it."""
+        tracks = [t for t in self._repeat_tracks({}, "").values() if len(t) >= min_passes]
+        if not tracks or not self.prepared or self.r_lines is None:
+            return
+        est = self.table["dg_mgal"].to_numpy()
+        refs = {i: fir_lowpass_mgal(self.prepared[i].line.z_mgal, dt_s, ref_period_s, ref_periods)
+                for t in tracks for i, _, _ in t}
+
+        def figure(f: float) -> float:
+            per_track = []
+            for passes in tracks:
+                geo = [(self.prepared[i].line.easting_km, self.prepared[i].line.northing_km) for i, _, _ in passes]
+                cols = []
+                for i, off, n in passes:
+                    pr = self.prepared[i]
+                    x = (est[off:off + n] if f == 1.0 else
+                         filter_line(pr.z_ext, f * self.estimate_q(pr, q_from_posteriors), self.r_lines[i], dt_s, m,
+                                     method, noise)[0][pr.inner])
+                    ok = np.isfinite(x) & np.isfinite(refs[i])
+                    cols.append((np.where(ok, x, np.nan), np.where(ok, refs[i], np.nan)))
+                try:
+                    acc = [repeat_line_accuracy([(e, nn, c[k]) for (e, nn), c in zip(geo, cols)]) for k in (0, 1)]
+                except ValueError:
+                    continue
+                per_track.append(leave_one_out_msd_mgal2(acc[0].values_mgal, acc[1].values_mgal))
+            return float(np.nanmean(np.concatenate(per_track))) if per_track else float("nan")
+
+        factors = sorted({float(f) for f in factors} | {1.0})
+        msd = {f: figure(f) for f in factors}
+        rep = {"factors": factors, "msd_mgal2": [msd[f] for f in factors], "min_gain": float(min_gain),
+               "reference_period_s": float(ref_period_s), "factor": 1.0}
+        self.repeat_level = rep
+        finite = [f for f in factors if np.isfinite(msd[f])]
+        if 1.0 not in finite:
+            rep["reason"] = "no common stretch of the passes"
+            return
+        best = min(finite, key=lambda f: msd[f])
+        if best == 1.0 or not msd[best] < (1.0 - min_gain) * msd[1.0]:
+            rep["reason"] = "the model's level agrees with the passes as well as any"
+            return
+        rep["factor"] = best
+        rep["reason"] = (f"the passes agree best with the others' {ref_period_s:g} s low-pass of z at {best:g} x Q "
+                         f"({msd[best]:.4g} against {msd[1.0]:.4g} mGal², the reference's noise included)")
+        self.Q_levels = np.asarray(self.Q_levels, float) * best
+
+        def smooth(i: int):
+            pr = self.prepared[i]
+            q = self.estimate_q(pr, q_from_posteriors)
+            return q, filter_line(pr.z_ext, q, self.r_lines[i], dt_s, m, method, noise)
+
+        cols = {c: self.table[c].to_numpy().copy() for c in ("dg_mgal", "dg_std_mgal", "Q_mgal2")}
+        off = 0
+        for i, (q, (x, s)) in enumerate(line_map()(smooth, range(len(self.prepared)))):
+            pr = self.prepared[i]
+            n = pr.inner.stop - pr.inner.start
+            cols["dg_mgal"][off:off + n], cols["dg_std_mgal"][off:off + n] = x[pr.inner], s[pr.inner]
+            cols["Q_mgal2"][off:off + n] = q[pr.inner]
+            off += n
+        for c, v in cols.items():
+            self.table[c] = v
+        self.table["dg_unleveled_mgal"] = cols["dg_mgal"]
 
     def _track_scatter(self, passes: list, est: np.ndarray, std: np.ndarray, min_samples: float, period_s: float):
         """A repeat track's passes of the estimate ``est`` and of the variance ``std²`` at their
