@@ -244,9 +244,9 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
                                                     p.fir_cutoff_period_s, p.std_repeat_significance)
         warnings.extend(rescaled_pass_warnings(cands[m_best].filtered.noisy_passes))
     if p.repeat_level_check and count_crossovers(idf.lines, p.leveling_include_repeat) < p.fir_guard_min_crossovers:
-        # a test line: its level chosen by its repeat passes (the crossovers cannot judge it)
+        # a test line: its level lowered where its repeat passes agree better so (the crossovers cannot judge it)
         cands[m_best].filtered.repeat_level_check(idf.dt_s, m_best, p.smoother, idf.noise.model, p.q_from_posteriors,
-                                                  (1.0 / p.repeat_level_factor, 1.0, p.repeat_level_factor),
+                                                  (1.0 / p.repeat_level_factor, 1.0),
                                                   p.repeat_level_min_gain,
                                                   p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods,
                                                   p.repeat_blend_min_passes)
