@@ -398,16 +398,19 @@ class ProcessingParams(_Strict):
     repeat_level_check: bool = Field(True, description="Where the crossovers are too few to judge the estimate "
                                      "(fewer than fir_guard_min_crossovers: a test line) and a repeat track has "
                                      "repeat_blend_min_passes passes or more, the anomaly level Q(t) is lowered to "
-                                     "Q(t) / repeat_level_factor when the passes then agree better with the other "
-                                     "passes' repeat_blend_reference_period_s low-pass of z (by repeat_level_min_gain)")
+                                     "Q(t) / repeat_level_factor when the passes then agree significantly better with "
+                                     "the other passes' repeat_blend_reference_period_s low-pass of z "
+                                     "(repeat_level_significance)")
     repeat_level_factor: float = Field(3.0, gt=1, le=100, description="The repeat level check tries Q(t) / this.  "
                                        "Only lowered: the figure favours less smoothing (it shares the reference's "
                                        "smoothing error), and on 74 generated test lines Q x 3 where it chose so "
                                        "made 5 of 18 less repeatable and one 9 % worse against the truth, while "
                                        "Q / 3 made all 6 it chose more repeatable and 5 more accurate")
-    repeat_level_min_gain: float = Field(0.02, ge=0, lt=1, description="The fraction by which Q / "
-                                         "repeat_level_factor must lower the repeat passes' figure (which holds the "
-                                         "reference's noise) to be used")
+    repeat_level_significance: float = Field(0.1, gt=0, le=1, description="Q(t) / repeat_level_factor is used "
+                                             "only where the passes agree better so at this one-sided level "
+                                             "(t-test over 100 s blocks of the passes' figure difference; simulated "
+                                             "test lines: never with the level right in 10, on 7 of 10 with it 10x "
+                                             "too high)")
     rescale_noisy_passes: bool = Field(True, description="Repeat passes whose departures from the other passes "
                                        "show more noise than their posterior (the passes' mean noise ratio above 1 "
                                        "at std_repeat_significance, std_repeat_min_samples stretches) are smoothed "

@@ -472,6 +472,54 @@ def leave_one_out_msd_mgal2(values_mgal, reference_mgal) -> np.ndarray:
     return np.mean((v - others) ** 2, axis=1)
 
 
+def leave_one_out_msd_test(a_mgal, b_mgal, reference_mgal, block: int) -> tuple[float, float]:
+    """Whether estimate a agrees with the other passes' reference better than b does.
+
+    The difference of the two estimates' :func:`leave_one_out_msd_mgal2` figures, position by
+    position and averaged over the passes (the passes' figures share the reference's noise, so
+    they are not independent), is cut into blocks of ``block`` positions (about one
+    independent stretch each); a one-sided t-test over the block means asks whether the mean
+    difference is below 0.
+
+    Parameters
+    ----------
+    a_mgal, b_mgal, reference_mgal : array_like, shape (K, n), or lists of them (one per track)
+        Two estimates and the reference on K ≥ 2 passes at n common positions (mGal).
+    block : int
+        Positions per block (≥ 1).
+
+    Returns
+    -------
+    (float, float)
+        The mean difference a − b (mGal²) and the one-sided p-value (NaN with fewer than 3
+        blocks).
+    """
+    if int(block) < 1:
+        raise ValueError(f"block must be >= 1, got {block!r}")
+    tracks = (zip(a_mgal, b_mgal, reference_mgal) if isinstance(a_mgal, (list, tuple))
+              else [(a_mgal, b_mgal, reference_mgal)])
+    means, total, count = [], 0.0, 0
+    for a, b, r in tracks:
+        got = _passes_and_others([a, b], r)
+        if got is None:
+            continue
+        (a, b), others = got
+        d = np.mean((a - others) ** 2 - (b - others) ** 2, axis=0)
+        total += float(d.sum())
+        count += d.size
+        nb = d.size // int(block)
+        if nb:
+            means.extend(d[:nb * int(block)].reshape(nb, int(block)).mean(axis=1))
+    if not count:
+        return float("nan"), float("nan")
+    mean = total / count
+    m = np.asarray(means)
+    if m.size < 3 or not np.std(m, ddof=1) > 0:
+        return mean, float("nan")
+    t = float(np.mean(m) / (np.std(m, ddof=1) / np.sqrt(m.size)))
+    return mean, float(stats.t.cdf(t, m.size - 1))
+
+
 def repeat_blend_weight(a_mgal, b_mgal, reference_mgal) -> float:
     """The weight w of the blend ``(1 − w)·a + w·b`` of two estimates on repeat tracks whose
     :func:`leave_one_out_msd_mgal2` summed over the passes is least, clipped to [0, 1].

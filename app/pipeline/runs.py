@@ -247,9 +247,9 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
         # a test line: its level lowered where its repeat passes agree better so (the crossovers cannot judge it)
         cands[m_best].filtered.repeat_level_check(idf.dt_s, m_best, p.smoother, idf.noise.model, p.q_from_posteriors,
                                                   (1.0 / p.repeat_level_factor, 1.0),
-                                                  p.repeat_level_min_gain,
+                                                  p.repeat_level_significance,
                                                   p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods,
-                                                  p.repeat_blend_min_passes)
+                                                  p.repeat_blend_min_passes, p.fir_cutoff_period_s)
     if p.std_state_mixture:  # and the std of the mixture of levels
         cands[m_best].filtered.mixture_std(idf.dt_s, m_best, p.smoother, idf.noise.model)
     # levels from too few points (one level, or two from < 2 x min_points_adaptive): the std

@@ -22,7 +22,7 @@ from app.core.accuracy import (
 )
 from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
 from app.core.level_ml import cap_lifted_smooth_level, refine_levels
-from app.core.model_check import blend_estimates, leave_one_out_msd_mgal2
+from app.core.model_check import blend_estimates, leave_one_out_msd_mgal2, leave_one_out_msd_test
 from app.core.smoother import kalman_smooth, level_spread_std_mgal, mixture_std_mgal
 from app.pipeline.parallel import line_map
 from app.pipeline.stages.lines import LineData
@@ -481,7 +481,8 @@ class Filtered:
         self.noisy_passes = figures or None
 
     def repeat_level_check(self, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool, factors,
-                           min_gain: float, ref_period_s: float, ref_periods: float, min_passes: int) -> None:
+                           significance: float, ref_period_s: float, ref_periods: float, min_passes: int,
+                           period_s: float = 100.0) -> None:
         """A test-line survey's anomaly level chosen by its repeat passes (in place; before any
         std is widened).  Each factor f of ``factors`` scales Q(t) as a whole; the repeat passes
         (tracks of ``min_passes`` or more) are smoothed at f·Q(t), and each pass is compared with
@@ -490,8 +491,9 @@ class Filtered:
         passes share the anomaly, not the noise, so the figure ranks the levels by their error
         against the truth, up to the reference's own noise (the same for every f) and smoothing
         error.  The factor with the least figure is used — every line smoothed again at f·Q(t),
-        the levels scaled — where it lowers the figure by ``min_gain`` (a fraction) or more;
-        else the levels stay.  The report's ``level_refinement.repeat_level_check`` gives the
+        the levels scaled — where the passes agree significantly better so (one-sided p below
+        ``significance``, :func:`app.core.model_check.leave_one_out_msd_test` over blocks of
+        ``period_s`` of flight); else the levels stay.  The report's ``level_refinement.repeat_level_check`` gives the
         figure of each factor.  Only where the crossovers are too few to judge the estimate
         (the caller's condition): a repeat track says little about the lines off it."""
         tracks = [t for t in self._repeat_tracks({}, "").values() if len(t) >= min_passes]
@@ -501,8 +503,9 @@ class Filtered:
         refs = {i: fir_lowpass_mgal(self.prepared[i].line.z_mgal, dt_s, ref_period_s, ref_periods)
                 for t in tracks for i, _, _ in t}
 
-        def figure(f: float) -> float:
-            per_track = []
+        def values(f: float) -> list:
+            """Per track: (estimate at f·Q(t), reference), each (passes, common positions)."""
+            out = []
             for passes in tracks:
                 geo = [(self.prepared[i].line.easting_km, self.prepared[i].line.northing_km) for i, _, _ in passes]
                 cols = []
@@ -517,25 +520,34 @@ class Filtered:
                     acc = [repeat_line_accuracy([(e, nn, c[k]) for (e, nn), c in zip(geo, cols)]) for k in (0, 1)]
                 except ValueError:
                     continue
-                per_track.append(leave_one_out_msd_mgal2(acc[0].values_mgal, acc[1].values_mgal))
-            return float(np.nanmean(np.concatenate(per_track))) if per_track else float("nan")
+                out.append((acc[0].values_mgal, acc[1].values_mgal, acc[0]))
+            return out
 
-        factors = sorted({float(f) for f in factors} | {1.0})
-        msd = {f: figure(f) for f in factors}
-        rep = {"factors": factors, "msd_mgal2": [msd[f] for f in factors], "min_gain": float(min_gain),
-               "reference_period_s": float(ref_period_s), "factor": 1.0}
+        if not values(1.0):
+            self.repeat_level = {"factor": 1.0, "reason": "no common stretch of the passes"}
+            return
+        vals = {f: values(f) for f in sorted({float(x) for x in factors} | {1.0})}
+        msd = {f: float(np.nanmean(np.concatenate([leave_one_out_msd_mgal2(x, r) for x, r, _ in v])))
+               for f, v in vals.items()}
+        speed = float(np.mean([pr.line.speed_ms for pr in self.prepared if pr.line is not None]))
+        step_km = float(np.median(np.diff(vals[1.0][0][2].along_km)))
+        block = max(1, int(round(period_s * speed / 1000.0 / step_km)))
+        tests = {f: leave_one_out_msd_test([x for x, _, _ in vals[f]], [x for x, _, _ in vals[1.0]],
+                                           [r for _, r, _ in vals[1.0]], block)
+                 for f in vals if f != 1.0}
+        rep = {"factors": list(vals), "msd_mgal2": [msd[f] for f in vals],
+               "p_values": {f"{f:g}": tests[f][1] for f in tests}, "significance": float(significance),
+               "block_positions": block, "reference_period_s": float(ref_period_s), "factor": 1.0}
         self.repeat_level = rep
-        finite = [f for f in factors if np.isfinite(msd[f])]
-        if 1.0 not in finite:
-            rep["reason"] = "no common stretch of the passes"
+        better = [f for f in tests if tests[f][0] < 0 and tests[f][1] < significance]
+        if not better:
+            rep["reason"] = "no other level makes the passes agree significantly better"
             return
-        best = min(finite, key=lambda f: msd[f])
-        if best == 1.0 or not msd[best] < (1.0 - min_gain) * msd[1.0]:
-            rep["reason"] = "the model's level agrees with the passes as well as any"
-            return
+        best = min(better, key=lambda f: msd[f])
         rep["factor"] = best
-        rep["reason"] = (f"the passes agree best with the others' {ref_period_s:g} s low-pass of z at {best:g} x Q "
-                         f"({msd[best]:.4g} against {msd[1.0]:.4g} mGal², the reference's noise included)")
+        rep["reason"] = (f"the passes agree better with the others' {ref_period_s:g} s low-pass of z at {best:g} x Q "
+                         f"({msd[best]:.4g} against {msd[1.0]:.4g} mGal², the reference's noise included; one-sided "
+                         f"p = {tests[best][1]:.3g} over {block}-position blocks)")
         self.Q_levels = np.asarray(self.Q_levels, float) * best
 
         def smooth(i: int):
