@@ -229,9 +229,13 @@ class Filtered:
         f = self.level_fit
         if f is None:   # no refinement (refine_levels off): still say how the std was widened
             return ({"std_level_factor": self.std_level_factor, "std_level_reason": self.std_level_reason,
-                     "std_repeat_tracks": self.std_repeat_tracks}
-                    if self.std_level_reason else None)
-        return {"Q_mgal2": np.asarray(self.Q_levels).tolist(), "Q_full_rate_ml_mgal2": np.asarray(f.Q_mgal2).tolist(),
+                     "std_repeat_tracks": self.std_repeat_tracks, "noisy_passes_rescaled": self.noisy_passes,
+                     "repeat_level_check": self.repeat_level}
+                    if self.std_level_reason or self.noisy_passes or self.repeat_level else None)
+        # the refinement's levels (a filter job's warm start: it repeats the check on them); the
+        # repeat level check's factor, where it changed them, is in its own section
+        q_refined = np.asarray(self.Q_levels, float) / float((self.repeat_level or {}).get("factor", 1.0))
+        return {"Q_mgal2": q_refined.tolist(), "Q_full_rate_ml_mgal2": np.asarray(f.Q_mgal2).tolist(),
                 "lift_only": bool(p.refine_lift_only), "R_local_scale": self.r_scale, "noise_model": p.noise_model,
                 "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations,
                 "Q_stationary_mgal2": self.Q_stationary, "Q_stationary_used_mgal2": self.Q_stationary_used,
@@ -549,6 +553,7 @@ class Filtered:
                          f"({msd[best]:.4g} against {msd[1.0]:.4g} mGal², the reference's noise included; one-sided "
                          f"p = {tests[best][1]:.3g} over {block}-position blocks)")
         self.Q_levels = np.asarray(self.Q_levels, float) * best
+        rep["Q_used_mgal2"] = self.Q_levels.tolist()
 
         def smooth(i: int):
             pr = self.prepared[i]
