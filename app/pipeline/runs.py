@@ -250,6 +250,9 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
                                                   p.repeat_level_significance,
                                                   p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods,
                                                   p.repeat_blend_min_passes, p.fir_cutoff_period_s)
+        lc = cands[m_best].filtered.repeat_level
+        if lc and lc.get("factor", 1.0) != 1.0:
+            warnings.append(f"test line: anomaly level x {lc['factor']:.3g}: {lc['reason']}")
     if p.std_state_mixture:  # and the std of the mixture of levels
         cands[m_best].filtered.mixture_std(idf.dt_s, m_best, p.smoother, idf.noise.model)
     # levels from too few points (one level, or two from < 2 x min_points_adaptive): the std

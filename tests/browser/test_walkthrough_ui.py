@@ -247,6 +247,25 @@ def test_a_repeat_pass_smoothed_with_its_own_noise_is_named(fake_server, browser
     _no_errors(page)
 
 
+def test_a_test_lines_lowered_level_is_named(fake_server, browser_page):  # noqa: F811
+    """Generated test line 248: its repeat passes agreed better at Q/3; the summary says so with
+    the two figures and the p-value, and says nothing where the level was kept."""
+    page = browser_page
+    page.goto(fake_server.url)
+    got = page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const text = (lc) => [...m.summary({warnings: [], report: {level_refinement: {repeat_level_check: lc}}})
+            .querySelectorAll('li')].filter((l) => l.textContent.startsWith('Test line level')).map((l) => l.textContent);
+        const lowered = {factors: [0.3333333, 1.0], msd_mgal2: [743.7, 887.75], p_values: {'0.333333': 0.0123},
+                         reference_period_s: 50, factor: 0.3333333};
+        return {lowered: text(lowered), kept: text({...lowered, factor: 1.0})};
+    }""")
+    assert got["lowered"] == ["Test line level: Q × 0.333 — the repeat passes agree better with the other passes' 50 s "
+                              "low-pass of z (mean square 743.7 against 887.75 mGal², p = 0.01)."], got
+    assert got["kept"] == [], got
+    _no_errors(page)
+
+
 def test_surveys_of_one_name_can_be_told_apart(fake_server, browser_page, tmp_path):  # noqa: F811
     """The same zip imported twice gave two list entries both reading "tiny" (and the same title)."""
     import httpx

@@ -85,6 +85,13 @@ export function summary(r) {
       (done.length > 1 ? "these passes carry" : "this pass carries") +
       " more noise than the noise model gave them, measured by their departures from the other passes." });
   }
+  // a test line's level lowered where its repeat passes agree better so
+  const lc = (rep.level_refinement || {}).repeat_level_check;
+  if (lc && lc.factor !== undefined && lc.factor !== 1) {
+    const p = Object.values(lc.p_values || {})[0];
+    items.push({ cls: "warn", text: `Test line level: Q × ${fmt(lc.factor, 3)} — the repeat passes agree better with the other passes' ` +
+      `${fmt(lc.reference_period_s, 3)} s low-pass of z (mean square ${fmt(lc.msd_mgal2[0], 4)} against ${fmt(lc.msd_mgal2[1], 4)} mGal², p = ${fmt(p, 2)}).` });
+  }
   if (rep.lag_check) {
     const lc = rep.lag_check;
     items.push({ cls: lc.applied ? "warn" : "ok", text: lc.applied && lc.from_band_fit
