@@ -287,7 +287,7 @@ def test_repeat_contrasts_every_cutoff_period_hold_the_chi2_level(order):
         x = np.diff(rng.standard_normal(n + 800 + order), order)
         return fir_lowpass_mgal(x, dt, 100.0)[400:-400]      # a stretch cut out of a flight
 
-    var = np.mean([np.mean(fir_noise() ** 2) for _ in range(300)])
+    var = np.mean([np.mean(fir_noise() ** 2) for _ in range(200)])
     s = np.arange(n) * dt * v
     fa = hit = 0
     for _ in range(400):
@@ -484,11 +484,11 @@ def test_leave_one_out_msd_test_finds_the_better_estimate_and_is_calibrated():
     """Four passes of a shared anomaly, a reference with large independent noise per pass, and
     two estimates: with errors of variance 1 and 2 (block-correlated, 50 positions), a finds
     itself better (mean difference about −1, p < 0.05 in most draws); with equal errors the
-    one-sided p falls below 0.1 in about a tenth of the draws (0.05–0.17 over 300)."""
+    one-sided p falls below 0.1 in about a tenth of the draws (0.05–0.17 over 200)."""
     from app.core.model_check import leave_one_out_msd_test
 
     rng = np.random.default_rng(5)
-    K, n, blk = 4, 2000, 50
+    K, n, blk = 4, 1000, 50
 
     def smooth_noise(var):
         w = rng.normal(size=(K, n + blk)) * np.sqrt(var * blk)
@@ -506,7 +506,7 @@ def test_leave_one_out_msd_test_finds_the_better_estimate_and_is_calibrated():
         means.append(mean)
         found += p < 0.05
     assert found >= 30 and -1.3 < np.mean(means) < -0.7, (found, np.mean(means))
-    ps = np.array([leave_one_out_msd_test(*draw(1.0, 1.0), blk)[1] for _ in range(300)])
+    ps = np.array([leave_one_out_msd_test(*draw(1.0, 1.0), blk)[1] for _ in range(200)])
     assert 0.05 < np.mean(ps < 0.1) < 0.17, np.mean(ps < 0.1)
     # lists of tracks, and the guards
     a, b, r = draw(1.0, 2.0)
