@@ -186,6 +186,40 @@ def repeat_pass_noise_ratio(values_mgal, posterior_var_mgal2) -> np.ndarray:
     return repeat_pass_noise_var(g / np.sqrt(scale))
 
 
+def repeat_pass_departures(values_mgal, reference_mgal, posterior_var_mgal2) -> np.ndarray:
+    """Each repeat's mean square departure from the mean of the *other* repeats of a reference.
+
+    ``mean_x ((v_j(x) − r̄₋ⱼ(x))² / s(x))`` with ``r̄₋ⱼ`` the mean of the reference over the
+    repeats other than j and ``s`` the repeats' mean posterior variance at each point, so that
+    the line ends, where every estimate departs more, do not rule.  With the reference the
+    values themselves it is how far each repeat stands from the others; with another estimate
+    of the same repeats as the values, how far that one would stand from them as they were.
+
+    Parameters
+    ----------
+    values_mgal, reference_mgal : array_like, shape (K, n)
+        K ≥ 2 repeats at n common points (mGal), finite.
+    posterior_var_mgal2 : array_like, shape (K, n) or (n,)
+        Posterior variances at the same points (mGal², > 0).
+
+    Returns
+    -------
+    ndarray, shape (K,)
+        Dimensionless.
+    """
+    v = np.asarray(values_mgal, dtype=float)
+    r = np.asarray(reference_mgal, dtype=float)
+    post = np.asarray(posterior_var_mgal2, dtype=float)
+    if r.ndim != 2 or r.shape[0] < 2 or v.shape != r.shape:
+        raise ValueError(f"values and reference must both be (K >= 2, n), got {v.shape} and {r.shape}")
+    scale = post.mean(axis=0) if post.ndim == 2 else post
+    if scale.shape != r.shape[1:] or not np.all(scale > 0):
+        raise ValueError(f"posterior variances must be positive, one per common point ({r.shape[1:]}), got "
+                         f"shape {post.shape}")
+    others = (r.sum(axis=0)[None, :] - r) / (r.shape[0] - 1)
+    return np.mean((v - others) ** 2 / scale[None, :], axis=1)
+
+
 def repeat_pass_std_scales(noise_ratio, track_scale: float = 1.0, smoothing_ratio: float = 0.0) -> np.ndarray:
     """Each repeat's std factor: ``max(track_scale, sqrt(ρ_i + smoothing_ratio))``, at least 1.
 

@@ -430,3 +430,25 @@ def test_repeat_pass_std_scales_by_hand():
         repeat_pass_std_scales([-1.0, 1.0])
     with pytest.raises(ValueError, match="≥ 0"):
         repeat_pass_std_scales([1.0, 1.0], smoothing_ratio=-0.1)
+
+
+def test_repeat_pass_departures_by_hand():
+    """Three repeats at two points: each one's departure from the other two's mean of the
+    reference, over the mean posterior variance at each point (worked out by hand)."""
+    from app.core.accuracy import repeat_pass_departures
+
+    ref = np.array([[1.0, 2.0], [3.0, 2.0], [5.0, 8.0]])
+    post = np.array([[1.0, 4.0], [1.0, 4.0], [1.0, 4.0]])
+    # others' means: pass 0 (4, 5), pass 1 (3, 5), pass 2 (2, 2); variances 1 and 4
+    expected = [((1 - 4) ** 2 / 1 + (2 - 5) ** 2 / 4) / 2, ((3 - 3) ** 2 + (2 - 5) ** 2 / 4) / 2,
+                ((5 - 2) ** 2 + (8 - 2) ** 2 / 4) / 2]
+    np.testing.assert_allclose(repeat_pass_departures(ref, ref, post), expected)
+    np.testing.assert_allclose(repeat_pass_departures(ref, ref, np.array([1.0, 4.0])), expected)
+    # another estimate of the same repeats against the reference as it was: pass 0 moved to 4, 5
+    moved = ref.copy()
+    moved[0] = [4.0, 5.0]
+    assert repeat_pass_departures(moved, ref, post)[0] == 0.0
+    with pytest.raises(ValueError):
+        repeat_pass_departures(ref, ref, np.zeros(2))
+    with pytest.raises(ValueError):
+        repeat_pass_departures(ref[:1], ref[:1], post[:1])

@@ -17,6 +17,7 @@ from app.core.accuracy import (
     noise_excess_p_value,
     repeat_error_parts,
     repeat_line_accuracy,
+    repeat_pass_departures,
     repeat_pass_noise_ratio,
     repeat_pass_std_scales,
 )
@@ -240,8 +241,8 @@ class Filtered:
                 "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations,
                 "Q_stationary_mgal2": self.Q_stationary, "Q_stationary_used_mgal2": self.Q_stationary_used,
                 "std_level_factor": self.std_level_factor,
-                "std_level_reason": self.std_level_reason, "std_repeat_tracks": self.std_repeat_tracks, "noisy_passes_rescaled": self.noisy_passes,
-                "repeat_level_check": self.repeat_level,
+                "std_level_reason": self.std_level_reason, "std_repeat_tracks": self.std_repeat_tracks,
+                "noisy_passes_rescaled": self.noisy_passes, "repeat_level_check": self.repeat_level,
                 "smooth_lift_capped": self.smooth_lift_cap}
 
     def estimate_q(self, pr: PreparedLine, q_from_posteriors: bool) -> np.ndarray:
@@ -464,8 +465,9 @@ class Filtered:
             # kept where the pass departs clearly less from the other passes (as they were): noise
             # of its own smoothed away, not anomaly detail (a slow departure more smoothing does not
             # remove, which a smoother estimate meets only by sharing the others' smoothing error)
-            before = _pass_departures(acc[0].values_mgal, acc[0].values_mgal, acc[1].values_mgal)
-            after = _pass_departures(moved.values_mgal, acc[0].values_mgal, acc[1].values_mgal)
+            post = _posterior_at(acc[0].values_mgal, acc[1].values_mgal, post_v)
+            before = repeat_pass_departures(acc[0].values_mgal, acc[0].values_mgal, post)
+            after = repeat_pass_departures(moved.values_mgal, acc[0].values_mgal, post)
             for k, (i, off, n) in enumerate(passes):
                 if i not in runs:
                     continue
@@ -533,7 +535,7 @@ class Filtered:
         vals = {f: values(f) for f in sorted({float(x) for x in factors} | {1.0})}
         msd = {f: float(np.nanmean(np.concatenate([leave_one_out_msd_mgal2(x, r) for x, r, _ in v])))
                for f, v in vals.items()}
-        speed = float(np.mean([pr.line.speed_ms for pr in self.prepared if pr.line is not None]))
+        speed = float(np.mean([self.prepared[i].line.speed_ms for t in tracks for i, _, _ in t]))
         step_km = float(np.median(np.diff(vals[1.0][0][2].along_km)))
         block = max(1, int(round(period_s * speed / 1000.0 / step_km)))
         tests = {f: leave_one_out_msd_test([x for x, _, _ in vals[f]], [x for x, _, _ in vals[1.0]],
@@ -744,18 +746,6 @@ def pass_noise_warnings(tracks: dict | None) -> list[str]:
 NOISY_PASS_MIN_FALL = 0.10
 
 
-def _pass_departures(values_mgal: np.ndarray, reference_mgal: np.ndarray, posterior_var_mgal2: np.ndarray) -> np.ndarray:
-    """Each pass's mean square departure from the mean of the *other* passes of ``reference_mgal``
-    (shape (K, n) both), over the passes' mean posterior variance point by point (so the line
-    ends do not rule): shape (K,), dimensionless."""
-    ref = np.asarray(reference_mgal, float)
-    k = ref.shape[0]
-    others = (ref.sum(axis=0)[None, :] - ref) / (k - 1)
-    post = np.asarray(posterior_var_mgal2, float)
-    scale = post.mean(axis=0) if post.ndim == 2 and post.shape == ref.shape else np.full(ref.shape[1], np.mean(post))
-    return np.mean((np.asarray(values_mgal, float) - others) ** 2 / scale[None, :], axis=1)
-
-
 def rescaled_pass_warnings(tracks: dict | None) -> list[str]:
     """Warnings naming the repeat passes smoothed again with their own noise level
     (``Filtered.noisy_passes``, :meth:`Filtered.rescale_noisy_passes`)."""
@@ -770,15 +760,20 @@ def rescaled_pass_warnings(tracks: dict | None) -> list[str]:
     return out
 
 
-def _pass_noise_ratio(values_mgal: np.ndarray, posterior_var_mgal2: np.ndarray, mean_var_mgal2: float) -> np.ndarray:
-    """:func:`app.core.accuracy.repeat_pass_noise_ratio` of a track's passes (shape (K, n)) over
-    their posterior variances at the same common points; where a hole left the two on different
-    points, or a posterior variance is not positive there, over their mean ``mean_var_mgal2``
-    (> 0) instead."""
+def _posterior_at(values_mgal: np.ndarray, posterior_var_mgal2: np.ndarray, mean_var_mgal2: float) -> np.ndarray:
+    """A track's posterior variances at its passes' common points (shape (K, n)); where a hole
+    left the two on different points, or a variance is not positive there, their mean
+    ``mean_var_mgal2`` (> 0) at every point instead."""
     post = np.asarray(posterior_var_mgal2, float)
     if post.shape != values_mgal.shape or not np.all(post > 0):
         post = np.full(values_mgal.shape[1], mean_var_mgal2)
-    return repeat_pass_noise_ratio(values_mgal, post)
+    return post
+
+
+def _pass_noise_ratio(values_mgal: np.ndarray, posterior_var_mgal2: np.ndarray, mean_var_mgal2: float) -> np.ndarray:
+    """:func:`app.core.accuracy.repeat_pass_noise_ratio` of a track's passes (shape (K, n)) over
+    their posterior variances (:func:`_posterior_at`)."""
+    return repeat_pass_noise_ratio(values_mgal, _posterior_at(values_mgal, posterior_var_mgal2, mean_var_mgal2))
 
 
 def stationary_level(prepared: list, Q_levels, r_stationary: float, dt_s: float, m: int, noise, p=None) -> float:
