@@ -729,7 +729,37 @@ def _weighted_min_norm(A: np.ndarray, obs: _Observations, layout: _ColumnLayout,
     return scale * z
 
 
-def keep_mean_level(correction_mgal, unit, crossing_units) -> tuple[np.ndarray, list[float]]:
+def connected_groups(crossing_units) -> dict:
+    """The connected groups of drift units that crossovers join.
+
+    Parameters
+    ----------
+    crossing_units : iterable of (label, label)
+        The two units of every crossover.
+
+    Returns
+    -------
+    dict
+        Each unit that crosses another (or itself) mapped to its group's label: the group's
+        least unit by ``str`` (so the same for any order of the crossovers).
+    """
+    parent: dict = {}
+
+    def find(x):
+        parent.setdefault(x, x)
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for a, b in crossing_units:
+        ra, rb = find(a), find(b)
+        if ra != rb:
+            parent[max(ra, rb, key=str)] = min(ra, rb, key=str)
+    return {k: find(k) for k in list(parent)}
+
+
+def keep_mean_level(correction_mgal, unit, crossing_units, anchor=None) -> tuple[np.ndarray, list[float]]:
     """Drift corrections without the common level the crossovers cannot see.
 
     Crossover differences fix the drifts of connected drift units only up to one constant per
@@ -740,6 +770,12 @@ def keep_mean_level(correction_mgal, unit, crossing_units) -> tuple[np.ndarray, 
     keeps each group's mean level; differences within a group — and so every crossover
     residual — are unchanged.
 
+    Where a group holds epochs whose level is known absolutely (``anchor``: flights tied to a
+    base reading) and others whose level is not (a flight without a tie keeps the gravimeter's
+    reading offset, 100+ mGal), the mean over the anchored epochs alone is subtracted: the
+    tied flights keep their absolute level on average and the untied ones are brought to it
+    through the crossovers, instead of the reading offset being shared out over the whole map.
+
     Parameters
     ----------
     correction_mgal : array_like, shape (n,)
@@ -748,6 +784,8 @@ def keep_mean_level(correction_mgal, unit, crossing_units) -> tuple[np.ndarray, 
         Drift unit of each epoch's line (any hashable label).
     crossing_units : iterable of (label, label)
         The two units of every crossover used.
+    anchor : array_like of bool, shape (n,), optional
+        Epochs whose level is absolute (None: none is).
 
     Returns
     -------
@@ -758,24 +796,16 @@ def keep_mean_level(correction_mgal, unit, crossing_units) -> tuple[np.ndarray, 
     u = np.asarray(unit, dtype=object)
     if c.shape != u.shape or c.ndim != 1:
         raise ValueError(f"correction_mgal and unit must be 1-D of one length, got {c.shape} and {u.shape}")
-    parent: dict = {}
-
-    def find(a):
-        parent.setdefault(a, a)
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
-    for a, b in crossing_units:
-        ra, rb = find(a), find(b)
-        if ra != rb:
-            parent[max(ra, rb, key=str)] = min(ra, rb, key=str)
-    roots = {k: find(k) for k in list(parent)}
+    anc = np.zeros(c.shape, bool) if anchor is None else np.asarray(anchor, dtype=bool)
+    if anc.shape != c.shape:
+        raise ValueError(f"anchor must have the corrections' shape {c.shape}, got {anc.shape}")
+    roots = connected_groups(crossing_units)
     removed = []
     for root in sorted(set(roots.values()), key=str):
         group = np.isin(u, np.array([k for k, r in roots.items() if r == root], dtype=object))
         sel = group & np.isfinite(c)
+        if (sel & anc).any():
+            sel &= anc
         if sel.any():
             shift = float(np.mean(c[sel]))
             c[group] -= shift

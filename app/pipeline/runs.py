@@ -274,8 +274,10 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     table = choice.table
     products = apply_products(table, idf.survey_dir, idf.crs, p, warnings)
     tr.start("leveling")
-    ties = [b.get("applied") and b.get("absolute") for b in idf.measurement_report.get("base_ties", {}).values()]
-    leveled = level_survey(table, p, warnings, tied=bool(ties) and all(ties))
+    base_ties = idf.measurement_report.get("base_ties", {})
+    ties = [bool(b.get("applied") and b.get("absolute")) for b in base_ties.values()]
+    leveled = level_survey(table, p, warnings, tied=bool(ties) and all(ties),
+                           tied_flights={f for f, b in base_ties.items() if b.get("applied") and b.get("absolute")})
     refresh_bouguer(table)
     tr.start("gridding")
     grid = grid_survey(table, p, warnings, leveled.report.get("rms_after_mgal"))

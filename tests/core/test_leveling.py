@@ -364,6 +364,27 @@ def test_keep_mean_level_per_connected_group():
         keep_mean_level(corr[:3], unit, [])
 
 
+def test_keep_mean_level_anchored_on_tied_epochs():
+    """Hand-computed: where a group holds anchored epochs (flights with an absolute tie), the
+    mean correction over those alone is removed; a group without any keeps its own mean; the
+    anchors of another group change nothing in this one."""
+    from app.core.leveling import connected_groups, keep_mean_level
+
+    unit = np.array(["a", "a", "b", "b", "c", "d", "e"], dtype=object)
+    corr = np.array([-150.0, -150.0, 2.0, 4.0, 1.0, 5.0, 9.0])
+    anchor = np.array([False, False, True, True, True, False, False])
+    out, removed = keep_mean_level(corr, unit, [("a", "b"), ("c", "c"), ("d", "e")], anchor)
+    # group {a, b}: anchored mean (2 + 4) / 2 = 3; group {c}: its anchor 1; group {d, e}: mean 7
+    np.testing.assert_allclose(out, [-153.0, -153.0, -1.0, 1.0, 0.0, -2.0, 2.0])
+    assert sorted(removed) == [1.0, 3.0, 7.0]
+    # no anchor: the plain epoch mean, (−300 + 6) / 4 = −73.5
+    out0, _ = keep_mean_level(corr, unit, [("a", "b"), ("c", "c"), ("d", "e")])
+    np.testing.assert_allclose(out0[:4], corr[:4] + 73.5)
+    assert connected_groups([("b", "a"), ("c", "c"), ("e", "d")]) == {"a": "a", "b": "a", "c": "c", "d": "d", "e": "d"}
+    with pytest.raises(ValueError, match="anchor"):
+        keep_mean_level(corr, unit, [], anchor[:3])
+
+
 def test_common_level_std_is_calibrated_for_exchangeable_flight_offsets():
     """Simulation with known truth: n = 2–4 flights whose offsets are draws of std s = 5 mGal,
     seen at 30 crossovers between flights with 1.5 mGal of noise each.  Over 3000 surveys the

@@ -214,6 +214,46 @@ def test_flights_without_a_base_tie_are_leveled_on_weaker_held_out_evidence():
             assert untied_rms < 1.02 * tied_rms, (untied_rms, tied_rms)
 
 
+def test_a_flight_without_a_tie_takes_its_level_from_the_tied_flights():
+    """Flights A and B tied to the base (their level absolute, only a small drift), flight C
+    without a tie: it keeps the gravimeter's reading offset (−195 mGal, as in a survey whose
+    gravimeter file starts after the parking-place readings).  Leveling brings C to A and B's
+    level and keeps theirs — not the map's mean level, which would share C's offset out over
+    every line (all lines 93 mGal off before) — and the report and a warning say where C's
+    level came from.  Against the truth, before and after, three draws."""
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        table, drift = _survey(rng)
+        table["dg_unleveled_mgal"] -= drift
+        table.loc[table["flight"] == "C", "dg_unleveled_mgal"] -= 195.0
+        table["dg_mgal"] = table["dg_unleveled_mgal"]
+        warnings: list = []
+        _, rep = level_lines_table(table, ProcessingParams(), warnings, tied=False, tied_flights={"A", "B"})
+        assert rep["status"] == "leveled", rep["status"]
+        err = table["dg_mgal"] - table["dg_true_mgal"]
+        assert abs(err.mean()) < 0.3, err.mean()
+        for f in "ABC":
+            assert abs(err[table["flight"] == f].mean()) < 0.5, (f, err[table["flight"] == f].mean())
+        assert rep["untied_flights"] == {"C": ["A", "B"]}
+        assert any("flight C has no absolute base tie: its level was taken from" in w for w in warnings), warnings
+        # without naming the tied flights the map keeps its mean level, C's offset shared out
+        t = table.assign(dg_mgal=table["dg_unleveled_mgal"])
+        _, rep = level_lines_table(t, ProcessingParams(), [], tied=False)
+        assert abs((t["dg_mgal"] - t["dg_true_mgal"]).mean() + 195.0 * np.mean(t["flight"] == "C")) < 0.5
+        assert "untied_flights" not in rep
+
+
+def test_an_unconnected_untied_flight_is_named_in_a_warning():
+    """Leveling refused: the untied flight keeps its reading offset, and a warning says so."""
+    table, drift = _survey(np.random.default_rng(0))
+    warnings: list = []
+    _, rep = level_lines_table(table, ProcessingParams(leveling_significance=1e-300, leveling_offset_fallback=False),
+                               warnings, tied=False, tied_flights={"A", "B"})
+    assert rep["status"].startswith("not leveled"), rep["status"]
+    assert rep["untied_flights"] == {"C": None}
+    assert any("flight C has no absolute base tie and leveling does not connect it" in w for w in warnings), warnings
+
+
 def test_untied_held_out_significance_is_its_own(monkeypatch):
     """A held-out p of 0.2 is refused with every flight tied (0.05) and levels without a tie
     (0.5); the refusal says which significance it needed."""

@@ -18,6 +18,7 @@ from app.core.accuracy import crossover_std_factor
 from app.core.leveling import (
     LineTrack,
     common_level_std,
+    connected_groups,
     cross_validated_leveling,
     find_crossovers,
     keep_mean_level,
@@ -114,7 +115,8 @@ def _drift_or_offsets(cx: pd.DataFrame, ranges: dict, groups: dict | None, p, ti
     return offsets
 
 
-def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True) -> tuple[pd.DataFrame, dict]:
+def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True,
+                      tied_flights=None) -> tuple[pd.DataFrame, dict]:
     """Crossovers and leveling; on failure keep the unleveled estimate and say why.
 
     ``tied``: every flight was tied to an absolute base reading (stage 1), which removed its
@@ -122,7 +124,9 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True)
     differ in level for certain: the held-out check of the drift is then at
     ``leveling_cv_significance_untied`` instead of ``leveling_cv_significance``.  A drift
     refused is followed by one offset per flight under the same tests
-    (:func:`_drift_or_offsets`)."""
+    (:func:`_drift_or_offsets`).  ``tied_flights``: the flights with an absolute tie; where
+    only some are, leveling keeps their mean level (not the map's) and the report's
+    ``untied_flights`` says where each other flight's level came from."""
     cols = ["line_a", "line_b", "easting_km", "northing_km", "diff_before_mgal", "diff_after_mgal"]
     try:
         cx = find_crossovers(tracks(table, "dg_unleveled_mgal"), include_repeat=p.leveling_include_repeat)
@@ -144,7 +148,10 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True)
         cx = cx.assign(diff_before_mgal=cx["dg_a"] - cx["dg_b"], diff_after_mgal=cx["dg_a"] - cx["dg_b"])
         return cx[cols], {"status": f"not leveled: {exc}"}
     res, before, after, rep = fit.res, fit.before, fit.after, fit.rep
-    corr, removed, unit = _corrections(table, cx, res, fit.ok)
+    corr, removed, unit, pairs = _corrections(table, cx, res, fit.ok, tied_flights)
+    untied = untied_flights_report(table, unit, pairs, tied_flights, fit.reason is None, warnings)
+    if untied is not None:
+        rep["untied_flights"] = untied
     if fit.reason is not None:
         rep.update(status=f"not leveled: {fit.reason}",
                    rms_after_mgal=float(res.rms_before), rms_after_if_leveled_mgal=float(res.rms_after))
@@ -169,18 +176,52 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True)
     return cx[cols], rep
 
 
-def _corrections(table: pd.DataFrame, cx: pd.DataFrame, res, ok: np.ndarray):
+def _corrections(table: pd.DataFrame, cx: pd.DataFrame, res, ok: np.ndarray, tied_flights=None):
     """The drift corrections of ``res`` at every epoch of the table (mGal, subtracted from dg),
-    with each connected group's mean level kept (the crossovers see differences only), the
-    constants removed, and every epoch's drift unit."""
+    with each connected group's mean level kept (the crossovers see differences only) — the
+    mean over its flights in ``tied_flights`` where it has any (:func:`keep_mean_level`) —,
+    the constants removed, every epoch's drift unit and the crossing unit pairs."""
     corr = np.zeros(len(table))
     for line, g in table.groupby("line", sort=False):
         corr[g.index.to_numpy()] = res.correction(str(line), g["time"].to_numpy())
     unit = table["line"].astype(str).map(lambda ln: res.unit_of.get(ln, ln)).to_numpy(object)
     pairs = [(res.unit_of.get(a, a), res.unit_of.get(b, b))
              for a, b, ok_k in zip(cx["line_a"].astype(str), cx["line_b"].astype(str), ok) if ok_k]
-    corr, removed = keep_mean_level(corr, unit, pairs)
-    return corr, removed, unit
+    anchor = None if not tied_flights else table["flight"].astype(str).isin(list(tied_flights)).to_numpy()
+    corr, removed = keep_mean_level(corr, unit, pairs, anchor)
+    return corr, removed, unit, pairs
+
+
+def untied_flights_report(table: pd.DataFrame, unit: np.ndarray, pairs: list, tied_flights, leveled: bool,
+                          warnings: list) -> dict | None:
+    """Where some flights are tied to an absolute base reading and others are not: for each
+    untied flight, the tied flights its level was taken from through the crossovers (leveling
+    applied and connecting them), or None — then its level carries the gravimeter's reading
+    error, and a warning says so.  None when every flight or none is tied."""
+    flights = table["flight"].astype(str).to_numpy()
+    names = list(pd.unique(flights))
+    tied = [f for f in names if f in set(tied_flights or ())]
+    if not tied or len(tied) == len(names):
+        return None
+    roots = connected_groups(pairs) if leveled else {}
+    root_of_flight: dict = {}
+    for f, u in zip(flights, unit):
+        if u in roots:
+            root_of_flight.setdefault(f, set()).add(roots[u])
+    out = {}
+    for f in names:
+        if f in tied:
+            continue
+        mine = root_of_flight.get(f, set())
+        src = sorted(t for t in tied if mine & root_of_flight.get(t, set()))
+        out[f] = src or None
+        if src:
+            warnings.append(f"flight {f} has no absolute base tie: its level was taken from its crossovers with "
+                            f"the tied flight(s) {', '.join(src)}")
+        else:
+            warnings.append(f"flight {f} has no absolute base tie and leveling does not connect it to a tied "
+                            "flight: its level carries the gravimeter's reading error (scale × g, easily 100+ mGal)")
+    return out
 
 
 def _mean_by_unit(corr: np.ndarray, unit: np.ndarray) -> dict:
@@ -205,10 +246,11 @@ class Leveled:
     report: dict
 
 
-def level_survey(table: pd.DataFrame, p, warnings: list, tied: bool = True) -> Leveled:
+def level_survey(table: pd.DataFrame, p, warnings: list, tied: bool = True, tied_flights=None) -> Leveled:
     """Stage 10 on the line table (in place: ``dg_mgal`` leveled, ``dg_std_mgal`` rescaled by
-    the crossover check of the std); ``tied`` as in :func:`level_lines_table`."""
-    crossovers, rep = level_lines_table(table, p, warnings, tied)
+    the crossover check of the std); ``tied`` and ``tied_flights`` as in
+    :func:`level_lines_table`."""
+    crossovers, rep = level_lines_table(table, p, warnings, tied, tied_flights)
     sc = rep.get("std_check", {})
     if p.std_crossover_check and "factor" in sc and sc["factor"] != 1.0:
         # The crossovers are an independent check of dg_std (core.accuracy.crossover_std_factor).
