@@ -83,6 +83,28 @@ def stamp_scatter_s(t_s, window: int = 401) -> tuple[float, float]:
     return _robust_scale(d), float(np.max(np.abs(d)))
 
 
+def stamp_quantum_s(t_s) -> float:
+    """The rounding step of a file's time stamps (s): the largest of 1, 2 and 5 × 10⁻ᵏ s
+    (0.1 ms to 0.5 s) of which every stamp is a whole multiple, within 1e-6 of the step
+    (the stamps' float representation); 0 when none is.
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (n,)
+        Time stamps (s).
+    """
+    t = np.asarray(t_s, dtype=float)
+    t = t[np.isfinite(t)]
+    if t.size < 3:
+        return 0.0
+    rel = t - np.floor(t[0])      # small numbers: whole seconds change no multiple
+    for q in (0.5, 0.2, 0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001, 5e-4, 2e-4, 1e-4):
+        k = rel / q
+        if np.all(np.abs(k - np.round(k)) < 1e-6 * max(1.0, float(np.max(np.abs(k))) * 1e-9) + 1e-6):
+            return q
+    return 0.0
+
+
 def dejitter_times_s(t_s, max_jitter_s: float | None = None, window: int = 401) -> np.ndarray:
     """Remove the rounding jitter of sample time stamps of a uniformly clocked instrument.
 
@@ -104,6 +126,14 @@ def dejitter_times_s(t_s, max_jitter_s: float | None = None, window: int = 401) 
     compared: over 40 000 stamps a 1 ms normal scatter rounded to 1 ms reaches 4 ms
     somewhere, and leaving such a 10 Hz GNSS record on its stamps gave 31 mGal of error
     against 3.3.  Steps alternating 0.45/0.55 s (a scale of 5 % × 1.48) stay as stamped.
+
+    Stamps rounded to a coarser step q (:func:`stamp_quantum_s`: every stamp a whole
+    multiple of 1, 2 or 5 × 10⁻ᵏ s) scatter uniformly by ±q/2 about the clock, a robust
+    scale of 0.37 q — 3.7 ms for stamps to 0.01 s, above 5 % of an 18.24 Hz step (2.7 ms).
+    By default a segment whose largest deviation is within q/2 + 1.5 ms (and a quarter step), with at
+    least 30 % of them within q/4 (rounding spreads them evenly; alternating steps put them at
+    ±q/2), is that rounding and goes back on the clock: left on such stamps the sample survey's error was
+    4.02 mGal against 3.30.
 
     Parameters
     ----------
@@ -129,12 +159,20 @@ def dejitter_times_s(t_s, max_jitter_s: float | None = None, window: int = 401) 
     med = float(np.median(np.diff(t)))
     if not med > 0:
         raise ValueError("time stamps must be strictly increasing")
+    half_q = 0.0
     if max_jitter_s is None:
         max_jitter_s = max(ROUNDING_JITTER_S, 0.05 * med)
+        half_q = 0.5 * stamp_quantum_s(t)
     out = t.copy()
     for a, b, fit in _clock_fits(t, window):
         dev = t[a:b] - fit
-        if _robust_scale(dev) <= max_jitter_s and np.max(np.abs(dev)) < 0.25 * med:
+        largest = np.max(np.abs(dev))
+        # rounding: within q/2 (and a millisecond rounding's slack: the clock and its fit are not
+        # exact), spread over that range as rounding spreads them (not two values ±q/2:
+        # alternating steps)
+        rounding = (half_q > 0 and largest <= half_q + ROUNDING_JITTER_S
+                    and np.mean(np.abs(dev) < 0.5 * half_q) >= 0.3)
+        if (_robust_scale(dev) <= max_jitter_s or rounding) and largest < 0.25 * med:
             out[a:b] = fit
     # the fit must keep the stamps increasing
     if np.any(np.diff(out) <= 0):
