@@ -105,8 +105,8 @@ def _is_number(tok: str) -> bool:
 
 def _open_text(path: Path):
     if path.name.lower().endswith(".gz"):
-        return gzip.open(path, "rt", encoding="utf-8", errors="replace", newline="")
-    return open(path, encoding="utf-8", errors="replace", newline="")
+        return gzip.open(path, "rt", encoding="utf-8-sig", errors="replace", newline="")
+    return open(path, encoding="utf-8-sig", errors="replace", newline="")
 
 
 def sniff_dat(path, n_lines: int = 5) -> str | None:
@@ -310,6 +310,10 @@ def read_dgs(path, *, time_offset_s: float | None = 0.0, rate_hz: float | None =
         miss = np.flatnonzero(np.isnan(df[col].to_numpy()))
         if miss.size:
             raise InputError(display, int(rows[miss[0]]), col, f"missing {col} (it cannot be interpolated)")
+    # a missing gravity is a hole of the record, not a value to interpolate (a linear fill misses the
+    # aircraft's acceleration at that record, which the GNSS still sees): filled here for the checks
+    # below, its records dropped at the end
+    hole_rows = rows[np.isnan(df["gravity"].to_numpy())]
     fill_short_nan_runs(df, [c for c in _PHYSICAL + ("gps_sow",) if c in df], rows, display, max_nan_run,
                         time_col=None)
     status = _status_words(df, rows, display)
@@ -336,5 +340,10 @@ def read_dgs(path, *, time_offset_s: float | None = 0.0, rate_hz: float | None =
         out["gps_sow"] = df["gps_sow"].to_numpy()
     out["source_row"] = rows
     res = pd.DataFrame(out)
+    if hole_rows.size:
+        res = res.loc[~np.isin(rows, hole_rows)].reset_index(drop=True)
+        warnings.warn(f"{display}: {hole_rows.size} missing gravity value(s) left as holes of the record (rows "
+                      f"{', '.join(str(int(r)) for r in hole_rows[:5])}{', …' if hole_rows.size > 5 else ''}), "
+                      "not interpolated", stacklevel=2)
     res.attrs.update(reading_offset_mgal=offset, reading_offset_source=source, unsynced_records=n_unsynced)
     return res

@@ -261,6 +261,11 @@ def read_gfile(path, *, time_offset_s: float = 0.0, scale_to_ms2: float = 1.0,
     df, rows = _read_raw(path, display)
     num_cols = [c for c in df.columns if c != "checksum"]
     check_finite(df, num_cols, rows, display)
+    # a missing Z sample is a hole of the record (a linear fill misses the aircraft's acceleration
+    # there, which the GNSS still sees): filled for the checks, the half-sample dropped below
+    hole = np.empty(2 * len(df), bool)
+    hole[0::2] = np.isnan(df[f"{z_channel}_z_1"].to_numpy())
+    hole[1::2] = np.isnan(df[f"{z_channel}_z_2"].to_numpy())
     fill_short_nan_runs(df, num_cols, rows, display, max_nan_run, time_col=None)
 
     t = _message_times(df, rows, display, subsecond_scale, time_offset_s)
@@ -272,6 +277,10 @@ def read_gfile(path, *, time_offset_s: float = 0.0, scale_to_ms2: float = 1.0,
                          "the gravimeter reports saturation in this message (use on_saturation='drop' to skip such messages)")
     out = _half_sample_columns(df, rows, t1, t2, sat, z_channel, scale_to_ms2)
     res = pd.DataFrame(out)
+    if hole.any():
+        warnings.warn(f"{display}: {int(hole.sum())} missing {z_channel} Z sample(s) left as holes of the record "
+                      f"(first at row {int(res['source_row'].to_numpy()[hole][0])}), not interpolated", stacklevel=2)
+        res = res.loc[~hole].reset_index(drop=True)
     n_sat = int(sat.sum())
     res.attrs["saturated_messages"] = n_sat
     if n_sat and on_saturation == "drop":

@@ -185,7 +185,7 @@ def read_config(path, overrides: dict | None = None, display: str = "survey.toml
     if size > MAX_CONFIG_BYTES:
         raise InputError(display, None, None, f"the file is {size / 2**20:.3g} MB; at most {MAX_CONFIG_BYTES >> 20} MB "
                                               "allowed (survey.toml holds names and settings: a few kB)")
-    text = path.read_text(encoding="utf-8", errors="replace")
+    text = path.read_text(encoding="utf-8-sig", errors="replace")
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -343,7 +343,10 @@ def _check_ranges(df: pd.DataFrame, rows: np.ndarray, display: str) -> None:
 
 
 def _finish_series(df: pd.DataFrame, rows: np.ndarray, display: str, max_nan_run: int,
-                   required: tuple, optional: tuple) -> pd.DataFrame:
+                   required: tuple, optional: tuple, holes: tuple = ()) -> tuple[pd.DataFrame, np.ndarray]:
+    """Checks and short NaN runs of one flight file: every column's runs up to ``max_nan_run``
+    interpolated, except ``holes``' — their rows are dropped (a hole of the record, which
+    processing leaves missing), and a warning says how many.  Returns the table and its rows."""
     # an optional column left completely empty is treated as absent
     for c in optional:
         if c in df and df[c].isna().all():
@@ -351,9 +354,22 @@ def _finish_series(df: pd.DataFrame, rows: np.ndarray, display: str, max_nan_run
     cols = [c for c in required + optional if c in df]
     check_finite(df, cols, rows, display)
     _check_ranges(df, rows, display)
+    gone = np.zeros(len(df), bool)
+    for c in holes:
+        if c in df:
+            gone |= df[c].isna().to_numpy()
     fill_short_nan_runs(df, cols, rows, display, max_nan_run)
+    if gone.any():
+        # A linear fill of f_z misses the aircraft's acceleration at that sample, which the GNSS
+        # still sees: at 2 Hz one filled sample of a 0.5 m/s² turbulent record was 100+ mGal of
+        # error along its line.  A hole is bridged in z (f_z − ḧ), where the two cancel.
+        warnings.warn(f"{display}: {int(gone.sum())} missing value(s) of {', '.join(holes)} left as holes of the "
+                      f"record (rows {', '.join(str(int(r)) for r in rows[gone][:5])}"
+                      f"{', …' if gone.sum() > 5 else ''}), not interpolated", stacklevel=2)
+        df = df.loc[~gone].reset_index(drop=True)
+        rows = np.asarray(rows)[~gone]
     check_time_increasing(df["time"].to_numpy(), rows, display)
-    return df
+    return df, rows
 
 
 def _days_to_gnss(t: np.ndarray, gnss_time_range: tuple[float, float] | None) -> float:
@@ -428,7 +444,7 @@ def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: flo
         df, rows = read_csv_table(path, display, GRAV_REQUIRED, GRAV_OPTIONAL, min_rows=2)
         declared = config.columns.for_role("gravimeter").get("f_z_unit")
         _csv_force_units(df, display, declared, _unit_row(path) if declared else None)
-        df = _finish_series(df, rows, display, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL)
+        df, rows = _finish_series(df, rows, display, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL, holes=("f_z",))
     return finish_gravimeter(df, rows, display, config), rows
 
 
@@ -437,7 +453,7 @@ def _unit_row(path: Path) -> int | None:
     (``flights/<name>/<file>``), best effort."""
     toml = path.parent.parent.parent / "survey.toml"
     try:
-        text = toml.read_text(encoding="utf-8", errors="replace")
+        text = toml.read_text(encoding="utf-8-sig", errors="replace")
     except OSError:
         return None
     for loc in (("columns", "gravimeter", "f_z_unit"), ("columns", "f_z_unit")):
@@ -549,7 +565,7 @@ def finish_gnss(df: pd.DataFrame, rows: np.ndarray, display: str, config: Survey
             df = df.drop(columns="sigma_v")
             warnings.warn(f"{display}: sigma_v has {miss.size} empty cell(s) (first at row {int(rows[miss[0]])}); "
                           f"the processing does not use it: column dropped", stacklevel=2)
-    df = _finish_series(df, rows, display, p.max_nan_run, GNSS_REQUIRED, GNSS_OPTIONAL)
+    df, rows = _finish_series(df, rows, display, p.max_nan_run, GNSS_REQUIRED, GNSS_OPTIONAL)
     check_range(df, "lat", -90.0, 90.0, rows, display, "latitude")
     check_range(df, "lon", -180.0, 360.0, rows, display, "longitude")
     check_rate(df["time"].to_numpy(), display, p.gnss_rate_hz, p.rate_tolerance, "GNSS", "processing.gnss_rate_hz",
@@ -792,7 +808,7 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
                              f"file not found, and the survey lines cannot be taken from the flights' XYZ Line/Tie "
                              f"blocks{which}: add a lines.csv")
     for name, fs in series.items():
-        _check_line_windows(name, fs, lines, origins, config.processing.max_gap_s)
+        _check_line_windows(name, fs, lines, origins, config.processing.max_gap_s, config.processing.max_nan_run)
     for n in [n for name, fs in series.items() for n in stuck_sensor_notes(name, fs, lines)] + \
             repeat_track_notes(lines, origins):
         warnings.warn(n, stacklevel=2)
@@ -916,9 +932,9 @@ def _read_flight_series(name: str, d: Path, root: Path, config: SurveyConfig,
     tn = gnss["time"].to_numpy()
     if gsrc.kind == "xyz":
         tab = _xyz_role(gsrc, "gravimeter", root, config, scans)
-        grav = _finish_series(tab.df, tab.rows, grav_disp, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL)
-        grav = finish_gravimeter(grav.reset_index(drop=True), tab.rows, grav_disp, config)
-        grav_rows = tab.rows
+        grav, grav_rows = _finish_series(tab.df, tab.rows, grav_disp, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL,
+                                         holes=("f_z",))
+        grav = finish_gravimeter(grav.reset_index(drop=True), grav_rows, grav_disp, config)
         block_sources.setdefault(name, {})["gravimeter"] = _BlockSource(grav_disp, tab, grav["time"].to_numpy())
     else:
         grav, grav_rows = read_gravimeter(gsrc.path, grav_disp, config,
@@ -927,11 +943,13 @@ def _read_flight_series(name: str, d: Path, root: Path, config: SurveyConfig,
     return _FlightSeries(grav, grav_rows, grav_disp, gnss, gnss_rows, gnss_disp, gsrc.path, nsrc.path)
 
 
-def _check_line_windows(name: str, fs: _FlightSeries, lines: pd.DataFrame, origins: list, max_gap_s: float) -> None:
+def _check_line_windows(name: str, fs: _FlightSeries, lines: pd.DataFrame, origins: list, max_gap_s: float,
+                        max_nan_run: int = 0) -> None:
     """Every line window of flight ``name`` lies within both files' data, holds at least two
     GNSS epochs (the epochs a line is estimated at: a window between two of them has none, and
     processing failed on it after the identification) and has no gap longer than ``max_gap_s``
-    (processing.max_gap_s) inside it."""
+    (processing.max_gap_s) inside it — in the gravimeter's record, nor longer than the
+    ``max_nan_run`` missing samples tolerated there (left as holes, :func:`_finish_series`)."""
     tg = fs.grav["time"].to_numpy()
     tn = fs.gnss["time"].to_numpy()
     sel = np.flatnonzero((lines["flight"] == name).to_numpy())
@@ -956,8 +974,12 @@ def _check_line_windows(name: str, fs: _FlightSeries, lines: pd.DataFrame, origi
                          f"line {lines['line'].iloc[sel[k]]} window {ts[k]:.3f}–{te[k]:.3f} s "
                          f"({te[k] - ts[k]:.3g} s) holds {int(n_epochs[k])} epoch(s) of {fs.gnss_disp}: a line "
                          f"needs at least 2 (check t_start and t_end)")
-    for t, rows, disp in ((tg, fs.grav_rows, fs.grav_disp), (tn, fs.gnss_rows, fs.gnss_disp)):
-        g = gap_rows_in_windows(t, ts, te, max_gap_s)
+    grav_gap_s = max_gap_s
+    if max_nan_run > 0 and len(tg) > 1:
+        grav_gap_s = max(max_gap_s, 1.01 * (max_nan_run + 1) * float(np.median(np.diff(tg))))
+    for t, rows, disp, limit_s in ((tg, fs.grav_rows, fs.grav_disp, grav_gap_s),
+                                   (tn, fs.gnss_rows, fs.gnss_disp, max_gap_s)):
+        g = gap_rows_in_windows(t, ts, te, limit_s)
         hit = np.flatnonzero(g >= 0)
         if hit.size:
             k = int(hit[0])
@@ -965,7 +987,7 @@ def _check_line_windows(name: str, fs: _FlightSeries, lines: pd.DataFrame, origi
             raise InputError(disp, int(rows[j]), "time",
                              f"gap of {t[j] - t[j - 1]:.3f} s before this row (from {t[j - 1]:.3f} to "
                              f"{t[j]:.3f} s) inside line {lines['line'].iloc[sel[k]]} "
-                             f"({ts[k]:.3f}–{te[k]:.3f} s); at most {max_gap_s:g} s allowed "
+                             f"({ts[k]:.3f}–{te[k]:.3f} s); at most {limit_s:g} s allowed "
                              f"(processing.max_gap_s): split the line at the gap in lines.csv (two windows), "
                              f"or raise max_gap_s — holes that cut a line into stretches of a few minutes "
                              f"hide the low frequencies the noise model is fitted on (docs/METHOD.md, gaps)")

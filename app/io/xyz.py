@@ -182,9 +182,9 @@ def _read_text(path: Path, display: str) -> str:
         raise InputError(display, None, None, "file not found")
     try:
         if path.name.lower().endswith(".gz"):
-            with gzip.open(path, "rt", encoding="utf-8", errors="replace", newline="") as fh:
+            with gzip.open(path, "rt", encoding="utf-8-sig", errors="replace", newline="") as fh:
                 return fh.read()
-        with open(path, encoding="utf-8", errors="replace", newline="") as fh:
+        with open(path, encoding="utf-8-sig", errors="replace", newline="") as fh:
             return fh.read()
     except (OSError, EOFError) as exc:
         raise InputError(display, None, None, f"cannot read the file: {exc}") from None
@@ -612,7 +612,7 @@ def write_survey_xyz(src_survey_dir, dst_dir, combined: bool = False, keep_lines
 
     src = Path(src_survey_dir)
     survey = read_survey(src)
-    toml_text = (src / "survey.toml").read_text(encoding="utf-8")
+    toml_text = (src / "survey.toml").read_text(encoding="utf-8-sig")
     if "columns" in tomllib.loads(toml_text):
         raise ValueError(f"{src / 'survey.toml'} already has a [columns] table: convert a SPEC-CSV survey")
     tables = {name: (fl.gravimeter, fl.gnss.drop(columns="vu") if fl.vu_derived_from_h else fl.gnss)

@@ -482,7 +482,7 @@ def patch_survey(db: Session, store: Store, reader: Callable, s: Survey, patch, 
             return s
         toml_path = Path(base) / "survey.toml"
         try:
-            current = tomllib.loads(toml_path.read_text(encoding="utf-8"))
+            current = tomllib.loads(toml_path.read_text(encoding="utf-8-sig"))
         except (tomllib.TOMLDecodeError, UnicodeDecodeError) as e:  # pragma: no cover - validated at upload
             raise SettingsRejected([{"loc": ["survey.toml"], "msg": f"the stored survey.toml is unreadable: {e}",
                                      "type": "value_error"}]) from None

@@ -102,6 +102,26 @@ def test_records_without_gps_time(tmp_path):
     assert df["source_row"].iloc[0] == 2 and "gps_sow" not in df
 
 
+@pytest.mark.parametrize("gps", [True, False])
+def test_missing_gravity_left_as_a_hole(tmp_path, gps):
+    """A missing gravity value (with ``max_nan_run`` tolerating it) is a hole of the record, not a
+    value to interpolate: its record is dropped with a warning naming the row, and every other
+    record keeps its own time — from its GPS stamp, or from the record count without one."""
+    lines, grav, sow = records(30, gps=gps)
+    f = lines[10].split(",")
+    f[0] = ""
+    lines[10] = ",".join(f)
+    p = write(tmp_path / "a.dat", lines)
+    kw = {} if gps else {"time_offset_s": 5000.0, "rate_hz": HZ}
+    with pytest.warns(UserWarning, match=r"1 missing gravity value\(s\) left as holes of the record \(rows 11\)"):
+        df = read_dgs(p, reading_offset_mgal=0.0, max_nan_run=1, **kw)
+    keep = np.arange(30) != 10
+    t = sow if gps else 5000.0 + np.arange(30) / HZ
+    np.testing.assert_allclose(df["time"], t[keep], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(df["gravity_mgal"], grav[keep], rtol=0, atol=1e-12)
+    assert 11 not in df["source_row"].tolist() and len(df) == 29
+
+
 @pytest.mark.parametrize("edit, row, column, match", [
     (lambda ls: ls.__setitem__(6, ls[6].replace("62.253987", "62.25x")), 7, "temp", "'62.25x'"),
     (lambda ls: ls.__setitem__(3, ls[3] + ",1"), 4, None, "11 fields"),

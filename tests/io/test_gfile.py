@@ -135,6 +135,24 @@ def test_saturation_policies(tmp_path):
     assert (ei.value.file, ei.value.row, ei.value.column) == ("s.G", 12, "saturation")
 
 
+def test_missing_z_sample_left_as_a_hole(tmp_path):
+    """A missing fine-Z half-sample (``max_nan_run`` tolerating it) is a hole of the record, not a
+    value to interpolate: that half-sample is dropped with a warning naming its row; the other
+    half of the message and every other sample keep their values and times."""
+    msgs, _ = make_messages(40, t0_sod=500.0)
+    fz = interleave(msgs["fz1"].to_numpy(), msgs["fz2"].to_numpy())
+    msgs.loc[10, "fz1"] = np.nan
+    p = tmp_path / "s.G"
+    write_g(p, msgs)
+    with pytest.warns(UserWarning, match=r"1 missing fine Z sample\(s\) left as holes of the record \(first at row 12\)"):
+        df = read_gfile(p, max_nan_run=1)
+    keep = np.arange(80) != 20
+    assert len(df) == 79
+    np.testing.assert_allclose(df["f_z"].to_numpy(), fz[keep], rtol=0, atol=1e-12)
+    assert df.loc[df["source_row"] == 12, "half"].tolist() == [2]
+    assert np.all(np.diff(df["time"].to_numpy()) > 0)
+
+
 def test_non_numeric_and_backwards(tmp_path):
     msgs, _ = make_messages(20, t0_sod=500.0)
     p = tmp_path / "a.G"

@@ -130,6 +130,21 @@ def test_valid_survey_roundtrip(survey_dir):
     assert fl.gnss_path == root / "flights/F1/gnss.csv"
 
 
+def test_byte_order_marks_accepted(survey_dir):
+    """Windows editors (Notepad) save UTF-8 with a byte-order mark: survey.toml, lines.csv and
+    the tables read as without it (the TOML parser refused the mark at line 1, column 1)."""
+    root, lines, tabs = survey_dir
+    ref = read_survey(root)
+    for rel in ("survey.toml", "lines.csv", "flights/F1/gnss.csv", "flights/F1/gravimeter.csv"):
+        path = root / rel
+        path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    s = read_survey(root)
+    assert s.config == ref.config
+    pd.testing.assert_frame_equal(s.lines, ref.lines)
+    pd.testing.assert_frame_equal(s.flights["F1"].gnss, ref.flights["F1"].gnss)
+    pd.testing.assert_frame_equal(s.flights["F1"].gravimeter, ref.flights["F1"].gravimeter)
+
+
 def test_gz_accepted(tmp_path):
     lines, tabs = make_tables()
     root = write_survey(tmp_path / "s", lines, tabs, gz=True)
@@ -264,6 +279,31 @@ def test_nan_runs_interpolated_or_rejected(tmp_path):
     np.testing.assert_allclose(s.flights["F1"].gnss["h"].to_numpy(), truth, rtol=0, atol=1e-9)
     err = expect_error(root, "flights/F1/gnss.csv", 202, "h", overrides={"max_nan_run": 2})
     assert "3 consecutive missing values" in str(err)
+
+
+def test_missing_f_z_left_as_a_hole_not_interpolated(tmp_path):
+    """A missing f_z is a hole in the record, not a value to draw a line through: a linear fill
+    misses the aircraft's acceleration at that sample (the GNSS still sees it), which on a
+    turbulent 2 Hz test line was 100+ mGal of error along the line.  Its rows are dropped with a
+    warning naming them; every other value is the file's; a hole of ``max_nan_run`` samples is
+    allowed inside a line even where it is longer than ``max_gap_s``."""
+    lines, tabs = make_tables()
+    grav, gnss = tabs["F1"]
+    grav = grav.copy()
+    grav.loc[1000:1002, "f_z"] = np.nan          # rows 1002-1004, inside line 0001 (3/18.24 s)
+    tabs["F1"] = (grav, gnss)
+    root = write_survey(tmp_path / "s", lines, tabs)
+    with pytest.warns(UserWarning, match=r"3 missing value\(s\) of f_z left as holes of the record \(rows 1002, 1003, 1004\)"):
+        s = read_survey(root, {"max_nan_run": 3, "max_gap_s": 0.1})
+    got = s.flights["F1"].gravimeter
+    keep = np.ones(len(grav), bool)
+    keep[1000:1003] = False
+    np.testing.assert_array_equal(got["time"].to_numpy(), grav["time"].to_numpy()[keep])
+    np.testing.assert_allclose(got["f_z"].to_numpy(), grav["f_z"].to_numpy()[keep], rtol=0, atol=1e-15)
+    # the same hole from deleted rows is a gap longer than max_gap_s
+    tabs["F1"] = (grav.dropna().reset_index(drop=True), gnss)
+    root = write_survey(tmp_path / "t", lines, tabs)
+    expect_error(root, "flights/F1/gravimeter.csv", 1002, "time", overrides={"max_gap_s": 0.1}, match="gap of")
 
 
 def test_nan_in_time_interpolated(tmp_path):
