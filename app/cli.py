@@ -122,13 +122,19 @@ def cmd_process(args) -> int:
     overrides = _params(args.params)
     if not Path(args.survey).is_dir():
         raise CommandError(f"survey directory {args.survey} not found")
-    report = process_survey(args.survey, args.out, overrides=overrides, progress=_progress_bar("process"))
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:   # said once, below, not as Python's raw line
+        warnings.simplefilter("always")
+        report = process_survey(args.survey, args.out, overrides=overrides, progress=_progress_bar("process"))
     out = Path(args.out).resolve()
     cx = report.get("crossovers", {})
     print(f"outputs written to {out}")
     if "rms_before_mgal" in cx:
         print(f"crossover RMS: {cx['rms_before_mgal']:.3f} mGal before, {cx['rms_after_mgal']:.3f} mGal after leveling")
-    for w in report.get("warnings", []):
+    said = list(report.get("warnings", []))
+    said += [str(w.message) for w in caught if str(w.message) not in said]   # any the report lacks
+    for w in said:
         print(f"warning: {w}", file=sys.stderr)
     return 0
 
