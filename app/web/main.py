@@ -147,11 +147,15 @@ class GuardMiddleware:
         origin = headers.get(b"origin")
         if origin is not None:
             o = origin.decode("latin-1").strip()
-            parts = urlsplit(o) if o.lower() != "null" else None
+            try:   # a malformed origin ("http://[::1", a port "80x" or 99999) is another site's
+                parts = urlsplit(o) if o.lower() != "null" else None
+                port_o = parts.port if parts is not None else None
+            except ValueError:
+                return f"Origin: {o[:100]}"
             if parts is None or not parts.hostname:
                 return f"Origin: {o[:100]}"
             name, port = _split_host(host)
-            oport = str(parts.port or {"http": 80, "https": 443}.get(parts.scheme, ""))
+            oport = str(port_o or {"http": 80, "https": 443}.get(parts.scheme, ""))
             hport = port or {"http": "80", "https": "443"}.get(parts.scheme, "")
             if parts.hostname.lower() != name or oport != hport:
                 return f"Origin: {o[:100]}"

@@ -516,6 +516,11 @@ def test_10_cross_site_requests_host_check_and_headers(make_client, tiny_src):
     assert client.post("/api/surveys", json={"name": "x"}, headers={"Sec-Fetch-Site": "cross-site"}).status_code == 403
     assert client.post("/api/surveys", json={"name": "x"}, headers={"Origin": "null"}).status_code == 403
     assert client.post("/api/surveys", json={"name": "x"}, headers={"Origin": "http://localhost:8001"}).status_code == 403
+    # malformed origins are another site's, not a server error (they gave 500 with a traceback)
+    for bad in ("http://localhost:99999", "http://localhost:80x", "http://localhost:-1", "http://[::1",
+                "http://localhost.evil.example"):
+        r = client.post("/api/surveys", json={"name": "x"}, headers={"Origin": bad})
+        assert r.status_code == 403 and "cross-site" in r.json()["detail"], (bad, r.status_code, r.text)
     assert client.post("/api/jobs/1/cancel", headers={"Sec-Fetch-Site": "same-site"}).status_code == 403
     assert client.get("/api/surveys").json() == []
     ok = {"Origin": "http://localhost", "Sec-Fetch-Site": "same-origin"}
