@@ -44,6 +44,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pandas as pd
 
 from app.config import check_name
 from app.io.errors import InputError
@@ -563,12 +564,35 @@ def survey_qc(survey, track_points: int = 150) -> tuple[dict[str, dict], list[di
     return flights, lines
 
 
-class ResultCache:
-    """Small LRU of loaded result objects (DataFrames, grids, recognition maps) per key."""
+def approx_nbytes(value, depth: int = 4) -> int:
+    """Rough memory held by a cached result (bytes): its arrays and tables, found through
+    containers and object attributes down to ``depth`` levels; anything else counts 0."""
+    if depth < 0 or value is None:
+        return 0
+    if isinstance(value, np.ndarray):
+        return int(value.nbytes)
+    if isinstance(value, (pd.DataFrame, pd.Series)):
+        return int(np.sum(value.memory_usage(index=True, deep=False)))
+    if isinstance(value, dict):
+        return sum(approx_nbytes(v, depth - 1) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        return sum(approx_nbytes(v, depth - 1) for v in value)
+    attrs = getattr(value, "__dict__", None)
+    if isinstance(attrs, dict):
+        return sum(approx_nbytes(v, depth - 1) for v in attrs.values())
+    return 0
 
-    def __init__(self, size: int = 16):
+
+class ResultCache:
+    """Small LRU of loaded result objects (DataFrames, grids, recognition maps) per key: at most
+    ``size`` entries and ``max_bytes`` of their arrays (:func:`approx_nbytes`; the newest entry is
+    always kept) — sixteen results of the finest grid allowed would otherwise hold ~6 GB."""
+
+    def __init__(self, size: int = 16, max_bytes: int = 1 << 30):
         self.size = size
+        self.max_bytes = max_bytes
         self._d: OrderedDict = OrderedDict()
+        self._bytes: dict[Any, int] = {}
         self._lock = threading.Lock()
         self._key_locks: dict[Any, threading.Lock] = {}
 
@@ -583,10 +607,13 @@ class ResultCache:
                 if key in self._d:
                     return self._d[key]
             val = build()
+            nbytes = approx_nbytes(val)
             with self._lock:
                 self._d[key] = val
-                while len(self._d) > self.size:
-                    self._d.popitem(last=False)
+                self._bytes[key] = nbytes
+                while len(self._d) > 1 and (len(self._d) > self.size or sum(self._bytes.values()) > self.max_bytes):
+                    old, _ = self._d.popitem(last=False)
+                    self._bytes.pop(old, None)
                 self._key_locks.pop(key, None)
             return val
 
@@ -597,4 +624,5 @@ class ResultCache:
             keys = [k for k in self._d if predicate(k)]
             for k in keys:
                 del self._d[k]
+                self._bytes.pop(k, None)
             return len(keys)
