@@ -252,10 +252,14 @@ class ProcessingParams(_Strict):
     despike_threshold: float | None = Field(6.0, gt=0, le=1000, description="Epochs of z whose residual from the mean "
                                             "of their neighbours exceeds this many local robust std (GNSS velocity "
                                             "spikes, cycle slips) are repaired; None keeps z as it is")
+    height_step_threshold: float | None = Field(8.0, gt=0, le=1000, description="Where vu is derived from "
+                                                 "the heights, also flag a step of the heights (a cycle slip) where "
+                                                 "its size in the double integral of z exceeds this many local robust "
+                                                 "scales (app.core.measurement.height_step_mask); None: off")
     despike_max_fraction: float = Field(0.01, gt=0, le=1, description="Spike repair stands down (z left as "
                                         "measured, with a warning) when it would flag more than this share "
                                         "of a flight's epochs")
-    max_nan_run: int = Field(0, ge=0, le=100_000, description="Longest run of missing values tolerated (interpolated); longer runs are errors")
+    max_nan_run: int = Field(0, ge=0, le=100_000, description="Longest run of missing values tolerated (interpolated; a missing f_z is a hole of the record instead); longer runs are errors")
     # --- measurement
     estimate_time_offset: bool = True
     apply_time_offset: bool = Field(True, description="Shift the gravimeter time scale by the cross-correlation estimate")

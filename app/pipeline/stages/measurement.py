@@ -31,6 +31,8 @@ from app.core.measurement import (
     delay_correction_mgal,
     gnss_acceleration_ms2,
     height_outlier_mask,
+    height_step_mask,
+    height_step_sizes_m,
     repair_height_outliers,
     repair_spikes,
     spike_mask,
@@ -457,8 +459,10 @@ def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False, filled=None
     """Repair isolated spikes of z (:func:`app.core.measurement.spike_mask`); stand down when
     more than ``despike_max_fraction`` of the epochs would be flagged.  Where ``vu`` was
     derived from the heights the spline's response to a height spike or step is also looked
-    for (:func:`app.core.measurement.height_outlier_mask`), and a flag is removed as one
-    (:func:`app.core.measurement.repair_height_outliers`; the report lists each: epoch time
+    for (:func:`app.core.measurement.height_outlier_mask`; a step also in z's double integral,
+    :func:`app.core.measurement.height_step_mask`, ``height_step_threshold``), and a flag is
+    removed as one (:func:`app.core.measurement.repair_height_outliers`, a step sized from the
+    double integral; the report lists each: epoch time
     in s, kind, size in m); otherwise each flagged run is replaced by its mean
     (:func:`app.core.measurement.repair_spikes`).  ``t_s``: the GNSS times (s).  ``filled``:
     the GNSS epochs put back on the clock (:func:`fill_gnss_epochs`); the spline that bridges
@@ -473,8 +477,19 @@ def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False, filled=None
     if p.despike_threshold is None:
         return z, despike
     spikes = spike_mask(z, dt_s, p.despike_threshold)
+    step_sizes = None
     if vu_from_heights:  # a height outlier rings through the spline: the matched patterns see it
         spikes |= height_outlier_mask(z, t, p.despike_threshold)
+        if p.height_step_threshold is not None:   # and a step, clearest in z's double integral
+            steps = height_step_mask(z, t, p.height_step_threshold)
+            # where only the double integral sees it, it is sized there (within an epoch of its
+            # flag); where the templates flag too they size it as before (on clean records the
+            # double integral's size at their flags is noise, ±0.2 m at 1 Hz)
+            alone = steps & ~(np.convolve(spikes.astype(float), np.ones(5), mode="same") > 0.5)
+            near = np.convolve(alone.astype(float), np.ones(3), mode="same") > 0.5
+            if near.any():
+                step_sizes = np.where(near, height_step_sizes_m(z, t), np.nan)
+            spikes |= steps
     if filled is not None and np.any(filled):
         near = np.convolve(np.asarray(filled, float), np.ones(2 * FILL_GUARD + 1), mode="same") > 0.5
         despike["ignored_near_filled"] = int(np.sum(spikes & near))
@@ -489,7 +504,7 @@ def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False, filled=None
         notes.append(f"spike repair stood down: {n_flag} of {despike['epochs']} epochs ({100 * frac:.2f} %) "
                      f"would be flagged, more than {100 * p.despike_max_fraction:g} % — z left as measured")
     elif n_flag and vu_from_heights:
-        z, fixes = repair_height_outliers(z, t, spikes)
+        z, fixes = repair_height_outliers(z, t, spikes, step_sizes_m=step_sizes)
         despike["applied"] = True
         despike["height_outliers"] = [{"time": float(t[f["epoch"]]), "kind": f["kind"], "size_m": f["size_m"]}
                                       for f in fixes]
