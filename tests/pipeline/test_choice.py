@@ -475,6 +475,31 @@ def test_a_longer_lowpass_only_where_fir_resolves_nothing():
     assert np.array_equal(table["dg_mgal"].to_numpy(), table["dg_fir_mgal"].to_numpy())
 
 
+def test_no_longer_lowpass_on_lines_shorter_than_half_its_period():
+    """A low-pass much longer than the lines takes their level from outside them (turns, other
+    lines) — on 4 km lines flown in 40 s the 400 s one put every line 21–40 mGal off, which
+    neither the crossovers nor its std saw.  With the aliased fixture's lines lasting 90 s
+    (times compressed) no period above 200 s is tried; at 150 s only 200 s is."""
+    from app.pipeline.stages.choice import longer_lowpass
+
+    p = ProcessingParams()
+    for line_s, allowed in ((90.0, []), (150.0, [200.0])):
+        table, fir_at = _aliased_table(np.random.default_rng(11))
+        dur = table.groupby("line")["time"].transform(lambda x: x.max() - x.min())
+        t0 = table.groupby("line")["time"].transform("min")
+        table["time"] = t0 + (table["time"] - t0) * line_s / dur
+        calls: list = []
+
+        def fir_at_logged(period, fir_at=fir_at, calls=calls):
+            calls.append(period)
+            return fir_at(period)
+
+        rep = longer_lowpass(table, fir_at_logged, 1.0, 10.0, p, [])
+        assert calls == allowed and rep["median_line_s"] == pytest.approx(line_s)
+        if not allowed:
+            assert not rep["applied"] and "shorter than half of every longer low-pass" in rep["reason"]
+
+
 def test_the_report_gives_the_lowpass_period_used():
     """choose_model's report: FIR at its own period where the noisy check falls back to it, the
     longer period where step 3b replaced it (the aliased fixture, a draw where it fires)."""

@@ -522,6 +522,11 @@ def noisy_check(table: pd.DataFrame, lines: dict, noise, dt_s: float, p, warning
     return rep
 
 
+#: the longest low-pass period step 3b tries, in units of the lines' median duration (about
+#: twice: a 40 km line at 100 m/s, 399.9 s by its samples, keeps 800 s)
+LONG_LOWPASS_LINE_FACTOR = 2.1
+
+
 def longer_lowpass(table: pd.DataFrame, fir_at, fir_spread_mgal: float, fir_crossover_std_mgal: float, p,
                    warnings: list) -> dict:
     """Step 3b (in place): where FIR resolves no anomaly, a longer low-pass.
@@ -531,8 +536,11 @@ def longer_lowpass(table: pd.DataFrame, fir_at, fir_spread_mgal: float, fir_cros
     std), the anomaly FIR 100 s keeps is lost in its noise — aliased motion on a 1–2 Hz
     record that the noise model cannot see, so every model-based estimate passes it too.  The
     same low-pass of z over each whole flight is then tried at the longer ``fir_long_periods_s``
-    (``fir_at(period_s)``), and the shortest one whose lines vary by more than its crossovers'
-    error is used on every line: the least smoothing that resolves something beyond its noise.
+    (``fir_at(period_s)``) — those at most :data:`LONG_LOWPASS_LINE_FACTOR` (about twice) the
+    lines' median duration, a longer one
+    taking a line's level from outside it —, and the shortest one whose lines vary by more than
+    its crossovers' error is used on every line: the least smoothing that resolves something
+    beyond its noise.
     Where none does, the one with the least crossover RMS (the longest, as a rule).  Not the
     least crossover RMS in general: the crossovers cannot see the anomaly a low-pass clips (the
     same at both ends of a crossing), so they favour the longest period (generated 44: 800 s,
@@ -546,8 +554,20 @@ def longer_lowpass(table: pd.DataFrame, fir_at, fir_spread_mgal: float, fir_cros
     if not fir_crossover_std_mgal >= fir_spread_mgal:
         rep["reason"] = "FIR's crossovers show less error than its along-line spread: it resolves the anomaly"
         return rep
+    # a low-pass much longer than the lines takes their level from outside them (turns, other
+    # lines): on 40 s lines (4 km at 100 m/s) the 400 s one was 21–40 mGal off every line, the
+    # same on all, so neither the crossovers nor its std saw it (FIR 100 s: 4.9 mGal)
+    g = table.groupby("line", sort=False)["time"]
+    line_s = float(np.median((g.max() - g.min()).to_numpy()))
+    rep["median_line_s"] = line_s
+    periods = [float(x) for x in p.fir_long_periods_s if x > p.fir_cutoff_period_s]
+    longest = LONG_LOWPASS_LINE_FACTOR * line_s
+    if not any(x <= longest for x in periods):
+        rep["reason"] = (f"the lines ({line_s:.0f} s, median) are shorter than half of every longer low-pass: it "
+                         "would take their level from outside them")
+        return rep
     tried = {}
-    for period in sorted(float(x) for x in p.fir_long_periods_s if x > p.fir_cutoff_period_s):
+    for period in sorted(x for x in periods if x <= longest):
         col = np.asarray(fir_at(period), dtype=float)
         d = crossover_differences(table.assign(_lp=col), "_lp", p.leveling_include_repeat)
         d = d[np.isfinite(d)]
