@@ -429,7 +429,9 @@ def check_time_increasing(t: np.ndarray, rows: np.ndarray, display: str, column:
             back = float(t[i - 1] - t[i])
             for period, what in ((86400.0, "seconds of day: the flight crosses midnight"),
                                  (604800.0, "GPS seconds of week: the flight crosses the week's end")):
-                if 0.0 < period - back <= 60.0:  # the clock wrapped, not a shuffled record
+                # the clock wrapped (a record's gap at the wrap included: a turn's 10 minutes
+                # without data), not a shuffled record
+                if 0.0 < period - back <= 3600.0:
                     msg += (f" — the time scale wrapped ({what}); the survey needs one monotonic scale: "
                             f"add {period:.0f} s to this row's time and every later one (and to the "
                             f"lines.csv windows after the wrap)")
