@@ -639,6 +639,10 @@ class ProcessingParams(_Strict):
                                            "one offset per flight (degree 0) under the same tests: half the "
                                            "parameters, more power for the flights' level differences alone")
     leveling_per_flight: bool = Field(True, description="One drift polynomial per flight (the instrument drifts, not the line); False: one per line")
+    leveling_max_height_difference_m: float = Field(300.0, gt=0, le=100_000, description="Warn when crossing "
+                                                    "lines were flown more than this far apart in height (m) at a "
+                                                    "crossover: the anomaly differs with height, which leveling takes "
+                                                    "for drift (not when the lines were continued to a datum)")
     leveling_include_repeat: bool = Field(False, description="Use repeat lines' crossings in leveling (repeats of one track overlap along their whole length; with per-flight leveling they are corrected through their flight)")
     grid_line_error_fraction: float = Field(0.0, ge=0, le=1, description="Share of the lines' posterior variance "
                                             "treated as an error shared along each line in the collocation")

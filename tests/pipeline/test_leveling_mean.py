@@ -300,3 +300,25 @@ def test_a_refused_drift_is_followed_by_one_offset_per_flight():
             assert np.mean(rms[True]) < np.mean(rms[False]), (np.mean(rms[True]), np.mean(rms[False]))
         else:
             assert leveled == {True: 0, False: 0}, leveled
+
+
+def test_crossovers_between_lines_flown_far_apart_in_height_are_said():
+    """Ties flown at 500 m across lines at 3000 m: every crossover compares the anomaly at two
+    heights, which leveling would take for drift; the report gives the height differences and a
+    warning says so.  Lines at one height (within 20 m): no warning.  Continued to a datum
+    (``dg_flight_mgal`` kept): the crossovers are at the datum, nothing said."""
+    table, _ = _survey(np.random.default_rng(0))
+    table["h"] = np.where(table["flight"] == "C", 500.0, 3000.0) + 10.0 * np.sin(table["time"] / 50.0)
+    warnings: list = []
+    _, rep = level_lines_table(table.copy(), ProcessingParams(), warnings)
+    hd = rep["height_difference_m"]
+    assert hd["n_over"] > 0 and 2470.0 <= hd["median_m"] <= 2530.0 and hd["max_m"] <= 2521.0
+    assert any("flown up to" in w and "apart in height" in w for w in warnings), warnings
+    table["h"] = 3000.0 + 10.0 * np.sin(table["time"] / 50.0)
+    warnings = []
+    _, rep = level_lines_table(table.copy(), ProcessingParams(), warnings)
+    assert rep["height_difference_m"]["n_over"] == 0 and rep["height_difference_m"]["max_m"] <= 20.0
+    assert not any("apart in height" in w for w in warnings)
+    table["h"] = np.where(table["flight"] == "C", 500.0, 3000.0)
+    _, rep = level_lines_table(table.assign(dg_flight_mgal=0.0), ProcessingParams(), warnings)
+    assert "height_difference_m" not in rep and not any("apart in height" in w for w in warnings)

@@ -136,6 +136,7 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True,
     if len(cx) == 0:
         warnings.append("no crossovers between lines: leveling skipped")
         return pd.DataFrame(columns=cols), {"status": "not leveled: no crossovers"}
+    heights = crossover_heights(table, cx, p.leveling_max_height_difference_m, warnings)
     ranges = {str(l): (float(g["time"].min()), float(g["time"].max()))
               for l, g in table.groupby("line", sort=False)}
     try:
@@ -148,6 +149,8 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True,
         cx = cx.assign(diff_before_mgal=cx["dg_a"] - cx["dg_b"], diff_after_mgal=cx["dg_a"] - cx["dg_b"])
         return cx[cols], {"status": f"not leveled: {exc}"}
     res, before, after, rep = fit.res, fit.before, fit.after, fit.rep
+    if heights is not None:
+        rep["height_difference_m"] = heights
     corr, removed, unit, pairs = _corrections(table, cx, res, fit.ok, tied_flights)
     untied = untied_flights_report(table, unit, pairs, tied_flights, fit.reason is None, warnings)
     if untied is not None:
@@ -190,6 +193,36 @@ def _corrections(table: pd.DataFrame, cx: pd.DataFrame, res, ok: np.ndarray, tie
     anchor = None if not tied_flights else table["flight"].astype(str).isin(list(tied_flights)).to_numpy()
     corr, removed = keep_mean_level(corr, unit, pairs, anchor)
     return corr, removed, unit, pairs
+
+
+def crossover_heights(table: pd.DataFrame, cx: pd.DataFrame, max_difference_m: float, warnings: list) -> dict | None:
+    """How far apart in height the two lines of each crossover were flown (m; the report's
+    ``crossovers.height_difference_m``: median and largest), with a warning beyond
+    ``max_difference_m``: at flight height the anomaly itself differs with height (its vertical
+    gradient; a 10 km anomaly of 20 mGal changes by ~4 mGal over 300 m), which the crossovers
+    show and leveling takes for drift — unless the map was continued to a common datum first
+    (``dg_flight_mgal`` present: the crossovers are then at the datum).  None without heights."""
+    if "h" not in table or "dg_flight_mgal" in table or not len(cx):
+        return None
+    h_at = {}
+    for line, g in table.groupby("line", sort=False):
+        h_at[str(line)] = (g["time"].to_numpy(float), g["h"].to_numpy(float))
+    diff = []
+    for a, b, ta, tb in zip(cx["line_a"].astype(str), cx["line_b"].astype(str), cx["time_a"], cx["time_b"]):
+        if a in h_at and b in h_at:
+            diff.append(abs(np.interp(ta, *h_at[a]) - np.interp(tb, *h_at[b])))
+    d = np.asarray(diff, float)
+    d = d[np.isfinite(d)]
+    if not d.size:
+        return None
+    out = {"median_m": float(np.median(d)), "max_m": float(np.max(d)), "n_over": int(np.sum(d > max_difference_m)),
+           "limit_m": float(max_difference_m)}
+    if out["n_over"]:
+        warnings.append(f"{out['n_over']} of {d.size} crossovers compare lines flown up to {out['max_m']:.0f} m apart in "
+                        f"height (median {out['median_m']:.0f} m): the anomaly itself differs with height there, "
+                        "which leveling takes for drift — continue the lines to a common datum first "
+                        "(processing.datum = 'constant' or 'draped')")
+    return out
 
 
 def untied_flights_report(table: pd.DataFrame, unit: np.ndarray, pairs: list, tied_flights, leveled: bool,
