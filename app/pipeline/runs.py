@@ -135,7 +135,7 @@ def run_identify(survey, tr: Tracker) -> Identified:
     fir = {name: fir_baseline(m, p.fir_cutoff_period_s, p.fir_gap_max_error_mgal) for name, m in meas.flights.items()}
     noise = check_noise_family(noise, sl.lines, fir, meas.dt_s, p)
     noise = check_noise_corners(noise, sl.lines, fir, meas.dt_s, p)
-    warnings = list(meas.warnings) + fir_loss_warnings(sl.lines, fir, p)
+    warnings = list(meas.warnings) + sl.warnings + fir_loss_warnings(sl.lines, fir, p)
     warnings += [f"repeat lines {', '.join(members)} have no track in lines.csv: they fly one track and are "
                  f"compared as track {track} (report repeat_tracks_inferred; give them a track id to set it)"
                  for track, members in sl.inferred_tracks.items()]

@@ -135,3 +135,18 @@ def test_crs_fault_names_what_cannot_hold_a_survey():
     assert "not a projected" in geodesy.crs_fault("EPSG:4326")
     assert "unknown CRS" in geodesy.crs_fault("EPSG:99999999")
     assert "projecting a point fails" in geodesy.crs_fault("+proj=merc +lon_0=158 +k=1e-10 +type=crs")
+
+
+@pytest.mark.parametrize("lon, lat, crs", [(159.0, 0.0, "EPSG:32657"), (162.0, 0.0, "EPSG:32657"),
+                                           (159.0, 0.0, "EPSG:32655"), (159.0, 0.0, "EPSG:32651"),
+                                           (159.0, 62.0, "EPSG:32651"), (-63.0, -35.0, "EPSG:32720")])
+def test_scale_error_matches_proj_point_scale_factors(lon, lat, crs):
+    """The distance error of a CRS at a point against PROJ's own scale factors there (meridional
+    and parallel; UTM is conformal, so they agree), and UTM's k0 = 0.9996 at a zone's centre."""
+    from pyproj import Proj
+
+    f = Proj(crs).get_factors(lon, lat)
+    want = max(f.meridional_scale - 1.0, f.parallel_scale - 1.0, key=abs)
+    assert geodesy.scale_error(lon, lat, crs) == pytest.approx(want, rel=1e-3, abs=2e-5)   # 0.01° differences
+    if (lon, lat, crs) == (159.0, 0.0, "EPSG:32657"):
+        assert geodesy.scale_error(lon, lat, crs) == pytest.approx(0.9996 - 1.0, abs=2e-6)

@@ -121,3 +121,17 @@ def test_gnss_stamp_jitter_is_undone_but_a_drifting_receiver_clock_is_kept():
     out, info = dejitter_gnss(gn, 1.0, True, [])
     assert not info["gnss_stamps_dejittered"] and info["gnss_stamp_jitter_lag1"] > 0.9
     assert out is gn
+
+
+def test_a_declared_crs_far_from_the_survey_is_said():
+    """Lines at 159° E on the equator: their own UTM zone (57) is silent, a CRS six zones west
+    stretches distances by 24 % and a warning names it and the survey's zone."""
+    from types import SimpleNamespace
+
+    from app.pipeline.stages.lines import crs_warning
+
+    lon = np.linspace(158.8, 159.2, 50)
+    lines = [SimpleNamespace(lon_deg=lon, lat_deg=np.zeros(50))]
+    assert crs_warning("EPSG:32657", lines) is None
+    w = crs_warning("EPSG:32651", lines)
+    assert w is not None and "+23." in w and "EPSG:32657" in w

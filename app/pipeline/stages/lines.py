@@ -4,7 +4,7 @@ with positions in the survey's projected CRS (``survey.crs`` or the data's UTM z
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -115,14 +115,38 @@ def infer_repeat_tracks(lines: list[LineData]) -> dict[str, list[str]]:
     return out
 
 
+#: relative distance error of a declared CRS at the survey beyond which a warning says so
+#: (on the equator a UTM zone's edge: 0.001; two zones away 0.022)
+MAX_CRS_SCALE_ERROR = 0.01
+
+
 @dataclass
 class SurveyLines:
-    """Result of :func:`survey_lines`: the CRS, every line (in ``lines.csv`` order) and the
-    tracks given to repeat lines that had none (:func:`infer_repeat_tracks`)."""
+    """Result of :func:`survey_lines`: the CRS, every line (in ``lines.csv`` order), the
+    tracks given to repeat lines that had none (:func:`infer_repeat_tracks`) and warnings."""
 
     crs: str
     lines: list
     inferred_tracks: dict
+    warnings: list = field(default_factory=list)
+
+
+def crs_warning(crs: str, lines: list) -> str | None:
+    """A warning when the CRS distorts distances at the survey's centre by more than
+    :data:`MAX_CRS_SCALE_ERROR` (:func:`app.core.geodesy.scale_error`): line lengths, the
+    NL-means distance ρ, grid spacing and every product in km are off by that much."""
+    lon = np.concatenate([ln.lon_deg for ln in lines if ln.lon_deg.size])
+    lat = np.concatenate([ln.lat_deg for ln in lines if ln.lat_deg.size])
+    if not lon.size:
+        return None
+    lon_r = np.deg2rad(lon)
+    c_lon = float(np.rad2deg(np.arctan2(np.nanmean(np.sin(lon_r)), np.nanmean(np.cos(lon_r)))))
+    err = geodesy.scale_error(c_lon, float(np.nanmean(lat)), crs)
+    if abs(err) <= MAX_CRS_SCALE_ERROR:
+        return None
+    return (f"the CRS {crs} stretches distances at the survey by {100 * err:+.1f} % (it is meant for another "
+            f"region; the survey's own UTM zone is {geodesy.utm_crs_for(lon, lat)}): line lengths, the grid spacing, "
+            "nlmeans_rho_km and the products' distances are off by that much")
 
 
 def survey_lines(survey, measurement) -> SurveyLines:
@@ -130,7 +154,8 @@ def survey_lines(survey, measurement) -> SurveyLines:
     crs = survey_crs(survey.config, measurement.flights)
     lines = cut_lines(survey.lines, measurement.flights, crs)
     check_grid_size(lines, survey.config.processing)
-    return SurveyLines(crs, lines, infer_repeat_tracks(lines))
+    warn = crs_warning(crs, lines) if survey.config.survey.crs else None
+    return SurveyLines(crs, lines, infer_repeat_tracks(lines), [warn] if warn else [])
 
 
 def line_crossovers(lines: list[LineData], include_repeat: bool, values=None, std_mgal: float = 0.0) -> pd.DataFrame:
