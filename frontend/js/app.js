@@ -47,11 +47,20 @@ window.aerograv = { state, ctx };
 
 const RESULT_TABS = ["report", "recognition", "profile", "grid", "export"];
 
+// a result older than the survey's data or settings: said above every result view but the report
+// (which says it itself), not only in the report
+function syncOutdated() {
+  const s = ctx.survey;
+  document.getElementById("outdated-banner").hidden =
+    !(s && s.result_outdated && s.current_result_id && RESULT_TABS.includes(state.tab) && state.tab !== "report");
+}
+
 async function loadSurveys() {
   try {
     const before = ctx.survey ? ctx.survey.current_result_id : undefined;
     state.surveys = await endpoints.surveys();
     renderSurveyList();
+    syncOutdated();
     // a job finished while the analyst was elsewhere (another tab, or the page reloaded mid-job so no
     // view watches it): the result views reload, the one on screen at once
     const s = ctx.survey;
@@ -157,6 +166,7 @@ function showTab(tab, push = true) {
     const sec = document.getElementById(`view-${name}`);
     sec.hidden = !has || name !== tab;
   }
+  syncOutdated();
   if (!has) return;
   if (state.surveyId) syncUrl(push);
   const sec = document.getElementById(`view-${tab}`);

@@ -85,8 +85,8 @@ export function fmt(v, nd = 3) {
 const DIVERGING = ["#2166ac", "#67a9cf", "#d1e5f0", "#f7f7f7", "#fddbc7", "#ef8a62", "#b2182b"];  // ColorBrewer RdBu, blue low
 
 // Plotly colorscale for [zmin, zmax] whose white stop sits at 0 (limits need not be symmetric).
-export function divergingScale(zmin, zmax) {
-  let m = zmax > zmin ? (0 - zmin) / (zmax - zmin) : 0.5;
+export function divergingScale(zmin, zmax, centre = 0) {
+  let m = zmax > zmin ? (centre - zmin) / (zmax - zmin) : 0.5;
   m = Math.min(1, Math.max(0, m));
   const lo = DIVERGING.slice(0, 4), hi = DIVERGING.slice(3);
   const stops = [];

@@ -80,7 +80,8 @@ def test_grid_colour_range_from_above_to_is_said(fake_server, browser_page, tmp_
     assert "ignored" in page.inner_text("#grid-limits")
     assert page.get_attribute("#grid-zmin", "aria-invalid") == "true"
     zmin, zmax = float(page.get_attribute("#grid-plot", "data-zmin")), float(page.get_attribute("#grid-plot", "data-zmax"))
-    assert zmin == pytest.approx(-zmax) and zmax > 0          # the robust default, not the typed values
+    centre = float(page.get_attribute("#grid-plot", "data-centre"))
+    assert (zmin + zmax) / 2 == pytest.approx(centre) and zmax > centre   # the robust default, not the typed values
     page.fill("#grid-zmax", "20")
     page.dispatch_event("#grid-zmax", "change")
     page.wait_for_function("() => document.querySelector('#grid-plot').dataset.zmax === '20'", timeout=5000)

@@ -271,21 +271,26 @@ def test_maps_profiles_em_and_exports(fake_server, browser_page, tmp_path, shots
     sid = _processed_survey(fake_server.url, tmp_path)
     page.goto(f"{fake_server.url}/#survey={sid}&tab=grid")
     page.wait_for_selector("#grid-plot[data-variable] .main-svg", timeout=20000)
-    # diverging scale, white at 0, symmetric robust limits
+    # diverging scale, symmetric robust limits, white at the centre: the median of the grid on this
+    # survey without a base tie (its level is relative), so the map is not one colour
     zmin, zmax = float(page.get_attribute("#grid-plot", "data-zmin")), float(page.get_attribute("#grid-plot", "data-zmax"))
-    assert zmin == pytest.approx(-zmax) and zmax > 0
+    centre = float(page.get_attribute("#grid-plot", "data-centre"))
+    z = np.array(page.evaluate("() => document.querySelector('#grid-plot').data[0].z.flat()"), dtype=float)
+    assert centre == pytest.approx(np.nanmedian(z), abs=0.5) and (zmin + zmax) / 2 == pytest.approx(centre)
+    assert zmax > centre and "white at" in page.inner_text("#grid-limits") and "median" in page.inner_text("#grid-limits")
     cs = page.evaluate("() => document.querySelector('#grid-plot').data[0].colorscale")
     mid = next(c for p, c in cs if abs(p - 0.5) < 1e-9)
     assert mid == "#f7f7f7"
     assert page.locator("#grid-plot .textpoint").count() == 3           # line labels L1, L2, T1
     shots(page, "grid-default.png")
-    # own limits: white stays at 0
-    page.fill("#grid-zmin", "-5")
-    page.fill("#grid-zmax", "15")
+    # own limits: white stays at the centre
+    lo, hi = centre - 5.0, centre + 15.0
+    page.fill("#grid-zmin", repr(lo))
+    page.fill("#grid-zmax", repr(hi))
     page.dispatch_event("#grid-zmax", "change")
-    page.wait_for_function("() => document.querySelector('#grid-plot').dataset.zmax === '15'")
+    page.wait_for_function(f"() => +document.querySelector('#grid-plot').dataset.zmax === {hi!r}")
     cs = page.evaluate("() => document.querySelector('#grid-plot').data[0].colorscale")
-    assert [c for p, c in cs if abs(p - 0.25) < 1e-9] == ["#f7f7f7"]   # (0 − (−5)) / 20
+    assert [c for p, c in cs if abs(p - 0.25) < 1e-6] == ["#f7f7f7"]   # (centre − lo) / 20
     # hillshade layer
     page.check("#grid-hillshade")
     page.wait_for_function("() => document.querySelector('#grid-plot').dataset.hillshade === '1'")

@@ -63,11 +63,25 @@ def _result_file(r: Result, name: str) -> Path:
     estimates or grid until a ``filter`` job runs)."""
     p = Path(r.dir) / name
     if not p.exists():
-        if (Path(r.dir) / "identified").is_dir():
+        if (Path(r.dir) / "identified").is_dir() and not (Path(r.dir) / "lines.parquet").exists():
             raise HTTPException(404, f"the current result is an identification: {name} comes with a filter "
                                      "(apply h, ρ) or process job")
-        raise HTTPException(404, f"{name} is not among the stored results")
+        why = _grid_missing_reason(r) if name.startswith("grid") else None
+        raise HTTPException(404, why or f"{name} is not among the stored results")
     return p
+
+
+def _grid_missing_reason(r: Result) -> str | None:
+    """Why a processed result has no grid, from its report's warnings (a test line: the lines
+    span less than two grid cells), or None."""
+    try:
+        rep = json.loads((Path(r.dir) / "report.json").read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    for w in rep.get("warnings", []) or []:
+        if "grid files not written" in str(w):
+            return f"this result has no grid: {w}"
+    return None
 
 
 def _load_lines(r: Result) -> dict[str, Any]:

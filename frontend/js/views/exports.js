@@ -24,6 +24,7 @@ export function gridProducts(report) {
   const grids = p.grids || {};
   return {
     datum,
+    freeAir: "free_air" in grids ? !!grids.free_air : true,
     bouguer: "bouguer" in grids ? !!grids.bouguer : !!(p.terrain && p.terrain.dem),
     flight: "free_air_flight_height" in grids ? !!grids.free_air_flight_height : false,
   };
@@ -48,12 +49,16 @@ export async function render(sec, ctx) {
   const noBouguer = s.has_dem
     ? "the current result was computed without the survey's DEM: process the survey again"
     : "the survey has no DEM (dem.tif): add one under “Terrain model (DEM)” on the left and process again";
+  // a result without a grid (a test line: its lines span less than two cells) offers no grid files
+  const noGrid = ((rep && rep.report && rep.report.warnings) || []).find((w) => String(w).includes("grid files not written"));
   sec.replaceChildren(el("div", { class: "card" }, el("h3", {}, `Exports of result ${s.current_result_id} (job ${s.result_job_id ?? "?"})`),
-    el("h4", {}, `Free-air anomaly grid δg ${at}`), links(s, "", {}),
+    el("h4", {}, `Free-air anomaly grid δg ${at}`),
+    g.freeAir ? links(s, "", {}) : el("p", { class: "note", id: "export-grid-missing" },
+      `Not available: this result has no grid${noGrid ? ` — ${noGrid}` : ""}. The line data below hold every estimate.`),
     g.flight ? el("h4", {}, "Free-air anomaly grid at flight height (before continuation)") : null,
     g.flight ? links(s, "flight-", { height: "flight" }) : null,
-    el("h4", {}, `Bouguer anomaly grid δg_B ${at}`),
-    g.bouguer ? links(s, "bouguer-", { product: "bouguer" })
+    g.freeAir ? el("h4", {}, `Bouguer anomaly grid δg_B ${at}`) : null,
+    !g.freeAir ? null : g.bouguer ? links(s, "bouguer-", { product: "bouguer" })
       : el("p", { class: "note", id: "export-bouguer-missing" }, `Not available: ${noBouguer}.`),
     el("h4", {}, "Line data and reports"),
     el("div", { class: "buttons" }, OTHER_FORMATS.map(([f, label]) =>

@@ -1,9 +1,10 @@
-// Anomaly grid: δg on a diverging scale white at 0 (symmetric robust limits or the analyst's), its σ,
+// Anomaly grid: δg on a diverging scale white at 0 — at the median for a relative level without a base
+// tie — (symmetric robust limits or the analyst's), its σ,
 // or both side by side; optional hillshade; lines (click one for its profile), labels and crossovers.
 // Products: free-air or Bouguer (with a DEM), at flight height or at the datum (when one was used);
 // a choice the result does not have is disabled with the reason as its tooltip.
 import { endpoints } from "../api.js";
-import { divergingScale, el, esc, fmt, hillshade, lineLabels, mapLayout, onLabelClick, plotConfig, pngButton, showError, symmetricLimit } from "../plots.js";
+import { divergingScale, el, esc, fmt, hillshade, lineLabels, mapLayout, onLabelClick, plotConfig, pngButton, quantile, showError, symmetricLimit } from "../plots.js";
 
 export function baseTieMissing(report) {
   return ((report && report.warnings) || []).some((w) => String(w).startsWith("no absolute base tie"));
@@ -93,17 +94,24 @@ export async function render(sec, ctx) {
     if (isStd) {
       zmin = 0; zmax = symmetricLimit(z, 0.98); colorscale = "Viridis";
     } else {
-      const L = symmetricLimit(z, 0.98);
-      const a = zminIn.value === "" ? -L : +zminIn.value, b = zmaxIn.value === "" ? L : +zmaxIn.value;
+      // a relative level (no base tie: the whole map may sit 100+ mGal off 0) is centred on its
+      // median, else the map is one colour; an absolute one on 0
+      const centre = relative ? (quantile(z.flat(), 0.5) ?? 0) : 0;
+      const L = symmetricLimit(z.map((row) => row.map((v) => (v === null ? null : v - centre))), 0.98);
+      const a = zminIn.value === "" ? centre - L : +zminIn.value, b = zmaxIn.value === "" ? centre + L : +zmaxIn.value;
       // a typed range that is no range (from ≥ to, not a number) is said, not silently replaced
       const bad = zminIn.validity.badInput || zmaxIn.validity.badInput || !(a < b);
-      [zmin, zmax] = bad ? [-L, L] : [a, b];
+      [zmin, zmax] = bad ? [centre - L, centre + L] : [a, b];
       for (const i of [zminIn, zmaxIn]) i.setAttribute("aria-invalid", bad ? "true" : "false");
-      colorscale = divergingScale(zmin, zmax);
-      plot.dataset.zmin = zmin; plot.dataset.zmax = zmax;
+      colorscale = divergingScale(zmin, zmax, centre);
+      plot.dataset.zmin = zmin; plot.dataset.zmax = zmax; plot.dataset.centre = centre;
       limits.classList.toggle("error", bad);
+      const white = centre >= zmin && centre <= zmax
+        ? `white at ${fmt(centre, 3)}${relative ? " (the median: a relative level)" : ""}`
+        : `${fmt(centre, 3)} (white) lies outside: one-sided colours`;
       limits.textContent = (bad ? `“from” must be a number below “to” — ignored; ` : "") +
-        `colour scale ${fmt(zmin, 3)} … ${fmt(zmax, 3)} mGal, white at 0` + (bad || (zminIn.value === "" && zmaxIn.value === "") ? " (±98th percentile of |δg|)" : "");
+        `colour scale ${fmt(zmin, 3)} … ${fmt(zmax, 3)} mGal, ${white}` +
+        (bad || (zminIn.value === "" && zmaxIn.value === "") ? ` (±98th percentile of |δg${relative ? " − median" : ""}|)` : "");
     }
     return {
       x: g.easting_km, y: g.northing_km, z, type: styleIn.value, name: isStd ? "σ" : symbol(), colorscale, zmin, zmax, zauto: false,

@@ -191,10 +191,21 @@ export async function render(sec, ctx) {
   form.append(el("div", { class: "controls" }, el("label", {}, "Job ", kind), run, reset),
     el("details", {}, el("summary", {}, "Processing parameters (defaults shown; only changed values are sent)"),
       buildForm(schemaCache.schema, schemaCache.defaults)));
+  // the submit's own message (a 409 while a job runs) outside the job box, which the watcher redraws
+  const submitMsg = el("div", { id: "submit-msg" });
+  form.append(submitMsg);
+  const setRunning = (on) => {
+    run.disabled = on || !s.has_input;
+    run.title = on ? "a job is running on this survey: cancel it or wait for it to end" : "";
+  };
   const jobBox = el("div", { class: "card", id: "job-box" }, el("p", { class: "note" }, "No job yet."));
   const history = el("div", { class: "card" }, el("h3", {}, "Jobs of this survey"), el("div", { id: "job-history" }));
   sec.replaceChildren(el("div", { class: "card" }, el("h3", {}, "Run a job"), form), jobBox, history);
 
+  const onJob = (job) => {
+    if (job) setRunning(["queued", "running"].includes(job.status));
+    return loadHistory();
+  };
   const loadHistory = async () => {
     const jobs = await endpoints.jobs(s.id);
     history.querySelector("#job-history").replaceChildren(jobs.length ? el("table", {},
@@ -225,18 +236,23 @@ export async function render(sec, ctx) {
   form.addEventListener("submit", async (ev) => {
     ev.preventDefault();
     showError(jobBox, null);
+    showError(submitMsg, null);
     try {
       const job = await endpoints.submitJob(s.id, kind.value, collectParams(form));
       emSelected = null;
       renderJob(jobBox, job);
-      watch(jobBox, job.id, ctx, loadHistory);
+      setRunning(true);
+      watch(jobBox, job.id, ctx, onJob);
       loadHistory();
       ctx.jobStarted();
-    } catch (e) { showError(jobBox, e); }
+    } catch (e) { showError(submitMsg, e); }
   });
   await loadHistory();
   if (s.last_job) {
     renderJob(jobBox, s.last_job);
-    if (["queued", "running"].includes(s.last_job.status)) watch(jobBox, s.last_job.id, ctx, loadHistory);
+    if (["queued", "running"].includes(s.last_job.status)) {
+      setRunning(true);
+      watch(jobBox, s.last_job.id, ctx, onJob);
+    }
   }
 }
