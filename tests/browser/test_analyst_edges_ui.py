@@ -168,6 +168,7 @@ def test_out_of_range_parameter_in_the_closed_block_is_named(fake_server, browse
     page.wait_for_selector("#params-form .params input[name=em_max_iter]", state="attached")
     page.eval_on_selector("#params-form input[name=em_max_iter]", "e => { e.value = '-3'; }")   # block stays closed
     assert page.eval_on_selector("#params-form details", "d => d.open") is False
+    page.wait_for_selector("#job-history tbody tr")          # the processing job (the table loads after the form)
     n_jobs = page.locator("#job-history tbody tr").count()
     page.click("#run-job")
     page.wait_for_selector("#job-box .error:visible", timeout=5000)
