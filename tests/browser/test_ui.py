@@ -107,7 +107,13 @@ def test_analyst_workflow(live_server, browser_page, tmp_path):
     _shot(page, "06-recognition-h0-rho15.png")
     page.select_option("#rec-show", "raw")
     page.wait_for_function("() => document.querySelector('#rec-map').dataset.show === 'raw'")
+    # the raw states are not smoothed: h, ρ and the mode are off and the status does not quote them
+    assert page.is_disabled("#rec-h") and page.is_disabled("#rec-rho") and page.is_disabled("#rec-mode")
+    assert "raw (Viterbi) states" in page.inner_text("#rec-status") and "h=" not in page.inner_text("#rec-status")
     _shot(page, "07-recognition-raw.png")
+    page.select_option("#rec-show", "smoothed")
+    page.wait_for_function("() => document.querySelector('#rec-map').dataset.show === 'smoothed'")
+    assert not page.is_disabled("#rec-h") and "h=" in page.inner_text("#rec-status")
 
     # --- line profile
     page.click("#tabs button[data-tab=profile]")

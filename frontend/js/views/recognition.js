@@ -74,8 +74,15 @@ export async function render(sec, ctx) {
     const shown = showIn.value === "raw" ? base.state_raw : current;
     Plotly.restyle(plot, { "marker.color": [colors(shown)] }, [0]);
     const counts = Array.from({ length: base.n_states }, (_, i) => shown.filter((v) => v === i).length);
+    const raw = showIn.value === "raw";
+    // the raw states are not smoothed: h, ρ and the mode change nothing there
+    for (const i of [hIn, rhoIn, modeIn]) {
+      i.disabled = raw;
+      i.title = raw ? "the raw (Viterbi) states are not smoothed: show the smoothed states to use h, ρ and the mode" : "";
+    }
     status.classList.remove("error");   // a failed request before this one is over
-    status.textContent = `${base.n_points} points · h=${r.h} km⁻¹, ρ=${r.rho} km (${r.mode}) · server ${fmt(r.elapsed_ms, 1)} ms, round trip ${Math.round(rtt)} ms · ` +
+    status.textContent = (raw ? `${base.n_points} points · raw (Viterbi) states, before NL-means (h, ρ and the mode apply to the smoothed states) · `
+      : `${base.n_points} points · h=${r.h} km⁻¹, ρ=${r.rho} km (${r.mode}) · server ${fmt(r.elapsed_ms, 1)} ms, round trip ${Math.round(rtt)} ms · `) +
       counts.map((c, i) => `state ${i}: ${c}`).join(", ");
     plot.dataset.signature = signature(shown);
     plot.dataset.h = r.h; plot.dataset.rho = r.rho; plot.dataset.show = showIn.value;
@@ -105,7 +112,7 @@ export async function render(sec, ctx) {
     try {
       const job = await endpoints.submitJob(s.id, "filter", { nlmeans_h_per_km: +hIn.value, nlmeans_rho_km: +rhoIn.value, nlmeans_mode: modeIn.value });
       applyNote.classList.remove("error");
-      applyNote.textContent = `filter job ${job.id} started (h=${hIn.value} km⁻¹, ρ=${rhoIn.value} km; the identification is reused) — see Process`;
+      applyNote.textContent = `filter job ${job.id} started (h=${hIn.value} km⁻¹, ρ=${rhoIn.value} km; the identification is reused) — see Processing`;
       applyNote.dataset.job = job.id;
       await ctx.jobStarted();
     } catch (e) { applyNote.textContent = `Error: ${e.message}`; applyNote.classList.add("error"); }
