@@ -157,6 +157,17 @@ def repeat_pass_noise_var(values_mgal) -> np.ndarray:
     return np.maximum(np.linalg.solve(m, a), 0.0)
 
 
+def _mean_posterior_var(posterior_var_mgal2, points: tuple) -> np.ndarray:
+    """The repeats' mean posterior variance at each common point (mGal²): the (K, n) array's
+    mean over the repeats, or the (n,) array itself; every value positive."""
+    post = np.asarray(posterior_var_mgal2, dtype=float)
+    scale = post.mean(axis=0) if post.ndim == 2 else post
+    if scale.shape != tuple(points) or not np.all(scale > 0):
+        raise ValueError(f"posterior variances must be positive, one per common point ({tuple(points)}), got "
+                         f"shape {post.shape}")
+    return scale
+
+
 def repeat_pass_noise_ratio(values_mgal, posterior_var_mgal2) -> np.ndarray:
     """Each repeat's own noise variance over the posterior variance, point by point.
 
@@ -178,12 +189,7 @@ def repeat_pass_noise_ratio(values_mgal, posterior_var_mgal2) -> np.ndarray:
         Dimensionless.
     """
     g = np.asarray(values_mgal, dtype=float)
-    v = np.asarray(posterior_var_mgal2, dtype=float)
-    scale = v.mean(axis=0) if v.ndim == 2 else v
-    if scale.shape != g.shape[-1:] or not np.all(scale > 0):
-        raise ValueError(f"posterior variances must be positive, one per common point ({g.shape[-1:]}), got "
-                         f"shape {v.shape}")
-    return repeat_pass_noise_var(g / np.sqrt(scale))
+    return repeat_pass_noise_var(g / np.sqrt(_mean_posterior_var(posterior_var_mgal2, g.shape[-1:])))
 
 
 def repeat_pass_departures(values_mgal, reference_mgal, posterior_var_mgal2) -> np.ndarray:
@@ -209,13 +215,9 @@ def repeat_pass_departures(values_mgal, reference_mgal, posterior_var_mgal2) -> 
     """
     v = np.asarray(values_mgal, dtype=float)
     r = np.asarray(reference_mgal, dtype=float)
-    post = np.asarray(posterior_var_mgal2, dtype=float)
     if r.ndim != 2 or r.shape[0] < 2 or v.shape != r.shape:
         raise ValueError(f"values and reference must both be (K >= 2, n), got {v.shape} and {r.shape}")
-    scale = post.mean(axis=0) if post.ndim == 2 else post
-    if scale.shape != r.shape[1:] or not np.all(scale > 0):
-        raise ValueError(f"posterior variances must be positive, one per common point ({r.shape[1:]}), got "
-                         f"shape {post.shape}")
+    scale = _mean_posterior_var(posterior_var_mgal2, r.shape[1:])
     others = (r.sum(axis=0)[None, :] - r) / (r.shape[0] - 1)
     return np.mean((v - others) ** 2 / scale[None, :], axis=1)
 

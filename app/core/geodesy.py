@@ -256,6 +256,15 @@ def vertical_velocity_from_heights_ms(t_s, h_m):
     return CubicSpline(x, h, bc_type="not-a-knot")(x, 1)
 
 
+def mean_position_deg(lon_deg, lat_deg) -> tuple[float, float]:
+    """Mean longitude and latitude of points (degrees): the longitudes averaged on the circle
+    (the direction of the mean unit vector), so points across the antimeridian or written
+    from 0 to 360° average where they lie; NaN ignored."""
+    lon_r = np.deg2rad(np.asarray(lon_deg, dtype=float))
+    lon = float(np.rad2deg(np.arctan2(np.nanmean(np.sin(lon_r)), np.nanmean(np.cos(lon_r)))))
+    return lon, float(np.nanmean(lat_deg))
+
+
 def utm_crs_for(lon_deg, lat_deg) -> str:
     """EPSG code of the UTM zone containing the mean of the given points.
 
@@ -263,9 +272,7 @@ def utm_crs_for(lon_deg, lat_deg) -> str:
     survey across the antimeridian (179.8°…−179.9°) or across 0° written from 0 to 360°
     (359.6°…0.2°) gets the zone it lies in, not one half the world away.
     """
-    lon_r = np.deg2rad(np.asarray(lon_deg, dtype=float))
-    lon = float(np.rad2deg(np.arctan2(np.nanmean(np.sin(lon_r)), np.nanmean(np.cos(lon_r)))))
-    lat = float(np.nanmean(lat_deg))
+    lon, lat = mean_position_deg(lon_deg, lat_deg)
     zone = int(np.floor((lon + 180.0) / 6.0)) % 60 + 1
     return f"EPSG:{32600 + zone if lat >= 0 else 32700 + zone}"
 

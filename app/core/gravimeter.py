@@ -85,7 +85,7 @@ def stamp_scatter_s(t_s, window: int = 401) -> tuple[float, float]:
 
 def stamp_quantum_s(t_s) -> float:
     """The rounding step of a file's time stamps (s): the largest of 1, 2 and 5 × 10⁻ᵏ s
-    (0.1 ms to 0.5 s) of which every stamp is a whole multiple, within 1e-6 of the step
+    (0.1 ms to 0.5 s) of which every stamp is a whole multiple, within 1e-5 of the step
     (the stamps' float representation); 0 when none is.
 
     Parameters
@@ -100,7 +100,7 @@ def stamp_quantum_s(t_s) -> float:
     rel = t - np.floor(t[0])      # small numbers: whole seconds change no multiple
     for q in (0.5, 0.2, 0.1, 0.05, 0.02, 0.01, 0.005, 0.002, 0.001, 5e-4, 2e-4, 1e-4):
         k = rel / q
-        if np.all(np.abs(k - np.round(k)) < 1e-6 * max(1.0, float(np.max(np.abs(k))) * 1e-9) + 1e-6):
+        if np.all(np.abs(k - np.round(k)) < 1e-5):   # float round-off of the stamps (relative, small)
             return q
     return 0.0
 

@@ -314,14 +314,15 @@ def repair_height_outliers(z_mgal, t_s, mask, half_width: int = 16, search: int 
     if flags.size == 0:
         return z, fixes
     clusters = np.split(flags, np.flatnonzero(np.diff(flags) > search + 1) + 1)
-    sized = np.zeros(z.size, bool) if step_sizes_m is None else np.isfinite(np.asarray(step_sizes_m, float))
+    sizes = np.full(z.size, np.nan) if step_sizes_m is None else np.asarray(step_sizes_m, dtype=float)
     for cl in clusters:
         cand = np.arange(max(0, cl[0] - search), min(z.size, cl[-1] + search + 1))
-        if sized[cand].any():   # a step its double integral saw and sized
-            j = int(cand[sized[cand]][np.argmax(np.abs(np.asarray(step_sizes_m, float)[cand[sized[cand]]]))])
+        seen = cand[np.isfinite(sizes[cand])]
+        if seen.size:   # a step its double integral saw and sized
+            j = int(seen[np.argmax(np.abs(sizes[seen]))])
             idx, _spike, step = height_outlier_templates_mgal(t, j, half_width)
             if idx.size and np.all(np.isfinite(z[idx])):
-                size = float(step_sizes_m[j])
+                size = float(sizes[j])
                 z[idx] -= size * step
                 fixes.append({"epoch": j, "kind": "step", "size_m": size})
                 continue
@@ -471,7 +472,7 @@ def height_step_sizes_m(z_mgal, t_s, window_s: float = 10.0) -> np.ndarray:
 
 
 def height_step_mask(z_mgal, t_s, threshold: float = 8.0, window_s: float = 10.0,
-                     scale_s: float = 120.0) -> np.ndarray:
+                     scale_s: float = 120.0, sizes_m=None) -> np.ndarray:
     """Epochs where the heights step, from :func:`height_step_sizes_m`.
 
     An epoch is flagged where the size exceeds ``threshold`` robust scales (1.4826 × the
@@ -488,6 +489,8 @@ def height_step_mask(z_mgal, t_s, threshold: float = 8.0, window_s: float = 10.0
         Flag level in robust scales.
     window_s, scale_s : float
         The fit's half-width and the scale's window (s).
+    sizes_m : ndarray, shape (n,), optional
+        :func:`height_step_sizes_m` of z at ``window_s``, when already computed.
 
     Returns
     -------
@@ -498,7 +501,7 @@ def height_step_mask(z_mgal, t_s, threshold: float = 8.0, window_s: float = 10.0
     if not threshold > 0:
         raise ValueError("threshold must be positive")
     t = np.asarray(t_s, dtype=float)
-    size = np.abs(height_step_sizes_m(z_mgal, t, window_s))
+    size = np.abs(height_step_sizes_m(z_mgal, t, window_s) if sizes_m is None else np.asarray(sizes_m, float))
     mask = np.zeros(size.shape, bool)
     fin = np.isfinite(size)
     if not fin.any():

@@ -139,9 +139,7 @@ def crs_warning(crs: str, lines: list) -> str | None:
     lat = np.concatenate([ln.lat_deg for ln in lines if ln.lat_deg.size])
     if not lon.size:
         return None
-    lon_r = np.deg2rad(lon)
-    c_lon = float(np.rad2deg(np.arctan2(np.nanmean(np.sin(lon_r)), np.nanmean(np.cos(lon_r)))))
-    err = geodesy.scale_error(c_lon, float(np.nanmean(lat)), crs)
+    err = geodesy.scale_error(*geodesy.mean_position_deg(lon, lat), crs)
     if abs(err) <= MAX_CRS_SCALE_ERROR:
         return None
     return (f"the CRS {crs} stretches distances at the survey by {100 * err:+.1f} % (it is meant for another "

@@ -481,14 +481,15 @@ def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False, filled=None
     if vu_from_heights:  # a height outlier rings through the spline: the matched patterns see it
         spikes |= height_outlier_mask(z, t, p.despike_threshold)
         if p.height_step_threshold is not None:   # and a step, clearest in z's double integral
-            steps = height_step_mask(z, t, p.height_step_threshold)
+            sizes = height_step_sizes_m(z, t)
+            steps = height_step_mask(z, t, p.height_step_threshold, sizes_m=sizes)
             # where only the double integral sees it, it is sized there (within an epoch of its
             # flag); where the templates flag too they size it as before (on clean records the
             # double integral's size at their flags is noise, ±0.2 m at 1 Hz)
             alone = steps & ~(np.convolve(spikes.astype(float), np.ones(5), mode="same") > 0.5)
-            near = np.convolve(alone.astype(float), np.ones(3), mode="same") > 0.5
-            if near.any():
-                step_sizes = np.where(near, height_step_sizes_m(z, t), np.nan)
+            at_step = np.convolve(alone.astype(float), np.ones(3), mode="same") > 0.5
+            if at_step.any():
+                step_sizes = np.where(at_step, sizes, np.nan)
             spikes |= steps
     if filled is not None and np.any(filled):
         near = np.convolve(np.asarray(filled, float), np.ones(2 * FILL_GUARD + 1), mode="same") > 0.5
