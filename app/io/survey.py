@@ -787,14 +787,26 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
     series: dict[str, _FlightSeries] = {}
     block_sources: dict[str, dict[str, _BlockSource]] = {}
     notes: list[str] = []
+    used = set(lines["flight"]) if lines is not None else None
     for name, d in flight_dirs.items():
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            fs = _read_flight_series(name, d, root, config, block_sources)
+            try:
+                fs = _read_flight_series(name, d, root, config, block_sources)
+            except InputError as exc:
+                if used is None or name in used:
+                    raise
+                # No line of lines.csv uses this flight: a folder holding only a GNSS file, or a
+                # ferry or test flight with broken data, must not stop the survey. Said, not hidden.
+                warnings.warn(f"flight {name} is not read (no line in lines.csv uses it): {exc}", stacklevel=2)
+                block_sources.pop(name, None)
+                fs = None
         for w in caught:
             warnings.warn(str(w.message), stacklevel=2)   # still on stderr for scripts
             if str(w.message) not in notes:
                 notes.append(str(w.message))
+        if fs is None:
+            continue
         series[name] = fs
         flights[name] = Flight(name=name, gravimeter=fs.grav, gnss=fs.gnss, gravimeter_path=fs.grav_path,
                                gnss_path=fs.gnss_path,

@@ -626,6 +626,30 @@ def test_missing_gnss_file(survey_dir):
     expect_error(root, "flights/F1/gnss.csv", None, None)
 
 
+def test_unreadable_flight_no_line_uses_is_skipped_and_said(tmp_path):
+    """A flight folder no line of lines.csv uses (a ferry flight with only its GNSS file, or
+    broken data) does not stop the survey: it is left out with a warning naming it and the
+    problem. The same folder used by a line is still refused, naming the file."""
+    lines, tabs = make_tables(flights=("F1", "F2"))
+    grav2, gnss2 = tabs["F2"]
+    tabs["F2"] = (None, gnss2)                       # F2: only gnss.csv
+    root = write_survey(tmp_path / "s", lines[lines["flight"] == "F1"], tabs)
+    with pytest.warns(UserWarning, match=r"flight F2 is not read \(no line in lines.csv uses it\).*gravimeter"):
+        s = read_survey(root)
+    assert set(s.flights) == {"F1"}
+    assert any("flight F2 is not read" in n for n in s.notes)
+    pd.testing.assert_frame_equal(s.flights["F1"].gnss[["time", "h"]].reset_index(drop=True),
+                                  tabs["F1"][1][["time", "h"]].reset_index(drop=True), check_dtype=False)
+    # a complete flight no line uses is still read (it may be the calibration flight)
+    tabs["F2"] = (grav2, gnss2)
+    root2 = write_survey(tmp_path / "s2", lines[lines["flight"] == "F1"], tabs)
+    assert set(read_survey(root2).flights) == {"F1", "F2"}
+    # used by a line: refused, naming the missing file
+    (root2 / "flights/F2/gravimeter.csv").unlink()
+    lines.to_csv(root2 / "lines.csv", index=False)
+    expect_error(root2, "flights/F2/gravimeter.csv", None, None)
+
+
 def test_two_flights_and_summary(tmp_path):
     from pyproj import Geod
 
