@@ -29,7 +29,7 @@ from app.pipeline.stages.filtering import (
 )
 from app.pipeline.stages.gridding import grid_survey
 from app.pipeline.stages.identification import Identification, identify
-from app.pipeline.stages.leveling import add_common_level_std, level_survey
+from app.pipeline.stages.leveling import add_common_level_std, level_survey, reading_error_std_mgal
 from app.pipeline.stages.lines import survey_lines
 from app.pipeline.stages.measurement import measure
 from app.pipeline.stages.model_order import candidate_orders, choose_model_order
@@ -277,7 +277,8 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     base_ties = idf.measurement_report.get("base_ties", {})
     ties = [bool(b.get("applied") and b.get("absolute")) for b in base_ties.values()]
     leveled = level_survey(table, p, warnings, tied=bool(ties) and all(ties),
-                           tied_flights={f for f, b in base_ties.items() if b.get("applied") and b.get("absolute")})
+                           tied_flights={f for f, b in base_ties.items() if b.get("applied") and b.get("absolute")},
+                           reading_error_mgal=reading_error_std_mgal(base_ties))
     refresh_bouguer(table)
     tr.start("gridding")
     grid = grid_survey(table, p, warnings, leveled.report.get("rms_after_mgal"))

@@ -9,6 +9,7 @@ survey's epochs (as after base ties), so the leveled map must have no bias eithe
 
 import numpy as np
 import pandas as pd
+import pytest
 
 from app.config import ProcessingParams
 from app.pipeline.stages.leveling import level_lines_table
@@ -252,6 +253,43 @@ def test_an_unconnected_untied_flight_is_named_in_a_warning():
     assert rep["status"].startswith("not leveled"), rep["status"]
     assert rep["untied_flights"] == {"C": None}
     assert any("flight C has no absolute base tie and leveling does not connect it" in w for w in warnings), warnings
+
+
+def test_an_unconnected_untied_flight_carries_the_reading_error_in_its_std():
+    """Leveling refused, flight C untied with a reading offset of −195 mGal; A and B's base ties
+    measured reading errors of about that size (−190 … −201 mGal, removed from them).  C's
+    dg_std_mgal then carries that size (the RMS of the tied readings' errors, by hand) and
+    covers C's actual error against the truth; A and B keep theirs."""
+    from app.pipeline.stages.leveling import level_survey, reading_error_std_mgal
+
+    base_ties = {"A": {"applied": True, "absolute": True, "static_periods": [{"reading_error_mgal": -190.0},
+                                                                           {"reading_error_mgal": -197.0}]},
+                 "B": {"applied": True, "absolute": True, "static_periods": [{"reading_error_mgal": -201.0}]},
+                 "C": {"applied": False, "static_periods": []},
+                 "D": {"applied": True, "absolute": False, "static_periods": [{"reading_mgal": 5.0}]}}
+    size = reading_error_std_mgal(base_ties)
+    assert size == pytest.approx(np.sqrt((190.0 ** 2 + 197.0 ** 2 + 201.0 ** 2) / 3))
+    assert reading_error_std_mgal({"C": base_ties["C"], "D": base_ties["D"]}) is None
+    table, drift = _survey(np.random.default_rng(0))
+    table.loc[table["flight"] == "C", ["dg_unleveled_mgal", "dg_mgal"]] -= 195.0
+    warnings: list = []
+    p = ProcessingParams(leveling_significance=1e-300, leveling_offset_fallback=False, std_crossover_check=False)
+    lev = level_survey(table, p, warnings, tied=False, tied_flights={"A", "B"}, reading_error_mgal=size)
+    assert lev.report["untied_flights"] == {"C": None}
+    c = (table["flight"] == "C").to_numpy()
+    err = (table["dg_mgal"] - table["dg_true_mgal"]).to_numpy()
+    assert np.all(np.abs(err[c]) < 2 * table["dg_std_mgal"].to_numpy()[c])
+    np.testing.assert_allclose(table["dg_std_mgal"].to_numpy()[c], np.hypot(0.5, size))
+    np.testing.assert_allclose(table["dg_std_mgal"].to_numpy()[~c], 0.5)
+    assert lev.report["untied_level_std_mgal"] == {"C": size}
+    assert any("includes their unknown reading error" in w for w in warnings), warnings
+    # connected by leveling: C's level comes from A and B, its std is left alone
+    table, drift = _survey(np.random.default_rng(0))
+    table.loc[table["flight"] == "C", ["dg_unleveled_mgal", "dg_mgal"]] -= 195.0
+    lev = level_survey(table, ProcessingParams(std_crossover_check=False), [], tied=False, tied_flights={"A", "B"},
+                       reading_error_mgal=size)
+    assert lev.report["untied_flights"] == {"C": ["A", "B"]} and "untied_level_std_mgal" not in lev.report
+    np.testing.assert_allclose(table["dg_std_mgal"], 0.5)
 
 
 def test_untied_held_out_significance_is_its_own(monkeypatch):

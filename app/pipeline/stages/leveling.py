@@ -279,10 +279,36 @@ class Leveled:
     report: dict
 
 
-def level_survey(table: pd.DataFrame, p, warnings: list, tied: bool = True, tied_flights=None) -> Leveled:
+def reading_error_std_mgal(base_ties: dict) -> float | None:
+    """The size of the gravimeter's reading error as the absolute base ties measured it (mGal):
+    the RMS over every static period of every flight tied to a known base gravity; None when
+    no flight is so tied.  A flight without such a tie keeps an error of about that size."""
+    errs = [per["reading_error_mgal"] for b in base_ties.values() if b.get("applied") and b.get("absolute")
+            for per in b.get("static_periods", []) if np.isfinite(per.get("reading_error_mgal", np.nan))]
+    return float(np.sqrt(np.mean(np.square(errs)))) if errs else None
+
+
+def widen_unconnected_flights(table: pd.DataFrame, rep: dict, level_std_mgal: float | None, warnings: list) -> None:
+    """An untied flight that leveling did not connect to a tied one (``rep["untied_flights"]``
+    maps it to None) keeps its gravimeter reading error: add ``level_std_mgal`` (the tied flights'
+    reading error, :func:`reading_error_std_mgal`) to its epochs' ``dg_std_mgal`` in quadrature
+    (in place; report ``untied_level_std_mgal``)."""
+    lone = [f for f, src in (rep.get("untied_flights") or {}).items() if src is None]
+    if not lone or level_std_mgal is None:
+        return
+    sel = table["flight"].astype(str).isin(lone).to_numpy()
+    table.loc[sel, "dg_std_mgal"] = np.sqrt(table.loc[sel, "dg_std_mgal"].to_numpy(float) ** 2 + level_std_mgal ** 2)
+    rep["untied_level_std_mgal"] = {f: level_std_mgal for f in lone}
+    warnings.append(f"dg_std_mgal of flight(s) {', '.join(lone)} includes their unknown reading error, taken as the "
+                    f"size the tied flights' base readings showed: {level_std_mgal:.1f} mGal")
+
+
+def level_survey(table: pd.DataFrame, p, warnings: list, tied: bool = True, tied_flights=None,
+                 reading_error_mgal: float | None = None) -> Leveled:
     """Stage 10 on the line table (in place: ``dg_mgal`` leveled, ``dg_std_mgal`` rescaled by
     the crossover check of the std); ``tied`` and ``tied_flights`` as in
-    :func:`level_lines_table`."""
+    :func:`level_lines_table`; ``reading_error_mgal`` (:func:`reading_error_std_mgal`) is added
+    to the std of an untied flight leveling leaves unconnected."""
     crossovers, rep = level_lines_table(table, p, warnings, tied, tied_flights)
     sc = rep.get("std_check", {})
     if p.std_crossover_check and "factor" in sc and sc["factor"] != 1.0:
@@ -293,6 +319,7 @@ def level_survey(table: pd.DataFrame, p, warnings: list, tied: bool = True, tied
         sc["applied_factor"] = sc["factor"]
     if STD_FLOOR in table:  # stage 9's floor on lines that do not resolve the anomaly
         table["dg_std_mgal"] = np.fmax(table["dg_std_mgal"].to_numpy(), table.pop(STD_FLOOR).to_numpy())
+    widen_unconnected_flights(table, rep, reading_error_mgal, warnings)
     return Leveled(crossovers, rep)
 
 
