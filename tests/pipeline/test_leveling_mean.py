@@ -283,6 +283,14 @@ def test_an_unconnected_untied_flight_carries_the_reading_error_in_its_std():
     np.testing.assert_allclose(table["dg_std_mgal"].to_numpy()[~c], 0.5)
     assert lev.report["untied_level_std_mgal"] == {"C": size}
     assert any("includes their unknown reading error" in w for w in warnings), warnings
+    # with the crossover check of the std on (default): C's crossovers hold its offset, not the
+    # lines' errors, and are left out of it — A and B are not widened by C's 195 mGal
+    table, drift = _survey(np.random.default_rng(0))
+    table.loc[table["flight"] == "C", ["dg_unleveled_mgal", "dg_mgal"]] -= 195.0
+    lev = level_survey(table, ProcessingParams(leveling_significance=1e-300, leveling_offset_fallback=False), [],
+                       tied=False, tied_flights={"A", "B"}, reading_error_mgal=size)
+    assert lev.report["std_check"]["n"] == 0, lev.report["std_check"]
+    np.testing.assert_allclose(table["dg_std_mgal"].to_numpy()[~c], 0.5)
     # connected by leveling: C's level comes from A and B, its std is left alone
     table, drift = _survey(np.random.default_rng(0))
     table.loc[table["flight"] == "C", ["dg_unleveled_mgal", "dg_mgal"]] -= 195.0

@@ -163,7 +163,8 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True,
         # refused drifts reach 2–7 mGal from the crossovers' own correlated errors (unseen 1664:
         # 6.9), as large as the real flight offsets the generator without base ties leaves (4–5)
         rep["if_leveled_mean_correction_mgal"] = _mean_by_unit(corr, unit)
-        rep["std_check"] = std_check(before, fit.pred_var, p)
+        keep = _not_lone(table, cx, untied)
+        rep["std_check"] = std_check(before[keep], fit.pred_var[keep], p)
         cx = cx.assign(diff_before_mgal=before, diff_after_mgal=before)
         return cx[cols], rep
     table["dg_mgal"] = table["dg_unleveled_mgal"].to_numpy() - corr
@@ -175,8 +176,22 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True,
         rep["common_level"] = {"std_mgal": common.std_mgal, "spread_mgal": common.spread_mgal,
                                "offsets_mgal": common.offsets_mgal, "n_units": common.n_units,
                                "n_crossovers": common.n_crossovers}
-    rep["std_check"] = std_check(after, fit.pred_var, p)
+    keep = _not_lone(table, cx, untied)
+    rep["std_check"] = std_check(after[keep], fit.pred_var[keep], p)
     return cx[cols], rep
+
+
+def _not_lone(table: pd.DataFrame, cx: pd.DataFrame, untied: dict | None) -> np.ndarray:
+    """Crossovers the std check may use, shape (n,) bool: not those of an untied flight leveling
+    left unconnected (``untied`` maps it to None) — their difference holds that flight's
+    reading offset, not the lines' errors the std is about."""
+    lone = {f for f, src in (untied or {}).items() if src is None}
+    if not lone:
+        return np.ones(len(cx), bool)
+    flight_of = {str(l): str(g["flight"].iloc[0]) for l, g in table.groupby("line", sort=False)}
+    a = np.array([flight_of.get(str(x)) in lone for x in cx["line_a"]], bool)
+    b = np.array([flight_of.get(str(x)) in lone for x in cx["line_b"]], bool)
+    return ~(a | b)
 
 
 def _corrections(table: pd.DataFrame, cx: pd.DataFrame, res, ok: np.ndarray, tied_flights=None):
