@@ -30,6 +30,7 @@ from app.core.measurement import (
     band_delay_fit,
     delay_correction_mgal,
     gnss_acceleration_ms2,
+    gravimeter_height_misfit_m,
     height_outlier_mask,
     height_step_mask,
     height_step_sizes_m,
@@ -164,11 +165,13 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     z_mc = (slow_gravimeter_z(series, (t, vu, gamma, eot, judged), (tau, k, offset if applied else 0.0), z, p,
                               offset_info) if compensation else None)
     vu_from_h = bool(getattr(flight, "vu_derived_from_h", False))
+    misfit = (height_misfit(series, (t, h, gamma, eot), (tau, k, offset if applied else 0.0))
+              if vu_from_h and p.height_step_threshold is not None else None)
     compensated = None
     if z_mc is not None:
         notes_mc = list(notes)
-        compensated = (*despike_z(z_mc, t, p, notes_mc, vu_from_h, filled), notes_mc)
-    z, despike = despike_z(z, t, p, notes, vu_from_h, filled)
+        compensated = (*despike_z(z_mc, t, p, notes_mc, vu_from_h, filled, misfit), notes_mc)
+    z, despike = despike_z(z, t, p, notes, vu_from_h, filled, misfit)
     return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
                              float(offset), float(offset_info.get("correlation", np.nan)), applied, notes,
                              despike, offset_info, vu_from_h, n_filled, compensated, dz_dtau)
@@ -455,7 +458,20 @@ MAX_TAU_S = 30.0
 FILL_GUARD = 16
 
 
-def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False, filled=None):
+def height_misfit(series: gm.IntegratedSeries, gnss: tuple, response: tuple) -> np.ndarray | None:
+    """The gravimeter's double integral less the GNSS heights at the epochs (m), where a cycle
+    slip is a step (:func:`app.core.measurement.gravimeter_height_misfit_m`); None for a
+    gravimeter sampled slower than the GNSS, whose double integral between its samples is the
+    spline's guess of the motion (z's own double integral is used there).  ``gnss``: (t, h,
+    γ, E) at the epochs; ``response``: (τ, k, time offset) as for the interval means."""
+    t, h, gamma, eot = gnss
+    if t.size < 2 or series.step_s > 1.01 * float(np.median(np.diff(t))):
+        return None
+    tau, k, offset = response
+    return gravimeter_height_misfit_m(t, gm.double_integral_m(series, t, tau, k, offset), h, gamma, eot)
+
+
+def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False, filled=None, misfit_m=None):
     """Repair isolated spikes of z (:func:`app.core.measurement.spike_mask`); stand down when
     more than ``despike_max_fraction`` of the epochs would be flagged.  Where ``vu`` was
     derived from the heights the spline's response to a height spike or step is also looked
@@ -469,7 +485,8 @@ def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False, filled=None
     them smooths the aircraft's motion there, which the detector can take for a height step
     (a 3.5 s fill on the 2 Hz test line: a 26 cm "step"), so no flag is raised within
     :data:`FILL_GUARD` epochs of them (``ignored_near_filled`` in the evidence).
-    Returns (z, evidence)."""
+    ``misfit_m``: the gravimeter's double integral less the heights (:func:`height_misfit`),
+    where the step search looks instead of z's double integral.  Returns (z, evidence)."""
     t = np.asarray(t_s, float)
     dt_s = float(np.median(np.diff(t)))
     despike = {"threshold": p.despike_threshold, "flagged": 0, "epochs": int(np.isfinite(z).sum()),
@@ -481,7 +498,7 @@ def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False, filled=None
     if vu_from_heights:  # a height outlier rings through the spline: the matched patterns see it
         spikes |= height_outlier_mask(z, t, p.despike_threshold)
         if p.height_step_threshold is not None:   # and a step, clearest in z's double integral
-            sizes = height_step_sizes_m(z, t)
+            sizes = height_step_sizes_m(z, t, misfit_m=misfit_m)
             steps = height_step_mask(z, t, p.height_step_threshold, sizes_m=sizes)
             # where only the double integral sees it, it is sized there (within an epoch of its
             # flag); where the templates flag too they size it as before (on clean records the
