@@ -500,10 +500,12 @@ def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False, filled=None
         if p.height_step_threshold is not None:   # and a step, clearest in z's double integral
             sizes = height_step_sizes_m(z, t, misfit_m=misfit_m)
             steps = height_step_mask(z, t, p.height_step_threshold, sizes_m=sizes)
-            # where only the double integral sees it, it is sized there (within an epoch of its
-            # flag); where the templates flag too they size it as before (on clean records the
-            # double integral's size at their flags is noise, ±0.2 m at 1 Hz)
-            alone = steps & ~(np.convolve(spikes.astype(float), np.ones(5), mode="same") > 0.5)
+            # a step the double integral sees is sized there (within an epoch of its flag). From
+            # the gravimeter's own double integral always (sizes within ~1.5 cm); from z's only
+            # where the templates do not flag too (at their flags on clean records z's double
+            # integral's size is noise, ±0.2 m at 1 Hz), else the templates size it as before
+            alone = steps if misfit_m is not None else (
+                steps & ~(np.convolve(spikes.astype(float), np.ones(5), mode="same") > 0.5))
             at_step = np.convolve(alone.astype(float), np.ones(3), mode="same") > 0.5
             if at_step.any():
                 step_sizes = np.where(at_step, sizes, np.nan)
