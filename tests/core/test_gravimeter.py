@@ -138,6 +138,23 @@ def _moving_average(x, n):
     return c
 
 
+@pytest.mark.parametrize("tau,k", [(0.0, 1.0), (2.0, 1.0003)])
+def test_double_integral_exact_for_polynomials(tau, k):
+    """f' = c0 + c1·t + c2·t² sampled as interval means from t = 0: ∫∫ f_g dt² = k·∫F + τ·F
+    with F = c0·t + c1·t²/2 + c2·t³/3 (by hand), to a µm; NaN outside the samples' span."""
+    c0, c1, c2 = 9.81, -2e-3, 3e-6
+    stamps, vals = _grav_samples(0.0, 60.0, _poly_mean([c0, c1, c2]), round_ms=False)
+    series = gm.integrate_samples(stamps, vals, dejitter=False)
+    t = np.arange(1.0, 58.0, 1.0)
+    F = c0 * t + c1 * t ** 2 / 2 + c2 * t ** 3 / 3
+    want = k * (c0 * t ** 2 / 2 + c1 * t ** 3 / 6 + c2 * t ** 4 / 12) + tau * F
+    np.testing.assert_allclose(gm.double_integral_m(series, t, tau, k), want, rtol=0, atol=1e-6)
+    # a gravimeter stamped 0.5 s early: its sample at t belongs to GNSS time t + 0.5
+    late = gm.double_integral_m(series, t + 0.5, tau, k, time_offset_s=0.5)
+    np.testing.assert_allclose(late, want, rtol=0, atol=1e-6)
+    assert np.isnan(gm.double_integral_m(series, np.array([-1.0, 61.0]))).all()
+
+
 def test_lag_and_scale_inversion_recovers_signal():
     rng = np.random.default_rng(3)
     freqs = np.array([0.003, 0.011, 0.05, 0.13, 0.31, 0.7, 1.3])
