@@ -500,6 +500,8 @@ def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False, filled=None
         if p.height_step_threshold is not None:   # and a step, clearest in z's double integral
             sizes = height_step_sizes_m(z, t, misfit_m=misfit_m)
             steps = height_step_mask(z, t, p.height_step_threshold, sizes_m=sizes)
+            if misfit_m is not None:   # and where z's own double integral sees one (2 Hz test line: a
+                steps |= height_step_mask(z, t, p.height_step_threshold)   # 0.1 m step only it saw)
             # a step the double integral sees is sized there (within an epoch of its flag). From
             # the gravimeter's own double integral always (sizes within ~1.5 cm); from z's only
             # where the templates do not flag too (at their flags on clean records z's double
