@@ -254,7 +254,8 @@ class ProcessingParams(_Strict):
                                             "spikes, cycle slips) are repaired; None keeps z as it is")
     height_step_threshold: float | None = Field(8.0, gt=0, le=1000, description="Where vu is derived from "
                                                  "the heights, also flag a step of the heights (a cycle slip) where "
-                                                 "its size in the double integral of z exceeds this many local robust "
+                                                 "its size in the gravimeter's double integral less the heights (or "
+                                                 "in the double integral of z) exceeds this many local robust "
                                                  "scales (app.core.measurement.height_step_mask); None: off")
     despike_max_fraction: float = Field(0.01, gt=0, le=1, description="Spike repair stands down (z left as "
                                         "measured, with a warning) when it would flag more than this share "

@@ -535,9 +535,11 @@ def height_step_mask(z_mgal, t_s, threshold: float = 8.0, window_s: float = 10.0
     An epoch is flagged where the size exceeds ``threshold`` robust scales (1.4826 × the
     running median of the sizes' magnitude over ``scale_s``) and is the largest within the
     fit's half-width (a large step's fit leaves side lobes at ±``window_s``).  Generated
-    heights-only surveys (1, 2 and 5 Hz, seeds 1–3, every flight): on the lines clean records
-    reach 4.5 scales (8.8 once, outside the lines at 1 Hz); steps of 0.2–0.5 m reach 6–60 at
-    2–5 Hz, 3–32 at 1 Hz.
+    heights-only surveys (1, 2 and 5 Hz, seeds 1–3, every flight), sizes from z's own double
+    integral: on the lines clean records reach 4.5 scales (8.8 once, outside the lines at
+    1 Hz); steps of 0.2–0.5 m reach 6–60 at 2–5 Hz, 3–32 at 1 Hz.  Sizes from the gravimeter's
+    double integral (``misfit_m`` of :func:`height_step_sizes_m`; 1 Hz seeds 1–9 too): clean
+    records reach 5.7 scales anywhere in a flight, a 0.2 m step 13–25 (scales of 1.0–1.5 cm).
 
     Parameters
     ----------

@@ -475,10 +475,10 @@ def despike_z(z, t_s, p, notes: list, vu_from_heights: bool = False, filled=None
     """Repair isolated spikes of z (:func:`app.core.measurement.spike_mask`); stand down when
     more than ``despike_max_fraction`` of the epochs would be flagged.  Where ``vu`` was
     derived from the heights the spline's response to a height spike or step is also looked
-    for (:func:`app.core.measurement.height_outlier_mask`; a step also in z's double integral,
-    :func:`app.core.measurement.height_step_mask`, ``height_step_threshold``), and a flag is
-    removed as one (:func:`app.core.measurement.repair_height_outliers`, a step sized from the
-    double integral; the report lists each: epoch time
+    for (:func:`app.core.measurement.height_outlier_mask`; a step also in the gravimeter's and
+    z's double integrals, :func:`app.core.measurement.height_step_mask`, ``height_step_threshold``),
+    and a flag is removed as one (:func:`app.core.measurement.repair_height_outliers`, a step
+    sized from the double integral; the report lists each: epoch time
     in s, kind, size in m); otherwise each flagged run is replaced by its mean
     (:func:`app.core.measurement.repair_spikes`).  ``t_s``: the GNSS times (s).  ``filled``:
     the GNSS epochs put back on the clock (:func:`fill_gnss_epochs`); the spline that bridges
