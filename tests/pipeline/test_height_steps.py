@@ -56,3 +56,28 @@ def test_cycle_slips_missed_by_the_templates_are_found_in_the_double_integral():
     # the clean record: nothing flagged by the double integral
     _, ev_clean = despike_z(clean.copy(), t, p, [], True)
     assert not [f for f in ev_clean.get("height_outliers", []) if f["kind"] == "step" and abs(f["size_m"]) > 0.1]
+
+
+def test_height_misfit_only_for_a_gravimeter_at_least_as_fast_as_the_gnss():
+    """The gravimeter's double integral less the heights is formed for a 20 Hz gravimeter on
+    1 Hz GNSS — level flight at 9.8 m/s², so S is a straight line (the gravimeter's integral
+    starts 10 s before the GNSS) and a 0.3 m cycle slip at epoch 300 a step of −0.3 m on it —
+    and not for a 0.5 Hz gravimeter (None: z's own double integral is searched there)."""
+    from app.core import gravimeter as gm
+    from app.pipeline.stages.measurement import height_misfit
+
+    t = 10.0 + np.arange(600) * 1.0
+    h = np.full(t.size, 3000.0)
+    h[300:] += 0.3
+    gamma = np.full(t.size, 980000.0)
+    zero = np.zeros(t.size)
+    for rate, formed in ((20.0, True), (0.5, False)):
+        stamps = (np.arange(int(620 * rate)) + 0.5) / rate
+        series = gm.integrate_samples(stamps, np.full(stamps.size, 9.8), dejitter=False)
+        s = height_misfit(series, (t, h, gamma, zero), (0.0, 1.0, 0.0))
+        assert (s is not None) == formed
+        if formed:
+            design = np.column_stack([np.ones(t.size), t, np.arange(t.size) >= 300])
+            coef, *_ = np.linalg.lstsq(design, s, rcond=None)
+            assert abs(coef[2] + 0.3) < 1e-6
+            np.testing.assert_allclose(s, design @ coef, atol=1e-6)
