@@ -272,6 +272,60 @@ class ProfileOut(Out):
     dg_bouguer: list[float | None] | None = Field(None, description="complete Bouguer anomaly dg − terrain (mGal)")
 
 
+class RepeatTrackSummary(Out):
+    track: str
+    lines: list[str] = Field(..., description="The passes (lines) of the track, in lines.csv's order")
+    internal_accuracy_mgal: dict[str, float | None] | None = Field(
+        None, description="report.json repeat_lines.<track>.internal_accuracy_mgal (dg_mgal = adaptive, "
+        "dg_stationary_mgal, dg_fir_mgal)")
+
+
+class RepeatTracksOut(Out):
+    survey_id: int
+    result_id: int
+    tracks: list[RepeatTrackSummary]
+
+
+class TrackAxis(Out):
+    origin_easting_km: float
+    origin_northing_km: float
+    unit_easting: float
+    unit_northing: float
+    azimuth_deg: float = Field(..., description="Direction of increasing along-track distance, degrees "
+                               "clockwise from grid north")
+    length_km: float
+
+
+class TrackPass(Out):
+    line: str
+    flight: str
+    direction: Literal["forward", "reverse"] = Field(..., description="forward: along-track distance grows "
+                                                     "with time (as on the track's first pass)")
+    n_total: int
+    step: int = Field(..., description="Decimation stride applied for the browser")
+    t_start: float | None
+    t_end: float | None
+    across_rms_m: float | None = Field(None, description="RMS distance of the pass from the track's axis (m)")
+    sigma_mean_mgal: float | None = None
+    time: list[float | None]
+    along_km: list[float | None] = Field(..., description="Distance along the track's axis from its origin (km)")
+    dg: list[float | None] | None
+    dg_std: list[float | None] | None
+    dg_stationary: list[float | None] | None
+    dg_fir: list[float | None] | None
+
+
+class RepeatTrackOut(Out):
+    """The passes of a repeat track on one along-track axis (app.web.repeat)."""
+    survey_id: int
+    result_id: int
+    track: str
+    axis: TrackAxis
+    passes: list[TrackPass]
+    repeatability: dict[str, Any] | None = Field(None, description="report.json repeat_lines.<track>")
+    std_check: dict[str, Any] | None = Field(None, description="report.json level_refinement.std_repeat_tracks.<track>")
+
+
 class GridLine(Out):
     line: str
     kind: str

@@ -22,7 +22,16 @@ from app.pipeline.stages.recognition import Recognition, state_map
 
 from ..db import Result, Survey
 from ..deps import get_cache, get_db, get_store, get_survey_or_404
-from ..schemas import GridOut, LineOut, ProfileOut, RecognitionOut, ReportOut
+from ..repeat import track_members, track_passes
+from ..schemas import (
+    GridOut,
+    LineOut,
+    ProfileOut,
+    RecognitionOut,
+    RepeatTrackOut,
+    RepeatTracksOut,
+    ReportOut,
+)
 from ..services import has_dem
 from ..store import ResultCache, Store
 
@@ -196,6 +205,44 @@ def line_profile(line: str, max_points: int = Query(2000, ge=50, le=50000, descr
         state=_ints(g["state"].to_numpy()[sl]) if "state" in g else [None] * len(t[sl]),
         **{k: _clean(g[c].to_numpy(float)[sl]) for k, c in PROFILE_PRODUCTS.items() if c in g},
     )
+
+
+def _repeat_tracks(s: Survey, r: Result, cache: ResultCache) -> tuple[dict, dict, dict]:
+    """(lines.parquet groups, report.json, {track: [line, …]}) of the current result."""
+    groups = cache.get(("lines", r.id), lambda: _load_lines(r))["groups"]
+    rep = cache.get(("report", r.id), lambda: _load_report(r))["report"]
+    members = track_members([(l.line, l.kind, (l.qc or {}).get("track")) for l in s.lines], rep, set(groups))
+    return groups, rep, members
+
+
+@router.get("/{survey_id}/repeat-tracks", response_model=RepeatTracksOut)
+def repeat_tracks(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+                  cache: ResultCache = Depends(get_cache)) -> RepeatTracksOut:
+    """The repeat tracks of the current result with two or more passes, their lines and the
+    internal accuracy report.json gives them."""
+    r = current_result(s, db)
+    _, rep, members = _repeat_tracks(s, r, cache)
+    acc = rep.get("repeat_lines") if isinstance(rep.get("repeat_lines"), dict) else {}
+    return RepeatTracksOut(survey_id=s.id, result_id=r.id, tracks=[
+        {"track": t, "lines": m, "internal_accuracy_mgal": (acc.get(t) or {}).get("internal_accuracy_mgal")}
+        for t, m in members.items()])
+
+
+@router.get("/{survey_id}/repeat-tracks/{track:path}", response_model=RepeatTrackOut)
+def repeat_track(track: str, max_points: int = Query(1500, ge=50, le=50000, description="decimate each pass to "
+                                                     "about this many points"),
+                 s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
+                 cache: ResultCache = Depends(get_cache)) -> RepeatTrackOut:
+    """Every pass of a repeat track on one along-track axis (distance along the track's principal
+    direction from one origin, so passes flown the other way overlay), with δg ± σ, stationary and
+    FIR per pass and the track's repeatability figures from report.json."""
+    r = current_result(s, db)
+    groups, rep, members = _repeat_tracks(s, r, cache)
+    if track not in members:
+        shown = track if len(track) <= 100 else track[:100] + '…'
+        raise HTTPException(404, f"no repeat track {shown!r} with two or more passes in the results of survey {s.id}")
+    body = track_passes(track, members[track], groups, rep, max_points)
+    return RepeatTrackOut(survey_id=s.id, result_id=r.id, **body)
 
 
 @router.get("/{survey_id}/recognition", response_model=RecognitionOut, response_model_exclude_none=True)

@@ -4,6 +4,7 @@
 import { endpoints } from "../api.js";
 import { el, esc, fmt, plotConfig, pngButton, stateColor, titleFromChoice } from "../plots.js";
 import { stateLabel } from "./recognition.js";
+import { trackCard, trackOf } from "./tracks.js";
 
 function stateShapes(x, state) {
   const shapes = [];
@@ -35,7 +36,8 @@ export async function render(sec, ctx) {
     sec.replaceChildren(el("div", { class: "empty" }, "No results yet: run a processing job first."));
     return;
   }
-  const [lines, report] = await Promise.all([endpoints.lines(s.id), endpoints.report(s.id).catch(() => null)]);
+  const [lines, report, rt] = await Promise.all([endpoints.lines(s.id), endpoints.report(s.id).catch(() => null),
+    endpoints.repeatTracks(s.id).catch(() => ({ tracks: [] }))]);
   const leveled = !!(report && report.leveled);
   const states = (report && report.identification && report.identification.states) || [];
   const levStatus = report ? report.leveling_status : null;
@@ -46,10 +48,15 @@ export async function render(sec, ctx) {
   const lp = el("input", { type: "number", id: "profile-lp", min: 0, max: 600, step: 5, value: 30, style: "width:5rem" });
   const status = el("div", { class: "note", id: "profile-status" });
   const plot = el("div", { class: "plot", id: "profile-plot", style: "height:680px" });
-  sec.replaceChildren(el("div", { class: "card" }, el("h3", {}, "Line profile"),
+  const lineCard = el("div", { class: "card", id: "line-card" }, el("h3", {}, "Line profile"),
     el("div", { class: "controls" }, el("label", {}, "Line", sel), el("label", {}, "z low-pass FWHM (s)", lp)),
     leveled || !levStatus ? null : el("p", { class: "warnline", id: "profile-not-leveled" }, `Leveling was not applied (${levStatus}): δg is the unleveled estimate.`),
-    status, plot));
+    status, plot);
+  // a repeat track's passes overlaid on one along-track axis: first when every line is a pass (a test line)
+  const tc = trackCard(s, rt.tracks);
+  const allPasses = tc && withData.every((l) => trackOf(rt.tracks, l.line) !== null);
+  sec.replaceChildren(...(tc ? (allPasses ? [tc.card, lineCard] : [lineCard, tc.card]) : [lineCard]));
+  const trackLoaded = tc ? tc.load() : null;
   let pngAdded = false;
 
   // the z low-pass must be a number of seconds in [0, 600]: anything else is said, not sent
@@ -132,8 +139,11 @@ export async function render(sec, ctx) {
     if (!pngAdded) { plot.after(pngButton(plot, `${s.name}-line-profile`)); pngAdded = true; }
     const sigma = p.dg_std.filter((v) => v !== null);
     const d = diffs[p.line];
+    const track = trackOf(rt.tracks, p.line);
+    if (track !== null && tc) tc.show(track);
     status.textContent = `${p.n_total} epochs (${p.step === 1 ? "all" : `1 in ${p.step}`} shown) · shaded bands: the recognised state where it is not state 0 (legend; colours as on the recognition map) · mean σ ${fmt(sigma.reduce((a, b) => a + b, 0) / Math.max(1, sigma.length), 3)} mGal` +
-      (d ? ` · adaptive − FIR: RMS ${fmt(d.rms_mgal, 3)} mGal (std ${fmt(d.std_mgal, 3)})` : "");
+      (d ? ` · adaptive − FIR: RMS ${fmt(d.rms_mgal, 3)} mGal (std ${fmt(d.std_mgal, 3)})` : "") +
+      (track !== null ? ` · a pass of repeat track ${track}: its passes are overlaid in "Repeat track"` : "");
     plot.dataset.line = p.line;
     plot.dataset.leveled = leveled ? "1" : "0";
     plot.dataset.products = products.join(" ");
@@ -151,4 +161,5 @@ export async function render(sec, ctx) {
   if (wanted !== null && withData.some((l) => l.line === wanted)) sel.value = wanted;
   syncTitle();
   if (withData.length) await draw(); else status.textContent = "No line has results.";
+  await trackLoaded;
 }
