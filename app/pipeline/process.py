@@ -15,7 +15,7 @@ from pathlib import Path
 from app.io import export
 from app.io.survey import read_survey
 from app.pipeline.parallel import thread_count
-from app.pipeline.runs import Progress, Tracker, run_filter, run_identify, save_identified
+from app.pipeline.runs import PLANS, Progress, Tracker, run_filter, run_identify, save_identified
 
 
 def process_survey(survey_dir, out_dir, overrides: dict | None = None, progress: Progress | None = None,
@@ -76,7 +76,7 @@ def identify_survey(survey_dir, out_dir, overrides: dict | None = None, progress
     from app.pipeline.stages.recognition import state_map
 
     thread_count()  # a bad AEROGRAV_THREADS is an error before any work
-    tr = Tracker(progress)
+    tr = Tracker(progress, PLANS["identify"])
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     tr.start("ingest")
@@ -116,7 +116,7 @@ def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress
 
     thread_count()  # a bad AEROGRAV_THREADS is an error before any work
 
-    tr = Tracker(progress)
+    tr = Tracker(progress, PLANS["filter"])
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     tr.start("ingest")

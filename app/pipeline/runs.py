@@ -40,22 +40,44 @@ from app.pipeline.stages.recognition import state_map
 
 Progress = Callable[[str, float, dict | None], None]
 
-#: Stage weights for the overall progress fraction (identify: 0–0.75, filter: 0.75–1).
+#: Stage weights for the overall progress fraction of a ``process`` run (identify: 0–0.75, filter:
+#: 0.75–1); a run of part of the stages (:data:`PLANS`) spreads its own stages' weights over 0–1.
 STAGE_WEIGHTS = {"ingest": 0.05, "measurement": 0.15, "noise": 0.07, "fir": 0.02, "regularization": 0.04,
                  "learning": 0.34, "recognition": 0.08, "nlmeans": 0.02, "filtering": 0.13, "choice": 0.02,
                  "leveling": 0.02, "gridding": 0.04, "writing": 0.02}
 STAGE_ORDER = list(STAGE_WEIGHTS)
+#: The stages each kind of run goes through, known before it starts.
+PLANS = {"process": STAGE_ORDER,
+         "identify": STAGE_ORDER[:STAGE_ORDER.index("recognition") + 1],
+         "filter": ["ingest", *STAGE_ORDER[STAGE_ORDER.index("nlmeans"):]]}
+#: Stages run once per anomaly order (the identification of every candidate order; the NL-means and
+#: filtering of every order filtered): each run of the group has its own share of the group's weight.
+REPEATED_GROUPS = (("regularization", "learning", "recognition"), ("nlmeans", "filtering"))
 
 
 class Tracker:
-    """Progress and timings: ``start(stage)``, ``emit(fraction within, info)``, ``close()``."""
+    """Progress and timings: ``start(stage)``, ``emit(fraction within, info)``, ``close()``.
 
-    def __init__(self, progress: Progress | None):
+    The fraction follows a plan of stages known up front (:data:`PLANS`) with their weights; a
+    group of stages run once per anomaly order (:data:`REPEATED_GROUPS`) is announced with
+    ``runs(k, n, label)`` and its k-th run fills the k-th n-th of the group's share — the second EM
+    run moves the bar on instead of repeating the first's — and the stage is reported as e.g.
+    ``learning (m=2, run 2 of 2)``.  The fraction reported never decreases."""
+
+    def __init__(self, progress: Progress | None, plan: list[str] | None = None):
         self.progress = progress
         self.timings: dict[str, float] = {}
+        self.plan = list(plan or STAGE_ORDER)
+        total = sum(STAGE_WEIGHTS[s] for s in self.plan)
+        self._weight = {s: STAGE_WEIGHTS[s] / total for s in self.plan}
         self._stage: str | None = None
         self._t0 = 0.0
         self._last = 0.0
+        self._run: tuple[int, int, str] | None = None
+
+    def runs(self, k: int | None, n: int = 1, label: str = "") -> None:
+        """The k-th (from 0) of ``n`` runs of a repeated group of stages starts (None: no run)."""
+        self._run = None if k is None else (int(k), max(1, int(n)), str(label))
 
     def start(self, stage: str) -> None:
         self._finish()
@@ -63,13 +85,33 @@ class Tracker:
         self._t0 = time.perf_counter()
         self.emit(0.0)
 
+    def fraction(self, stage: str, within: float) -> float:
+        """The overall fraction at ``within`` (0–1) of ``stage`` in the plan and the current run."""
+        if stage not in self._weight:
+            return self._last
+        before = sum(self._weight[s] for s in self.plan[:self.plan.index(stage)])
+        w = self._weight[stage] * min(1.0, max(0.0, float(within)))
+        group = [s for g in REPEATED_GROUPS if stage in g for s in g if s in self._weight]
+        if not group or self._run is None or self._run[1] == 1:
+            return before + w
+        k, n, _ = self._run
+        g0 = sum(self._weight[s] for s in self.plan[:self.plan.index(group[0])])
+        share = sum(self._weight[s] for s in group)
+        return g0 + (min(k, n - 1) * share + (before - g0) + w) / n
+
+    def label(self) -> str:
+        """The stage as reported: its name, and which run of a repeated group it belongs to."""
+        stage = str(self._stage)
+        if self._run is None or self._run[1] == 1 or not any(stage in g for g in REPEATED_GROUPS):
+            return stage
+        k, n, label = self._run
+        return f"{stage} ({label + ', ' if label else ''}run {k + 1} of {n})"
+
     def emit(self, within: float, info: dict | None = None) -> None:
         if self.progress is None or self._stage is None:
             return
-        done = sum(STAGE_WEIGHTS[s] for s in STAGE_ORDER[:STAGE_ORDER.index(self._stage)])
-        # stages repeat (one identification per anomaly order): the fraction never goes back
-        self._last = max(self._last, min(1.0, done + STAGE_WEIGHTS[self._stage] * float(within)))
-        self.progress(self._stage, self._last, info)
+        self._last = max(self._last, min(1.0, self.fraction(self._stage, within)))
+        self.progress(self.label(), self._last, info)
 
     def _finish(self) -> None:
         if self._stage is not None:
@@ -153,12 +195,14 @@ def run_identify(survey, tr: Tracker) -> Identified:
         orders = candidate_orders(p, n_cx)
     idents = {}
     for k, m in enumerate(orders):
-        def em_cb(rec, m=m, k=k):
-            tr.emit(min(0.95, (k + min(1.0, rec["iteration"] / max(2, p.em_max_iter))) / len(orders)),
+        def em_cb(rec, m=m):
+            tr.emit(min(0.95, rec["iteration"] / max(2, p.em_max_iter)),
                     {"em_iteration": {**rec, "model": f"m={m} {rec.get('model', '')}".strip()}})
 
+        tr.runs(k, len(orders), f"m={m}")   # each order's identification: its own share of the bar
         idents[m] = identify(sl.lines, meas.dt_s, noise.model, cfg, m, callback=em_cb, progress=tr.start)
         warnings.extend(w for w in idents[m].warnings if w not in warnings)
+    tr.runs(None)
     flights = {n: FlightSeries(n, f.t_s, f.z_mgal, f.time_offset_s, f.time_offset_corr, f.time_offset_applied,
                                f.time_offset, f.despike, f.gnss_filled) for n, f in meas.flights.items()}
     mrep = {"base_ties": meas.base_ties, "lag_check": meas.lag_check, "calibration": meas.calibration,
@@ -214,7 +258,8 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     cands = {}
     orders = orders or filter_orders(idf, p)
     maps = {}   # one NL-means per recognition: both orders filter with m = 1's map (recognition_order)
-    for m in orders:
+    for k, m in enumerate(orders):
+        tr.runs(k, len(orders), f"m={m}")
         tr.start("nlmeans")
         ident = _recognised_by(idf.identifications, m, p)
         if id(ident.recognition) not in maps:
@@ -225,6 +270,7 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
                              idf.dt_s, p, warnings, progress=tr.emit, stationary=len(orders) == 1,
                              q_start=(q_start or {}).get(m), q_stationary=(q_stationary or {}).get(m))
         cands[m] = Candidate(ident, smap, filt)
+    tr.runs(None)
     tr.start("choice")
     m_best, order_rep = choose_order(cands, p)
     if len(cands) > 1:

@@ -82,7 +82,7 @@ def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: s
             return "not-started"
 
     em_rows: list[dict[str, Any]] = []
-    last = {"t": 0.0, "stage": None}
+    last = {"t": 0.0, "stage": None, "p": 0.0}
 
     def write(values: dict[str, Any]) -> None:
         with Session() as s:
@@ -98,7 +98,9 @@ def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: s
             em_rows.append(to_jsonable(dict(info["em_iteration"])))
             values["em_iterations"] = list(em_rows)
         if values or stage != last["stage"] or now - last["t"] > 0.3:
-            values.update(stage=str(stage), progress=float(min(max(fraction, 0.0), 0.999)))
+            # the bar never steps back, whatever an entry reports
+            last["p"] = max(last["p"], float(min(max(fraction, 0.0), 0.999)))
+            values.update(stage=str(stage), progress=last["p"])
             last["t"], last["stage"] = now, stage
             write(values)
 
