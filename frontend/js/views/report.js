@@ -1,7 +1,8 @@
 // Report panel: every warning and automatic decision of the current result with its evidence
 // (report.json), known sections drawn as tables, any other section shown generically with its JSON.
 import { endpoints } from "../api.js";
-import { el, fmt, genericView, jsonDetails, table } from "../plots.js";
+import { el, fmt, jsonDetails, table } from "../plots.js";
+import { labelOf, num, plain, readableView, sectionView } from "./report_labels.js";
 
 const yes = (b) => (b === true ? "yes" : b === false ? "no" : "—");
 const pct = (f) => (f === null || f === undefined ? "—" : `${fmt(100 * f, 3)} %`);
@@ -231,7 +232,7 @@ const RENDER = {
             cv.significance === undefined ? "—" : fmt(cv.significance, 3) + (cv.absolute_base_tie === false ? " (a flight without an absolute base tie)" : ""),
             String(cv.n_folds ?? "—")]], { id: "report-leveling-cv" }));
     }
-    if (v.std_check) out.push(el("p", { class: "note" }, `σ check at the crossovers: `), genericView(v.std_check));
+    if (v.std_check) out.push(el("p", { class: "note" }, `σ check at the crossovers: `), readableView(v.std_check));
     // the level leveling leaves common to the flights (no absolute base tie: it is in the std)
     if (v.common_level) {
       const c = v.common_level;
@@ -255,12 +256,13 @@ const RENDER = {
       rows.map((t) => ({ attrs: { "data-track": t.track }, cells: [t.track, String(t.repeats),
         ...t.nums.map((x, i) => (x === null ? String(t.acc[ESTIMATES[i][0]] ?? "—") : el("span", { class: x === t.worst ? "worst" : "" }, fmt(x, 3)))),
         t.worstName || "—"] })), { id: "report-repeat-table" }),
-    el("p", { class: "note" }, "Internal accuracy ε = sqrt(Σ(g − ḡ)² / (n (K−1))) over the K passes of a track (SPEC §3).")];
+    el("p", { class: "note" }, "Internal accuracy ε = sqrt(Σ(g − ḡ)² / (n (K−1))) over the K passes of a track, per estimate; " +
+      "the least repeatable in red. The passes are overlaid in Line profiles → Repeat track.")];
   },
   noise_model: (v) => {
     const out = [table(["Family", "Fit", "Level band (Hz)", "Level scale", "Fitted up to (Hz)"],
       [[v.family ?? "—", v.fit ?? "—", (v.level_band_hz || []).join("–"), fmt(v.level_scale, 3), fmt(v.fit_fmax_hz ?? v.fmax_hz, 3)]])];
-    if (v.components) out.push(el("h4", {}, "Components"), genericView(v.components));
+    if (v.components) out.push(el("h4", {}, "Components"), readableView(v.components));
     // the anomaly's spectrum beside the noise in the fit: the random walk, rolled off where the data ask for it
     if (v.anomaly_rolloff_s != null) {
       out.push(el("p", { class: "note", id: "report-anomaly-rolloff" }, v.anomaly_rolloff_s > 0
@@ -311,11 +313,63 @@ const TITLES = {
   base_ties: "Base ties", time_offsets: "Gravimeter–GNSS time offsets and time stamps", gnss_filled_epochs: "Missing GNSS epochs", lag_check: "Lag check (τ in flight)",
   band_delay: "Residual gravimeter delay at the anomaly's edge",
   spike_repair: "GNSS spike repair (velocity spikes; height spikes and steps where vu comes from the heights)", crossovers: "Leveling at crossovers", repeat_lines: "Repeat-line internal accuracy",
-  noise_model: "Noise model", model_order: "Model order", model_choice: "Model choice", identification: "Identification (EM)",
-  counts: "Counts", timings_s: "Stage timings (s)", grid: "Grid", level_refinement: "Level refinement",
-  calibration: "In-flight calibration", grid_std_cross_validation: "Grid σ cross-validation",
+  noise_model: "Noise model", model_order: "Model order", model_choice: "Model choice and why", identification: "Identification (EM)",
+  counts: "Counts", timings_s: "Stage timings", grid: "Grid", level_refinement: "Level refinement (anomaly levels and σ)",
+  calibration: "In-flight calibration", grid_std_cross_validation: "Grid σ cross-validation", products: "Products (atmosphere, datum, terrain, grids)",
+  repeat_tracks_inferred: "Repeat tracks inferred from positions", model_order_candidates: "Anomaly orders identified",
+  adaptive_minus_fir: "Adaptive − FIR 100 s per line (before leveling)", reused_identification: "Identification reused (filter job)",
+  model_order_likelihood: "Model order by likelihood",
 };
-const SKIP = new Set(["warnings", "survey", "crs"]);
+// shown in the header (survey, CRS), the warnings box and the timings (threads)
+const SKIP = new Set(["warnings", "survey", "crs", "threads"]);
+// the sections in the order an analyst reads them: accuracy, the estimate's choices, the noise and the
+// identification, what the measurement decided, then the rest; sections the page does not know follow
+const ORDER = ["crossovers", "repeat_lines", "adaptive_minus_fir", "model_choice", "noise_model", "model_order", "model_order_candidates",
+  "identification", "spike_repair", "base_ties", "time_offsets", "lag_check", "band_delay", "gnss_filled_epochs", "calibration",
+  "level_refinement", "products", "grid", "repeat_tracks_inferred", "counts", "timings_s"];
+
+// model choice: the decision, then each check with its evidence, then the per-line table
+function modelChoice(v) {
+  if (!v || typeof v !== "object") return [readableView(v, TITLES)];
+  const order = v.order || {};
+  const rows = [["Estimate used", String(v.chosen ?? "—")],
+    ["Anomaly order m", `${v.m ?? "—"}${order.criterion ? ` — ${plain(order.criterion, TITLES)}` : ""}`]];
+  if (v.anomaly_levels !== undefined) rows.push(["Anomaly levels (Q)", `${v.anomaly_levels}${v.anomaly_levels_reason ? ` — ${v.anomaly_levels_reason}` : ""}`]);
+  const out = [table(["", ""], rows, { class: "readable kv", id: "report-model-choice" })];
+  const rest = Object.fromEntries(Object.entries(v).filter(([k]) => !["chosen", "m", "anomaly_levels", "anomaly_levels_reason", "lines"].includes(k)));
+  // the order's criterion and m are in the rows above: its other evidence (crossover RMS per order, blend) below
+  const orderRest = Object.fromEntries(Object.entries(order).filter(([k]) => !(k === "criterion" || (k === "m" && order.m === v.m))));
+  if (Object.keys(orderRest).length) rest.order = orderRest; else delete rest.order;
+  out.push(...sectionView(rest, TITLES));
+  if (v.lines) out.push(el("h4", {}, "Per line"), el("div", { class: "scroll" }, readableView(v.lines, TITLES)));
+  return out;
+}
+
+// stage timings: seconds, share of the run, total
+function timings(v, rep) {
+  const entries = Object.entries(v || {}).filter(([, s]) => typeof s === "number");
+  const total = entries.reduce((a, [, s]) => a + s, 0);
+  return [table(["Stage", "Time (s)", "Share"], [...entries.map(([k, s]) => ({ attrs: { title: `report.json key: ${k}` },
+    cells: [labelOf(k), fmt(s, 2), total > 0 ? `${fmt(100 * s / total, 1)} %` : "—"] })),
+  { attrs: { class: "total" }, cells: ["Total", fmt(total, 2), ""] }], { id: "report-timings" }),
+  rep.threads !== undefined ? el("p", { class: "note" }, `Lines filtered on ${rep.threads} thread(s) (the outputs do not depend on it).`) : null];
+}
+
+Object.assign(RENDER, {
+  model_choice: (v) => modelChoice(v),
+  timings_s: (v, r) => timings(v, r.report || {}),
+  calibration: (v) => [v === null ? el("p", { class: "note" }, "Not run (no calibration lines).") : sectionView(v, TITLES)].flat(),
+  model_order_candidates: (v) => [el("p", {}, `Anomaly orders identified: ${Array.isArray(v) ? v.map((m) => `m = ${m}`).join(", ") : String(v)}.`)],
+  repeat_tracks_inferred: (v) => [v && Object.keys(v).length ? readableView(v, TITLES)
+    : el("p", { class: "note" }, "None: every repeat line has its track in lines.csv.")],
+});
+
+function adaptiveMinusFir(r) {
+  return [el("p", { class: "note" }, "Where the adaptive estimate departs from the industry FIR baseline; a large RMS on a smooth line deserves a look at its profile."),
+    el("div", { class: "scroll" }, table(["Line", "Flight", "Kind", "Epochs", "RMS (mGal)", "Mean (mGal)", "Std (mGal)"],
+      r.adaptive_minus_fir.map((d) => ({ attrs: { "data-line": d.line }, cells: [d.line, d.flight, d.kind, String(d.n), fmt(d.rms_mgal, 3), fmt(d.mean_mgal, 3), fmt(d.std_mgal, 3)] })),
+      { id: "report-diff-table" }))];
+}
 
 function identificationCard(r) {
   const id = r.identification || {};
@@ -334,8 +388,32 @@ function identificationCard(r) {
       table(["State", "Q (mGal² per step)", "R ((cm/s)²)", "Stay probability"], id.states.map((s) => [`state ${s.index}`, fmt(s.Q, 4), fmt(s.R, 4),
         id.transition && id.transition[s.index] ? fmt(id.transition[s.index][s.index], 4) : "—"])));
   }
-  if (id.lines_skipped && Object.keys(id.lines_skipped).length) out.push(el("h4", {}, "Lines not identified"), genericView(id.lines_skipped));
+  if (id.lines_skipped && Object.keys(id.lines_skipped).length) out.push(el("h4", {}, "Lines not identified"), readableView(id.lines_skipped));
   return out;
+}
+
+// the top of the panel: what the result is, the warnings (first, boxed), the decisions in words
+function header(s, r, rep) {
+  const dl = el("a", { href: `/api/surveys/${s.id}/export?format=report`, download: "", id: "report-download" }, "Download report.json");
+  return el("div", { class: "card" }, el("h3", {}, `Report of result ${r.result_id} (job ${r.job_id})`),
+    el("p", { class: "note", id: "report-meta" }, [rep.survey ? `Survey ${rep.survey}` : null, rep.crs ? `CRS ${rep.crs}` : null]
+      .filter(Boolean).join(" · "), rep.survey || rep.crs ? " · " : "", dl),
+    s.result_outdated ? el("p", { class: "warnline", id: "report-outdated" }, "The survey's data or settings changed after this result: run processing again.") : null,
+    el("div", { class: `warnbox${r.warnings.length ? "" : " clear"}`, id: "report-warnings-box" },
+      el("h4", {}, r.warnings.length ? `Warnings (${r.warnings.length})` : "Warnings (0)"),
+      r.warnings.length ? el("ul", { id: "report-warnings", class: "warnings" }, r.warnings.map((w) => el("li", { title: w }, plain(w, TITLES))))
+        : el("p", { class: "note", id: "report-warnings" }, "none")),
+    el("h4", {}, "Decisions"), summary(r));
+}
+
+// buttons to the sections (the address keeps the survey and tab: no #anchors)
+function sectionNav(parts) {
+  return el("div", { class: "report-nav", id: "report-nav" }, el("span", { class: "note" }, "Go to: "),
+    parts.map((p) => {
+      const b = el("button", { type: "button", class: "linkish" }, p.querySelector("summary h3").textContent);
+      b.addEventListener("click", () => { p.open = true; p.scrollIntoView({ block: "start" }); });
+      return b;
+    }));
 }
 
 export async function render(sec, ctx) {
@@ -346,36 +424,23 @@ export async function render(sec, ctx) {
   }
   const r = await endpoints.report(s.id);
   const rep = r.report || {};
-  const parts = [];
-  parts.push(el("div", { class: "card" }, el("h3", {}, `Report of result ${r.result_id} (job ${r.job_id})`),
-    s.result_outdated ? el("p", { class: "warnline", id: "report-outdated" }, "The survey's data or settings changed after this result: run processing again.") : null,
-    summary(r),
-    el("h4", {}, `Warnings (${r.warnings.length})`),
-    r.warnings.length ? el("ul", { id: "report-warnings", class: "warnings" }, r.warnings.map((w) => el("li", {}, w)))
-      : el("p", { class: "note", id: "report-warnings" }, "none")));
-  for (const key of ["base_ties", "time_offsets", "gnss_filled_epochs", "lag_check", "band_delay", "spike_repair", "crossovers", "repeat_lines"]) {
-    if (rep[key] !== undefined && rep[key] !== null) parts.push(card(key, TITLES[key], ...RENDER[key](rep[key], r), jsonDetails(key, rep[key])));
+  const cards = [];
+  const add = (key, body, json) => cards.push(card(key, TITLES[key] || labelOf(key), ...body, json === undefined ? jsonDetails(key, rep[key]) : json));
+  for (const key of ORDER) {
+    if (key === "adaptive_minus_fir") { if (r.adaptive_minus_fir.length) add(key, adaptiveMinusFir(r), null); continue; }
+    if (key === "identification") { add(key, identificationCard(r), rep.identification ? undefined : null); continue; }
+    if (!(key in rep) || (rep[key] === null && key !== "calibration")) continue;
+    add(key, RENDER[key] ? RENDER[key](rep[key], r) : sectionView(rep[key], TITLES));
   }
-  if (r.adaptive_minus_fir.length) {
-    parts.push(card("adaptive_minus_fir", "Adaptive − FIR 100 s per line (before leveling)",
-      el("p", { class: "note" }, "Where the adaptive estimate departs from the industry FIR baseline; a large RMS on a smooth line deserves a look at its profile."),
-      el("div", { class: "scroll" }, table(["Line", "Flight", "Kind", "Epochs", "RMS (mGal)", "Mean (mGal)", "Std (mGal)"],
-        r.adaptive_minus_fir.map((d) => ({ attrs: { "data-line": d.line }, cells: [d.line, d.flight, d.kind, String(d.n), fmt(d.rms_mgal, 3), fmt(d.mean_mgal, 3), fmt(d.std_mgal, 3)] })),
-        { id: "report-diff-table" }))));
-  }
-  for (const key of ["noise_model", "model_order"]) {
-    if (rep[key] !== undefined && rep[key] !== null) parts.push(card(key, TITLES[key], ...RENDER[key](rep[key], r), jsonDetails(key, rep[key])));
-  }
-  parts.push(card("identification", TITLES.identification, ...identificationCard(r),
-    rep.identification ? jsonDetails("identification", rep.identification) : null));
-  if (rep.model_choice !== undefined) parts.push(card("model_choice", TITLES.model_choice, genericView(rep.model_choice), jsonDetails("model_choice", rep.model_choice)));
-  const shown = new Set(["base_ties", "time_offsets", "gnss_filled_epochs", "lag_check", "band_delay", "spike_repair", "crossovers", "repeat_lines", "noise_model", "model_order",
-    "identification", "model_choice"]);
+  // sections this page has no drawing for (new keys): labelled from their names, with their JSON
   for (const [key, v] of Object.entries(rep)) {
-    if (shown.has(key) || SKIP.has(key)) continue;
-    // sections this page has no drawing for (model_choice, counts, new keys): shown as they are
-    parts.push(card(key, TITLES[key] || key, genericView(v), jsonDetails(key, v)));
+    if (ORDER.includes(key) || SKIP.has(key)) continue;
+    add(key, sectionView(v, TITLES));
   }
-  sec.replaceChildren(...parts);
+  const all = el("details", { class: "card report-section", id: "report-all-fields" },
+    el("summary", {}, el("h3", {}, "All fields (report.json as written)")),
+    el("p", { class: "note" }, "Every key of the result's report.json, raw; the same file as ", el("a", { href: `/api/surveys/${s.id}/export?format=report`, download: "" }, "Download report.json"), "."),
+    el("pre", { class: "json-all" }, JSON.stringify(rep, null, 2)));
+  sec.replaceChildren(header(s, r, rep), sectionNav(cards), ...cards, all);
   sec.dataset.resultId = r.result_id;
 }
