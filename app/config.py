@@ -686,3 +686,87 @@ class SurveyConfig(_Strict):
     gravimeter: GravimeterSection = GravimeterSection()
     processing: ProcessingParams = ProcessingParams()
     columns: ColumnsSection = ColumnsSection()
+
+
+# ---------------------------------------------------------------- the parameters by pipeline stage
+#: The processing parameters grouped by the stage that uses them, for the parameters form:
+#: (key, title, the common parameters — shown —, the advanced ones — folded away).  A parameter in
+#: no list lands by its name's prefix (:data:`PARAM_GROUP_PREFIXES`), else in "other": a parameter
+#: added later is never left out of the form (:func:`param_groups`).
+PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
+    ("measurement", "Measurement: rates, gaps, spikes, time offset, gravimeter lag",
+     ("max_gap_s", "despike_threshold", "apply_time_offset", "calibrate"),
+     ("gnss_rate_hz", "rate_tolerance", "gravimeter_gap_margin_s", "height_step_threshold", "despike_max_fraction",
+      "max_nan_run", "estimate_time_offset", "max_time_offset_s", "time_offset_min_z", "time_offset_min_improvement",
+      "slow_gravimeter_min_ratio", "band_delay_check", "band_delay_min_t", "gnss_fill_max_error_mgal", "lag_check_s",
+      "lag_check_min_change_s", "lag_from_time_offsets", "lag_band_fit", "lag_band_fit_z", "lag_band_confirm_z",
+      "lag_check_min_improvement", "lag_one_scale", "lag_one_scale_min_improvement")),
+    ("noise", "Noise model: the error of z and the local GNSS noise level",
+     ("noise_model", "noise_family", "noise_band_hz"),
+     ("noise_level_unmix", "noise_corner_check", "noise_corner_alpha", "noise_family_check", "noise_family_alpha",
+      "white_level_bounded", "white_level_fitted", "noise_fit_repeats", "em_level_scale_min", "noise_height_tau_min_s",
+      "noise_knee_max_fraction", "noise_fit_octave_weights", "noise_anomaly_rolloff", "noise_fit_fmax_hz",
+      "noise_fit_min_s", "noise_velocity_bound", "noise_velocity_bound_fmax_hz", "noise_velocity_bound_quantile")),
+    ("order", "Anomaly model: the order m",
+     ("m", "model_order"),
+     ("recognition_order", "order_choice_p", "order_blend")),
+    ("regularization", "Regularization: decimation, low-pass, MA approximation",
+     ("decimation_step_km",),
+     ("decimation_n", "cutoff_hz", "stopband_attenuation_db", "regularization_difference_grid", "ma_order_K",
+      "ma_order_L")),
+    ("identification", "Identification: EM learning of the levels and transitions",
+     ("n_q", "n_r", "em_max_iter", "em_tol"),
+     ("min_points_adaptive", "include_tie_lines", "refine_levels", "refine_lift_only", "refine_lift_max_stationary",
+      "refine_max_epochs")),
+    ("recognition", "Recognition map: NL-means smoothing and cross-line evidence",
+     ("nlmeans_h_per_km", "nlmeans_rho_km", "nlmeans_mode"),
+     ("recognition_pool_h_per_km", "recognition_pool_rho_km")),
+    ("filtering", "Filtering and the posterior std",
+     ("smoother", "fir_cutoff_period_s"),
+     ("fir_gap_max_error_mgal", "q_from_posteriors", "std_level_factor", "std_repeat_min_samples",
+      "std_repeat_significance", "std_state_mixture", "std_unresolved_bound", "std_common_level", "std_crossover_check",
+      "std_crossover_min_n", "std_crossover_min_n_widen", "std_crossover_min_factor", "std_crossover_shared_fraction",
+      "rescale_noisy_passes")),
+    ("choice", "Model choice: flattened and noisy estimates, FIR guard, test lines",
+     ("fir_guard", "flatten_check", "repeat_blend"),
+     ("choice_min_crossovers", "flatten_min_ratio", "noisy_max_ratio", "noisy_max_disagreement", "fir_long_periods_s",
+      "fir_long_max_error_ratio", "fir_guard_smoothing_std", "fir_guard_min_crossovers", "fir_guard_p",
+      "repeat_blend_reference_period_s", "repeat_blend_reference_periods", "repeat_blend_min_passes",
+      "repeat_level_check", "repeat_level_factor", "repeat_level_significance")),
+    ("leveling", "Leveling at the crossovers",
+     ("leveling_degree", "leveling_per_flight", "leveling_significance"),
+     ("leveling_cross_validate", "leveling_cv_significance", "leveling_cv_significance_untied",
+      "leveling_offset_fallback", "leveling_max_height_difference_m", "leveling_include_repeat")),
+    ("gridding", "Gridding and the grid std",
+     ("grid_spacing_km", "gridding", "grid_mask_km"),
+     ("grid_line_error_fraction", "grid_std_line_floor", "grid_std_cross_validate", "grid_error_corr_km")),
+    ("products", "Products: atmosphere, datum, terrain and Bouguer",
+     ("atmospheric_correction", "datum", "datum_height_m", "bouguer_density_kgm3"),
+     ("datum_smoothing_m", "terrain_radius_m", "terrain_near_radius_m", "dem_spacing_m", "dem_height_offset_m")),
+)
+#: name prefix → group, for a parameter no group lists (first match wins; advanced)
+PARAM_GROUP_PREFIXES: tuple[tuple[str, str], ...] = (
+    ("noise_", "noise"), ("lag_", "measurement"), ("time_offset", "measurement"), ("despike", "measurement"),
+    ("gnss_", "measurement"), ("gravimeter_", "measurement"), ("band_delay", "measurement"), ("em_", "identification"),
+    ("refine_", "identification"), ("nlmeans_", "recognition"), ("recognition_", "recognition"), ("std_", "filtering"),
+    ("fir_guard", "choice"), ("repeat_", "choice"), ("flatten", "choice"), ("noisy_", "choice"), ("fir_", "filtering"),
+    ("order", "order"), ("decimation", "regularization"), ("ma_order", "regularization"), ("leveling", "leveling"),
+    ("grid", "gridding"), ("datum", "products"), ("terrain", "products"), ("dem_", "products"), ("bouguer", "products"),
+    ("atmospher", "products"),
+)
+
+
+def param_groups(model: type[BaseModel] = ProcessingParams) -> list[dict]:
+    """The parameters of ``model`` by group: ``[{key, title, common: [...], advanced: [...]}]``, in
+    :data:`PARAM_GROUPS`' order and each list in the model's field order, every field in exactly
+    one group (by :data:`PARAM_GROUPS`, then its name's prefix, else ``other``); empty groups left out."""
+    where: dict[str, tuple[str, bool]] = {}
+    for key, _, common, advanced in PARAM_GROUPS:
+        where.update({n: (key, True) for n in common})
+        where.update({n: (key, False) for n in advanced})
+    groups = {key: {"key": key, "title": title, "common": [], "advanced": []} for key, title, _, _ in PARAM_GROUPS}
+    groups["other"] = {"key": "other", "title": "Other parameters", "common": [], "advanced": []}
+    for name in model.model_fields:
+        key, common = where.get(name) or (next((g for p, g in PARAM_GROUP_PREFIXES if name.startswith(p)), "other"), False)
+        groups[key]["common" if common else "advanced"].append(name)
+    return [g for g in groups.values() if g["common"] or g["advanced"]]

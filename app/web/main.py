@@ -37,7 +37,7 @@ from sqlalchemy.exc import OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.routing import Match, Mount
 
-from app.config import ProcessingParams
+from app.config import ProcessingParams, param_groups
 from app.io.errors import InputError
 
 from .db import session_factory
@@ -366,9 +366,10 @@ def _add_api_routes(app: FastAPI, settings: Settings, store: Store, Session, job
 
     @app.get("/api/params/schema", tags=["params"], response_model=ParamsSchemaOut)
     def params_schema() -> ParamsSchemaOut:
-        """ProcessingParams: JSON schema with defaults and descriptions (for the parameters form)."""
+        """ProcessingParams: JSON schema with defaults and descriptions, and the parameters grouped by
+        pipeline stage (common ones and advanced ones), for the parameters form."""
         return ParamsSchemaOut(json_schema=ProcessingParams.model_json_schema(),
-                               defaults=ProcessingParams().model_dump())
+                               defaults=ProcessingParams().model_dump(), groups=param_groups())
 
     storage_report = _storage_reporter(settings, store, Session)
 

@@ -215,10 +215,19 @@ class HealthOut(Out):
     storage: StorageOut
 
 
+class ParamGroup(Out):
+    key: str
+    title: str
+    common: list[str] = Field(..., description="Parameters shown at once")
+    advanced: list[str] = Field(..., description="Parameters folded under 'advanced'")
+
+
 class ParamsSchemaOut(Out):
     model_config = ConfigDict(populate_by_name=True)
     json_schema: dict[str, Any] = Field(..., alias="schema", description="JSON schema of ProcessingParams")
     defaults: dict[str, Any]
+    groups: list[ParamGroup] = Field(default_factory=list, description="Every parameter in exactly one group, by "
+                                     "pipeline stage (app.config.param_groups)")
 
 
 class RecognitionOut(Out):

@@ -15,31 +15,43 @@ function fieldInfo(prop) {
     min: p.minimum ?? p.exclusiveMinimum, max: p.maximum ?? p.exclusiveMaximum, title: prop.title, description: prop.description };
 }
 
-function buildForm(schema, defaults) {
-  const grid = el("div", { class: "params" });
-  for (const [name, prop] of Object.entries(schema.properties)) {
-    const f = fieldInfo(prop);
-    const def = defaults[name];
-    let input;
-    if (f.enum) {
-      input = el("select", { name }, f.enum.map((v) => el("option", { value: v, selected: v === def }, v)));
-    } else if (f.type === "boolean") {
-      input = el("input", { type: "checkbox", name, checked: !!def });
-    } else if (f.type === "array") {
-      // e.g. a frequency band: numbers separated by commas
-      input = el("input", { type: "text", name, value: Array.isArray(def) ? def.join(", ") : "",
-        placeholder: "comma-separated numbers" });
-    } else {
-      input = el("input", { type: "number", name, step: f.type === "integer" ? 1 : "any", min: f.min, max: f.max,
-        value: def ?? "", placeholder: def === null ? "auto" : "" });
-    }
-    input.dataset.default = JSON.stringify(def);
-    input.dataset.kind = f.enum ? "enum" : f.type;
-    const range = f.min !== undefined || f.max !== undefined ? ` [${f.min ?? "−∞"} … ${f.max ?? "∞"}]` : "";
-    grid.append(el("label", {}, el("span", { class: "name" }, name), " ", input,
-      el("span", { class: "desc" }, (f.description || "") + (def === null ? " (auto when empty)" : ` (default ${def})`) + range)));
+function paramField(name, prop, def) {
+  const f = fieldInfo(prop);
+  let input;
+  if (f.enum) {
+    input = el("select", { name }, f.enum.map((v) => el("option", { value: v, selected: v === def }, v)));
+  } else if (f.type === "boolean") {
+    input = el("input", { type: "checkbox", name, checked: !!def });
+  } else if (f.type === "array") {
+    // e.g. a frequency band: numbers separated by commas
+    input = el("input", { type: "text", name, value: Array.isArray(def) ? def.join(", ") : "",
+      placeholder: "comma-separated numbers" });
+  } else {
+    input = el("input", { type: "number", name, step: f.type === "integer" ? 1 : "any", min: f.min, max: f.max,
+      value: def ?? "", placeholder: def === null ? "auto" : "" });
   }
-  return grid;
+  input.dataset.default = JSON.stringify(def);
+  input.dataset.kind = f.enum ? "enum" : f.type;
+  const range = f.min !== undefined || f.max !== undefined ? ` [${f.min ?? "−∞"} … ${f.max ?? "∞"}]` : "";
+  return el("label", {}, el("span", { class: "name" }, name), " ", input,
+    el("span", { class: "desc" }, (f.description || "") + (def === null ? " (auto when empty)" : ` (default ${def})`) + range));
+}
+
+// The parameters by pipeline stage (the server's groups: common ones shown, advanced ones folded);
+// a parameter of the schema in no group (an older server, a new field) goes to "Other": none is left out.
+export function buildForm(schema, defaults, groups = []) {
+  const names = Object.keys(schema.properties);
+  const placed = new Set(groups.flatMap((g) => [...g.common, ...g.advanced]));
+  const loose = names.filter((n) => !placed.has(n));
+  const all = [...groups, ...(loose.length ? [{ key: "unlisted", title: "Other parameters", common: [], advanced: loose }] : [])];
+  const grid = (list) => el("div", { class: "params" }, list.filter((n) => schema.properties[n]).map((n) => paramField(n, schema.properties[n], defaults[n])));
+  return el("div", { class: "param-groups" }, all.map((g) => {
+    const common = g.common.filter((n) => schema.properties[n]), advanced = g.advanced.filter((n) => schema.properties[n]);
+    if (!common.length && !advanced.length) return null;
+    return el("fieldset", { class: "param-group", "data-group": g.key }, el("legend", {}, g.title),
+      common.length ? grid(common) : null,
+      advanced.length ? el("details", { class: "advanced" }, el("summary", {}, `Advanced (${advanced.length})`), grid(advanced)) : null);
+  }));
 }
 
 function collectParams(form) {
@@ -190,7 +202,7 @@ export async function render(sec, ctx) {
   const reset = el("button", { type: "button" }, "Reset to defaults");
   form.append(el("div", { class: "controls" }, el("label", {}, "Job ", kind), run, reset),
     el("details", {}, el("summary", {}, "Processing parameters (defaults shown; only changed values are sent)"),
-      buildForm(schemaCache.schema, schemaCache.defaults)));
+      buildForm(schemaCache.schema, schemaCache.defaults, schemaCache.groups)));
   // the submit's own message (a 409 while a job runs) outside the job box, which the watcher redraws
   const submitMsg = el("div", { id: "submit-msg" });
   form.append(submitMsg);
@@ -220,14 +232,17 @@ export async function render(sec, ctx) {
       }))) : el("p", { class: "note" }, "none"));
   };
 
-  reset.addEventListener("click", () => { sec.querySelector("details").replaceChildren(el("summary", {}, "Processing parameters"), buildForm(schemaCache.schema, schemaCache.defaults)); });
+  reset.addEventListener("click", () => {
+    const box = sec.querySelector("#params-form > details");
+    box.replaceChildren(box.querySelector("summary"), buildForm(schemaCache.schema, schemaCache.defaults, schemaCache.groups));
+  });
   // a parameter out of its range inside the closed "Processing parameters" block: the browser refused
   // the submit without a word ("not focusable"); open the block, name the fields, point at the first
   run.addEventListener("click", (ev) => {
     const bad = [...form.querySelectorAll(".params input, .params select")].filter((i) => !i.checkValidity());
     if (!bad.length) return;
     ev.preventDefault();
-    sec.querySelector("#params-form details").open = true;
+    for (const i of bad) for (let d = i.closest("details"); d; d = d.parentElement.closest("details")) d.open = true;
     showError(jobBox, new Error("Not started — fix these parameters: " +
       bad.map((i) => `${i.name} (${i.validationMessage})`).join("; ")));
     bad[0].reportValidity();
