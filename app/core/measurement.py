@@ -77,6 +77,61 @@ def height_velocity_misfit_m(t_s, h_m, vu_ms) -> np.ndarray:
     return h - h[0] - integral
 
 
+def height_rate_ratio(t_s, h_m, vu_ms, window_s: float = 2.0,
+                      min_rms_m: float = 0.1) -> tuple[float, float, int]:
+    """How the GNSS heights move against the integral of the GNSS vertical velocity.
+
+    Over consecutive windows of about ``window_s`` the height change ``Δh`` and the
+    velocity's integral ``ΔI = ∫ vu dt`` (trapezoid rule) are the same motion when ``vu``
+    is ``dh/dt``: the least-squares slope ``b = Σ Δh·ΔI / Σ ΔI²`` is 1 and the two are
+    correlated almost perfectly wherever the aircraft moves vertically (climbs, descents,
+    turbulence: metres, beside centimetres of GNSS error).  ``b ≈ −1`` says ``vu`` is
+    positive *down* (a NED ``vd`` exported as ``vu``); ``b ≈ 3.281`` heights in feet beside
+    a velocity in m/s, ``b ≈ 0.3048`` the reverse.  Windows that hold a record gap (a span
+    over 1.5 × their nominal length) or a NaN are skipped.
+
+    Parameters
+    ----------
+    t_s, h_m, vu_ms : ndarray, shape (n,)
+        One GNSS record: times strictly increasing (s), heights (m, or whatever unit the
+        file has), vertical velocity (m/s as the file says, up).
+    window_s : float
+        Window length (s).
+    min_rms_m : float
+        Below this RMS of ``ΔI`` (m) the record moves too little vertically to tell.
+
+    Returns
+    -------
+    (float, float, int)
+        ``b`` (dimensionless: height unit per metre of integrated velocity), the correlation
+        coefficient of ``Δh`` and ``ΔI``, and the number of windows used; ``b`` and the
+        correlation are NaN when fewer than 10 windows are usable or the motion is below
+        ``min_rms_m``.
+    """
+    t = np.asarray(t_s, dtype=float)
+    h = np.asarray(h_m, dtype=float)
+    v = np.asarray(vu_ms, dtype=float)
+    if not (t.shape == h.shape == v.shape) or t.ndim != 1:
+        raise ValueError("t_s, h_m and vu_ms must be 1-D arrays of one shape")
+    nan = (float("nan"), float("nan"), 0)
+    if t.size < 4:
+        return nan
+    step = float(np.median(np.diff(t)))
+    n = max(1, int(round(window_s / step)))
+    integral = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+    i0 = np.arange(0, t.size - n, n)
+    i1 = i0 + n
+    dh = h[i1] - h[i0]
+    di = integral[i1] - integral[i0]
+    ok = (t[i1] - t[i0] <= 1.5 * n * step) & np.isfinite(dh) & np.isfinite(di)
+    dh, di = dh[ok], di[ok]
+    if dh.size < 10 or not np.sqrt(np.mean(di ** 2)) >= min_rms_m:
+        return nan
+    b = float(np.sum(dh * di) / np.sum(di ** 2))
+    corr = float(np.corrcoef(dh, di)[0, 1])
+    return b, corr, int(dh.size)
+
+
 def anomaly_measurement_mgal(fbar_ms2, t_s, vu_ms, gamma_mgal, eotvos_mgal) -> np.ndarray:
     """Free-air anomaly measurement ``z_k`` at every GNSS epoch (mGal).
 

@@ -52,6 +52,7 @@ from pydantic import ValidationError
 
 from app.config import F_Z_UNIT_TO_MS2, SurveyConfig, check_name
 from app.core.geodesy import path_length_km, step_lengths_km, vertical_velocity_from_heights_ms
+from app.core.measurement import height_rate_ratio
 from app.io.dgs import read_dgs, sniff_dat
 from app.io.errors import InputError
 from app.io.gfile import is_gfile_name, read_gfile
@@ -548,6 +549,44 @@ def derive_vu_from_h(df: pd.DataFrame, rows: np.ndarray, display: str, max_gap_s
     return vu
 
 
+#: height change per metre of integrated vu (:func:`app.core.measurement.height_rate_ratio`) of a
+#: file whose heights are in feet and velocities in m/s
+FEET_PER_METRE = 1.0 / 0.3048
+
+
+def check_vu_against_heights(df: pd.DataFrame, display: str, min_corr: float = 0.9) -> None:
+    """``vu`` must be the rate of change of ``h`` (m/s, up); checked on the record's own heights.
+
+    Where the record moves vertically enough to tell (:func:`app.core.measurement.height_rate_ratio`,
+    height changes against ∫vu dt, correlation beyond ``min_corr`` in magnitude):
+    ``vu`` running against the heights at the same rate (slope −1 ± 15 %) is a positive-down
+    velocity (NED ``vd`` exported as ``vu``): its sign is flipped in place, with a warning;
+    any other slope outside 0.7–1.4 is an ``InputError`` (column ``h``) naming it — feet
+    (slope 3.28: h in ft, vu in m/s; 0.305: the reverse) or another unit.  Without enough
+    vertical motion, or without the correlation, nothing is said."""
+    b, corr, n = height_rate_ratio(df["time"].to_numpy(float), df["h"].to_numpy(float),
+                                   df["vu"].to_numpy(float))
+    if not (np.isfinite(b) and abs(corr) >= min_corr):
+        return
+    if 0.7 <= b <= 1.4:
+        return
+    what = f"the heights change {b:.4g} × the integral of vu (∫vu dt over {n} windows of ~2 s, " \
+           f"correlation {corr:.3f})"
+    if -1.15 <= b <= -0.85:
+        df["vu"] = -df["vu"]
+        warnings.warn(f"{display}: {what}: vu is positive down (a NED vd exported as vu?); its sign was flipped to make it "
+                      "up, as SPEC's vu is (the aircraft's vertical acceleration would otherwise enter z twice "
+                      "over)", stacklevel=2)
+        return
+    for ratio, hint in ((FEET_PER_METRE, "h looks like feet beside a vu in m/s"),
+                        (1.0 / FEET_PER_METRE, "vu looks like ft/s beside an h in metres")):
+        if abs(b / ratio - 1.0) < 0.05:
+            raise InputError(display, None, "h", f"{what}: {hint}; SPEC's GNSS file has h in metres "
+                             "(ellipsoidal) and vu in m/s, up — convert the column")
+    raise InputError(display, None, "h", f"{what}; vu must be dh/dt (h in metres, vu in m/s, up): "
+                     "a unit or sign of h or vu is not SPEC's")
+
+
 def finish_gnss(df: pd.DataFrame, rows: np.ndarray, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, bool]:
     """Validate a parsed GNSS table (any file format) and derive ``vu`` when absent.
 
@@ -573,6 +612,8 @@ def finish_gnss(df: pd.DataFrame, rows: np.ndarray, display: str, config: Survey
     derived = "vu" not in df
     if derived:
         df.insert(4, "vu", derive_vu_from_h(df, rows, display, p.max_gap_s))
+    else:
+        check_vu_against_heights(df, display)
     cols = [c for c in ("time", "lat", "lon", "h", "vu", "ve", "vn", "sigma_v") if c in df]
     return df[cols].reset_index(drop=True), derived
 

@@ -1,0 +1,76 @@
+"""GNSS files whose vu is not SPEC's (m/s, up, = dh/dt): told from the file's own heights.
+
+The truth is analytic: heights ``h = 3000 + A sin(ω τ)`` and the velocity ``A ω cos(ω τ)``; the
+exports tried are the ones receivers' software writes — a NED ``vd`` (positive down) in the vu
+column, heights in feet beside a velocity in m/s, a velocity in ft/s beside heights in metres.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from app.core.measurement import height_rate_ratio
+from app.io.errors import InputError
+from app.io.survey import read_survey
+from tests.io.test_io_survey import T0, make_tables, write_survey
+
+A_M, OMEGA = 5.0, 2 * np.pi / 20.0   # a 20 s phugoid of ±5 m
+FT = 0.3048                           # m per international foot
+
+
+def _survey(tmp_path, h_factor=1.0, vu_factor=1.0):
+    lines, tabs = make_tables()
+    grav, gnss = tabs["F1"]
+    x = gnss["time"].to_numpy() - T0
+    gnss = gnss.copy()
+    gnss["h"] = (3000.0 + A_M * np.sin(OMEGA * x)) * h_factor
+    gnss["vu"] = A_M * OMEGA * np.cos(OMEGA * x) * vu_factor
+    return write_survey(tmp_path / "s", lines, {"F1": (grav, gnss)}), x
+
+
+def test_ratio_of_heights_to_integrated_velocity():
+    t = np.arange(0.0, 600.0, 0.1)
+    h = 3000.0 + A_M * np.sin(OMEGA * t)
+    v = A_M * OMEGA * np.cos(OMEGA * t)
+    b, corr, n = height_rate_ratio(t, h, v)
+    assert n == 299                                    # 2 s windows: 20 GNSS steps each
+    assert b == pytest.approx(1.0, abs=1e-3) and corr > 0.999
+    assert height_rate_ratio(t, h, -v)[0] == pytest.approx(-1.0, abs=1e-3)
+    assert height_rate_ratio(t, h / FT, v)[0] == pytest.approx(1 / FT, rel=1e-3)
+    # a level flight with centimetric velocity noise moves too little to tell
+    rng = np.random.default_rng(0)
+    b, corr, _ = height_rate_ratio(t, 3000.0 + 0 * t, 0.01 * rng.standard_normal(t.size))
+    assert np.isnan(b) and np.isnan(corr)
+
+
+def test_consistent_velocity_is_kept(tmp_path):
+    root, x = _survey(tmp_path)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        s = read_survey(root)
+    np.testing.assert_allclose(s.flights["F1"].gnss["vu"].to_numpy(), A_M * OMEGA * np.cos(OMEGA * x), atol=1e-12)
+    assert not [w for w in caught if "integral of vu" in str(w.message)]
+
+
+def test_positive_down_velocity_is_flipped_with_a_warning(tmp_path):
+    root, x = _survey(tmp_path, vu_factor=-1.0)
+    with pytest.warns(UserWarning, match="vu is positive down"):
+        s = read_survey(root)
+    np.testing.assert_allclose(s.flights["F1"].gnss["vu"].to_numpy(), A_M * OMEGA * np.cos(OMEGA * x), atol=1e-12)
+    assert any("flights/F1/gnss.csv: the heights change -1 × the integral of vu" in n for n in s.notes)
+
+
+@pytest.mark.parametrize("h_factor, vu_factor, says", [(1 / FT, 1.0, "h looks like feet beside a vu in m/s"),
+                                                        (1.0, 1 / FT, "vu looks like ft/s beside an h in metres"),
+                                                        (1.0, 2.0, "a unit or sign of h or vu is not SPEC's")])
+def test_other_units_are_refused(tmp_path, h_factor, vu_factor, says):
+    root, _ = _survey(tmp_path, h_factor=h_factor, vu_factor=vu_factor)
+    with pytest.raises(InputError) as exc:
+        read_survey(root)
+    e = exc.value
+    assert (e.file, e.column) == ("flights/F1/gnss.csv", "h")
+    assert says in e.message
+    assert f"{h_factor / vu_factor:.4g} × the integral of vu" in e.message
