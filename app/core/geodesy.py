@@ -219,6 +219,50 @@ def horizontal_velocity_misfit_ms(t_s, lat_deg, lon_deg, h_m, ve_ms, vn_ms,
     return float(np.median(speed[use])), float(np.median(diff)), int(use.sum())
 
 
+def heading_departures(t_s, ve_ms, vn_ms, max_deg: float = 30.0, min_speed_ms: float = 5.0) -> dict:
+    """Where a survey line's track leaves the line's own heading (a turn inside its window).
+
+    The line's heading is that of the sum of the unit velocity vectors of its moving epochs
+    (the direction it is mostly flown in); an epoch departs when its heading (from ``ve``,
+    ``vn``) differs from it by more than ``max_deg``.  A straight line flown through turbulence
+    departs by a few degrees; a procedure turn at a line end by up to 180°.
+
+    Parameters
+    ----------
+    t_s, ve_ms, vn_ms : ndarray, shape (n,)
+        The line's epochs (s) and horizontal velocity (m/s, east and north).
+    max_deg : float
+        Departure (degrees) beyond which an epoch is off the line's heading.
+    min_speed_ms : float
+        Epochs slower than this (m/s) have no heading and are ignored.
+
+    Returns
+    -------
+    dict
+        ``seconds``: total duration (s) of the departing epochs (each counts its GNSS step);
+        ``max_deg``: the largest departure (degrees, 0–180); ``first_s``, ``last_s``: the first
+        and last departing epoch times (NaN when none).
+    """
+    t = np.asarray(t_s, dtype=float)
+    ve = np.asarray(ve_ms, dtype=float)
+    vn = np.asarray(vn_ms, dtype=float)
+    speed = np.hypot(ve, vn)
+    moving = np.isfinite(speed) & (speed >= min_speed_ms)
+    none = {"seconds": 0.0, "max_deg": 0.0, "first_s": float("nan"), "last_s": float("nan")}
+    if moving.sum() < 2:
+        return none
+    ue, un = ve[moving] / speed[moving], vn[moving] / speed[moving]
+    mean_heading = np.arctan2(ue.sum(), un.sum())
+    dev = np.abs(np.rad2deg(np.angle(np.exp(1j * (np.arctan2(ue, un) - mean_heading)))))
+    off = dev > max_deg
+    if not off.any():
+        return {**none, "max_deg": float(dev.max())}
+    step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    tm = t[moving][off]
+    return {"seconds": float(off.sum() * step), "max_deg": float(dev.max()), "first_s": float(tm[0]),
+            "last_s": float(tm[-1])}
+
+
 def vertical_velocity_from_heights_ms(t_s, h_m):
     """Vertical velocity (m/s, up) of one contiguous GNSS run from its heights alone.
 

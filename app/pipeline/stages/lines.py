@@ -147,13 +147,40 @@ def crs_warning(crs: str, lines: list) -> str | None:
             "nlmeans_rho_km and the products' distances are off by that much")
 
 
+#: a line epoch whose heading departs from its line's by more than this (degrees) is off the line
+TURN_DEPARTURE_DEG = 30.0
+#: off-line seconds in a window beyond which a warning names the line (a few gusts are not a turn)
+TURN_MIN_S = 5.0
+
+
+def turn_warnings(lines: list[LineData], flights: dict[str, FlightMeasurement]) -> list[str]:
+    """A warning per line whose window holds more than :data:`TURN_MIN_S` s flown more than
+    :data:`TURN_DEPARTURE_DEG` off the line's heading (:func:`app.core.geodesy.heading_departures`):
+    a turn inside the window (lines.csv's t_start/t_end reaching into the turn), where a
+    stabilised platform is not level and the anomaly is not measured on the line."""
+    out = []
+    for ln in lines:
+        m = flights[ln.flight]
+        d = geodesy.heading_departures(ln.t_s, m.ve_ms[ln.sl], m.vn_ms[ln.sl], TURN_DEPARTURE_DEG)
+        if d["seconds"] > TURN_MIN_S:
+            where = ("at its start" if d["last_s"] - ln.t_s[0] < 0.5 * (ln.t_s[-1] - ln.t_s[0]) else
+                     "at its end" if d["first_s"] - ln.t_s[0] > 0.5 * (ln.t_s[-1] - ln.t_s[0]) else "inside it")
+            out.append(f"line {ln.line} (flight {ln.flight}): {d['seconds']:.0f} s of its window, "
+                       f"{d['first_s']:.1f}–{d['last_s']:.1f} s ({where}), are flown more than "
+                       f"{TURN_DEPARTURE_DEG:g}° off the line's heading (up to {d['max_deg']:.0f}°): a turn inside "
+                       "the line window? A turn's platform and Eötvös errors enter dg and the crossovers; check "
+                       "t_start/t_end in lines.csv")
+    return out
+
+
 def survey_lines(survey, measurement) -> SurveyLines:
     """Stage 2 on a survey and its :class:`~app.pipeline.stages.measurement.Measurement`."""
     crs = survey_crs(survey.config, measurement.flights)
     lines = cut_lines(survey.lines, measurement.flights, crs)
     check_grid_size(lines, survey.config.processing)
     warn = crs_warning(crs, lines) if survey.config.survey.crs else None
-    return SurveyLines(crs, lines, infer_repeat_tracks(lines), [warn] if warn else [])
+    return SurveyLines(crs, lines, infer_repeat_tracks(lines),
+                       ([warn] if warn else []) + turn_warnings(lines, measurement.flights))
 
 
 def line_crossovers(lines: list[LineData], include_repeat: bool, values=None, std_mgal: float = 0.0) -> pd.DataFrame:
