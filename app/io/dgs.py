@@ -41,8 +41,9 @@ across a week rollover.  The survey's GNSS times must be on the same scale;
 seconds of day, a known filter delay).  When it is None, the survey reader
 adds the whole number of days that best puts the records inside the GNSS time
 range (as for G files: GPS seconds of week or since the epoch, or seconds of
-day, all match; a GNSS on UTC keeps the leap seconds, which the pipeline's lag
-estimate cannot absorb — declare the offset).  Records without the GPS fields
+day, all match; a GNSS on UTC keeps the leap seconds, which the pipeline's
+gravimeter–GNSS time-offset estimate, searched over ±``max_time_offset_s`` = 60 s,
+finds and removes: −18.05 s on the sample survey, its result unchanged).  Records without the GPS fields
 (8 per line) have no time of their own: the survey needs ``gravimeter.rate_hz``
 and ``gravimeter.time_offset_s`` (the survey time of the first record), and the
 records are taken as contiguous at that rate.
@@ -184,6 +185,11 @@ def _read_records(path: Path, display: str) -> tuple[pd.DataFrame, np.ndarray]:
         raise InputError(display, int(rows[0]), None,
                          f"a DGS record has 8 fields (gravity, long_accel, cross_accel, beam, temp, status, pressure, "
                          f"Etemp), 10 with GPS week and seconds, or 11 with a counter; this one has {n}")
+    if counts[-1] < n and len(data_lines) > 2 and not (counts[:-1] != n).any():
+        # the logger stopped (or the file was copied while written) in the middle of the last record
+        warnings.warn(f"{display}: the last record (row {int(rows[-1])}) has {int(counts[-1])} of the {n} fields: "
+                      "cut short when the recording stopped, dropped", stacklevel=3)
+        data_lines, rows, counts = data_lines[:-1], rows[:-1], counts[:-1]
     bad = np.flatnonzero(counts != n)
     if bad.size:
         k = int(bad[0])

@@ -128,6 +128,12 @@ def _read_raw(path: Path, display: str) -> tuple[pd.DataFrame, np.ndarray]:
         nz = np.flatnonzero(~empty)
         n = int(nz[-1]) + 1 if nz.size else 0
         df = df.iloc[:n].reset_index(drop=True)
+    if n > 2 and pd.isna(df["checksum"].iloc[-1]) and df["checksum"].iloc[:-1].notna().all():
+        # the logger stopped (or the file was copied while written) in the middle of the last message: its
+        # last fields are missing and the one before them may be cut too
+        warnings.warn(f"{display}: the last message (row {n + 1}) is cut short (no checksum): dropped", stacklevel=3)
+        n -= 1
+        df = df.iloc[:n]
     if n < 2:
         raise InputError(display, None, None, f"the G file has {n} message(s); at least 2 needed")
     return df, np.arange(2, n + 2, dtype=np.int64)

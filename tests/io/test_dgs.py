@@ -242,3 +242,20 @@ def test_records_without_gps_time_in_a_survey_need_rate_and_offset(tmp_path):
                                                 "time_offset_s = 7000.0\n")
     g = read_survey(tmp_path / "s").flights["F1"].gravimeter
     np.testing.assert_allclose(g["time"], tn, rtol=0, atol=1e-9)
+
+
+def test_last_record_cut_short_is_dropped_with_a_warning(tmp_path):
+    lines, grav, sow = records(30)
+    lines[-1] = lines[-1][: len(lines[-1]) // 2]          # the logger stopped mid-record
+    p = write(tmp_path / "a.dat", lines)
+    with pytest.warns(UserWarning, match=r"the last record \(row 30\) has 5 of the 10 fields: cut short"):
+        df = read_dgs(p, reading_offset_mgal=978000.0)
+    assert df["time"].tolist() == sow[:29].tolist()
+    np.testing.assert_allclose(df["gravity_mgal"], grav[:29], rtol=0, atol=0)
+
+
+def test_a_short_record_inside_the_file_is_still_an_error(tmp_path):
+    lines, _, _ = records(30)
+    lines[10] = lines[10][: len(lines[10]) // 2]
+    with pytest.raises(InputError, match="this record has 5 fields, the first"):
+        read_dgs(write(tmp_path / "a.dat", lines))

@@ -243,3 +243,30 @@ def test_two_g_files_in_a_flight_is_an_error(tmp_path):
     with pytest.raises(InputError) as ei:
         read_survey(tmp_path / "s")
     assert ei.value.file == "flights/F1/" and "A.G" in str(ei.value) and "G2.dat" in str(ei.value)
+
+
+@pytest.mark.parametrize("keep", [9, 17])   # cut inside the x channel (its value cut too), or before the checksum
+def test_last_message_cut_short_is_dropped_with_a_warning(tmp_path, keep):
+    msgs, t_end = make_messages(50, t0_sod=3600.0 * 5)
+    p = tmp_path / "flight.G"
+    write_g(p, msgs)
+    lines = p.read_text().rstrip("\n").split("\n")
+    fields = lines[-1].split(" ")
+    lines[-1] = " ".join(fields[:keep - 1] + [fields[keep - 1][:3]])    # the logger stopped mid-field
+    p.write_text("\n".join(lines))
+    with pytest.warns(UserWarning, match=r"the last message \(row 51\) is cut short \(no checksum\): dropped"):
+        df = read_gfile(p)
+    assert len(df) == 2 * 49
+    np.testing.assert_allclose(df["f_z"], interleave(msgs["fz1"][:49], msgs["fz2"][:49]), rtol=0, atol=1e-14)
+
+
+def test_a_short_message_inside_the_file_is_still_an_error(tmp_path):
+    msgs, _ = make_messages(50, t0_sod=3600.0 * 5)
+    p = tmp_path / "flight.G"
+    write_g(p, msgs)
+    lines = p.read_text().split("\n")
+    lines[20] = " ".join(lines[20].split(" ")[:10])
+    p.write_text("\n".join(lines))
+    with pytest.raises(InputError) as exc:
+        read_gfile(p)
+    assert exc.value.row == 21
