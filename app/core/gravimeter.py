@@ -483,6 +483,11 @@ class TimeOffsetFit:
         the band's effective number of independent samples ``2·B·T``.
     cost_zero, cost_min : float
         Mean square band-passed residual (m²/s⁴) with no offset and at the estimate.
+    gain : float
+        How many m/s² of the aligned band-passed gravimeter specific force one m/s² of GNSS
+        acceleration is: the inverse of the least-squares slope of the GNSS acceleration on the
+        gravimeter's, whose band holds far less noise (dimensionless, ≈ 1: both are the aircraft's
+        acceleration; 0.3048 when the GNSS heights and velocities are in feet).
     """
 
     offset_s: float
@@ -490,6 +495,7 @@ class TimeOffsetFit:
     se_s: float
     cost_zero: float
     cost_min: float
+    gain: float = float("nan")
 
     @property
     def relative_improvement(self) -> float:
@@ -573,13 +579,16 @@ def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 
     off = float(res.x)
     g = grav_bp(off)
     corr = float(np.corrcoef(g, acc_bp)[0, 1])
+    # the GNSS acceleration carries the noise (differenced velocities or heights), the gravimeter's
+    # band-passed force hardly any: regress the former on the latter, so its noise does not bias
+    gain = float(np.sum(g * g) / np.sum(g * acc_bp))
     c_min = cost(off)
     # curvature of the residual variance by a central difference (a tenth of a GNSS step)
     h = 0.1 * dt
     curv = (cost(off + h) - 2.0 * c_min + cost(off - h)) / (h * h)
     n_eff = max(2.0 * (hi - lo) * (t[sl][-1] - t[sl][0]), 1.0)
     se = float(np.sqrt(2.0 * c_min / (n_eff * curv))) if curv > 0 else float("inf")
-    return TimeOffsetFit(off, corr, se, cost(0.0), c_min)
+    return TimeOffsetFit(off, corr, se, cost(0.0), c_min, gain)
 
 
 def fill_nan(x):

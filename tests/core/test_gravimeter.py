@@ -293,3 +293,21 @@ def test_motion_compensated_means_with_lag_and_scale():
     assert np.allclose(mc[1:], g0, atol=1e-9)
     with pytest.raises(ValueError):
         gm.motion_compensated_means(series, t, np.zeros(3))
+
+
+@pytest.mark.parametrize("gnss_unit_m", [1.0, 0.3048])
+def test_time_offset_gain_is_the_gnss_unit(gnss_unit_m):
+    """The fit's gain is how many m/s² of gravimeter acceleration one GNSS unit is: 1 for a GNSS
+    in metres, 0.3048 for one whose velocities are in feet per second — even with 5 cm/s of
+    velocity noise (what a regression on the noisy GNSS side would bias low)."""
+    rng = np.random.default_rng(5)
+    freqs = rng.uniform(0.03, 0.8, 30)
+    amps = rng.uniform(0.02, 0.2, 30)
+    omegas, phases = 2 * np.pi * freqs, rng.uniform(0, 2 * np.pi, 30)
+    _, lagged_mean = _sin_lagged(amps, omegas, phases, 2.0, 1.0)
+    stamps, vals = _grav_samples(0.0, 1300.0, lagged_mean, offset=0.0)
+    series = gm.integrate_samples(stamps, vals + rng.normal(0, 2e-4, vals.size))
+    t = np.arange(100.0, 1200.0, 0.1)
+    v = sum(-A / w * np.cos(w * t + p) for A, w, p in zip(amps, omegas, phases)) + rng.normal(0, 0.05, t.size)
+    fit = gm.fit_time_offset(series, t, v / gnss_unit_m, tau_s=2.0, max_offset_s=5.0)
+    assert fit.gain == pytest.approx(gnss_unit_m, rel=0.01)

@@ -16,6 +16,7 @@ flight, the in-flight check of the declared lag, base ties to the parking-place 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -39,6 +40,7 @@ from app.core.measurement import (
     spike_mask,
 )
 from app.core.noise_level import band_fit_coefficient, band_rms_mgal, local_noise_variance_cm2s2
+from app.io.errors import InputError
 from app.io.survey import gnss_runs
 from app.io.tables import median_rate_hz
 
@@ -149,6 +151,7 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
         notes.append("vu derived from the GNSS heights (the file has no vu column): derivative of the not-a-knot "
                      "cubic spline through h, per contiguous run")
     offset_info = time_offset(series, t, vu, tau, k, p, notes)
+    check_acceleration_gain(flight, offset_info, notes)
     # the report's time_offsets section: the stamps the samples were integrated on
     offset_info["gravimeter_stamp_jitter_ms"] = 1e3 * largest_s
     offset_info["gravimeter_stamp_scatter_ms"] = 1e3 * scale_s
@@ -402,7 +405,7 @@ def time_offset(series, t, vu, tau: float, k: float, p, notes: list) -> dict:
         notes.append(f"time offset not estimated: {exc}")
         return {"estimated": False}
     offset, corr = fit.offset_s, fit.correlation
-    info = {"estimated": True, "offset_s": offset, "se_s": fit.se_s, "correlation": corr,
+    info = {"estimated": True, "offset_s": offset, "se_s": fit.se_s, "correlation": corr, "gain": fit.gain,
             "residual_reduction": fit.relative_improvement, "band_hz": [float(b) for b in band]}
     if not (np.isfinite(corr) and corr > 0.1):
         notes.append(f"the gravimeter's and the GNSS vertical accelerations do not match at any time offset "
@@ -425,6 +428,36 @@ def time_offset(series, t, vu, tau: float, k: float, p, notes: list) -> dict:
     if why:
         notes.append(f"time offset {offset:.4f} s not applied: {'; '.join(why)}")
     return info
+
+
+#: the gravimeter's acceleration per unit of the GNSS's when the GNSS heights (and velocities) are in
+#: feet: 0.3048 (m per foot); within ±3 % of it (clean surveys: 0.88–1.02) a flight is refused
+FEET_GAIN = 0.3048
+#: gains outside this range (the gravimeter's and the GNSS accelerations at different scales) are warned about
+PLAUSIBLE_GAIN = (0.7, 1.4)
+
+
+def check_acceleration_gain(flight, info: dict, notes: list) -> None:
+    """The gravimeter and the GNSS see the same aircraft acceleration, m/s² for m/s²: the gain of
+    the time-offset fit (:class:`app.core.gravimeter.TimeOffsetFit`) is 1 within ~12 % on clean
+    surveys (a 2 Hz platform's response: 0.88).  Where the two correlate (> 0.5), a gain of
+    0.3048 ± 3 % is GNSS heights in feet — with a vu in ft/s, or derived from them: no check of the
+    GNSS file alone sees it, and normal gravity then moves 0.31 mGal per foot of height (+2100 mGal
+    on the sample survey) — an ``InputError`` naming the GNSS file's ``h``; any other gain outside
+    :data:`PLAUSIBLE_GAIN` is a note (a unit of f_z, h or vu, or a response unlike survey.toml's)."""
+    gain, corr = float(info.get("gain", np.nan)), float(info.get("correlation", np.nan))
+    if not (np.isfinite(gain) and np.isfinite(corr) and corr > 0.5):
+        return
+    what = (f"the gravimeter's vertical acceleration is {gain:.4g} × the GNSS's (correlation {corr:.3f}, "
+            f"{info['band_hz'][0]:g}–{info['band_hz'][1]:.2g} Hz)")
+    if abs(gain / FEET_GAIN - 1.0) < 0.03:
+        raise InputError(f"flights/{flight.name}/{Path(flight.gnss_path).name}", None, "h",
+                         f"{what}: 0.3048 m per foot — the GNSS heights look like feet (and vu like ft/s, or "
+                         "derived from them); SPEC's GNSS file has h in metres (ellipsoidal) and vu in m/s")
+    if not PLAUSIBLE_GAIN[0] <= gain <= PLAUSIBLE_GAIN[1]:
+        notes.append(f"{what}, not 1: a unit of f_z, h or vu is not SPEC's, or the gravimeter's response is not "
+                     "the one survey.toml declares (tau_s, scale); z holds the difference times the aircraft's "
+                     "acceleration")
 
 
 def mask_gaps(z, t, t_grav, margin_s: float, notes: list) -> None:
