@@ -51,7 +51,13 @@ import pandas as pd
 from pydantic import ValidationError
 
 from app.config import F_Z_UNIT_TO_MS2, SurveyConfig, check_name
-from app.core.geodesy import path_length_km, step_lengths_km, vertical_velocity_from_heights_ms
+from app.core.geodesy import (
+    horizontal_velocity_misfit_ms,
+    path_length_km,
+    step_lengths_km,
+    velocities_from_positions_ms,
+    vertical_velocity_from_heights_ms,
+)
 from app.core.measurement import height_rate_ratio
 from app.io.dgs import read_dgs, sniff_dat
 from app.io.errors import InputError
@@ -587,6 +593,34 @@ def check_vu_against_heights(df: pd.DataFrame, display: str, min_corr: float = 0
                      "a unit or sign of h or vu is not SPEC's")
 
 
+def check_radian_positions(df: pd.DataFrame, display: str) -> None:
+    """lat/lon in radians (every |lat| ≤ π/2, |lon| ≤ 2π: a point off West Africa in degrees) are
+    told by the motion they give: with ``ve``/``vn``, positions that match the velocities when read
+    as radians (:func:`app.core.geodesy.horizontal_velocity_misfit_ms` within a quarter of the
+    speed) and not as degrees is an ``InputError`` (column ``lat``); without them a median speed
+    under 5 m/s by the positions is a warning (normal gravity at the wrong latitude is thousands of
+    mGal off, and a CRS chosen for the data does not see it)."""
+    lat, lon = df["lat"].to_numpy(float), df["lon"].to_numpy(float)
+    if len(df) < 10 or not (np.nanmax(np.abs(lat)) <= 0.5 * np.pi and np.nanmax(np.abs(lon)) <= 2.0 * np.pi):
+        return
+    t, h = df["time"].to_numpy(float), df["h"].to_numpy(float)
+    if "ve" in df and "vn" in df:
+        ve, vn = df["ve"].to_numpy(float), df["vn"].to_numpy(float)
+        speed, as_deg, n = horizontal_velocity_misfit_ms(t, lat, lon, h, ve, vn)
+        _, as_rad, _ = horizontal_velocity_misfit_ms(t, np.rad2deg(lat), np.rad2deg(lon), h, ve, vn)
+        if n >= 10 and as_rad < 0.25 * speed < as_deg:
+            raise InputError(display, None, "lat", f"read as degrees, the positions move {as_deg:.3g} m/s away from "
+                             f"ve/vn (median, at {speed:.3g} m/s); read as radians {as_rad:.2g} m/s: lat and lon "
+                             "look like radians; SPEC's GNSS file has them in degrees")
+        return
+    ve_p, vn_p = velocities_from_positions_ms(t, lat, lon, h)
+    med = float(np.nanmedian(np.hypot(ve_p, vn_p)))
+    if 0.0 < med < 5.0:
+        warnings.warn(f"{display}: every lat is within ±π/2 and every lon within ±2π, and the positions move at a "
+                      f"median {med:.2g} m/s: radians? SPEC's lat and lon are degrees (normal gravity, the Eötvös "
+                      "correction and every distance would be wrong)", stacklevel=3)
+
+
 def finish_gnss(df: pd.DataFrame, rows: np.ndarray, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, bool]:
     """Validate a parsed GNSS table (any file format) and derive ``vu`` when absent.
 
@@ -609,6 +643,7 @@ def finish_gnss(df: pd.DataFrame, rows: np.ndarray, display: str, config: Survey
     check_range(df, "lon", -180.0, 360.0, rows, display, "longitude")
     check_rate(df["time"].to_numpy(), display, p.gnss_rate_hz, p.rate_tolerance, "GNSS", "processing.gnss_rate_hz",
                sanity_hz=GNSS_RATE_SANITY_HZ)
+    check_radian_positions(df, display)
     derived = "vu" not in df
     if derived:
         df.insert(4, "vu", derive_vu_from_h(df, rows, display, p.max_gap_s))

@@ -74,3 +74,27 @@ def test_other_units_are_refused(tmp_path, h_factor, vu_factor, says):
     assert (e.file, e.column) == ("flights/F1/gnss.csv", "h")
     assert says in e.message
     assert f"{h_factor / vu_factor:.4g} × the integral of vu" in e.message
+
+
+def _radian_survey(tmp_path, keep_velocities):
+    lines, tabs = make_tables()
+    grav, gnss = tabs["F1"]
+    gnss = gnss.copy()
+    gnss["lat"], gnss["lon"] = np.deg2rad(gnss["lat"]), np.deg2rad(gnss["lon"])
+    if not keep_velocities:
+        gnss = gnss.drop(columns=["ve", "vn"])
+    return write_survey(tmp_path / "s", lines, {"F1": (grav, gnss)})
+
+
+def test_radians_with_velocities_are_refused(tmp_path):
+    with pytest.raises(InputError) as exc:
+        read_survey(_radian_survey(tmp_path, True))
+    assert (exc.value.file, exc.value.column) == ("flights/F1/gnss.csv", "lat")
+    assert "lat and lon look like radians" in exc.value.message
+
+
+def test_radians_without_velocities_are_warned(tmp_path):
+    # 100 m/s east at 62°N read as degrees at 1.082°N: 100·(π/180)·(R_N(1.08°) + h)·cos 1.082° / (6 394 000·cos 62°)
+    # = 1.7453 · 6 380 014 / 3 001 804 = 3.71 m/s
+    with pytest.warns(UserWarning, match=r"the positions move at a median 3\.7 m/s: radians\?"):
+        read_survey(_radian_survey(tmp_path, False))
