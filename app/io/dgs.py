@@ -82,7 +82,7 @@ from app.io.errors import InputError
 from app.io.gfile import MIN_FIELDS as GFILE_MIN_FIELDS
 from app.io.tables import check_finite, check_time_increasing, fill_short_nan_runs
 
-__all__ = ["read_dgs", "sniff_dat", "DGS_FIELDS", "NOMINAL_OFFSET_MGAL", "GPS_SYNC_BIT", "SECONDS_PER_WEEK"]
+__all__ = ["read_dgs", "sniff_dat", "dat_hint", "DGS_FIELDS", "NOMINAL_OFFSET_MGAL", "GPS_SYNC_BIT", "SECONDS_PER_WEEK"]
 
 DGS_FIELDS = ("gravity", "long_accel", "cross_accel", "beam", "temp", "status", "pressure", "etemp",
               "gps_week", "gps_sow", "hz1_counter")
@@ -110,6 +110,38 @@ def _open_text(path: Path):
     return open(path, encoding="utf-8-sig", errors="replace", newline="")
 
 
+def _first_lines(path, n: int) -> list[str]:
+    """The first ``n`` non-blank lines of a text file, stripped ([] when unreadable)."""
+    lines: list[str] = []
+    try:
+        with _open_text(Path(path)) as fh:
+            for raw in fh:
+                if raw.strip():
+                    lines.append(raw.strip())
+                    if len(lines) >= n:
+                        break
+    except (OSError, EOFError, UnicodeDecodeError):
+        return []
+    return lines
+
+
+def _fields(s: str) -> list[str]:
+    return [f.strip() for f in s.split(",")] if "," in s else s.split()
+
+
+def dat_hint(path) -> str:
+    """Why a ``.dat`` file that :func:`sniff_dat` does not recognise is neither: for comma-separated
+    numeric records, their number of fields against DGS's 8, 10 or 11 ("" otherwise)."""
+    lines = _first_lines(path, 3)
+    data = [s for s in lines if all(_is_number(f) for f in _fields(s))]
+    if not data or "," not in data[0]:
+        return ""
+    n = len(_fields(data[0]))
+    return (f"comma-separated numeric records of {n} fields; DGS AT1A/AT1M records have 8 (gravity, long_accel, "
+            "cross_accel, beam, temp, status, pressure, Etemp), 10 (+ GPS week, seconds) or 11 (+ a counter): "
+            "export those fields in that order")
+
+
 def sniff_dat(path, n_lines: int = 5) -> str | None:
     """What a ``.dat`` file holds, from its first lines.
 
@@ -125,32 +157,18 @@ def sniff_dat(path, n_lines: int = 5) -> str | None:
     None
         Anything else (or an unreadable file).
     """
-    path = Path(path)
-    lines: list[str] = []
-    try:
-        with _open_text(path) as fh:
-            for raw in fh:
-                if raw.strip():
-                    lines.append(raw.strip())
-                    if len(lines) >= n_lines + 1:
-                        break
-    except (OSError, EOFError, UnicodeDecodeError):
-        return None
+    lines = _first_lines(path, n_lines + 1)
     if not lines:
         return None
     if lines[0].startswith("$"):
         return "dgs_raw"
-
-    def fields(s: str) -> list[str]:
-        return [f.strip() for f in s.split(",")] if "," in s else s.split()
-
-    header = not all(_is_number(f) for f in fields(lines[0]))
+    header = not all(_is_number(f) for f in _fields(lines[0]))
     data = lines[1:] if header else lines
     if not data:
         return None
-    f = fields(data[0])
+    f = _fields(data[0])
     if "," in data[0] and len(f) in DGS_FIELD_COUNTS and all(_is_number(x) for x in f):
-        if all(len(fields(s)) == len(f) for s in data):
+        if all(len(_fields(s)) == len(f) for s in data):
             return "dgs"
     if header and len(f) >= GFILE_MIN_FIELDS and all(_is_number(x) for x in f[:4]):
         return "gfile"

@@ -59,7 +59,7 @@ from app.core.geodesy import (
     vertical_velocity_from_heights_ms,
 )
 from app.core.measurement import height_rate_ratio
-from app.io.dgs import read_dgs, sniff_dat
+from app.io.dgs import dat_hint, read_dgs, sniff_dat
 from app.io.errors import InputError
 from app.io.gfile import is_gfile_name, read_gfile
 from app.io.tables import (
@@ -724,7 +724,8 @@ def flight_sources(d: Path, root: Path) -> dict[str, _Source]:
                                  "raw DGS serial strings ('$…': A/D counts before the meter's calibration) are not "
                                  "read: use the records the DGS logger writes")
             else:
-                unknown_dat.append(f.name)
+                hint = dat_hint(f)
+                unknown_dat.append(f"{f.name} ({hint})" if hint else f.name)
         elif low == "gravimeter.g" or f.name.endswith(".G"):
             grav.append(_Source("gfile", f))
     where = _rel(root, d) + "/"

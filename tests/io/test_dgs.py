@@ -259,3 +259,14 @@ def test_a_short_record_inside_the_file_is_still_an_error(tmp_path):
     lines[10] = lines[10][: len(lines[10]) // 2]
     with pytest.raises(InputError, match="this record has 5 fields, the first"):
         read_dgs(write(tmp_path / "a.dat", lines))
+
+
+def test_records_with_extra_fields_are_refused_saying_how_many(tmp_path):
+    root = tmp_path / "s"
+    _dgs_survey(root, gnss_epoch=False)
+    p = root / "flights" / "F1" / "AT1A_0042.dat"
+    p.write_text("".join(s + ",0.5,1\n" for s in p.read_text().splitlines()))   # a newer logger's two more fields
+    with pytest.raises(InputError) as ei:
+        read_survey(root)
+    assert ei.value.file == "flights/F1/gravimeter.csv"
+    assert "AT1A_0042.dat (comma-separated numeric records of 12 fields; DGS AT1A/AT1M records have 8" in str(ei.value)
