@@ -263,6 +263,50 @@ def heading_departures(t_s, ve_ms, vn_ms, max_deg: float = 30.0, min_speed_ms: f
             "last_s": float(tm[-1])}
 
 
+#: the relabellings of a GNSS file's (ve, vn) tried by :func:`velocity_relabelling`: (label, (a, b)) with the
+#: new ve = sign_a · column a, the new vn = sign_b · column b (columns 0 = file's ve, 1 = file's vn)
+RELABELLINGS = (("ve and vn swapped", ((1, 1), (0, 1))), ("ve negated", ((0, -1), (1, 1))),
+                ("vn negated", ((0, 1), (1, -1))), ("ve and vn negated", ((0, -1), (1, -1))),
+                ("ve and vn swapped and negated", ((1, -1), (0, -1))),
+                ("ve and vn swapped, the new ve negated", ((1, -1), (0, 1))),
+                ("ve and vn swapped, the new vn negated", ((1, 1), (0, -1))))
+
+
+def velocity_relabelling(t_s, lat_deg, lon_deg, h_m, ve_ms, vn_ms, min_speed_ms: float = 20.0):
+    """Which relabelling of a GNSS file's horizontal velocities (:data:`RELABELLINGS`) matches the
+    velocity of its positions best.
+
+    Each candidate is scored by the mean magnitude of its vector difference from the positions'
+    velocity (:func:`velocities_from_positions_ms`) over the epochs moving faster than
+    ``min_speed_ms``: a mean, not a median, so that the turns decide between candidates that lines
+    flown due east (vn ≈ 0) cannot tell apart.
+
+    Parameters
+    ----------
+    t_s, lat_deg, lon_deg, h_m, ve_ms, vn_ms : ndarray, shape (n,)
+        One flight's GNSS record (s, degrees, m, m/s).
+
+    Returns
+    -------
+    (str, ndarray, ndarray, float, float) or None
+        Label, the relabelled ve and vn (m/s), the best candidate's mean misfit and the runner-up's
+        (m/s); None when fewer than 10 epochs move.
+    """
+    ve_p, vn_p = velocities_from_positions_ms(t_s, lat_deg, lon_deg, h_m)
+    cols = (np.asarray(ve_ms, dtype=float), np.asarray(vn_ms, dtype=float))
+    use = (np.hypot(ve_p, vn_p) >= min_speed_ms) & np.isfinite(ve_p) & np.isfinite(vn_p)
+    use &= np.isfinite(cols[0]) & np.isfinite(cols[1])
+    if use.sum() < 10:
+        return None
+    scored = []
+    for label, ((ia, sa), (ib, sb)) in RELABELLINGS:
+        ve, vn = sa * cols[ia], sb * cols[ib]
+        scored.append((float(np.mean(np.hypot(ve - ve_p, vn - vn_p)[use])), label, ve, vn))
+    scored.sort(key=lambda x: x[0])
+    (best, label, ve, vn), runner_up = scored[0], scored[1][0]
+    return label, ve, vn, best, runner_up
+
+
 def vertical_velocity_from_heights_ms(t_s, h_m):
     """Vertical velocity (m/s, up) of one contiguous GNSS run from its heights alone.
 
