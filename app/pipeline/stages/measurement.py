@@ -410,6 +410,10 @@ def _fillable(t, t_new, ins, y, derivative: bool, max_error_mgal: float, cutoff_
     return t_new[keep], ins[keep], info
 
 
+#: an applied gravimeter–GNSS time offset this large (s) is a difference of clocks, said in a note
+LARGE_TIME_OFFSET_S = 1.0
+
+
 def time_offset(series, t, vu, tau: float, k: float, p, notes: list) -> dict:
     """The gravimeter–GNSS time offset and the decision to apply it (with its evidence).
 
@@ -447,6 +451,12 @@ def time_offset(series, t, vu, tau: float, k: float, p, notes: list) -> dict:
     info.update(applied=not why, reason="; ".join(why) if why else "significant and improves the fit")
     if why:
         notes.append(f"time offset {offset:.4f} s not applied: {'; '.join(why)}")
+    elif abs(offset) >= LARGE_TIME_OFFSET_S:
+        notes.append(f"time offset {offset:.4f} s applied (± {fit.se_s:.1g} s, correlation {corr:.3f}): the "
+                     "gravimeter's and the GNSS's clocks differ by that much"
+                     + (" — GPS − UTC leap seconds (18 s since 2017): one file is on UTC, the other on GPS time"
+                        if 16.5 <= abs(offset) <= 18.5 else "")
+                     + "; lines.csv windows and the outputs are on the GNSS's time scale")
     return info
 
 
