@@ -483,7 +483,8 @@ def check_acceleration_gain(flight, info: dict, notes: list) -> None:
     if abs(gain / FEET_GAIN - 1.0) < 0.03:
         raise InputError(f"flights/{flight.name}/{Path(flight.gnss_path).name}", None, "h",
                          f"{what}: 0.3048 m per foot — the GNSS heights look like feet (and vu like ft/s, or "
-                         "derived from them); SPEC's GNSS file has h in metres (ellipsoidal) and vu in m/s")
+                         "derived from them); SPEC's GNSS file has h in metres (ellipsoidal) and vu in m/s (if they "
+                         "are, the gravimeter's response is not survey.toml's: check f_z's unit, tau_s and scale)")
     if not PLAUSIBLE_GAIN[0] <= gain <= PLAUSIBLE_GAIN[1]:
         notes.append(f"{what}, not 1: a unit of f_z, h or vu is not SPEC's, or the gravimeter's response is not "
                      "the one survey.toml declares (tau_s, scale); z holds the difference times the aircraft's "
