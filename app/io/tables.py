@@ -226,7 +226,11 @@ def locate_bad_cell(path: Path, display: str, usecols: Sequence[str], float_cols
     if best is None:
         return None
     row, _, col, val = best
-    return InputError(display, row, col, f"not a number: {val!r}")
+    hint = ""
+    if col in ("time", "t_start", "t_end") and re.fullmatch(r"\s*\d{1,2}:\d{2}(:\d{2}(\.\d*)?)?\s*", val):
+        hint = (" — a clock time (hh:mm:ss): times are float seconds on the survey's one time scale (the data "
+                "files' own, e.g. GPS seconds of week), not clock strings")
+    return InputError(display, row, col, f"not a number: {val!r}{hint}")
 
 
 #: cells tokenized at a time by :func:`_read_all_columns` (at most 200 000 rows)
