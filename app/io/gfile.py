@@ -151,6 +151,23 @@ def _seconds_of_day(hhmmss: np.ndarray, rows: np.ndarray, display: str) -> np.nd
     return hh * 3600.0 + mm * 60.0 + ss
 
 
+def subsecond_unit_s(sub: np.ndarray) -> float:
+    """Seconds per unit of a G file's sub-second field, from its values: a fraction of a second in
+    seconds is below 1; values up to 999 are milliseconds, up to 999 999 microseconds (1.0, 1e-3 or
+    1e-6; NaN when larger or negative)."""
+    v = np.asarray(sub, dtype=float)
+    v = v[np.isfinite(v)]
+    if not v.size:
+        return 1.0
+    lo, hi = float(v.min()), float(v.max())
+    if lo < 0:
+        return float("nan")
+    for limit, unit in ((1.0, 1.0), (1000.0, 1e-3), (1e6, 1e-6)):
+        if hi < limit:
+            return unit
+    return float("nan")
+
+
 def _message_times(df: pd.DataFrame, rows: np.ndarray, display: str, subsecond_scale: float,
                    time_offset_s: float) -> np.ndarray:
     """Message times on the survey scale (s): UTC seconds of day + sub-second field, carried over
@@ -217,7 +234,7 @@ def _half_sample_columns(df: pd.DataFrame, rows: np.ndarray, t1: np.ndarray, t2:
 
 
 def read_gfile(path, *, time_offset_s: float = 0.0, scale_to_ms2: float = 1.0,
-               subsecond_scale: float = 1.0, stamp: str = "end", z_channel: str = "fine",
+               subsecond_scale: float | None = None, stamp: str = "end", z_channel: str = "fine",
                on_saturation: str = "drop", max_nan_run: int = 0,
                display: str | None = None) -> pd.DataFrame:
     """Read a GT-1A/GT-2A ASCII "G" file into one row per half-interval sample.
@@ -233,8 +250,10 @@ def read_gfile(path, *, time_offset_s: float = 0.0, scale_to_ms2: float = 1.0,
         Added to UTC seconds of day to reach the survey time scale (s).
     scale_to_ms2 : float
         Multiplier turning file acceleration units into m/s² (1.0: already m/s²).
-    subsecond_scale : float
-        Multiplier turning the sub-second field into seconds (1e-3 for ms).
+    subsecond_scale : float, optional
+        Multiplier turning the sub-second field into seconds (1e-3 for ms).  None: from the
+        field's values (:func:`subsecond_unit_s`: below 1 → s, below 1000 → ms, below 10⁶ → µs),
+        with a warning when not seconds.
     stamp : {"end", "start"}
         Whether the message time marks the end or the start of its interval.
     z_channel : {"fine", "coarse"}
@@ -274,6 +293,15 @@ def read_gfile(path, *, time_offset_s: float = 0.0, scale_to_ms2: float = 1.0,
     hole[1::2] = np.isnan(df[f"{z_channel}_z_2"].to_numpy())
     fill_short_nan_runs(df, num_cols, rows, display, max_nan_run, time_col=None)
 
+    if subsecond_scale is None:
+        subsecond_scale = subsecond_unit_s(df["sub_second"].to_numpy())
+        if not np.isfinite(subsecond_scale):
+            raise InputError(display, None, "sub_second", "the sub-second field holds values that are neither "
+                             "seconds (< 1), milliseconds (< 1000) nor microseconds (< 10⁶) of the second")
+        if subsecond_scale != 1.0:
+            warnings.warn(f"{display}: the sub-second field reaches {np.nanmax(df['sub_second'].to_numpy()):g}: "
+                          f"read as {'milliseconds' if subsecond_scale == 1e-3 else 'microseconds'}",
+                          stacklevel=2)
     t = _message_times(df, rows, display, subsecond_scale, time_offset_s)
     t1, t2 = _half_interval_centres(t, stamp)
     sat = df["saturation"].to_numpy() != 0

@@ -270,3 +270,24 @@ def test_a_short_message_inside_the_file_is_still_an_error(tmp_path):
     with pytest.raises(InputError) as exc:
         read_gfile(p)
     assert exc.value.row == 21
+
+
+def test_subsecond_field_in_milliseconds_is_recognised(tmp_path):
+    msgs, t_end = make_messages(200, t0_sod=3600.0 * 5 + 17.3)
+    msgs["sub"] = np.round(msgs["sub"] * 1000.0)           # the logger writes whole milliseconds
+    p = tmp_path / "flight.G"
+    write_g(p, msgs)
+    with pytest.warns(UserWarning, match="the sub-second field reaches 9[0-9][0-9]: read as milliseconds"):
+        df = read_gfile(p)
+    centres = interleave(t_end - 0.75 * T_MSG, t_end - 0.25 * T_MSG)
+    np.testing.assert_allclose(df["time"], centres, rtol=0, atol=1e-3)   # whole ms: ±0.5 ms, ±0.25 ms more at centres
+
+
+def test_subsecond_field_beyond_microseconds_is_refused(tmp_path):
+    msgs, _ = make_messages(20, t0_sod=3600.0 * 5)
+    msgs["sub"] = 2e6
+    p = tmp_path / "flight.G"
+    write_g(p, msgs)
+    with pytest.raises(InputError) as exc:
+        read_gfile(p)
+    assert exc.value.column == "sub_second"
