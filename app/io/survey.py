@@ -446,6 +446,9 @@ def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: flo
         rows = g["source_row"].to_numpy(dtype=np.int64)
         df = g[[c for c in ("time", "f_z", "f_x", "f_y") if c in g]].copy()
         df.attrs.update(g.attrs)
+        if kind == "gfile":   # a G file's accelerations in Gal, mGal or µm/s², like a CSV's
+            declared = config.columns.for_role("gravimeter").get("f_z_unit")
+            _csv_force_units(df, display, declared, _unit_row(path) if declared else None)
         _check_ranges(df, rows, display)
     else:
         df, rows = read_csv_table(path, display, GRAV_REQUIRED, GRAV_OPTIONAL, min_rows=2)

@@ -291,3 +291,20 @@ def test_subsecond_field_beyond_microseconds_is_refused(tmp_path):
     with pytest.raises(InputError) as exc:
         read_gfile(p)
     assert exc.value.column == "sub_second"
+
+
+def test_g_file_in_mgal_is_converted_like_a_csv(tmp_path):
+    msgs, _ = make_messages(200, t0_sod=3600.0 * 5 + 17.3)
+    root = tmp_path / "s"
+    d = root / "flights" / "F1"
+    d.mkdir(parents=True)
+    write_g(d / "flight.G", msgs, scale=1e-5)                   # accelerations written in mGal
+    df_si = read_gfile(d / "flight.G", scale_to_ms2=1e-5)
+    t = df_si["time"].to_numpy()
+    pd.DataFrame({"time": np.round(np.arange(t[0] - 1, t[-1] + 1, 0.1), 2), "lat": 62.0, "lon": 158.0, "h": 3000.0,
+                  "vu": 0.0}).to_csv(d / "gnss.csv", index=False)
+    (root / "lines.csv").write_text(f"line,flight,t_start,t_end,kind\nL1,F1,{t[5]:.2f},{t[-5]:.2f},main\n")
+    (root / "survey.toml").write_text('[survey]\nname = "g"\n[gravimeter]\ntime_offset_s = 0.0\n')
+    with pytest.warns(UserWarning, match=r"f_z read as mGal \(median 98[0-9]{4}"):
+        s = read_survey(root)
+    np.testing.assert_allclose(s.flights["F1"].gravimeter["f_z"], interleave(msgs["fz1"], msgs["fz2"]), rtol=1e-12)
