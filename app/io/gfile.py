@@ -185,9 +185,12 @@ def _message_times(df: pd.DataFrame, rows: np.ndarray, display: str, subsecond_s
 def _half_interval_centres(t: np.ndarray, stamp: str) -> tuple[np.ndarray, np.ndarray]:
     """Centres of the two half-intervals of every message, ``(t1, t2)``, when the message time
     marks the end (``stamp="end"``) or the start of its interval; the first (last) interval
-    takes the median step."""
+    takes the median step, and so does an interval beside a gap (a step over 1.5 × the median:
+    messages missing there, the interval itself one message long — taking the gap for it put the
+    two samples of the message after a lost one up to a whole interval early)."""
     dt = np.diff(t)
     med = float(np.median(dt))
+    dt = np.where(dt > 1.5 * med, med, dt)
     if stamp == "end":
         span = np.concatenate(([med], dt))
         return t - 0.75 * span, t - 0.25 * span

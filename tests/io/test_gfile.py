@@ -308,3 +308,14 @@ def test_g_file_in_mgal_is_converted_like_a_csv(tmp_path):
     with pytest.warns(UserWarning, match=r"f_z read as mGal \(median 98[0-9]{4}"):
         s = read_survey(root)
     np.testing.assert_allclose(s.flights["F1"].gravimeter["f_z"], interleave(msgs["fz1"], msgs["fz2"]), rtol=1e-12)
+
+
+@pytest.mark.parametrize("lost", [[60], [60, 61, 62]])
+def test_message_after_lost_ones_keeps_its_own_interval(tmp_path, lost):
+    msgs, t_end = make_messages(200, t0_sod=3600.0 * 5 + 17.3)
+    keep = np.setdiff1d(np.arange(200), lost)
+    p = tmp_path / "flight.G"
+    write_g(p, msgs.iloc[keep])
+    df = read_gfile(p)
+    centres = interleave(t_end[keep] - 0.75 * T_MSG, t_end[keep] - 0.25 * T_MSG)
+    np.testing.assert_allclose(df["time"], centres, rtol=0, atol=2e-4)   # sub-second rounded to 1e-4 s
