@@ -295,19 +295,37 @@ def test_motion_compensated_means_with_lag_and_scale():
         gm.motion_compensated_means(series, t, np.zeros(3))
 
 
-@pytest.mark.parametrize("gnss_unit_m", [1.0, 0.3048])
-def test_time_offset_gain_is_the_gnss_unit(gnss_unit_m):
-    """The fit's gain is how many m/s² of gravimeter acceleration one GNSS unit is: 1 for a GNSS
-    in metres, 0.3048 for one whose velocities are in feet per second — even with 5 cm/s of
-    velocity noise (what a regression on the noisy GNSS side would bias low)."""
-    rng = np.random.default_rng(5)
-    freqs = rng.uniform(0.03, 0.8, 30)
-    amps = rng.uniform(0.02, 0.2, 30)
-    omegas, phases = 2 * np.pi * freqs, rng.uniform(0, 2 * np.pi, 30)
-    _, lagged_mean = _sin_lagged(amps, omegas, phases, 2.0, 1.0)
+def _broadband_flight(seed, tau_true, lo_hz=0.01):
+    """(series, t, v): a gravimeter with lag ``tau_true`` and the GNSS velocity (5 cm/s noise) of
+    broadband vertical accelerations from ``lo_hz`` to 0.8 Hz."""
+    rng = np.random.default_rng(seed)
+    freqs = rng.uniform(lo_hz, 0.8, 40)
+    amps = rng.uniform(0.02, 0.2, 40)
+    omegas, phases = 2 * np.pi * freqs, rng.uniform(0, 2 * np.pi, 40)
+    _, lagged_mean = _sin_lagged(amps, omegas, phases, tau_true, 1.0)
     stamps, vals = _grav_samples(0.0, 1300.0, lagged_mean, offset=0.0)
     series = gm.integrate_samples(stamps, vals + rng.normal(0, 2e-4, vals.size))
     t = np.arange(100.0, 1200.0, 0.1)
     v = sum(-A / w * np.cos(w * t + p) for A, w, p in zip(amps, omegas, phases)) + rng.normal(0, 0.05, t.size)
+    return series, t, v
+
+
+@pytest.mark.parametrize("gnss_unit_m", [1.0, 0.3048])
+def test_time_offset_gain_is_the_gnss_unit(gnss_unit_m):
+    """The fit's gain is how many m/s² of gravimeter acceleration one GNSS unit is: 1 for a GNSS
+    in metres, 0.3048 for one whose velocities are in feet per second — even with 5 cm/s of
+    velocity noise (what a regression on the noisy GNSS side would bias low) — in the whole band
+    and in the low one."""
+    series, t, v = _broadband_flight(5, 2.0)
     fit = gm.fit_time_offset(series, t, v / gnss_unit_m, tau_s=2.0, max_offset_s=5.0)
     assert fit.gain == pytest.approx(gnss_unit_m, rel=0.01)
+    assert fit.gain_low == pytest.approx(gnss_unit_m, rel=0.05) and fit.gain_low_correlation > 0.9
+
+
+def test_a_lag_declared_wrong_lowers_the_gain_but_hardly_the_low_band_one():
+    """τ = 3 s undeclared (tau_s = 0): the gravimeter's amplitude is 1/|1 + iωτ| of the aircraft's —
+    0.47 at 0.1 Hz, 0.07 at 0.8 Hz, but 0.73–0.98 at 0.01–0.05 Hz."""
+    series, t, v = _broadband_flight(6, 3.0)
+    fit = gm.fit_time_offset(series, t, v, tau_s=0.0, max_offset_s=5.0)
+    assert fit.gain < 0.7
+    assert 0.7 < fit.gain_low < 1.05

@@ -53,3 +53,23 @@ def test_gnss_in_feet_is_refused(tiny_survey, tmp_path, drop_vu):
     assert "the GNSS heights look like feet" in e.message
     gain = float(e.message.split("acceleration is ")[1].split(" ×")[0])
     assert gain == pytest.approx(FT, rel=0.03)
+
+
+def test_an_undeclared_lag_is_not_taken_for_feet(tmp_path):
+    """τ = 3 s undeclared (tau_s = 0): 1/|1 + iωτ| lowers the gravimeter's acceleration to about 0.3 of
+    the GNSS's over 0.01–1 Hz — like feet — but not below 0.05 Hz (≥ 0.73 there): no refusal."""
+    from app.simulate import simulate_survey
+
+    root = simulate_survey("tiny", tmp_path / "lag", seed=3, tau_true_s=3.0, tau_declared_s=0.0)
+    _, m = _measure(root)
+    assert abs(m.time_offset["gain"] / FT - 1) < 0.1       # over the whole band it looks like feet
+    assert m.time_offset["gain_low"] > 0.73 and m.time_offset["gain_low_correlation"] > 0.5
+
+
+def test_feet_with_an_undeclared_lag_is_refused(tmp_path):
+    from app.simulate import simulate_survey
+
+    src = simulate_survey("tiny", tmp_path / "lag", seed=3, tau_true_s=3.0, tau_declared_s=0.0)
+    root = _feet_copy(src, tmp_path / "feet")
+    with pytest.raises(InputError, match="the GNSS heights look like feet"):
+        _measure(root)

@@ -430,6 +430,8 @@ def time_offset(series, t, vu, tau: float, k: float, p, notes: list) -> dict:
         return {"estimated": False}
     offset, corr = fit.offset_s, fit.correlation
     info = {"estimated": True, "offset_s": offset, "se_s": fit.se_s, "correlation": corr, "gain": fit.gain,
+            "gain_low": fit.gain_low, "gain_low_correlation": fit.gain_low_correlation,
+            "gain_low_band_hz": list(gm.GAIN_LOW_BAND_HZ),
             "residual_reduction": fit.relative_improvement, "band_hz": [float(b) for b in band]}
     if not (np.isfinite(corr) and corr > 0.1):
         notes.append(f"the gravimeter's and the GNSS vertical accelerations do not match at any time offset "
@@ -475,19 +477,27 @@ def check_acceleration_gain(flight, info: dict, notes: list) -> None:
     surveys (a 2 Hz platform's response: 0.88).  Where the two correlate (> 0.5), a gain of
     0.3048 ± 8 % is GNSS heights in feet — with a vu in ft/s, or derived from them: no check of the
     GNSS file alone sees it, and normal gravity then moves 0.31 mGal per foot of height (+2100 mGal
-    on the sample survey) — an ``InputError`` naming the GNSS file's ``h``; any other gain outside
+    on the sample survey) — an ``InputError`` naming the GNSS file's ``h``, unless the low band's
+    gain (``gain_low``, correlation > 0.5) is not about 0.3048 too (± 25 %): a lag declared wrong
+    lowers the gain with frequency (τ 3 s declared 0: 0.29–0.32, and 0.93–0.97 below 0.05 Hz), feet
+    at every frequency; the low band's gain alone within ± 8 % at correlation > 0.9 (0.997–1.002 on
+    clean surveys, 0.304–0.308 in feet) is feet too, whatever the lag.  Any other gain outside
     :data:`PLAUSIBLE_GAIN` is a note (a unit of f_z, h or vu, or a response unlike survey.toml's)."""
     gain, corr = float(info.get("gain", np.nan)), float(info.get("correlation", np.nan))
-    if not (np.isfinite(gain) and np.isfinite(corr) and corr > 0.5):
-        return
+    low, low_corr = float(info.get("gain_low", np.nan)), float(info.get("gain_low_correlation", np.nan))
+    full = bool(np.isfinite(gain) and np.isfinite(corr) and corr > 0.5)
+    low_differs = np.isfinite(low) and low_corr > 0.5 and abs(low / FEET_GAIN - 1.0) > 0.25
+    low_feet = np.isfinite(low) and low_corr > 0.9 and abs(low / FEET_GAIN - 1.0) < FEET_GAIN_TOLERANCE
     what = (f"the gravimeter's vertical acceleration is {gain:.4g} × the GNSS's (correlation {corr:.3f}, "
-            f"{info['band_hz'][0]:g}–{info['band_hz'][1]:.2g} Hz)")
-    if abs(gain / FEET_GAIN - 1.0) < FEET_GAIN_TOLERANCE:
+            f"{info['band_hz'][0]:g}–{info['band_hz'][1]:.2g} Hz)") if "band_hz" in info else ""
+    if low_feet or (full and abs(gain / FEET_GAIN - 1.0) < FEET_GAIN_TOLERANCE and not low_differs):
+        low_txt = f"; {low:.3g} at {info['gain_low_band_hz'][0]:g}–{info['gain_low_band_hz'][1]:g} Hz" \
+            if np.isfinite(low) and low_corr > 0.5 else ""
         raise InputError(f"flights/{flight.name}/{Path(flight.gnss_path).name}", None, "h",
-                         f"{what}: 0.3048 m per foot — the GNSS heights look like feet (and vu like ft/s, or "
-                         "derived from them); SPEC's GNSS file has h in metres (ellipsoidal) and vu in m/s (if they "
-                         "are, the gravimeter's response is not survey.toml's: check f_z's unit, tau_s and scale)")
-    if not PLAUSIBLE_GAIN[0] <= gain <= PLAUSIBLE_GAIN[1]:
+                         f"{what}{low_txt}: 0.3048 m per foot — the GNSS heights look like feet (and vu like ft/s, "
+                         "or derived from them); SPEC's GNSS file has h in metres (ellipsoidal) and vu in m/s (if "
+                         "they are, the gravimeter's response is not survey.toml's: check f_z's unit and scale)")
+    if full and not PLAUSIBLE_GAIN[0] <= gain <= PLAUSIBLE_GAIN[1]:
         notes.append(f"{what}, not 1: a unit of f_z, h or vu is not SPEC's, or the gravimeter's response is not "
                      "the one survey.toml declares (tau_s, scale); z holds the difference times the aircraft's "
                      "acceleration")
