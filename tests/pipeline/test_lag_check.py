@@ -265,7 +265,7 @@ def test_a_lag_far_from_the_declared_one_is_found_by_the_band_minimum(tmp_path):
     start from and sharing the lag with the time offset, stop short (1.43 / 1.10 s on the sample
     survey); the search for the least RMS of z at 0.02–0.05 Hz finds the truth, beyond the first
     interval for 1 s (its minimum on the edge moves the interval on)."""
-    from app.pipeline.stages.measurement import check_lag_repeated
+    from app.pipeline.stages.measurement import check_lag_with_search
 
     for declared in (0.0, 1.0):
         survey = read_survey(simulate_survey("omolon-mini", tmp_path / f"s{declared:g}", seed=11,
@@ -274,7 +274,7 @@ def test_a_lag_far_from_the_declared_one_is_found_by_the_band_minimum(tmp_path):
         first, _ = check_lag(survey, survey.config, [])
         assert first is not None and abs(first - 2.0) > 0.3, first       # found only in part
         warnings: list = []
-        tau, info = check_lag_repeated(survey, survey.config, warnings)
+        tau, info = check_lag_with_search(survey, survey.config, warnings)
         assert abs(tau - 2.0) < 0.03, (declared, tau)
         s = info["band_search"]
         assert s["applied"] and s["band_rms_mgal"] < 0.5 * s["band_rms_check_mgal"]

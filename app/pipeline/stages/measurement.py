@@ -951,7 +951,7 @@ LAG_SEARCH_MIN_IMPROVEMENT = 0.05
 LAG_SEARCH_MAX_WIDENINGS = 4
 
 
-def check_lag_repeated(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, dict | None]:
+def check_lag_with_search(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, dict | None]:
     """:func:`check_lag`, and where it moved τ, the τ that minimises z's band RMS near it
     (:func:`lag_band_search`), used when that RMS is lower by :data:`LAG_SEARCH_MIN_IMPROVEMENT`.
 
@@ -1335,7 +1335,7 @@ def measure(survey, progress=None) -> Measurement:
         except (ValueError, np.linalg.LinAlgError) as exc:
             warnings.append(f"in-flight calibration failed, nominal tau/scale used: {exc}")
     if calibration is None and p.lag_check_s is not None:
-        tau_s, lag_check = check_lag_repeated(survey, cfg, warnings)
+        tau_s, lag_check = check_lag_with_search(survey, cfg, warnings)
     flights, base_ties = {}, {}
     names = list(survey.flights)
     for i, name in enumerate(names):
