@@ -13,7 +13,7 @@ z's RMS at 0.02–0.05 Hz by 41 %; a real lag error lowers it (declared 2.0, tru
 import numpy as np
 
 from app.io.survey import read_survey
-from app.pipeline.stages.measurement import check_lag, lag_band_check
+from app.pipeline.stages.measurement import check_lag, check_lag_with_search, lag_band_check
 from app.simulate import simulate_survey
 
 LAYOUT_177 = dict(n_main=8, main_length_km=25.0, main_spacing_km=4.0, n_tie=0, n_flights=1, n_repeat=4,
@@ -265,8 +265,6 @@ def test_a_lag_far_from_the_declared_one_is_found_by_the_band_minimum(tmp_path):
     start from and sharing the lag with the time offset, stop short (1.43 / 1.10 s on the sample
     survey); the search for the least RMS of z at 0.02–0.05 Hz finds the truth, beyond the first
     interval for 1 s (its minimum on the edge moves the interval on)."""
-    from app.pipeline.stages.measurement import check_lag_with_search
-
     for declared in (0.0, 1.0):
         survey = read_survey(simulate_survey("omolon-mini", tmp_path / f"s{declared:g}", seed=11,
                                              tau_declared_s=declared))
