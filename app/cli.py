@@ -126,7 +126,15 @@ def cmd_process(args) -> int:
 
     with warnings.catch_warnings(record=True) as caught:   # said once, below, not as Python's raw line
         warnings.simplefilter("always")
-        report = process_survey(args.survey, args.out, overrides=overrides, progress=_progress_bar("process"))
+        try:
+            report = process_survey(args.survey, args.out, overrides=overrides, progress=_progress_bar("process"))
+        except Exception:
+            # what the readers assumed before the failure often explains it (lat/lon that look like
+            # radians, then "every line is too short"): said before the error line
+            _close_bars()
+            for w in dict.fromkeys(str(w.message) for w in caught):
+                print(f"warning: {w}", file=sys.stderr)
+            raise
     out = Path(args.out).resolve()
     cx = report.get("crossovers", {})
     print(f"outputs written to {out}")
