@@ -241,6 +241,10 @@ class ProcessingParams(_Strict):
     # --- ingest / validation
     gnss_rate_hz: float | None = Field(None, gt=0, le=1000, description="Declared GNSS rate (Hz); inferred when None")
     rate_tolerance: float = Field(0.25, gt=0, le=1, description="Allowed relative deviation of the median rate from the declared one")
+    geoid_height_m: float | None = Field(None, ge=-120, le=100, description="The GNSS heights are orthometric (above "
+                                         "the geoid, 'MSL'): add this geoid undulation N (m) to make them ellipsoidal, "
+                                         "as SPEC's h is (normal gravity moves 0.31 mGal per metre of height; nothing in "
+                                         "the files shows which datum they use).  None: h is ellipsoidal")
     max_gap_s: float = Field(2.0, gt=0, le=3600, description="Longest allowed gap between consecutive samples inside "
                              "a line window (s): one missing epoch of a 1 Hz record, three of a 2 Hz one.  Missing "
                              "GNSS epochs are put back where the record shows a spline bridges them "
@@ -696,7 +700,7 @@ class SurveyConfig(_Strict):
 PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
     ("measurement", "Measurement: rates, gaps, spikes, time offset, gravimeter lag",
      ("max_gap_s", "despike_threshold", "apply_time_offset", "calibrate"),
-     ("gnss_rate_hz", "rate_tolerance", "gravimeter_gap_margin_s", "height_step_threshold", "despike_max_fraction",
+     ("gnss_rate_hz", "rate_tolerance", "geoid_height_m", "gravimeter_gap_margin_s", "height_step_threshold", "despike_max_fraction",
       "max_nan_run", "estimate_time_offset", "max_time_offset_s", "time_offset_min_z", "time_offset_min_improvement",
       "slow_gravimeter_min_ratio", "band_delay_check", "band_delay_min_t", "gnss_fill_max_error_mgal", "lag_check_s",
       "lag_check_min_change_s", "lag_from_time_offsets", "lag_band_fit", "lag_band_fit_z", "lag_band_confirm_z",

@@ -647,6 +647,10 @@ def finish_gnss(df: pd.DataFrame, rows: np.ndarray, display: str, config: Survey
     check_rate(df["time"].to_numpy(), display, p.gnss_rate_hz, p.rate_tolerance, "GNSS", "processing.gnss_rate_hz",
                sanity_hz=GNSS_RATE_SANITY_HZ)
     check_radian_positions(df, display)
+    if p.geoid_height_m is not None:   # orthometric heights declared: made ellipsoidal (a constant N)
+        df["h"] = df["h"] + float(p.geoid_height_m)
+        warnings.warn(f"{display}: h taken as orthometric and made ellipsoidal by adding the declared geoid undulation "
+                      f"{p.geoid_height_m:g} m (processing.geoid_height_m)", stacklevel=2)
     derived = "vu" not in df
     if derived:
         df.insert(4, "vu", derive_vu_from_h(df, rows, display, p.max_gap_s))

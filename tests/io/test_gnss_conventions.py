@@ -7,9 +7,12 @@ column, heights in feet beside a velocity in m/s, a velocity in ft/s beside heig
 
 from __future__ import annotations
 
+import shutil
 import warnings
+from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from app.core.measurement import height_rate_ratio
@@ -98,3 +101,19 @@ def test_radians_without_velocities_are_warned(tmp_path):
     # = 1.7453 · 6 380 014 / 3 001 804 = 3.71 m/s
     with pytest.warns(UserWarning, match=r"the positions move at a median 3\.7 m/s: radians\?"):
         read_survey(_radian_survey(tmp_path, False))
+
+
+def test_declared_geoid_height_makes_orthometric_heights_ellipsoidal(tmp_path):
+    """Heights written above the geoid (h − N): with ``geoid_height_m = N`` they are read back as
+    the ellipsoidal heights of the clean file, to the last digit the CSV keeps, with a warning."""
+    d = tmp_path / "s"
+    shutil.copytree(Path(__file__).resolve().parents[2] / "sample_surveys" / "omolon-mini", d)
+    gnss = d / "flights" / "F01" / "gnss.csv.gz"
+    g = pd.read_csv(gnss)
+    clean = g["h"].to_numpy()
+    g["h"] = g["h"] - 31.25
+    g.to_csv(gnss, index=False)
+    with pytest.warns(UserWarning, match="made ellipsoidal by adding the declared geoid undulation 31.25 m"):
+        s = read_survey(d, {"geoid_height_m": 31.25})
+    np.testing.assert_allclose(s.flights["F01"].gnss["h"].to_numpy(), clean, atol=1e-6)
+    assert np.max(np.abs(read_survey(d).flights["F01"].gnss["h"].to_numpy() - clean)) > 31.0   # undeclared: as written
