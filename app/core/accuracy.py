@@ -343,6 +343,30 @@ class RepeatAccuracy:
         return int(self.values_mgal.shape[0])
 
 
+def track_axes(easting_km, northing_km) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The principal axes of the passes of one track: the centre of all their finite points and
+    the unit vectors along and across the direction of largest spread (km, in the CRS's easting /
+    northing; the along vector's sign is arbitrary).
+
+    Parameters
+    ----------
+    easting_km, northing_km : sequence of K array_like
+        One array per pass (km).
+
+    Returns
+    -------
+    (centre, along, across) : ndarray, shape (2,) each
+    """
+    allp = np.column_stack([np.concatenate([np.asarray(a, dtype=float).ravel() for a in easting_km]),
+                            np.concatenate([np.asarray(a, dtype=float).ravel() for a in northing_km])])
+    allp = allp[np.all(np.isfinite(allp), axis=1)]
+    if len(allp) < 2:
+        raise ValueError("a track needs at least 2 finite positions for its axis")
+    centre = allp.mean(axis=0)
+    _, _, vt = np.linalg.svd(allp - centre, full_matrices=False)
+    return centre, vt[0], vt[1]
+
+
 def repeat_line_accuracy(easting_km, northing_km=None, dg_mgal=None, step_km: float = 0.1) -> RepeatAccuracy:
     """Internal accuracy of K repeats of one track.
 
@@ -386,10 +410,7 @@ def repeat_line_accuracy(easting_km, northing_km=None, dg_mgal=None, step_km: fl
     for k, (e, n, g) in enumerate(zip(es, ns, gs)):
         if not (e.size == n.size == g.size) or e.size < 2:
             raise ValueError(f"repeat {k}: arrays must have the same size ≥ 2")
-    allp = np.column_stack([np.concatenate(es), np.concatenate(ns)])
-    centre = allp.mean(axis=0)
-    _, _, vt = np.linalg.svd(allp - centre, full_matrices=False)
-    axis = vt[0]
+    centre, axis, _ = track_axes(es, ns)
     along = []
     for e, n in zip(es, ns):
         along.append((e - centre[0]) * axis[0] + (n - centre[1]) * axis[1])
@@ -436,11 +457,8 @@ def across_track_spread_km(easting_km, northing_km) -> float:
         raise ValueError("one easting and one northing array of the same size per pass")
     if len(es) < 2:
         return 0.0
-    allp = np.column_stack([np.concatenate(es), np.concatenate(ns)])
-    ok = np.all(np.isfinite(allp), axis=1)
-    centre = allp[ok].mean(axis=0)
-    _, _, vt = np.linalg.svd(allp[ok] - centre, full_matrices=False)
-    across = [np.nanmedian((e - centre[0]) * vt[1][0] + (n - centre[1]) * vt[1][1]) for e, n in zip(es, ns)]
+    centre, _, cross = track_axes(es, ns)
+    across = [np.nanmedian((e - centre[0]) * cross[0] + (n - centre[1]) * cross[1]) for e, n in zip(es, ns)]
     return float(np.nanmax(across) - np.nanmin(across))
 
 

@@ -44,6 +44,13 @@ def gnss_acceleration_ms2(t_s, vu_ms) -> np.ndarray:
     return out
 
 
+def cumulative_trapezoid(y, t_s) -> np.ndarray:
+    """``∫ y dt`` from the first epoch to each (trapezoid rule), 0 at the first, shape (n,);
+    units of y × s.  NaN propagates from where y has one."""
+    y = np.asarray(y, dtype=float)
+    return np.concatenate([[0.0], np.cumsum(0.5 * (y[1:] + y[:-1]) * np.diff(np.asarray(t_s, dtype=float)))])
+
+
 def height_velocity_misfit_m(t_s, h_m, vu_ms) -> np.ndarray:
     """What the GNSS heights and vertical velocities of one stretch disagree on:
     ``d_k = h_k − h_0 − ∫_{t_0}^{t_k} vu dt`` (trapezoid rule), in m.
@@ -73,8 +80,7 @@ def height_velocity_misfit_m(t_s, h_m, vu_ms) -> np.ndarray:
         raise ValueError("the stretch must be NaN-free")
     if t.size > 1 and np.any(np.diff(t) <= 0):
         raise ValueError("GNSS epochs must be strictly increasing")
-    integral = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
-    return h - h[0] - integral
+    return h - h[0] - cumulative_trapezoid(v, t)
 
 
 def height_rate_ratio(t_s, h_m, vu_ms, window_s: float = 2.0,
@@ -118,7 +124,7 @@ def height_rate_ratio(t_s, h_m, vu_ms, window_s: float = 2.0,
         return nan
     step = float(np.median(np.diff(t)))
     n = max(1, int(round(window_s / step)))
-    integral = np.concatenate([[0.0], np.cumsum(0.5 * (v[1:] + v[:-1]) * np.diff(t))])
+    integral = cumulative_trapezoid(v, t)
     i0 = np.arange(0, t.size - n, n)
     i1 = i0 + n
     dh = h[i1] - h[i0]
@@ -510,10 +516,8 @@ def gravimeter_height_misfit_m(t_s, gravimeter_m, h_m, gamma_mgal, eotvos_mgal) 
         raise ValueError("all inputs of gravimeter_height_misfit_m must be 1-D and of one shape")
     if t.size < 2:
         return ff - h
-    dt = np.diff(t)
     c = fill_nan(c) if np.isfinite(c).any() else c
-    c1 = np.concatenate([[0.0], np.cumsum(0.5 * (c[1:] + c[:-1]) * dt)])
-    c2 = np.concatenate([[0.0], np.cumsum(0.5 * (c1[1:] + c1[:-1]) * dt)])
+    c2 = cumulative_trapezoid(cumulative_trapezoid(c, t), t)
     return ff - c2 - h
 
 

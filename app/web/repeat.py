@@ -2,9 +2,8 @@
 on one along-track coordinate so that passes flown in opposite directions overlay.
 
 The along-track coordinate of a track is the projection of its passes' positions (easting,
-northing, km) on the track's principal direction — the leading eigenvector of the covariance of
-all its passes' points — oriented so that the first pass in time flies towards increasing
-distance, with its origin at the smallest projection of any pass: every pass is on the same axis
+northing, km) on the track's principal direction (:func:`app.core.accuracy.track_axes`),
+oriented so that the first pass in time flies towards increasing distance, with its origin at the smallest projection of any pass: every pass is on the same axis
 from the same origin, and a pass flown the other way runs from the far end back to 0.
 Presentation only: nothing here changes an estimate.
 """
@@ -17,6 +16,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from app.core.accuracy import track_axes
 from app.jsonsafe import finite_float, float_list
 
 #: estimate key of report.json ``repeat_lines.<track>.internal_accuracy_mgal`` ← lines.parquet column
@@ -43,13 +43,12 @@ def track_members(lines: list[tuple[str, str, str | None]], report: dict, presen
 def track_axis(passes: dict[str, pd.DataFrame]) -> dict[str, float]:
     """The along-track axis of a track's passes (each a lines.parquet group sorted by time):
     its origin (km), unit direction, azimuth (degrees clockwise from grid north) and length (km)."""
-    e = np.concatenate([g["easting_km"].to_numpy(float) for g in passes.values()])
-    n = np.concatenate([g["northing_km"].to_numpy(float) for g in passes.values()])
+    es = [g["easting_km"].to_numpy(float) for g in passes.values()]
+    ns = [g["northing_km"].to_numpy(float) for g in passes.values()]
+    (ce, cn), (ue, un), _ = (tuple(float(x) for x in v) for v in track_axes(es, ns))
+    e, n = np.concatenate(es), np.concatenate(ns)
     ok = np.isfinite(e) & np.isfinite(n)
     e, n = e[ok], n[ok]
-    ce, cn = float(e.mean()), float(n.mean())
-    w, v = np.linalg.eigh(np.cov(np.vstack([e - ce, n - cn])))
-    ue, un = float(v[0, -1]), float(v[1, -1])
     first = min(passes.values(), key=lambda g: float(g["time"].iloc[0]))
     fe, fn = first["easting_km"].to_numpy(float), first["northing_km"].to_numpy(float)
     fok = np.isfinite(fe) & np.isfinite(fn)

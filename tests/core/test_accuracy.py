@@ -22,6 +22,7 @@ from app.core.accuracy import (
     repeat_pass_std_scales,
     rms_vs_reference,
     std_calibration,
+    track_axes,
 )
 
 
@@ -452,3 +453,24 @@ def test_repeat_pass_departures_by_hand():
         repeat_pass_departures(ref, ref, np.zeros(2))
     with pytest.raises(ValueError):
         repeat_pass_departures(ref[:1], ref[:1], post[:1])
+
+
+def test_track_axes_of_passes_on_a_known_bearing():
+    """Three passes along a bearing of 60° from grid north (one reversed, one offset 50 m
+    across, one shorter with a NaN position): the axis is the leading eigenvector of the finite
+    points' covariance (numpy's eigh), within 0.1° of the bearing (the offset pass tilts it), the
+    across axis perpendicular to it, the centre the mean of the finite points."""
+    u = np.array([np.sin(np.radians(60.0)), np.cos(np.radians(60.0))])
+    v = np.array([u[1], -u[0]])
+    s = np.linspace(0.0, 20.0, 41)
+    p1 = np.outer(s, u) + [100.0, 200.0]
+    p2 = np.outer(s[::-1], u) + [100.0, 200.0] + 0.05 * v
+    p3 = np.outer(s[5:], u) + [100.0, 200.0]
+    p3[3] = np.nan
+    centre, along, across = track_axes([p1[:, 0], p2[:, 0], p3[:, 0]], [p1[:, 1], p2[:, 1], p3[:, 1]])
+    pts = np.vstack([p1, p2, p3[np.isfinite(p3).all(axis=1)]])
+    np.testing.assert_allclose(centre, pts.mean(axis=0), atol=1e-12)
+    lead = np.linalg.eigh(np.cov((pts - pts.mean(axis=0)).T))[1][:, -1]
+    assert abs(abs(float(along @ lead)) - 1.0) < 1e-12
+    assert np.degrees(np.arccos(min(1.0, abs(float(along @ u))))) < 0.1
+    assert abs(float(along @ across)) < 1e-12 and abs(np.linalg.norm(across) - 1.0) < 1e-12

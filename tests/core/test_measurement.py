@@ -2,10 +2,11 @@
 
 import numpy as np
 import pytest
+from scipy.integrate import cumulative_trapezoid as scipy_ct
 
 from app.core import geodesy
 from app.core import gravimeter as gm
-from app.core.measurement import anomaly_measurement_mgal, gnss_acceleration_ms2
+from app.core.measurement import anomaly_measurement_mgal, cumulative_trapezoid, gnss_acceleration_ms2
 
 
 def test_stationary_gravimeter_on_apron_gives_g_minus_gamma():
@@ -468,3 +469,11 @@ def test_band_delay_pools_records_logged_at_different_rates():
     assert fit.n_independent == pytest.approx(2 * 0.04 * dur, rel=0.01)
     with pytest.raises(ValueError, match="0 < f1 < f2"):
         band_delay_fit(segs, None, (0.05, 0.01))
+
+
+def test_cumulative_trapezoid_against_scipy():
+    """The running trapezoid integral on uneven stamps equals SciPy's (a peer implementation)."""
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(0.05, 0.15, 500))
+    y = np.sin(t) + 0.1 * rng.standard_normal(t.size)
+    np.testing.assert_allclose(cumulative_trapezoid(y, t), scipy_ct(y, t, initial=0.0), rtol=1e-12, atol=1e-12)

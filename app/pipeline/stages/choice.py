@@ -106,7 +106,7 @@ from app.core.model_check import (
     significantly_worse,
     smooth_error_bound_mgal2,
 )
-from app.pipeline.stages.leveling import STD_FLOOR, tracks
+from app.pipeline.stages.leveling import STD_FLOOR, flight_of_line, tracks
 from app.pipeline.stages.lines import line_crossovers
 
 
@@ -164,8 +164,7 @@ def _drift_free(table: pd.DataFrame, cx: pd.DataFrame, diffs: list[np.ndarray], 
     if len(cx) == 0 or any(d.size != len(cx) for d in diffs):
         return None
     ranges = {str(ln): (float(g["time"].min()), float(g["time"].max())) for ln, g in table.groupby("line", sort=False)}
-    groups = ({str(ln): str(g["flight"].iloc[0]) for ln, g in table.groupby("line", sort=False)}
-              if p.leveling_per_flight and "flight" in table else None)
+    groups = flight_of_line(table) if p.leveling_per_flight and "flight" in table else None
     try:
         out = drift_free_differences(cx, np.column_stack(diffs), ranges, p.leveling_degree, groups)
     except ValueError:

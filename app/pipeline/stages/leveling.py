@@ -142,7 +142,7 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True,
     try:
         groups = None
         if p.leveling_per_flight:
-            groups = {str(l): str(g["flight"].iloc[0]) for l, g in table.groupby("line", sort=False)}
+            groups = flight_of_line(table)
         fit = _drift_or_offsets(cx, ranges, groups, p, tied)
     except ValueError as exc:
         warnings.append(f"leveling: {exc}")
@@ -181,6 +181,11 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True,
     return cx[cols], rep
 
 
+def flight_of_line(table: pd.DataFrame) -> dict[str, str]:
+    """``{line: flight}`` of the line table (each line is flown in one flight)."""
+    return {str(ln): str(g["flight"].iloc[0]) for ln, g in table.groupby("line", sort=False)}
+
+
 def _not_lone(table: pd.DataFrame, cx: pd.DataFrame, untied: dict | None) -> np.ndarray:
     """Crossovers the std check may use, shape (n,) bool: not those of an untied flight leveling
     left unconnected (``untied`` maps it to None) — their difference holds that flight's
@@ -188,7 +193,7 @@ def _not_lone(table: pd.DataFrame, cx: pd.DataFrame, untied: dict | None) -> np.
     lone = {f for f, src in (untied or {}).items() if src is None}
     if not lone:
         return np.ones(len(cx), bool)
-    flight_of = {str(l): str(g["flight"].iloc[0]) for l, g in table.groupby("line", sort=False)}
+    flight_of = flight_of_line(table)
     a = np.array([flight_of.get(str(x)) in lone for x in cx["line_a"]], bool)
     b = np.array([flight_of.get(str(x)) in lone for x in cx["line_b"]], bool)
     return ~(a | b)

@@ -998,12 +998,8 @@ def lag_band_search(survey, cfg: SurveyConfig, tau_check_s: float, tau_declared_
                     m = measure_flight(flight, cfg, tau_s=float(tau), compensation=False)
                 except (ValueError, np.linalg.LinAlgError):
                     continue
-                dt = float(np.median(np.diff(m.t_s)))
-                if not band[1] < 0.5 / dt:
-                    continue
-                r, n = band_rms_mgal(m.z_mgal, dt, band, usable=airborne(m) & np.isfinite(m.z_mgal))
-                if n:
-                    ss, n_tot = ss + r * r * n, n_tot + n
+                e, n = band_power(m, band, airborne(m) & np.isfinite(m.z_mgal))
+                ss, n_tot = ss + e, n_tot + n
             cache[tau] = float(np.sqrt(ss / n_tot)) if n_tot else float("nan")
         return cache[tau]
 
@@ -1277,6 +1273,17 @@ def _slow_gravimeter(flight, min_ratio: float | None) -> bool:
     return bool(np.isfinite(f_grav) and np.isfinite(f_gnss) and f_gnss >= min_ratio * f_grav)
 
 
+def band_power(m: FlightMeasurement, band: tuple, usable: np.ndarray) -> tuple[float, int]:
+    """z's power in ``band`` (Hz) over the ``usable`` epochs of a measured flight, for pooling
+    flights by their epochs: (RMS² × epochs in mGal², epochs); (0, 0) where the GNSS rate does not
+    reach the band (:func:`app.core.noise_level.band_rms_mgal`)."""
+    dt = float(np.median(np.diff(m.t_s)))
+    if not band[1] < 0.5 / dt:
+        return 0.0, 0
+    r, n = band_rms_mgal(m.z_mgal, dt, band, usable=usable)
+    return (float(r) ** 2 * n, int(n)) if n else (0.0, 0)
+
+
 def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float, declared: list | None = None,
                    estimated: list | None = None) -> dict:
     """Does the in-flight τ make z better where the anomaly is estimated?
@@ -1302,16 +1309,12 @@ def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float, declared: lis
     for i, flight in enumerate(flights):
         m0 = measure_flight(flight, cfg, compensation=False) if declared is None else declared[i]  # measured already
         m1 = measure_flight(flight, cfg, tau_s=tau_s, compensation=False) if estimated is None else estimated[i]
-        dt = float(np.median(np.diff(m0.t_s)))
-        if not band[1] < 0.5 / dt:
-            continue
         # the same epochs for both (a gap's or a spike's mask moves with the time offset)
         usable = airborne(m0) & np.isfinite(m0.z_mgal) & np.isfinite(m1.z_mgal)
-        (r0, n), (r1, _) = (band_rms_mgal(m.z_mgal, dt, band, usable=usable) for m in (m0, m1))
-        if n:
-            ss["declared"] += r0 ** 2 * n
-            ss["estimated"] += r1 ** 2 * n
-            n_tot += n
+        (e0, n), (e1, _) = (band_power(m, band, usable) for m in (m0, m1))
+        ss["declared"] += e0
+        ss["estimated"] += e1
+        n_tot += n
     r0 = float(np.sqrt(ss["declared"] / n_tot)) if n_tot else float("nan")
     r1 = float(np.sqrt(ss["estimated"] / n_tot)) if n_tot else float("nan")
     gain = 1.0 - r1 / r0 if n_tot and r0 > 0 else float("nan")
