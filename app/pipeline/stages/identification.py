@@ -4,6 +4,7 @@ order m.  The result is what a later ``filter`` run starts from (:mod:`app.pipel
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 from app.config import SurveyConfig
@@ -37,6 +38,31 @@ class Identification:
     warnings: list
 
 
+_TOO_FEW = re.compile(r"only (\d+) decimated points \(need (\d+)\)")
+
+
+def skipped_lines_warning(skipped: dict, n_lines: int, m: int) -> str:
+    """One warning for the lines order ``m``'s identification left out (``skipped``: {line: why},
+    as :class:`Regularized` holds it; ``n_lines``: lines offered), grouped by reason — a survey of
+    short lines had one warning per line and per order (a 14-line layout: 21 lines of warnings
+    before the first that said anything else).  The report's ``identification.lines_skipped``
+    keeps each line's own reason.  A line the state map used for filtering does not cover (it
+    may be m = 1's, ``recognition_order``) is filtered at the smoothest level
+    (:func:`app.pipeline.stages.filtering.prepare_lines`)."""
+    few = {ln: _TOO_FEW.fullmatch(why) for ln, why in skipped.items()}
+    groups: dict[str, list[str]] = {}
+    need = sorted({int(mt.group(2)) for mt in few.values() if mt})
+    for ln, why in skipped.items():
+        if few[ln]:
+            groups.setdefault(f"too few decimated points (need {'/'.join(map(str, need))})", []).append(
+                f"{ln} ({few[ln].group(1)})")
+        else:
+            groups.setdefault(why, []).append(ln)
+    parts = "; ".join(f"{why}: {', '.join(names)}" for why, names in groups.items())
+    return (f"order m = {m}: {len(skipped)} of {n_lines} lines not identified — {parts} "
+            "(a line no state map covers is filtered at the smoothest level; report identification.lines_skipped)")
+
+
 def identify(lines: list, dt_s: float, noise, cfg: SurveyConfig, m: int, callback=None,
              progress=None) -> Identification:
     """Regularize the lines for order ``m``, learn Θ by EM (``callback(record)`` per
@@ -48,11 +74,11 @@ def identify(lines: list, dt_s: float, noise, cfg: SurveyConfig, m: int, callbac
     reg = regularize_lines(lines, cfg, dt_s, m, None if noise.is_white_velocity else noise)
     if reg.note:
         warnings.append(reg.note)
-    for ln, why in reg.skipped.items():
-        warnings.append(f"line {ln} not identified: {why}")
+    if reg.skipped:
+        warnings.append(skipped_lines_warning(reg.skipped, len(reg.x) + len(reg.skipped), m))
     n_dec = sum(len(x) for x in reg.x)
     if n_dec < cfg.processing.min_points_adaptive:
-        warnings.append(f"identification from only {n_dec} decimated points ({len(reg.x)} lines): "
+        warnings.append(f"order m = {m}: identification from only {n_dec} decimated points ({len(reg.x)} lines): "
                         "the learned Q/R levels and transitions are unreliable")
     if progress is not None:
         progress("learning")
