@@ -70,6 +70,7 @@ from app.io.tables import (
     check_time_increasing,
     fill_short_nan_runs,
     gap_rows_in_windows,
+    mark_no_data,
     median_rate_hz,
     read_csv_table,
     true_runs,
@@ -452,6 +453,7 @@ def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: flo
         _check_ranges(df, rows, display)
     else:
         df, rows = read_csv_table(path, display, GRAV_REQUIRED, GRAV_OPTIONAL, min_rows=2)
+        mark_no_data(df, rows, display, GRAV_REQUIRED + GRAV_OPTIONAL)
         declared = config.columns.for_role("gravimeter").get("f_z_unit")
         _csv_force_units(df, display, declared, _unit_row(path) if declared else None)
         df, rows = _finish_series(df, rows, display, p.max_nan_run, GRAV_REQUIRED, GRAV_OPTIONAL, holes=("f_z",))
@@ -667,6 +669,7 @@ def read_gnss(path, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, n
     and ``df.attrs["vu_derived_from_h"]`` is True.
     """
     df, rows = read_csv_table(path, display, GNSS_REQUIRED, GNSS_OPTIONAL, min_rows=2)
+    mark_no_data(df, rows, display, GNSS_REQUIRED + GNSS_OPTIONAL)
     df, derived = finish_gnss(df, rows, display, config)
     df.attrs["vu_derived_from_h"] = derived
     return df, rows
@@ -873,22 +876,28 @@ def read_survey(path, overrides: dict | None = None) -> Survey:
     notes: list[str] = []
     used = set(lines["flight"]) if lines is not None else None
     for name, d in flight_dirs.items():
+        failed = None
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             try:
                 fs = _read_flight_series(name, d, root, config, block_sources)
             except InputError as exc:
                 if used is None or name in used:
-                    raise
-                # No line of lines.csv uses this flight: a folder holding only a GNSS file, or a
-                # ferry or test flight with broken data, must not stop the survey. Said, not hidden.
-                warnings.warn(f"flight {name} is not read (no line in lines.csv uses it): {exc}", stacklevel=2)
-                block_sources.pop(name, None)
-                fs = None
+                    # raised below, after what the reader said before it (a no-data marker
+                    # read as missing explains the "missing value" error that follows)
+                    failed, fs = exc, None
+                else:
+                    # No line of lines.csv uses this flight: a folder holding only a GNSS file, or a
+                    # ferry or test flight with broken data, must not stop the survey. Said, not hidden.
+                    warnings.warn(f"flight {name} is not read (no line in lines.csv uses it): {exc}", stacklevel=2)
+                    block_sources.pop(name, None)
+                    fs = None
         for w in caught:
             warnings.warn(str(w.message), stacklevel=2)   # still on stderr for scripts
             if str(w.message) not in notes:
                 notes.append(str(w.message))
+        if failed is not None:
+            raise failed
         if fs is None:
             continue
         series[name] = fs
@@ -1039,6 +1048,41 @@ def _read_flight_series(name: str, d: Path, root: Path, config: SurveyConfig,
     return _FlightSeries(grav, grav_rows, grav_disp, gnss, gnss_rows, gnss_disp, gsrc.path, nsrc.path)
 
 
+def _time_scale_name(t: float) -> str:
+    """What a time stamp (s) of this size usually is."""
+    for hi, what in ((86400.0 * 1.05, "seconds of day"), (604800.0 * 1.01, "GPS seconds of week"),
+                     (1.6e9, "GPS seconds since 1980-01-06"), (2.2e9, "Unix time (seconds since 1970)")):
+        if abs(t) < hi:
+            return what
+    return "not seconds (milliseconds?)"
+
+
+def _check_one_time_scale(fs: _FlightSeries, ts: np.ndarray, te: np.ndarray) -> None:
+    """The gravimeter and GNSS files of a flight must share one time scale: when their records do
+    not even overlap, the error names the file that holds none of the flight's line windows
+    (``ts``, ``te``; the gravimeter's when both or neither do), both ranges, what each scale
+    looks like and the whole days (plus seconds) between them — rather than "a window outside
+    the data", which blames lines.csv."""
+    tg, tn = fs.grav["time"].to_numpy(float), fs.gnss["time"].to_numpy(float)
+    if tg[-1] >= tn[0] and tn[-1] >= tg[0]:
+        return
+    holds_g = bool(np.any((ts >= tg[0]) & (te <= tg[-1])))
+    holds_n = bool(np.any((ts >= tn[0]) & (te <= tn[-1])))
+    odd_is_gnss = holds_g and not holds_n
+    disp, rows, t = (fs.gnss_disp, fs.gnss_rows, tn) if odd_is_gnss else (fs.grav_disp, fs.grav_rows, tg)
+    d = 0.5 * (tn[0] + tn[-1]) - 0.5 * (tg[0] + tg[-1])
+    days = float(np.round(d / 86400.0))
+    rest = d - 86400.0 * days
+    between = (f"; they differ by {days:.0f} whole days{f' and {rest:+.0f} s' if abs(rest) >= 0.5 else ''}"
+               if days != 0 and abs(rest) <= 120.0 else "")
+    raise InputError(disp, int(rows[0]), "time",
+                     f"the records of {fs.grav_disp} ({tg[0]:.3f}–{tg[-1]:.3f} s, like {_time_scale_name(tg[0])}) "
+                     f"and {fs.gnss_disp} ({tn[0]:.3f}–{tn[-1]:.3f} s, like {_time_scale_name(tn[0])}) do not "
+                     f"overlap: the two files are on different time scales{between}; put both, and the lines.csv "
+                     f"windows, on one scale (the windows lie in "
+                     f"{'neither file' if not (holds_g or holds_n) else (fs.grav_disp if holds_g else fs.gnss_disp)})")
+
+
 def _check_line_windows(name: str, fs: _FlightSeries, lines: pd.DataFrame, origins: list, max_gap_s: float,
                         max_nan_run: int = 0) -> None:
     """Every line window of flight ``name`` lies within both files' data, holds at least two
@@ -1053,6 +1097,7 @@ def _check_line_windows(name: str, fs: _FlightSeries, lines: pd.DataFrame, origi
         return
     ts = lines["t_start"].to_numpy()[sel]
     te = lines["t_end"].to_numpy()[sel]
+    _check_one_time_scale(fs, ts, te)
     for k, i in enumerate(sel):
         ofile, orow = origins[i]
         for t, disp in ((tg, fs.grav_disp), (tn, fs.gnss_disp)):

@@ -36,6 +36,7 @@ from app.io.errors import InputError
 
 __all__ = [
     "read_csv_table",
+    "csv_dialect",
     "locate_bad_cell",
     "check_finite",
     "fill_short_nan_runs",
@@ -48,6 +49,7 @@ __all__ = [
     "parser_error_row",
     "table_limits",
     "check_file_size",
+    "mark_no_data",
 ]
 
 
@@ -147,17 +149,88 @@ def parser_error_row(exc: Exception) -> int | None:
     return int(m.group(1)) if m else None
 
 
-def _too_wide(path: Path) -> int:
-    """Fields of the first line, counted on its raw bytes (pandas takes seconds to even read
-    a header of 100 000 fields); at most ``MAX_COLUMNS`` kB of it are read (decompressed)."""
+#: byte-order marks and the encoding each announces (a BOM is unambiguous: Excel's "Unicode text"
+#: is UTF-16 with one, "CSV UTF-8" is UTF-8 with one)
+_BOMS = ((b"\xef\xbb\xbf", "utf-8-sig"), (b"\xff\xfe", "utf-16"), (b"\xfe\xff", "utf-16"))
+#: a cell that is a number written with a decimal point, or with a decimal comma
+_DOT_NUMBER = re.compile(r'\s*"?[-+]?\d*\.\d+([eE][-+]?\d+)?"?\s*')
+_COMMA_NUMBER = re.compile(r'\s*"?[-+]?\d+,\d+([eE][-+]?\d+)?"?\s*')
+#: data lines looked at to decide a decimal comma
+_SNIFF_LINES = 200
+
+
+def _head_text(path: Path, n_bytes: int) -> tuple[str, str]:
+    """``(encoding, text)`` of the first ``n_bytes`` bytes (decompressed) of ``path``: the
+    encoding from a byte-order mark (UTF-8 without one), the text decoded leniently."""
     opener = gzip.open if str(path).endswith(".gz") else open
     with opener(path, "rb") as fh:
-        return fh.readline(MAX_COLUMNS * 1024).count(b",") + 1
+        raw = fh.read(n_bytes)
+    enc = next((e for bom, e in _BOMS if raw.startswith(bom)), "utf-8")
+    if enc == "utf-16" and len(raw) % 2:
+        raw = raw[:-1]
+    return enc, raw.decode(enc, errors="replace")
+
+
+def csv_dialect(path: Path, display: str) -> dict:
+    """The ``pandas.read_csv`` keywords a table file is written in (SPEC: UTF-8, commas, points).
+
+    Inferred only where the file leaves no doubt: the encoding from a byte-order mark
+    (UTF-16 with one, as Excel's "Unicode text" writes it); the separator from the header
+    line — ``;`` or a tab when it has no comma; with such a separator, a decimal comma when the
+    first data lines write numbers with commas (``9,81234``) and none with a point.  Both in
+    one file is refused.
+
+    Returns
+    -------
+    dict
+        ``encoding``, ``sep`` and ``decimal`` (the defaults when the file is SPEC's).
+
+    Raises
+    ------
+    InputError
+        Decimal commas and decimal points in one file whose separator is not a comma.
+    """
+    try:
+        enc, text = _head_text(path, 1 << 16)
+    except (OSError, EOFError, zlib.error):
+        return {}   # the read says what is wrong
+    lines = text.lstrip("\ufeff").splitlines()
+    kw: dict = {"encoding": enc} if enc != "utf-8" else {}
+    head = lines[0] if lines else ""
+    sep = next((c for c in (";", "\t") if "," not in head and c in head), ",")
+    if sep == ",":
+        return kw
+    kw["sep"] = sep
+    first: dict[str, tuple[int, str]] = {}
+    for i, line in enumerate(lines[1:1 + _SNIFF_LINES], start=2):
+        for cell in line.split(sep):
+            for what, pat in (("comma", _COMMA_NUMBER), ("point", _DOT_NUMBER)):
+                if what not in first and pat.fullmatch(cell):
+                    first[what] = (i, cell.strip())
+    if "comma" in first and "point" in first:
+        (rc, vc), (rp, vp) = first["comma"], first["point"]
+        raise InputError(display, max(rc, rp), None,
+                         f"the columns are separated by {'semicolons' if sep == ';' else 'tabs'} and the numbers "
+                         f"are written with decimal commas ({vc!r}, row {rc}) and with decimal points ({vp!r}, "
+                         f"row {rp}): write every number one way")
+    if "comma" in first:
+        kw["decimal"] = ","
+    return kw
+
+
+def _too_wide(path: Path, sep: str = ",") -> int:
+    """Fields of the first line, counted on its raw bytes (pandas takes seconds to even read
+    a header of 100 000 fields); at most ``MAX_COLUMNS`` kB of it are read (decompressed).
+    (UTF-16: the separator's byte once per separator, the line cut at the first newline byte.)"""
+    opener = gzip.open if str(path).endswith(".gz") else open
+    with opener(path, "rb") as fh:
+        line = fh.readline(MAX_COLUMNS * 1024)
+    return line.count(sep.encode()) + 1
 
 
 def _header(path: Path, display: str, **kw) -> list[str]:
     try:
-        n_fields = _too_wide(path)
+        n_fields = _too_wide(path, kw.get("sep", ","))
     except (OSError, EOFError, zlib.error):
         n_fields = 0   # the read below says what is wrong
     if n_fields > MAX_COLUMNS:
@@ -190,11 +263,31 @@ def _is_gzip(path: Path) -> bool:
 
 def _separator_hint(names: list[str]) -> str:
     """A hint when the header came out as one field holding another separator."""
+    if names and names[0].lstrip().startswith("#"):
+        return ("; the first line is a comment ('#…'): the header line with the column names must come "
+                "first — remove the comment lines")
     if len(names) == 1:
         for sep, what in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars"), (" ", "blanks")):
             if sep in names[0].strip():
                 return f"; the header is one field separated by {what}: columns must be separated by commas"
     return ""
+
+
+def _bad_cell_hint(col: str, val: str) -> str:
+    """Why a cell that is not a number may look the way it does (a converter's habits)."""
+    v = val.strip()
+    if v.lower() == col or v.lower() == "time":
+        return " — a header line inside the data (files joined one after the other?): remove it"
+    if re.fullmatch(r"[-+]?\d{1,3}(,\d{3})+(\.\d+)?", v):
+        return " — a thousands separator? Write numbers without grouping"
+    if re.fullmatch(r"[-+]?\d+,\d+", v):
+        return (" — a decimal comma? With commas between the columns numbers need decimal points "
+                "(or separate the columns by semicolons)")
+    if re.fullmatch(r"\d{4}-\d{2}-\d{2}[T ].*", v):
+        return (" — a date and time: times are float seconds on the survey's one time scale (the data "
+                "files' own, e.g. GPS seconds of week), not date strings")
+    return ""
+
 
 
 def locate_bad_cell(path: Path, display: str, usecols: Sequence[str], float_cols: Iterable[str],
@@ -207,13 +300,16 @@ def locate_bad_cell(path: Path, display: str, usecols: Sequence[str], float_cols
     best: tuple[int, int, str, str] | None = None
     offset = 0
     # in chunks: the text of a whole large file as Python strings would take ~10x its size
-    with _source(path, display) as (src, skw):
-        for raw in pd.read_csv(src, usecols=list(usecols), dtype=str, skip_blank_lines=False, chunksize=200_000,
-                               **skw, **read_kw):
+    with _source(path, display) as (src, skw), \
+            pd.read_csv(src, usecols=list(usecols), dtype=str, skip_blank_lines=False, chunksize=200_000,
+                        **skw, **read_kw) as reader:   # closed when the first bad chunk ends the loop
+        for raw in reader:
             raw = raw.rename(columns=rename)
             for j, col in enumerate(float_cols):
                 s = raw[col]
-                num = pd.to_numeric(s.str.strip(), errors="coerce")
+                txt = s.str.strip()
+                num = pd.to_numeric(txt.str.replace(",", ".", regex=False) if read_kw.get("decimal") == "," else txt,
+                                    errors="coerce")
                 bad = np.flatnonzero(num.isna().to_numpy() & s.notna().to_numpy()
                                      & (s.fillna("").str.strip() != "").to_numpy())
                 if bad.size:
@@ -226,7 +322,7 @@ def locate_bad_cell(path: Path, display: str, usecols: Sequence[str], float_cols
     if best is None:
         return None
     row, _, col, val = best
-    hint = ""
+    hint = _bad_cell_hint(col, val)
     if col in ("time", "t_start", "t_end") and re.fullmatch(r"\s*\d{1,2}:\d{2}(:\d{2}(\.\d*)?)?\s*", val):
         hint = (" — a clock time (hh:mm:ss): times are float seconds on the survey's one time scale (the data "
                 "files' own, e.g. GPS seconds of week), not clock strings")
@@ -237,7 +333,7 @@ def locate_bad_cell(path: Path, display: str, usecols: Sequence[str], float_cols
 CHUNK_CELLS = 2_000_000
 
 
-def _read_all_columns(path: Path, dtype: dict, display: str, n_columns: int = 1) -> pd.DataFrame:
+def _read_all_columns(path: Path, dtype: dict, display: str, n_columns: int = 1, **dialect) -> pd.DataFrame:
     # All columns are tokenized (with ``usecols`` pandas would silently drop surplus fields on a
     # line, hiding a stray separator, "9,81"), a chunk of rows at a time, and only the columns in
     # ``dtype`` kept: the others never all sit in memory (a 234 kB gzip of 999 columns had cost
@@ -248,11 +344,55 @@ def _read_all_columns(path: Path, dtype: dict, display: str, n_columns: int = 1)
         parts = [c[keep] for c in pd.read_csv(src, dtype=dtype, skip_blank_lines=False, engine="c", index_col=False,
                                               nrows=None if max_rows is None else max_rows + 1,
                                               chunksize=max(1000, min(200_000, CHUNK_CELLS // max(1, n_columns))),
-                                              **skw)]
+                                              **skw, **dialect)]
     df = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame({c: pd.Series(dtype=float) for c in keep})
     if max_rows is not None and len(df) > max_rows:
         raise InputError(display, max_rows + 2, None, f"more than the {max_rows:,} data rows allowed per file")
     return df
+
+
+#: the SPEC unit of each column, and how a header may write it after its name (``h [m]``,
+#: ``f_z(m/s^2)``), compared lower-case without blanks, ``^``, ``*`` or ``.``, ``²`` as 2
+SPEC_UNITS = {
+    **{c: ("s", {"s", "sec", "secs", "second", "seconds"}) for c in ("time", "t_start", "t_end")},
+    **{c: ("m/s²", {"m/s2", "ms-2", "m/s/s"}) for c in ("f_z", "f_x", "f_y")},
+    **{c: ("degrees", {"deg", "degree", "degrees", "°", "decdeg", "dd"}) for c in ("lat", "lon")},
+    "h": ("m", {"m", "metre", "metres", "meter", "meters"}),
+    **{c: ("m/s", {"m/s", "ms-1"}) for c in ("vu", "ve", "vn", "sigma_v")},
+}
+_UNIT_IN_NAME = re.compile(r"(.+?)\s*[\[(]\s*(.*?)\s*[\])]")
+
+
+def _unit_key(unit: str) -> str:
+    u = unit.lower().replace("²", "2")
+    for ch in " ^*.":
+        u = u.replace(ch, "")
+    return u
+
+
+def _column_lookup(names: Sequence[str], wanted: Sequence[str], display: str) -> dict[str, str]:
+    """Lower-case SPEC name → the header's own label, for the columns in ``wanted``.
+
+    A label matches after stripping blanks and lower-casing; one that writes a unit after the
+    name (``h [m]``, ``f_z (m/s^2)``) matches when no label is the bare name and the unit is
+    SPEC's (:data:`SPEC_UNITS`) — any other unit is an error naming it (a unit in the header is
+    read, never assumed away).
+    """
+    lookup: dict[str, str] = {}
+    for n in names:
+        lookup.setdefault(n.strip().lower(), n)
+    for n in names:
+        m = _UNIT_IN_NAME.fullmatch(n.strip().lower())
+        if not m or m.group(1) not in wanted or m.group(1) in lookup:
+            continue
+        col, unit = m.group(1), m.group(2)
+        spec, accepted = SPEC_UNITS.get(col, (None, set()))
+        if _unit_key(unit) not in accepted:
+            raise InputError(display, 1, col, f"column {n.strip()!r} gives {col} in {unit!r}; SPEC's {col} is in "
+                                              f"{spec or 'its own unit'}: convert the column to {spec or 'that unit'} "
+                                              f"(the unit in the header is read, never assumed)")
+        lookup[col] = n
+    return lookup
 
 
 def read_csv_table(path: Path | str, display: str, required: Sequence[str],
@@ -260,8 +400,10 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
                    min_rows: int = 1) -> tuple[pd.DataFrame, np.ndarray]:
     """Read a CSV (``.csv`` or ``.csv.gz``) keeping only the named columns.
 
-    Column names are matched after stripping blanks and lower-casing; extra
-    columns are ignored (not even parsed).  Numeric columns are parsed by the
+    Column names are matched after stripping blanks and lower-casing, a label with a unit
+    after the name (``h [m]``) when the unit is SPEC's (:func:`_column_lookup`); extra
+    columns are ignored (not even parsed).  The encoding, separator and decimal mark are
+    SPEC's (UTF-8, comma, point) unless the file itself says otherwise (:func:`csv_dialect`).  Numeric columns are parsed by the
     pandas C engine straight to float64; only when that fails is the file
     re-read as text to locate the offending cell.
 
@@ -290,11 +432,9 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
     if not path.is_file():
         raise InputError(display, None, None, "file not found")
     check_file_size(path, display)
-    names = _header(path, display)
-    lookup: dict[str, str] = {}
-    for n in names:
-        key = n.strip().lower()
-        lookup.setdefault(key, n)
+    dialect = csv_dialect(path, display)
+    names = _header(path, display, **dialect)
+    lookup = _column_lookup(names, list(required) + list(optional), display)
     for col in required:
         if col not in lookup:
             have = ", ".join(repr(n) for n in names) or "none"
@@ -309,7 +449,7 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
         with warnings.catch_warnings():
             # the first data line having more fields than the header only warns: make it an error
             warnings.simplefilter("error", pd.errors.ParserWarning)
-            df = _read_all_columns(path, dtype, display, len(names))
+            df = _read_all_columns(path, dtype, display, len(names), **dialect)
     except InputError:
         raise
     except pd.errors.ParserWarning:
@@ -321,7 +461,7 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
                          f"or a decimal comma? ({exc})") from None
     except ValueError as exc:
         try:
-            err = locate_bad_cell(path, display, usecols, float_cols, rename)
+            err = locate_bad_cell(path, display, usecols, float_cols, rename, **dialect)
         except InputError:
             raise
         except Exception:  # noqa: BLE001 - the first error is the one reported
@@ -428,6 +568,13 @@ def check_time_increasing(t: np.ndarray, rows: np.ndarray, display: str, column:
         i = int(bad[0]) + 1
         if dt[i - 1] == 0:
             msg = f"time {float(t[i]):.6f} is repeated (same as the previous row)"
+            n_rep = int(np.count_nonzero(dt == 0))
+            if n_rep >= max(3, 0.05 * dt.size):
+                # stamps rounded coarser than the sampling interval (18 Hz written to 0.1 s)
+                step = float(np.median(dt[dt > 0])) if np.any(dt > 0) else float("nan")
+                msg += (f" — {n_rep:,} of the {dt.size + 1:,} stamps repeat the one before: the times are written "
+                        f"with too few decimals for the sampling (distinct stamps {step:.3g} s apart); export "
+                        f"the time column with more decimals")
         else:
             msg = f"time goes backwards: {float(t[i]):.6f} after {float(t[i - 1]):.6f}"
             back = float(t[i - 1] - t[i])
@@ -491,7 +638,13 @@ def check_range(df: pd.DataFrame, column: str, lo: float, hi: float, rows: np.nd
     bad = np.flatnonzero(~((v >= lo) & (v <= hi)))
     if bad.size:
         i = int(bad[0])
-        raise InputError(display, int(rows[i]), column, f"{what} {v[i]!r} is outside [{lo:g}, {hi:g}]")
+        x = float(v[i])
+        hint = ""
+        if (column == "lat" and 100.0 <= abs(x) < 9100.0 or column == "lon" and 360.0 < abs(x) < 18100.0) \
+                and abs(x) % 100.0 < 60.0:
+            hint = (" — degrees and minutes run together (DDMM.mmmm, as NMEA writes them)? SPEC's lat and lon are "
+                    "decimal degrees")
+        raise InputError(display, int(rows[i]), column, f"{what} {x!r} is outside [{lo:g}, {hi:g}]{hint}")
 
 
 def gap_rows_in_windows(t: np.ndarray, t_start: np.ndarray, t_end: np.ndarray,
@@ -531,3 +684,68 @@ def gap_rows_in_windows(t: np.ndarray, t_start: np.ndarray, t_end: np.ndarray,
         if k < big.size and before[k] < b:
             out[w] = big[k] + 1
     return out
+
+
+#: numbers converters and loggers write for "no data": never a value of a flight record's columns
+#: (every one is outside what an aircraft's position, velocity or specific force can be, in SPEC's
+#: units and in the f_z units recognised); any magnitude ≥ 1e30 is one too (Geosoft's ±1e32 …)
+NO_DATA_MARKERS = (-999.0, -999.99, -999.999, -9999.0, -9999.99, -99999.0, -99999.99, -999999.0,
+                   9999999.0, 99999999.0)
+NO_DATA_BELOW_ABS = 1e30
+#: a run of exact zeros in ``h`` is a logger's dropout when the heights bordering it are all
+#: farther than this from 0 (m): no aircraft or ship moves that far in one sample
+ZERO_DROPOUT_H_M = 50.0
+
+
+def _zero_runs_bordered(v: np.ndarray, far: float) -> np.ndarray:
+    """Mask of the runs of exact zeros in ``v`` whose bordering values (one side at a file end)
+    are all farther than ``far`` from 0."""
+    out = np.zeros(v.size, bool)
+    starts, lengths = true_runs(v == 0.0)
+    for a, n in zip(starts, lengths):
+        border = [v[i] for i in (a - 1, a + n) if 0 <= i < v.size]
+        if border and all(np.isfinite(b) and abs(b) > far for b in border):
+            out[a:a + n] = True
+    return out
+
+
+def mark_no_data(df: pd.DataFrame, rows: np.ndarray, display: str, columns: Sequence[str]) -> pd.DataFrame:
+    """Cells holding a no-data marker made missing (NaN), in place, with a warning naming them.
+
+    Markers: the numbers of :data:`NO_DATA_MARKERS` and any magnitude ≥ 1e30, in every column
+    of ``columns`` but ``time``; a logger's dropout written as zeros: ``f_z`` exactly 0 (specific
+    force is 0 only in free fall), ``lat`` and ``lon`` both exactly 0 on a row, a run of exact
+    zeros in ``h`` bordered by heights more than :data:`ZERO_DROPOUT_H_M` from 0 — and, on those
+    rows, the other columns' exact zeros.  What follows is the missing-value rule
+    (``processing.max_nan_run``: refused, or interpolated, or a hole of f_z): a marker is never
+    read as a number.
+
+    Returns
+    -------
+    DataFrame
+        ``df`` itself.
+    """
+    cols = [c for c in columns if c in df and c != "time"]
+    found: list[str] = []
+    dropout = np.zeros(len(df), bool)
+    if "f_z" in df:
+        dropout |= df["f_z"].to_numpy(float) == 0.0
+    if "lat" in df and "lon" in df:
+        dropout |= (df["lat"].to_numpy(float) == 0.0) & (df["lon"].to_numpy(float) == 0.0)
+    if "h" in df:
+        dropout |= _zero_runs_bordered(df["h"].to_numpy(float), ZERO_DROPOUT_H_M)
+    for c in cols:
+        v = df[c].to_numpy(float)
+        marker = np.isin(v, NO_DATA_MARKERS) | (np.abs(v) >= NO_DATA_BELOW_ABS)
+        zero = dropout & (v == 0.0)
+        for mask, what in ((marker, None), (zero, "0 (a dropout)")):
+            if mask.any():
+                i = int(np.flatnonzero(mask)[0])
+                found.append(f"{c}: {int(mask.sum())} × {what or f'{v[i]:g}'} (first at row {int(rows[i])})")
+        if marker.any() or zero.any():
+            v = v.copy()
+            v[marker | zero] = np.nan
+            df[c] = v
+    if found:
+        warnings.warn(f"{display}: no-data markers read as missing values — {'; '.join(found)}", stacklevel=3)
+    return df

@@ -100,12 +100,13 @@ def test_median_rate_not_biased_by_rounded_stamps():
 
 
 def test_other_separators_and_unnamed_gzip_say_so(tmp_path):
+    """Semicolons and tabs are read (the header says which, csv_dialect); a separator the
+    reader does not take (bars) is refused at the header, naming it."""
     p = tmp_path / "a.csv"
-    for sep, word in ((";", "semicolons"), ("\t", "tabs")):
-        p.write_text(sep.join(["time", "f_z"]) + "\n" + sep.join(["1", "9.8"]) + "\n")
-        with pytest.raises(InputError) as ei:
-            read_csv_table(p, "a.csv", ("time", "f_z"))
-        assert ei.value.row == 1 and word in str(ei.value) and "commas" in str(ei.value)
+    p.write_text("time|f_z\n1|9.8\n")
+    with pytest.raises(InputError) as ei:
+        read_csv_table(p, "a.csv", ("time", "f_z"))
+    assert ei.value.row == 1 and "bars" in str(ei.value) and "commas" in str(ei.value)
     import gzip
 
     p.write_bytes(gzip.compress(b"time,f_z\n1,9.8\n2,9.8\n"))
