@@ -102,9 +102,51 @@ _CRS_FILE = re.compile(r"(?i)\b(?:nadgrids|geoidgrids|grids|xy_grids|z_grids|ini
                        r"|(?:parameterfile|\"filename\")[^/\\]*[/\\]")
 
 
+MAX_CRS_LENGTH = 200
+_UTM_TEXT = re.compile(r"(?i)\s*(?:wgs\s*84\s*/?\s*)?utm\s*(?:zone\s*)?(\d{1,2})\s*([ns])\w*\s*")
+
+
+def _proj_reads(v: str) -> bool:
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        CRS.from_user_input(v)
+    except CRSError:
+        return False
+    return True
+
+
+def _crs_text_fault(v: str) -> None:
+    """Refuse, with the EPSG code to write instead where one is clear, a CRS written as a WKT
+    (longer than ``MAX_CRS_LENGTH``: PROJ is asked which EPSG code it is, only up to 20 000
+    characters) or as a UTM zone in words PROJ does not read (``UTM 57N``; ``WGS 84 / UTM zone 57S`` it does)."""
+    m = _UTM_TEXT.fullmatch(v)
+    if m and 1 <= int(m.group(1)) <= 60 and not _proj_reads(v):
+        code = (32600 if m.group(2).lower() == "n" else 32700) + int(m.group(1))
+        raise ValueError(f"{v!r} is not a CRS PROJ reads: for WGS 84's UTM zone {int(m.group(1))}"
+                         f"{m.group(2).upper()} write crs = 'EPSG:{code}'")
+    if len(v) <= MAX_CRS_LENGTH:
+        return
+    hint = ""
+    if len(v) <= 20_000:
+        from pyproj import CRS
+        from pyproj.exceptions import CRSError
+
+        try:
+            code = CRS.from_user_input(v).to_epsg(min_confidence=90)
+        except CRSError:
+            code = None
+        if code is not None:
+            hint = f": it is EPSG:{code}, write crs = 'EPSG:{code}'"
+    raise ValueError(f"crs is {len(v)} characters long (a WKT?); at most {MAX_CRS_LENGTH} allowed — give an EPSG "
+                     f"code or a PROJ string{hint}")
+
+
 class SurveySection(_Strict):
     name: Name = "survey"
-    crs: str | None = Field(None, max_length=200, description="Projected CRS for distances and grids, e.g. 'EPSG:32657'; UTM chosen if absent")
+    crs: str | None = Field(None, description="Projected CRS for distances and grids, e.g. 'EPSG:32657' (at most "
+                            "200 characters: an EPSG code or PROJ string); UTM chosen if absent")
     normal_gravity: Literal["WGS84", "GRS80", "Helmert1901"] = "WGS84"
 
     @field_validator("crs")
@@ -114,6 +156,7 @@ class SurveySection(_Strict):
         from app.core.geodesy import crs_fault
 
         if v is not None:
+            _crs_text_fault(v)
             check_label(v, "crs")
             m = _CRS_FILE.search(v)
             if m:

@@ -367,7 +367,7 @@ def utm_crs_for(lon_deg, lat_deg) -> str:
 
 def crs_fault(crs: str) -> str | None:
     """Why ``crs`` cannot hold a survey (None when it can): unknown to PROJ, not projected
-    (distances and the grid need linear units), or a projection that parses and still fails on
+    (distances and the grid need linear units), axes in another unit than the metre, or a projection that parses and still fails on
     every point (``+k=1e-10``) or shrinks distances absurdly — 0.01° of latitude at the centre of
     its area of use (0°, 0° without one) must come out within 10× of 1113 m."""
     from pyproj import CRS, Transformer
@@ -381,6 +381,14 @@ def crs_fault(crs: str) -> str | None:
         return (f"{c.name} is not a projected CRS: distances and the grid need one in linear units "
                 "(e.g. a UTM zone, EPSG:326xx)")
     name = c.name if c.name and c.name != "unknown" else "the CRS"
+    units = {a.unit_name for a in c.axis_info[:2]}
+    if not units <= {"metre", "meter"}:
+        # every distance downstream (easting_km, line lengths, ρ, the grid) is the coordinate in
+        # metres / 1000: a CRS in km or feet passed the check below (its unit converted) and then
+        # put the survey 1000× or 0.3048× its size on the map, silently
+        return (f"{name} has its axes in {', '.join(sorted(units))}: the coordinates are taken in metres "
+                "(distances, the grid); use the same projection in metres (e.g. +units=m, or the UTM zone's "
+                "EPSG:326xx/327xx)")
     aou = c.area_of_use
     lon, lat = ((aou.west + aou.east) / 2.0, (aou.south + aou.north) / 2.0) if aou is not None else (0.0, 0.0)
     try:

@@ -137,6 +137,17 @@ def test_crs_fault_names_what_cannot_hold_a_survey():
     assert "projecting a point fails" in geodesy.crs_fault("+proj=merc +lon_0=158 +k=1e-10 +type=crs")
 
 
+@pytest.mark.parametrize("units, name", [("km", "kilometre"), ("us-ft", "US survey foot"), ("ft", "foot")])
+def test_crs_in_other_units_than_metres_refused(units, name):
+    """Coordinates are read as metres everywhere (easting_km = x / 1000): a UTM zone written in
+    km or feet projects (PROJ converts the test distance) but would put the survey 1000× or
+    0.3048× its size on the map.  PROJ's own axis unit names it; in metres it passes."""
+    zone = "+proj=utm +zone=57 +datum=WGS84 +type=crs"
+    why = geodesy.crs_fault(f"{zone} +units={units}")
+    assert why is not None and name in why and "metres" in why
+    assert geodesy.crs_fault(f"{zone} +units=m") is None
+
+
 @pytest.mark.parametrize("lon, lat, crs", [(159.0, 0.0, "EPSG:32657"), (162.0, 0.0, "EPSG:32657"),
                                            (159.0, 0.0, "EPSG:32655"), (159.0, 0.0, "EPSG:32651"),
                                            (159.0, 62.0, "EPSG:32651"), (-63.0, -35.0, "EPSG:32720")])

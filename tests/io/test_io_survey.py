@@ -771,3 +771,18 @@ def test_unusable_crs_in_survey_toml_is_named(survey_dir):
     p.write_text(p.read_text().replace('name = "tiny"\n', 'name = "tiny"\ncrs = "+proj=merc +k=1e-10 +type=crs"\n'))
     err = expect_error(root, "survey.toml", 3, "survey.crs", match="the CRS cannot be used: projecting a point fails")
     assert "ProjError" not in str(err)
+
+
+def test_crs_as_words_or_wkt_refused_with_the_epsg_code(survey_dir):
+    """A UTM zone in words PROJ cannot read, and a WKT longer than the 200 characters allowed,
+    are refused naming the EPSG code to write instead — the code PROJ itself identifies."""
+    from pyproj import CRS
+
+    root, *_ = survey_dir
+    p = root / "survey.toml"
+    text = p.read_text()
+    p.write_text(text.replace('name = "tiny"\n', 'name = "tiny"\ncrs = "UTM 57N"\n'))
+    expect_error(root, "survey.toml", 3, "survey.crs", match="EPSG:32657")
+    wkt = CRS.from_epsg(32757).to_wkt()    # a TOML literal string keeps WKT's double quotes
+    p.write_text(text.replace('name = "tiny"\n', f"name = \"tiny\"\ncrs = '{wkt}'\n"))
+    expect_error(root, "survey.toml", 3, "survey.crs", match="it is EPSG:32757")
