@@ -9,8 +9,9 @@ the same CSP as the application).
 Every request passes :class:`GuardMiddleware`: the Host header must be allowed (DNS
 rebinding), mutating ``/api`` requests need the token when one is set and, when none is set,
 must come from the page itself (``Sec-Fetch-Site`` / ``Origin``: another web site cannot drive
-the analyst's browser), bodies are limited (413), and every response carries the security
-headers (a CSP without inline scripts, ``X-Frame-Options: DENY``, ``nosniff``).  Malformed
+the analyst's browser), bodies are limited (413: the upload limit for a multipart form sent to an
+endpoint that takes files, at most ``MAX_FORM_PARTS`` parts; ``AEROGRAV_MAX_JSON_KB`` for any
+other body), and every response carries the security headers (a CSP without inline scripts, ``X-Frame-Options: DENY``, ``nosniff``).  Malformed
 requests are answered 4xx with a reason, never 500: validation errors echo at most a short
 excerpt of the offending value and never a non-finite number.
 """
@@ -22,6 +23,7 @@ import hmac
 import json
 import logging
 import os
+import re
 import threading
 import time
 from contextlib import asynccontextmanager
@@ -35,7 +37,12 @@ from fastapi.responses import FileResponse, HTMLResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from sqlalchemy.exc import OperationalError
 from starlette.exceptions import HTTPException as StarletteHTTPException
-from starlette.routing import Match, Mount
+from starlette.routing import Match, Mount, compile_path
+
+try:
+    from python_multipart.multipart import parse_options_header
+except ModuleNotFoundError:  # pragma: no cover - python-multipart < 0.0.13
+    from multipart.multipart import parse_options_header
 
 from app.config import ProcessingParams, param_groups
 from app.io.errors import InputError
@@ -99,6 +106,56 @@ class PayloadTooLarge(HTTPException):
         super().__init__(413, f"upload larger than the limit of {limit_mb:g} MB (AEROGRAV_MAX_UPLOAD_MB)")
 
 
+class BodyTooLarge(HTTPException):
+    """A request that is not an upload (JSON) with a body over ``AEROGRAV_MAX_JSON_KB``."""
+
+    def __init__(self, limit_bytes: int):
+        super().__init__(413, f"request body larger than the limit of {limit_bytes / 1024:g} kB for a request that "
+                              "is not an upload (AEROGRAV_MAX_JSON_KB); files go as multipart/form-data to "
+                              "the upload endpoints (import, flights, dem)")
+
+
+#: most parts (files and fields) of an upload form: an upload has at most four (gravimeter, gnss,
+#: lines, flight).  The form parser keeps a file part of less than 1 MB in memory (larger ones go
+#: to disk), so a body of hundreds of small parts would be held in memory whole.
+MAX_FORM_PARTS = 16
+
+
+class TooManyParts(HTTPException):
+    def __init__(self):
+        super().__init__(400, f"the multipart form has more than {MAX_FORM_PARTS} parts; an upload sends its "
+                              "files (gravimeter, gnss, lines; file; dem) and the flight name only")
+
+
+class PartCounter:
+    """Counts the parts of a multipart body while it streams in: the boundary delimiters seen
+    (``--boundary``; the closing one ends the last part), across chunk edges."""
+
+    def __init__(self, boundary: bytes):
+        self.delimiter = b"--" + boundary
+        self.tail = b""
+        self.seen = 0
+
+    def feed(self, chunk: bytes) -> int:
+        """Add a chunk of the body; returns the parts begun so far."""
+        data = self.tail + chunk
+        self.seen += data.count(self.delimiter)
+        self.tail = data[-(len(self.delimiter) - 1):] if len(self.delimiter) > 1 else b""
+        return max(0, self.seen - 1)
+
+
+def upload_routes(app) -> list[tuple[re.Pattern, set[str]]]:
+    """(path pattern, methods) of the endpoints that take a multipart form (files), from the
+    application's OpenAPI description."""
+    out = []
+    for path, ops in app.openapi().get("paths", {}).items():
+        methods = {m.upper() for m, op in ops.items() if isinstance(op, dict)
+                   and "multipart/form-data" in ((op.get("requestBody") or {}).get("content") or {})}
+        if methods:
+            out.append((compile_path(path)[0], methods))
+    return out
+
+
 async def _send_json(send, status: int, body: dict, headers: list | None = None) -> None:
     raw = json.dumps(body).encode()
     await send({"type": "http.response.start", "status": status,
@@ -131,6 +188,20 @@ class GuardMiddleware:
         self.app = app
         self.settings = settings
         self.allowed = settings.allowed_host_set()
+        self._uploads: list[tuple[re.Pattern, set[str]]] | None = None
+
+    def _is_upload(self, scope, headers: dict) -> bytes | None:
+        """The multipart boundary when the request is a form sent to an endpoint that takes files
+        (the upload limit applies), else None (the JSON limit applies)."""
+        ctype, params = parse_options_header(headers.get(b"content-type", b""))
+        if ctype != b"multipart/form-data" or not params.get(b"boundary"):
+            return None
+        if self._uploads is None and "app" in scope:
+            self._uploads = upload_routes(scope["app"])
+        path, method = scope.get("path", ""), scope["method"]
+        if any(rx.match(path) and method in methods for rx, methods in self._uploads or ()):
+            return params[b"boundary"]
+        return None
 
     def _host_ok(self, host: str) -> bool:
         if self.allowed is None:
@@ -195,19 +266,25 @@ class GuardMiddleware:
             if not given or not hmac.compare_digest(given.encode(), token.encode()):
                 return await _send_json(send_secure, 401, {"detail": "missing or invalid token: send 'Authorization: Bearer <token>'"},
                                         [(b"www-authenticate", b"Bearer")])
-        limit = self.settings.max_upload_bytes
+        boundary = self._is_upload(scope, headers)
+        limit = self.settings.max_upload_bytes if boundary else self.settings.max_json_bytes
+        too_large = (lambda: PayloadTooLarge(self.settings.max_upload_mb)) if boundary else (lambda: BodyTooLarge(limit))
         cl = headers.get(b"content-length")
         if cl is not None and cl.isdigit() and int(cl) > limit:
-            return await _send_json(send_secure, 413, {"detail": PayloadTooLarge(self.settings.max_upload_mb).detail})
+            return await _send_json(send_secure, 413, {"detail": too_large().detail})
         received = 0
+        parts = PartCounter(boundary) if boundary else None
 
         async def limited_receive():
             nonlocal received
             msg = await receive()
             if msg["type"] == "http.request":
-                received += len(msg.get("body", b""))
+                body = msg.get("body", b"")
+                received += len(body)
                 if received > limit:
-                    raise PayloadTooLarge(self.settings.max_upload_mb)
+                    raise too_large()
+                if parts is not None and parts.feed(body) > MAX_FORM_PARTS:
+                    raise TooManyParts()
             return msg
 
         return await self.app(scope, limited_receive, send_secure)

@@ -5,6 +5,8 @@
 ``AEROGRAV_DASK_SCHEDULER`` address of a Dask scheduler; jobs run there when set
 ``AEROGRAV_TOKEN``         when set, every mutating request needs ``Authorization: Bearer <token>``
 ``AEROGRAV_MAX_UPLOAD_MB`` request body limit (413 above it)
+``AEROGRAV_MAX_JSON_KB``   body limit of every other request (JSON: a survey, a job, settings; and
+                           a form sent to an endpoint that takes no files): 413 above it
 ``AEROGRAV_MAX_UNCOMPRESSED_MB`` total uncompressed size of an imported zip, also the largest table
                            file the reader accepts (default 4 × the upload limit)
 ``AEROGRAV_MAX_TABLE_ROWS`` most data rows of one uploaded table file
@@ -35,7 +37,11 @@ class Settings(BaseSettings):
     database_url: str | None = Field(None, description="SQLAlchemy URL; SQLite in the data directory when unset")
     dask_scheduler: str | None = Field(None, description="Dask scheduler address, e.g. tcp://10.0.0.5:8786")
     token: str | None = Field(None, description="Bearer token required on mutating requests when set")
-    max_upload_mb: float = Field(500.0, gt=0, description="Largest accepted request body (MB)")
+    max_upload_mb: float = Field(500.0, gt=0, description="Largest accepted upload: a multipart/form-data body "
+                                 "sent to an endpoint that takes files (MB)")
+    max_json_kb: float = Field(1024.0, gt=0, description="Largest accepted body of any other request (kB): a JSON "
+                               "body is held in memory and parsed into objects many times its size, so the upload "
+                               "limit would let one request take gigabytes")
     pipeline_entry: str = Field(
         "app.pipeline.process:run_job",
         description="'module:function' run by jobs: run_job(input_dir, out_dir, overrides, progress, kind, "
@@ -68,6 +74,11 @@ class Settings(BaseSettings):
     @property
     def max_upload_bytes(self) -> int:
         return int(self.max_upload_mb * 1024 * 1024)
+
+    @property
+    def max_json_bytes(self) -> int:
+        """Body limit of requests that are not uploads (never above the upload limit)."""
+        return min(int(self.max_json_kb * 1024), self.max_upload_bytes)
 
     @property
     def max_uncompressed_bytes(self) -> int:

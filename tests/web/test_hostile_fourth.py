@@ -1,0 +1,102 @@
+"""Fourth hostile pass over the web server: each test is a case that was broken (a request costing
+the server far more than its size, a server path in an error, work without an end) and the
+behaviour the fix gives."""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+
+import pytest
+
+from app.web.main import MAX_FORM_PARTS, PartCounter
+
+from .conftest import import_zip, make_tiny_survey, zip_dir
+
+
+@pytest.fixture(scope="module")
+def tiny_src(tmp_path_factory) -> Path:
+    return make_tiny_survey(tmp_path_factory.mktemp("fourth") / "tiny", name="tiny")
+
+
+def _nothing_stored(client) -> None:
+    d = Path(client.app.state.settings.data_dir)
+    assert client.get("/api/surveys").json() == []
+    assert sorted((d / "surveys").glob("*/input/*")) == [] and list((d / "tmp").iterdir()) == []
+
+
+def _multipart(parts: list[tuple[str, str | None, bytes]], boundary: str = "b0undary") -> tuple[bytes, dict]:
+    """A multipart/form-data body of (field, file name or None, content) parts."""
+    out = io.BytesIO()
+    for name, filename, data in parts:
+        disp = f'form-data; name="{name}"' + (f'; filename="{filename}"' if filename else "")
+        out.write(f"--{boundary}\r\nContent-Disposition: {disp}\r\n\r\n".encode() + data + b"\r\n")
+    out.write(f"--{boundary}--\r\n".encode())
+    return out.getvalue(), {"content-type": f"multipart/form-data; boundary={boundary}"}
+
+
+def test_json_bodies_limited_apart_from_uploads(make_client, tiny_src):
+    """Every body was allowed the upload limit (500 MB): a 105 MB JSON array sent as a survey's name
+    took the server from 280 to 1180 MB (parsed into Python objects ~9 times its size) and left it at
+    780 MB.  A request that is not an upload (JSON, or a form sent to an endpoint that takes no
+    files) is limited to AEROGRAV_MAX_JSON_KB — declared or streamed — with a 413 naming it, while
+    uploads keep their own limit."""
+    client = make_client(max_json_kb=16)
+    assert client.app.state.settings.max_json_bytes == 16 * 1024
+    big = b'{"name": [' + b"0," * 20_000 + b'0]}'
+    r = client.post("/api/surveys", content=big, headers={"content-type": "application/json"})
+    assert r.status_code == 413 and "AEROGRAV_MAX_JSON_KB" in r.json()["detail"], r.text[:300]
+
+    def streamed():
+        for _ in range(40):
+            yield b" " * 1024
+
+    r = client.post("/api/surveys", content=streamed(), headers={"content-type": "application/json"})
+    assert r.status_code == 413 and "AEROGRAV_MAX_JSON_KB" in r.json()["detail"], r.text[:300]
+    body, headers = _multipart([("name", None, b"x" * 40_000)])        # a form where JSON is taken
+    assert client.post("/api/surveys", content=body, headers=headers).status_code == 413
+    r = client.post("/api/surveys/import", content=b"file=" + b"x" * 40_000,   # not multipart: not an upload
+                    headers={"content-type": "application/x-www-form-urlencoded"})
+    assert r.status_code == 413 and "AEROGRAV_MAX_JSON_KB" in r.json()["detail"]
+    _nothing_stored(client)
+
+    data = zip_dir(tiny_src)
+    assert len(data) > 16 * 1024
+    r = import_zip(client, data)                                          # an upload: the upload limit
+    assert r.status_code == 201, r.text[:300]
+    sid = r.json()["id"]
+    r = client.post(f"/api/surveys/{sid}/jobs", json={"kind": "process", "params": {"em_max_iter": 5}})
+    assert r.status_code == 201, r.text[:300]                             # small JSON: as before
+    r = client.patch(f"/api/surveys/{sid}", json={"survey": {"name": "renamed"}})
+    assert r.status_code in (200, 409), r.text[:300]
+
+
+def test_upload_form_with_many_small_parts_refused(client, tiny_src):
+    """The form parser keeps a file part under 1 MB in memory (a larger one goes to disk): 150 parts
+    of 1 MB raised the server's peak memory by 150 MB where one 150 MB file cost 1 MB, and the
+    upload limit allowed 500 such parts.  An upload form has at most MAX_FORM_PARTS parts (400
+    naming them, counted while the body streams in); the real ones pass."""
+    body, headers = _multipart([(f"f{i}", f"a{i}.bin", b"x" * 1000) for i in range(MAX_FORM_PARTS + 5)])
+    for path in ("/api/surveys/import", "/api/surveys/1/flights"):
+        r = client.post(path, content=body, headers=headers)
+        assert r.status_code == 400 and "parts" in r.json()["detail"], (path, r.text[:300])
+    _nothing_stored(client)
+
+    sid = import_zip(client, zip_dir(tiny_src)).json()["id"]
+    f = tiny_src / "flights" / "f1"
+    lines = (tiny_src / "lines.csv").read_bytes()
+    body, headers = _multipart([("gravimeter", "g.csv", (f / "gravimeter.csv").read_bytes()),
+                                ("gnss", "n.csv", (f / "gnss.csv").read_bytes()), ("lines", "l.csv", lines),
+                                ("flight", None, b"f1")])
+    r = client.post(f"/api/surveys/{sid}/flights", content=body, headers=headers)
+    assert r.status_code == 201, r.text[:300]
+
+
+@pytest.mark.parametrize("chunk", [1, 3, 7, 1000])
+def test_part_counter_across_chunk_edges(chunk):
+    body, _ = _multipart([("a", "a.bin", b"--b0undar"), ("b", None, b"1"), ("c", "c.bin", b"")])
+    pc = PartCounter(b"b0undary")
+    n = 0
+    for i in range(0, len(body), chunk):
+        n = pc.feed(body[i:i + chunk])
+    assert n == 3
