@@ -1,9 +1,30 @@
 """Request validation errors as JSON-safe 422 details (short excerpts, finite numbers only, text
-that UTF-8 can carry)."""
+that UTF-8 can carry), and messages cleared of the server's own paths."""
 
 from __future__ import annotations
 
 import math
+import re
+from pathlib import Path
+
+_FLIGHTS = re.compile(r"(?:^|/)(flights/.*)")
+
+
+def hide_server_paths(text: str, root: str | Path) -> str:
+    """``text`` with every path under the server's data directory ``root`` shown as the file's
+    place in its survey (``flights/f1/gnss.csv``) or its bare name (``dem.tif``): a reader's or
+    GDAL's message may name the staged file by its absolute path, and the server's layout is not
+    the client's business."""
+    base = str(root).rstrip("/\\")
+    if not base or base not in text:
+        return text
+
+    def short(m: re.Match) -> str:
+        rest = (m.group(1) or "").replace("\\", "/").strip("/")
+        f = _FLIGHTS.search(rest)
+        return f.group(1) if f else (rest.rsplit("/", 1)[-1] or "the data directory")
+
+    return re.sub(re.escape(base) + r"([/\\][^\s'\"]*)?", short, text)
 
 
 def _text(s: str) -> str:

@@ -47,6 +47,7 @@ from app.jsonsafe import to_jsonable
 from app.pipeline.parallel import cpu_count, freeze_imports, thread_count
 
 from .db import ACTIVE_STATES, Job, Result, Survey, session_factory, utcnow
+from .errors import hide_server_paths
 
 log = logging.getLogger("aerograv.web.jobs")
 
@@ -149,7 +150,8 @@ def execute_job(job_id: int, db_url: str, entry: str, input_dir: str, out_dir: s
         return "cancelled"
     except BaseException as exc:  # noqa: BLE001 - every failure is reported on the job
         shutil.rmtree(partial, ignore_errors=True)
-        msg = str(exc) or type(exc).__name__
+        # the survey's snapshot and result folders by the file's place in them (flights/f1/gnss.csv)
+        msg = hide_server_paths(str(exc) or type(exc).__name__, out.parent.parent)
         if type(exc).__name__ != "InputError":
             msg = f"{type(exc).__name__}: {msg}"
             log.error("job %s failed:\n%s", job_id, traceback.format_exc())

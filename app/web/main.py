@@ -48,7 +48,7 @@ from app.config import ProcessingParams, param_groups
 from app.io.errors import InputError
 
 from .db import session_factory
-from .errors import validation_detail
+from .errors import hide_server_paths, validation_detail
 from .jobs import JobManager
 from .schemas import HealthOut, ParamsSchemaOut
 from .settings import Settings
@@ -362,8 +362,10 @@ def _add_exception_handlers(app: FastAPI) -> None:
     """Malformed input → 4xx with a reason; database and disk trouble → 503/507 (never a bare 500)."""
 
     @app.exception_handler(InputError)
-    async def _input_error(_req: Request, exc: InputError):
-        return JSONResponse(status_code=422, content={"detail": exc.to_dict()})
+    async def _input_error(req: Request, exc: InputError):
+        root = req.app.state.settings.data_dir
+        detail = {k: hide_server_paths(v, root) if isinstance(v, str) else v for k, v in exc.to_dict().items()}
+        return JSONResponse(status_code=422, content={"detail": detail})
 
     @app.exception_handler(RequestValidationError)
     async def _validation_error(_req: Request, exc: RequestValidationError):

@@ -259,3 +259,11 @@ def process_survey(survey_dir, out_dir, overrides=None, progress=None, kind="pro
     return write_outputs(out_dir, df, crs=survey.config.survey.crs or "EPSG:32657",
                          base_gravity_mgal=survey.config.gravimeter.base_gravity_mgal,
                          dem=(Path(survey_dir) / "dem.tif").is_file(), datum=survey.config.processing.datum)
+
+
+def failing_survey(survey_dir, out_dir, overrides=None, progress=None, kind="process", previous_dir=None) -> dict:
+    """A pipeline that fails as a reader or GDAL may: its error names files by their absolute paths."""
+    from app.io.errors import InputError
+
+    raise InputError(str(Path(survey_dir) / "flights" / "f1" / "gnss.csv"), 3, "time",
+                     f"not a number; see also '{Path(survey_dir) / 'dem.tif'}' and {Path(out_dir) / 'grid.nc'}")

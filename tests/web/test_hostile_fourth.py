@@ -11,7 +11,7 @@ import pytest
 
 from app.web.main import MAX_FORM_PARTS, PartCounter
 
-from .conftest import import_zip, make_tiny_survey, zip_dir
+from .conftest import import_zip, make_tiny_survey, wait_job, zip_dir, zip_with
 
 
 @pytest.fixture(scope="module")
@@ -100,3 +100,26 @@ def test_part_counter_across_chunk_edges(chunk):
     for i in range(0, len(body), chunk):
         n = pc.feed(body[i:i + chunk])
     assert n == 3
+
+
+def test_errors_do_not_show_server_paths(make_client, tiny_src):
+    """GDAL names the file it cannot read by its path: a DEM that starts as a TIFF but is not one
+    was refused with "'/…/data/tmp/<uuid>/survey/dem.tif' not recognized as being in a supported
+    file format" — the server's data directory and layout.  Errors name the file by its place in
+    the survey (dem.tif, flights/f1/gnss.csv), for uploads and failed jobs alike."""
+    client = make_client()
+    root = str(client.app.state.settings.data_dir)
+    sid = import_zip(client, zip_dir(tiny_src)).json()["id"]
+    r = client.put(f"/api/surveys/{sid}/dem", files={"dem": ("dem.tif", b"II*\x00" + b"\x00" * 100)})
+    assert r.status_code == 422 and r.json()["detail"]["file"] == "dem.tif", r.text[:300]
+    assert root not in r.text and "dem.tif" in r.json()["detail"]["message"], r.text[:400]
+    r = import_zip(client, zip_with(tiny_src, {"dem.tif": b"II*\x00" + b"\x00" * 100}))
+    assert r.status_code == 422 and root not in r.text, r.text[:400]
+
+    failing = make_client(data_dir=Path(root).parent / "failing", pipeline_entry="tests.web.fake_pipeline:failing_survey")
+    sid = import_zip(failing, zip_dir(tiny_src)).json()["id"]
+    job = wait_job(failing, failing.post(f"/api/surveys/{sid}/jobs", json={"kind": "process"}).json()["id"])
+    assert job["status"] == "failed", job
+    err = job["error"]
+    assert str(Path(root).parent / "failing") not in err, err
+    assert err.startswith("file flights/f1/gnss.csv, row 3") and "'dem.tif'" in err and "grid.nc" in err, err
