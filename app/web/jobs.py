@@ -250,6 +250,7 @@ class JobManager:
         self._client = None
         self._pending: dict[int, str] = {}  # job id -> reason of a worker death not yet recorded
         self._waiting: deque[tuple[int, tuple]] = deque()  # local jobs queued for a free slot (id, args)
+        self._started: dict[int, float] = {}  # job id -> when its worker started or its task was submitted (monotonic)
         self._last_reconcile = 0.0
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -328,6 +329,7 @@ class JobManager:
                         name=f"aerograv-job-{job_id}")
         p.start()
         self._procs[job_id] = p
+        self._started[job_id] = time.monotonic()
 
     def submit(self, job: Job) -> None:
         """Start the job: on Dask, or in a process of its own — or, when ``max_local_jobs``
@@ -339,6 +341,7 @@ class JobManager:
             if self.backend == "dask":
                 fut = self._dask_client().submit(execute_job, *args, pure=False, key=f"aerograv-job-{job.id}")
                 self._futures[job.id] = fut
+                self._started[job.id] = time.monotonic()
             elif self._waiting or self._running() >= self.max_local_jobs():
                 self._waiting.append((job.id, args))
                 waits = True
@@ -395,22 +398,60 @@ class JobManager:
             s.execute(update(Job).where(Job.id == job_id, Job.status.in_(ACTIVE_STATES))
                       .values(status="failed", error=reason, finished_at=utcnow()))
             s.commit()
-        out = None
+        self._remove_partial(job_id)
+
+    def _remove_partial(self, job_id: int) -> None:
+        """Remove the half-written result folder of a job that ended without its result."""
         with self.Session() as s:
             job = s.get(Job, job_id)
             out = job.out_dir if job else None
         if out:
             shutil.rmtree(out + ".partial", ignore_errors=True)
 
+    def stop_overdue(self) -> list[int]:
+        """Fail and stop the jobs running longer than ``settings.job_timeout_s`` (the worker's writes
+        then find the job no longer running and it stops; a local worker is terminated at once).
+        Returns their ids."""
+        limit = getattr(self.settings, "job_timeout_s", None)
+        if not limit:
+            return []
+        now = time.monotonic()
+        with self._lock:
+            over = [jid for jid, t0 in self._started.items() if now - t0 > limit
+                    and (jid in self._procs or jid in self._futures)]
+        stopped = []
+        for jid in over:
+            reason = (f"stopped: the job ran longer than the {limit / 3600:g} h allowed (AEROGRAV_JOB_TIMEOUT_S); "
+                      "the survey's current result is unchanged")
+            try:
+                self._fail_if_active(jid, reason)
+            except Exception as exc:  # noqa: BLE001 - tried again on the next pass
+                log.warning("job %s: could not record its timeout yet (%s)", jid, exc)
+                continue
+            with self._lock:
+                self._started.pop(jid, None)
+                p, fut = self._procs.get(jid), self._futures.get(jid)
+            if p is not None and p.is_alive():
+                p.terminate()
+                p.join(timeout=5)
+                self._remove_partial(jid)      # what the worker wrote until it was stopped
+            if fut is not None:
+                fut.cancel()                   # a running task stops at its next progress report
+            stopped.append(jid)
+        return stopped
+
     def check(self) -> None:
         """One pass of the monitor (also called by tests)."""
+        self.stop_overdue()
         with self._lock:
             dead = [(jid, p) for jid, p in self._procs.items() if not p.is_alive()]
             for jid, _ in dead:
                 del self._procs[jid]
+                self._started.pop(jid, None)
             done = [(jid, f) for jid, f in self._futures.items() if f.done()]
             for jid, _ in done:
                 del self._futures[jid]
+                self._started.pop(jid, None)
         for jid, p in dead:
             p.join(timeout=1)
             self._pending[jid] = _death_reason(p.exitcode)

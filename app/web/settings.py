@@ -19,6 +19,8 @@
                            bind address, ``localhost``, ``127.0.0.1`` and ``::1``
 ``AEROGRAV_MAX_JOBS``      most local job processes running at once (default: the CPUs); later
                            jobs wait, queued, for a free slot
+``AEROGRAV_JOB_TIMEOUT_S`` longest a job may run (default 24 h): a job still running then is stopped
+                           and marked failed, saying so (its slot frees for the jobs waiting)
 """
 
 from __future__ import annotations
@@ -64,6 +66,9 @@ class Settings(BaseSettings):
                                  "(default: the CPUs this server may use); later jobs wait, queued, for a free slot "
                                  "— every job is a process of its own, so many surveys started at once would "
                                  "otherwise take the machine's memory")
+    job_timeout_s: float = Field(86400.0, gt=0, description="Longest a job may run (s) from its start: a job still "
+                                 "running then is stopped and marked failed, so that no job holds a worker slot "
+                                 "(and its CPUs) without end")
 
     @property
     def db_url(self) -> str:

@@ -123,3 +123,27 @@ def test_errors_do_not_show_server_paths(make_client, tiny_src):
     err = job["error"]
     assert str(Path(root).parent / "failing") not in err, err
     assert err.startswith("file flights/f1/gnss.csv, row 3") and "'dem.tif'" in err and "grid.nc" in err, err
+
+
+def test_jobs_stopped_after_their_time_limit(make_client, tiny_src, monkeypatch):
+    """No job had an end but its own: parameters within their bounds can make a large survey's job run
+    for many hours, and a job on each of a few surveys held every worker slot meanwhile (the others'
+    jobs waiting without end).  A job running longer than AEROGRAV_JOB_TIMEOUT_S is marked failed
+    saying so, its worker stopped, its half-written folder removed and its slot given to the next
+    job; the survey keeps its current result."""
+    monkeypatch.setenv("AEROGRAV_FAKE_DELAY_S", "5")          # a fake job of about a minute
+    client = make_client(job_timeout_s=0.3, max_jobs=1, poll_interval_s=0.05)
+    jobs = client.app.state.jobs
+    a = import_zip(client, zip_dir(tiny_src)).json()["id"]
+    b = import_zip(client, zip_dir(tiny_src)).json()["id"]
+    ja = client.post(f"/api/surveys/{a}/jobs", json={"kind": "process"}).json()["id"]
+    jb = client.post(f"/api/surveys/{b}/jobs", json={"kind": "process"}).json()["id"]
+    assert jobs.waiting() == [jb]
+    first = wait_job(client, ja, timeout=10)
+    assert first["status"] == "failed" and "AEROGRAV_JOB_TIMEOUT_S" in first["error"], first
+    assert wait_job(client, jb, timeout=10)["status"] == "failed"      # started once the slot freed, then stopped
+    assert jobs.waiting() == [] and jobs.worker_pid(ja) is None
+    for sid in (a, b):
+        assert client.get(f"/api/surveys/{sid}").json()["current_result_id"] is None
+    d = Path(client.app.state.settings.data_dir)
+    assert list(d.glob("surveys/*/results/*.partial")) == []
