@@ -47,6 +47,17 @@ def store_has_room(store: Store = Depends(get_store), settings: Settings = Depen
     store.check_room(settings.max_store_bytes)
 
 
+def room_for_a_survey(db: Session = Depends(get_db), settings: Settings = Depends(get_settings)) -> None:
+    """Refuse a new survey (create or import) when the store holds ``AEROGRAV_MAX_SURVEYS`` already
+    (HTTP 507, before anything is read)."""
+    from sqlalchemy import func, select
+
+    n = db.scalar(select(func.count()).select_from(Survey))
+    if n >= settings.max_surveys:
+        raise HTTPException(507, f"the server holds {n:,} surveys, the most allowed (AEROGRAV_MAX_SURVEYS = "
+                                 f"{settings.max_surveys:,}); nothing was stored — delete surveys no longer needed")
+
+
 def get_survey_reader(request: Request) -> Callable:
     """``read_survey(path)`` validating a survey directory (raises InputError), with the upload
     limits on every table file (size, decompressed while reading, and rows)."""

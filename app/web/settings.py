@@ -15,6 +15,8 @@
 ``AEROGRAV_MAX_STORE_MB``  most disk the whole data directory may hold (every survey's inputs and
                            results, the SQLite file; default 20 GB): new surveys and uploads that
                            would go above it are refused (507); reported in ``/api/health``
+``AEROGRAV_MAX_SURVEYS``   most surveys the store holds (default 10 000): a new survey or import beyond
+                           it is refused (507)
 ``AEROGRAV_ALLOWED_HOSTS`` comma-separated Host header values accepted (``*`` = any); default: the
                            bind address, ``localhost``, ``127.0.0.1`` and ``::1``
 ``AEROGRAV_MAX_JOBS``      most local job processes running at once (default: the CPUs); later
@@ -59,6 +61,9 @@ class Settings(BaseSettings):
     max_store_mb: float = Field(20480.0, gt=0, description="Most disk the data directory may hold (MB): every "
                                 "survey's inputs and results and the SQLite file; new surveys and uploads that "
                                 "would take it above are refused (HTTP 507)")
+    max_surveys: int = Field(10_000, ge=1, description="Most surveys the store holds: an empty survey costs no "
+                             "disk, so the store's limit alone let requests add surveys without end (each listed by "
+                             "every GET /api/surveys and counted by /api/health)")
     allowed_hosts: str | None = Field(None, description="Comma-separated Host header values accepted ('*' = any); "
                                       "default the bind address, localhost, 127.0.0.1, ::1")
     bind_host: str | None = Field(None, description="The address `aerograv serve` binds (set by serve)")

@@ -147,3 +147,21 @@ def test_jobs_stopped_after_their_time_limit(make_client, tiny_src, monkeypatch)
         assert client.get(f"/api/surveys/{sid}").json()["current_result_id"] is None
     d = Path(client.app.state.settings.data_dir)
     assert list(d.glob("surveys/*/results/*.partial")) == []
+
+
+def test_number_of_surveys_bounded(make_client, tiny_src):
+    """An empty survey costs no disk, so the store's limit never stopped them: 2000 POST /api/surveys
+    took 7 s and made every survey listing take 1.1 s (linear: 100 000 would take a minute each).
+    Beyond AEROGRAV_MAX_SURVEYS a new survey or an import is a 507 naming the setting, nothing
+    stored; a deleted survey makes room again."""
+    client = make_client(max_surveys=2)
+    ids = [client.post("/api/surveys", json={"name": f"s{i}"}).json()["id"] for i in range(2)]
+    r = client.post("/api/surveys", json={"name": "one too many"})
+    assert r.status_code == 507 and "AEROGRAV_MAX_SURVEYS" in r.json()["detail"], r.text[:300]
+    r = import_zip(client, zip_dir(tiny_src))
+    assert r.status_code == 507 and "AEROGRAV_MAX_SURVEYS" in r.json()["detail"], r.text[:300]
+    assert [s["id"] for s in client.get("/api/surveys").json()] == ids
+    d = Path(client.app.state.settings.data_dir)
+    assert sorted(d.glob("surveys/*/input/*")) == [] and list((d / "tmp").iterdir()) == []
+    assert client.delete(f"/api/surveys/{ids[0]}").status_code == 204
+    assert import_zip(client, zip_dir(tiny_src)).status_code == 201

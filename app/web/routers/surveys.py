@@ -19,6 +19,7 @@ from ..deps import (
     get_store,
     get_survey_or_404,
     get_survey_reader,
+    room_for_a_survey,
     store_has_room,
 )
 from ..schemas import (
@@ -79,7 +80,8 @@ def survey_out(db: Session, s: Survey) -> SurveyOut:
 #: the answer when the store is at its limit (AEROGRAV_MAX_STORE_MB)
 
 
-@router.post("", response_model=SurveyOut, status_code=201, dependencies=[Depends(store_has_room)],
+@router.post("", response_model=SurveyOut, status_code=201,
+             dependencies=[Depends(store_has_room), Depends(room_for_a_survey)],
              responses=STORE_FULL)
 def create_survey(body: SurveyCreate, db: Session = Depends(get_db)) -> SurveyOut:
     """An empty survey; add flights with POST /api/surveys/{id}/flights."""
@@ -136,7 +138,8 @@ def remove_survey(s: Survey = Depends(get_survey_or_404), db: Session = Depends(
     return Response(status_code=204)
 
 
-@router.post("/import", response_model=SurveyOut, status_code=201, dependencies=[Depends(store_has_room)],
+@router.post("/import", response_model=SurveyOut, status_code=201,
+             dependencies=[Depends(store_has_room), Depends(room_for_a_survey)],
              responses=STORE_FULL)
 def import_survey(file: UploadFile = File(..., description="zip of a survey directory (may be nested one level)"),
                   db: Session = Depends(get_db), store: Store = Depends(get_store),
