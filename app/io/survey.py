@@ -68,6 +68,7 @@ from app.io.tables import (
     check_range,
     check_rate,
     check_time_increasing,
+    drop_duplicate_rows,
     fill_short_nan_runs,
     gap_rows_in_windows,
     mark_no_data,
@@ -453,6 +454,7 @@ def read_gravimeter(path, display: str, config: SurveyConfig, time_offset_s: flo
         _check_ranges(df, rows, display)
     else:
         df, rows = read_csv_table(path, display, GRAV_REQUIRED, GRAV_OPTIONAL, min_rows=2)
+        df, rows = drop_duplicate_rows(df, rows, display)
         mark_no_data(df, rows, display, GRAV_REQUIRED + GRAV_OPTIONAL)
         declared = config.columns.for_role("gravimeter").get("f_z_unit")
         _csv_force_units(df, display, declared, _unit_row(path) if declared else None)
@@ -669,6 +671,7 @@ def read_gnss(path, display: str, config: SurveyConfig) -> tuple[pd.DataFrame, n
     and ``df.attrs["vu_derived_from_h"]`` is True.
     """
     df, rows = read_csv_table(path, display, GNSS_REQUIRED, GNSS_OPTIONAL, min_rows=2)
+    df, rows = drop_duplicate_rows(df, rows, display)
     mark_no_data(df, rows, display, GNSS_REQUIRED + GNSS_OPTIONAL)
     df, derived = finish_gnss(df, rows, display, config)
     df.attrs["vu_derived_from_h"] = derived

@@ -50,6 +50,7 @@ __all__ = [
     "table_limits",
     "check_file_size",
     "mark_no_data",
+    "drop_duplicate_rows",
 ]
 
 
@@ -749,3 +750,28 @@ def mark_no_data(df: pd.DataFrame, rows: np.ndarray, display: str, columns: Sequ
     if found:
         warnings.warn(f"{display}: no-data markers read as missing values — {'; '.join(found)}", stacklevel=3)
     return df
+
+
+def drop_duplicate_rows(df: pd.DataFrame, rows: np.ndarray, display: str) -> tuple[pd.DataFrame, np.ndarray]:
+    """Rows that repeat an earlier row exactly — the same time and the same value in every
+    column read — dropped, with a warning naming how many and the first (file row numbers).
+
+    A logger that wrote a record twice, or two files joined where they overlap, repeat whole
+    rows; a repeat carries nothing new, so dropping it loses nothing.  A time repeated with
+    *other* values is still refused (:func:`check_time_increasing`): which one is right is not
+    in the file.
+
+    Returns
+    -------
+    (DataFrame, ndarray)
+        The table and its file row numbers without the repeats (``df`` itself when there are none).
+    """
+    dup = df.duplicated(keep="first").to_numpy()
+    if not dup.any():
+        return df, rows
+    rows = np.asarray(rows)
+    n = int(dup.sum())
+    warnings.warn(f"{display}: {n} row(s) repeating an earlier row exactly (time and every value) dropped — "
+                  f"the first at row {int(rows[dup][0])}, repeating row "
+                  f"{int(rows[np.flatnonzero(df.duplicated(keep=False).to_numpy() & ~dup)[0]])}", stacklevel=3)
+    return df.loc[~dup].reset_index(drop=True), rows[~dup]

@@ -786,3 +786,26 @@ def test_crs_as_words_or_wkt_refused_with_the_epsg_code(survey_dir):
     wkt = CRS.from_epsg(32757).to_wkt()    # a TOML literal string keeps WKT's double quotes
     p.write_text(text.replace('name = "tiny"\n', f"name = \"tiny\"\ncrs = '{wkt}'\n"))
     expect_error(root, "survey.toml", 3, "survey.crs", match="it is EPSG:32757")
+
+
+def test_repeated_rows_dropped_same_series(survey_dir):
+    """A record written twice, and two files joined where they overlap (50 rows again), read as
+    the clean file — every repeat is the same time with the same values — with a warning; a
+    repeated time with another value is still refused (which one is right is not in the file)."""
+    root, _, tabs = survey_dir
+    g, gn = tabs["F1"][0], tabs["F1"][1]
+    clean = read_survey(root).flights["F1"]
+    twice = pd.concat([g.iloc[:301], g.iloc[300:]], ignore_index=True)              # row 300 twice
+    joined = pd.concat([gn.iloc[:400], gn.iloc[350:]], ignore_index=True)           # 50 rows overlap
+    twice.to_csv(root / "flights/F1/gravimeter.csv", index=False)
+    joined.to_csv(root / "flights/F1/gnss.csv", index=False)
+    with pytest.warns(UserWarning, match="repeating an earlier row exactly") as rec:
+        s = read_survey(root).flights["F1"]
+    msgs = " ".join(str(w.message) for w in rec)
+    assert "gravimeter.csv: 1 row(s)" in msgs and "gnss.csv: 50 row(s)" in msgs
+    pd.testing.assert_frame_equal(s.gravimeter.reset_index(drop=True), clean.gravimeter.reset_index(drop=True))
+    pd.testing.assert_frame_equal(s.gnss.reset_index(drop=True), clean.gnss.reset_index(drop=True))
+    other = twice.copy()
+    other.loc[301, "f_z"] += 1e-4
+    other.to_csv(root / "flights/F1/gravimeter.csv", index=False)
+    expect_error(root, "flights/F1/gravimeter.csv", 303, "time", match="repeated")
