@@ -12,6 +12,7 @@ caps below, in one place, quoted in the validation messages.
 from __future__ import annotations
 
 import re
+import unicodedata
 from typing import Annotated, Literal
 
 from pydantic import AfterValidator, BaseModel, BeforeValidator, ConfigDict, Field, field_validator, model_validator
@@ -40,7 +41,8 @@ _SURROGATE = re.compile("[\ud800-\udfff]")
 
 def check_label(value: str, what: str = "label") -> str:
     """Free text shown in the browser and the report (an instrument's model): at most
-    ``MAX_NAME_LENGTH`` characters and no control characters; path separators are allowed."""
+    ``MAX_NAME_LENGTH`` characters, no control characters and, unless empty, at least one visible
+    character (:func:`has_visible`); path separators are allowed."""
     if len(value) > MAX_NAME_LENGTH:
         raise ValueError(f"{what} is {len(value)} characters long; at most {MAX_NAME_LENGTH} allowed")
     m = _CONTROL.search(value)
@@ -50,16 +52,39 @@ def check_label(value: str, what: str = "label") -> str:
     m = _SURROGATE.search(value)
     if m:  # JSON may escape half of a UTF-16 pair ("\\ud800"): no UTF-8 file or database takes it
         raise ValueError(f"{what} contains {m.group()!r}, half of a UTF-16 surrogate pair (not a character)")
+    if value and not has_visible(value):
+        raise ValueError(f"{what} has no visible character (only {_describe_invisible(value)}): it would show "
+                         "as a blank; write at least one letter, digit, punctuation mark or symbol")
     return value
+
+
+#: Unicode general categories that show as something: letters, numbers, punctuation, symbols (not
+#: separators Z*, format and other characters C*, or combining marks M* on their own)
+_VISIBLE_CATEGORIES = frozenset("LNPS")
+
+
+def has_visible(value: str) -> bool:
+    """``value`` holds at least one character of Unicode category L, N, P or S (a zero-width space,
+    word joiner, byte-order mark, ideographic space or a lone combining mark shows nothing)."""
+    return any(unicodedata.category(c)[0] in _VISIBLE_CATEGORIES for c in value)
+
+
+def _describe_invisible(value: str, most: int = 4) -> str:
+    """The distinct characters of ``value`` by code point and Unicode name, e.g. ``U+200B ZERO WIDTH SPACE``."""
+    seen = list(dict.fromkeys(value))
+    names = [f"U+{ord(c):04X} {unicodedata.name(c, unicodedata.category(c))}" for c in seen[:most]]
+    return ", ".join(names) + (f" and {len(seen) - most} more" if len(seen) > most else "")
 
 
 def check_name(value: str, what: str = "name") -> str:
     """A name shown in the browser and used as a file or folder name: not empty, at most
-    ``MAX_NAME_LENGTH`` characters, no control characters, no path separators."""
+    ``MAX_NAME_LENGTH`` characters, no control characters, at least one visible character (Unicode
+    category L, N, P or S: not only zero-width, format, space or combining characters), no path
+    separators."""
     if not isinstance(value, str):
         raise ValueError(f"{what} must be text")
     if not value.strip():
-        raise ValueError(f"{what} is empty")
+        raise ValueError(f"{what} is empty" + (f" (only {_describe_invisible(value)})" if value else ""))
     check_label(value, what)
     if "/" in value or "\\" in value:
         raise ValueError(f"{what} contains a path separator ('/' or '\\')")
