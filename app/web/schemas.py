@@ -115,6 +115,14 @@ class SurveyOut(Out):
                           "adds the terrain correction and the Bouguer anomaly")
 
 
+class SurveyUploadOut(SurveyOut):
+    """The survey after a flight upload or a survey import, with what the survey reader warned about."""
+    warnings: list[str] = Field(default_factory=list, description="The survey reader's warnings on the stored "
+                                "input (every flight's, not only the uploaded one's), e.g. a flight no line uses "
+                                "left out because its files cannot be read; at most 100, file names relative to "
+                                "the survey directory. Empty when the reader had nothing to say")
+
+
 class EMIteration(BaseModel):
     model_config = ConfigDict(extra="allow")
     iteration: int
@@ -393,3 +401,4 @@ class ReportOut(Out):
 
 
 SurveyOut.model_rebuild()
+SurveyUploadOut.model_rebuild()

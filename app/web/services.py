@@ -75,6 +75,30 @@ def validate(reader: Callable, root: Path):
     return survey
 
 
+#: Most reader warnings returned with an upload (each cut to ``MAX_WARNING_CHARS``): a survey of
+#: thousands of lines may give one per line.
+MAX_UPLOAD_WARNINGS = 100
+MAX_WARNING_CHARS = 2000
+
+
+def reader_notes(survey, root: Path) -> list[str]:
+    """The survey reader's warnings (``Survey.notes``: e.g. a flight no line uses left out because its
+    files cannot be read) for the client: file names relative to the survey directory (the staging
+    path taken out), at most ``MAX_UPLOAD_WARNINGS`` of at most ``MAX_WARNING_CHARS`` characters, a
+    last one saying how many more there were."""
+    notes = [str(n) for n in (getattr(survey, "notes", None) or [])]
+    prefixes = sorted({str(Path(root)) + os.sep, str(Path(root).resolve()) + os.sep}, key=len, reverse=True)
+    out = []
+    for n in notes[:MAX_UPLOAD_WARNINGS]:
+        for pre in prefixes:
+            n = n.replace(pre, "")
+        out.append(n if len(n) <= MAX_WARNING_CHARS else n[:MAX_WARNING_CHARS] + f"… ({len(n):,} characters)")
+    if len(notes) > MAX_UPLOAD_WARNINGS:
+        out.append(f"… and {len(notes) - MAX_UPLOAD_WARNINGS:,} more warnings (the report of a processing run "
+                   "lists them all)")
+    return out
+
+
 def _too_many_lines(n: int) -> None:
     if n > MAX_SURVEY_LINES:
         raise InputError("lines.csv", None, None, f"the survey has {n:,} lines; at most {MAX_SURVEY_LINES:,} "
@@ -205,11 +229,14 @@ def has_dem(s: Survey) -> bool:
 
 
 def import_survey_tree(db: Session, store: Store, reader: Callable, root: Path, fallback_name: str,
-                       budget_bytes: int | None = None, store_limit_bytes: int | None = None) -> Survey:
+                       budget_bytes: int | None = None, store_limit_bytes: int | None = None,
+                       notes: list[str] | None = None) -> Survey:
     """Validate the survey directory ``root`` (already staged under the store's tmp; its optional
-    ``dem.tif`` too) and store it."""
+    ``dem.tif`` too) and store it; the reader's warnings (:func:`reader_notes`) are appended to
+    ``notes`` once it is stored."""
     try:
         survey = validate(reader, root)
+        said = reader_notes(survey, root)
         check_survey_dem(root, survey)
         with room_for(store, None, root, budget_bytes, store_limit_bytes):
             s = Survey(name=survey_name(survey, fallback_name))
@@ -220,6 +247,8 @@ def import_survey_tree(db: Session, store: Store, reader: Callable, root: Path, 
             except Exception:
                 db.rollback()
                 raise
+        if notes is not None:
+            notes.extend(said)
         return s
     finally:
         survey = None
@@ -322,11 +351,13 @@ def _unused_flight_name(s: Survey) -> str:
 
 def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str | None, write_files: Callable,
                lines_raw: bytes | None, budget_bytes: int | None = None,
-               store_limit_bytes: int | None = None) -> Survey:
+               store_limit_bytes: int | None = None, notes: list[str] | None = None) -> Survey:
     """Build the next snapshot (hard links to the current one + this flight's files), validate it and
     switch to it, under the survey's lock; ``write_files(flight_dir)`` writes gravimeter.csv and gnss.csv.
     Without a name the flight is called as the uploaded lines.csv calls it (when it names one flight),
-    else ``flight<k>``."""
+    else ``flight<k>``.  The reader's warnings on the new snapshot (:func:`reader_notes`: a flight no
+    line uses whose files cannot be read is stored but left out, said there) are appended to
+    ``notes`` once it is stored."""
     check_lines_upload(lines_raw)
     with store.survey_lock(s.id):
         refresh_survey(db, s)
@@ -365,6 +396,7 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
                 new.to_csv(tmp, index=False)
                 os.replace(tmp, lp)  # a new file: the linked one of the current snapshot is untouched
             survey = validate(reader, root)
+            said = reader_notes(survey, root)
             prune_survey(db, store, s.id)
             with room_for(store, s.id, root, budget_bytes, store_limit_bytes):
                 install_snapshot(db, store, s, root, survey, expect_input_dir=base, check_expected=True)
@@ -372,6 +404,8 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
             shutil.rmtree(staging, ignore_errors=True)
             release_memory()
         prune_survey(db, store, s.id)
+    if notes is not None:
+        notes.extend(said)
     return s
 
 

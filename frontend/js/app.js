@@ -181,6 +181,17 @@ function showTab(tab, push = true) {
   }
 }
 
+// An accepted upload's warnings (the survey reader's: e.g. a flight no line uses left out because its
+// files cannot be read), shown under the upload's error line until the next upload there.
+function showUploadWarnings(below, warnings, surveyName = "") {
+  const id = `${below.id}-warnings`;
+  document.getElementById(id)?.remove();
+  if (!Array.isArray(warnings) || !warnings.length) return;
+  below.after(el("div", { id, class: "warnline" },
+    `${surveyName ? `Survey “${surveyName}”: stored` : "Stored"}, with ${warnings.length === 1 ? "a warning" : `${warnings.length} warnings`} from the survey reader:`,
+    el("ul", {}, warnings.map((w) => el("li", {}, String(w))))));
+}
+
 function setupUploads() {
   const btn = document.getElementById("import-btn");
   const input = document.getElementById("import-file");
@@ -188,6 +199,7 @@ function setupUploads() {
   const err = document.getElementById("import-error");
   btn.addEventListener("click", async () => {
     err.hidden = true;
+    showUploadWarnings(err, []);
     if (!input.files.length) { err.hidden = false; err.textContent = "Choose a .zip file first."; return; }
     const fd = new FormData();
     fd.append("file", input.files[0]);
@@ -195,6 +207,7 @@ function setupUploads() {
     try {
       const s = await upload("/api/surveys/import", fd, (f) => { bar.value = f; });
       bar.value = 1;
+      showUploadWarnings(err, s && s.warnings, s && s.name);
       await loadSurveys();
       selectSurvey(s.id);
       input.value = "";
@@ -209,12 +222,14 @@ function setupUploads() {
   form.addEventListener("submit", async (ev) => {
     ev.preventDefault();
     ferr.hidden = true;
+    showUploadWarnings(ferr, []);
     const fd = new FormData(form);
     if (!fd.get("flight")) fd.delete("flight");
     if (fd.get("lines") && fd.get("lines").size === 0) fd.delete("lines");
     fbar.hidden = false; fbar.value = 0;
     try {
-      await upload(`/api/surveys/${state.surveyId}/flights`, fd, (f) => { fbar.value = f; });
+      const up = await upload(`/api/surveys/${state.surveyId}/flights`, fd, (f) => { fbar.value = f; });
+      showUploadWarnings(ferr, up && up.warnings, up && up.name);
       form.reset();
       await loadSurveys();
       state.rendered = {};

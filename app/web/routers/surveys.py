@@ -30,6 +30,7 @@ from ..schemas import (
     SurveyCreate,
     SurveyOut,
     SurveyPatch,
+    SurveyUploadOut,
     TrackLine,
     TracksOut,
 )
@@ -61,7 +62,8 @@ def job_out(j: Job) -> JobOut:
                   backend=j.backend, created_at=j.created_at, started_at=j.started_at, finished_at=j.finished_at)
 
 
-def survey_out(db: Session, s: Survey) -> SurveyOut:
+def survey_out(db: Session, s: Survey, warnings: list[str] | None = None) -> SurveyOut:
+    """The survey as the API gives it; with ``warnings`` (an upload's or import's) a :class:`SurveyUploadOut`."""
     last = db.scalars(select(Job).where(Job.survey_id == s.id).order_by(Job.id.desc()).limit(1)).first()
     # counted, not loaded: a survey's Line rows carry their QC and map track (20,000 lines took 1.5 s
     # to load for every listing of the surveys)
@@ -70,11 +72,12 @@ def survey_out(db: Session, s: Survey) -> SurveyOut:
     # the job whose result is current: the newest job may since have been cancelled or failed, and the
     # survey list must not read that as "no result"
     res = db.get(Result, s.current_result_id) if s.current_result_id is not None else None
-    return SurveyOut(id=s.id, name=s.name, created_at=s.created_at, crs=s.crs,
-                     flights=[f.name for f in s.flights], n_lines=n_lines, has_input=bool(s.input_dir),
-                     current_result_id=s.current_result_id, result_job_id=res.job_id if res is not None else None,
-                     result_outdated=result_outdated(db, s),
-                     settings=survey_settings(s), last_job=job_out(last) if last else None, has_dem=has_dem(s))
+    fields = dict(id=s.id, name=s.name, created_at=s.created_at, crs=s.crs,
+                  flights=[f.name for f in s.flights], n_lines=n_lines, has_input=bool(s.input_dir),
+                  current_result_id=s.current_result_id, result_job_id=res.job_id if res is not None else None,
+                  result_outdated=result_outdated(db, s),
+                  settings=survey_settings(s), last_job=job_out(last) if last else None, has_dem=has_dem(s))
+    return SurveyOut(**fields) if warnings is None else SurveyUploadOut(**fields, warnings=warnings)
 
 
 #: the answer when the store is at its limit (AEROGRAV_MAX_STORE_MB)
@@ -138,22 +141,24 @@ def remove_survey(s: Survey = Depends(get_survey_or_404), db: Session = Depends(
     return Response(status_code=204)
 
 
-@router.post("/import", response_model=SurveyOut, status_code=201,
+@router.post("/import", response_model=SurveyUploadOut, status_code=201,
              dependencies=[Depends(store_has_room), Depends(room_for_a_survey)],
              responses=STORE_FULL)
 def import_survey(file: UploadFile = File(..., description="zip of a survey directory (may be nested one level)"),
                   db: Session = Depends(get_db), store: Store = Depends(get_store),
                   reader: Callable = Depends(get_survey_reader),
-                  settings: Settings = Depends(get_settings)) -> SurveyOut:
+                  settings: Settings = Depends(get_settings)) -> SurveyUploadOut:
     """Validate a zipped survey directory, then store it atomically (extracted in a stream; the
-    uncompressed total and every table file are limited by AEROGRAV_MAX_UNCOMPRESSED_MB)."""
+    uncompressed total and every table file are limited by AEROGRAV_MAX_UNCOMPRESSED_MB).  The
+    reader's warnings come back in ``warnings``."""
     staging = store.staging_dir()
+    warnings: list[str] = []
     try:
         root = extract_survey_zip(file.file, staging, max_bytes=settings.max_uncompressed_bytes)
         s = import_survey_tree(db, store, reader, root, Path(file.filename or "survey.zip").stem[:300],
                                budget_bytes=settings.survey_storage_bytes,
-                               store_limit_bytes=settings.max_store_bytes)
-        return survey_out(db, s)
+                               store_limit_bytes=settings.max_store_bytes, notes=warnings)
+        return survey_out(db, s, warnings)
     except StorageBudgetExceeded as e:
         raise HTTPException(413, str(e)) from e
     finally:
@@ -173,7 +178,7 @@ def _write_upload(up: UploadFile, dest: Path) -> None:
         shutil.copyfileobj(up.file, fh, 1 << 20)
 
 
-@router.post("/{survey_id}/flights", response_model=SurveyOut, status_code=201,
+@router.post("/{survey_id}/flights", response_model=SurveyUploadOut, status_code=201,
              dependencies=[Depends(store_has_room)], responses=STORE_FULL)
 def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv (or GT-1A/GT-2A G file)"),
                   gnss: UploadFile = File(..., description="gnss.csv"),
@@ -181,9 +186,11 @@ def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv
                   flight: str | None = Form(None, description="flight name (directory name)"),
                   s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
                   store: Store = Depends(get_store), reader: Callable = Depends(get_survey_reader),
-                  settings: Settings = Depends(get_settings)) -> SurveyOut:
+                  settings: Settings = Depends(get_settings)) -> SurveyUploadOut:
     """Add (or replace) one flight: the new survey snapshot is validated before it replaces the old one.
-    Concurrent uploads to one survey are applied in turn (each one is kept)."""
+    Concurrent uploads to one survey are applied in turn (each one is kept).  The reader's warnings
+    come back in ``warnings`` (a flight no line uses whose files cannot be read is stored but left
+    out of the survey: said there, not only in the server's log)."""
     if flight is not None and not SAFE_NAME.match(flight):
         raise HTTPException(422, {"file": None, "row": None, "column": "flight",
                                   "message": f"flight name {flight[:100]!r}: use letters, digits, '_', '-', '.' "
@@ -193,15 +200,17 @@ def upload_flight(gravimeter: UploadFile = File(..., description="gravimeter.csv
         _write_upload(gravimeter, fdir / "gravimeter.csv")
         _write_upload(gnss, fdir / "gnss.csv")
 
+    warnings: list[str] = []
     try:
         add_flight(db, store, reader, s, flight, write_files,
                    lines.file.read(MAX_LINES_BYTES + 1) if lines is not None else None,
-                   budget_bytes=settings.survey_storage_bytes, store_limit_bytes=settings.max_store_bytes)
+                   budget_bytes=settings.survey_storage_bytes, store_limit_bytes=settings.max_store_bytes,
+                   notes=warnings)
     except SurveyConflict as e:
         raise HTTPException(409, str(e)) from e
     except StorageBudgetExceeded as e:
         raise HTTPException(413, str(e)) from e
-    return survey_out(db, s)
+    return survey_out(db, s, warnings)
 
 
 @router.put("/{survey_id}/dem", response_model=SurveyOut, dependencies=[Depends(store_has_room)],
