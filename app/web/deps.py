@@ -35,6 +35,18 @@ def get_cache(request: Request) -> ResultCache:
     return request.app.state.cache
 
 
+def get_views(request: Request) -> ResultCache:
+    """The re-smoothed recognition maps (``GET /recognition?h=&rho=``), apart from the loaded results:
+    slider moves must not push loaded results out of :func:`get_cache`."""
+    return request.app.state.views
+
+
+def of_results(result_ids) -> Callable[[object], bool]:
+    """Predicate on cache keys ``(name, result id, …)``: those of the given results."""
+    ids = set(result_ids)
+    return lambda k: isinstance(k, tuple) and len(k) >= 2 and k[1] in ids
+
+
 #: the OpenAPI description of :func:`store_has_room`'s refusal
 STORE_FULL = {507: {"description": "the server's store is full: the detail says how much it holds and its limit"}}
 

@@ -526,6 +526,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.Session = Session
     app.state.jobs = jobs
     app.state.cache = ResultCache()
+    app.state.views = ResultCache(size=settings.recognition_views,
+                                  max_bytes=int(settings.recognition_views_mb * 2**20))
     app.add_middleware(GuardMiddleware, settings=settings)
     _add_job_hooks(app, jobs, Session, store)
     _add_exception_handlers(app)

@@ -23,6 +23,9 @@
                            jobs wait, queued, for a free slot
 ``AEROGRAV_JOB_TIMEOUT_S`` longest a job may run (default 24 h): a job still running then is stopped
                            and marked failed, saying so (its slot frees for the jobs waiting)
+``AEROGRAV_RECOGNITION_VIEWS`` / ``AEROGRAV_RECOGNITION_VIEWS_MB`` the recognition maps re-smoothed for
+                           ``GET /recognition?h=&rho=`` kept for reuse (default the last 32, at most 128 MB
+                           of their arrays)
 """
 
 from __future__ import annotations
@@ -74,6 +77,11 @@ class Settings(BaseSettings):
     job_timeout_s: float = Field(86400.0, gt=0, description="Longest a job may run (s) from its start: a job still "
                                  "running then is stopped and marked failed, so that no job holds a worker slot "
                                  "(and its CPUs) without end")
+    recognition_views: int = Field(32, ge=1, le=10_000, description="Re-smoothed recognition maps kept for reuse "
+                                   "(GET /recognition with h, ρ, mode: NL-means runs once per (result, h, ρ, "
+                                   "mode) among the last this many, not on every request)")
+    recognition_views_mb: float = Field(128.0, gt=0, le=65536, description="Most memory those maps' arrays may "
+                                        "hold (MB; the newest is always kept)")
 
     @property
     def db_url(self) -> str:

@@ -88,3 +88,96 @@ def test_reader_notes_bounded_and_relative(tmp_path):
     assert out[-1].startswith("… and 6 more warnings")
     assert reader_notes(SimpleNamespace(notes=["y" * 5000]), root)[0].endswith("(5,000 characters)")
     assert reader_notes(object(), root) == []
+
+
+# ---------------------------------------------------------------- 3. the re-smoothed recognition map kept
+def _bench():
+    import importlib.util
+    spec = importlib.util.spec_from_file_location("bench_web", Path(__file__).resolve().parents[2] / "benchmarks"
+                                                  / "bench_web.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture
+def counted_state_map(monkeypatch):
+    """Count (and slow down a little) the calls of the pipeline's NL-means map by the endpoint."""
+    import time
+
+    from app.web.routers import results
+
+    calls = []
+    real = results.state_map
+
+    def counting(*a, **kw):
+        calls.append(a[1:4])
+        time.sleep(0.05)
+        return real(*a, **kw)
+    monkeypatch.setattr(results, "state_map", counting)
+    return calls
+
+
+def test_recognition_repeat_request_not_recomputed(client, counted_state_map):
+    from concurrent.futures import ThreadPoolExecutor
+    bench = _bench()
+    sid = bench.store_recognition_result(client.app, bench.synthetic_recognition(8), "rec")
+    url = f"/api/surveys/{sid}/recognition"
+    a = client.get(url, params={"h": 0.7, "rho": 5, "coords": False}).json()
+    b = client.get(url, params={"h": 0.70, "rho": 5.0, "coords": False}).json()
+    assert len(counted_state_map) == 1
+    assert a["state"] == b["state"] and a["p_max"] == b["p_max"]
+    client.get(url, params={"h": 0.7, "rho": 5, "mode": "hard", "coords": False})
+    client.get(url, params={"h": 0.9, "rho": 5, "coords": False})
+    assert len(counted_state_map) == 3                  # another mode or h: smoothed
+    with ThreadPoolExecutor(4) as ex:                   # concurrent identical requests: once
+        outs = list(ex.map(lambda _: client.get(url, params={"h": 2.0, "rho": 3, "coords": False}), range(4)))
+    assert all(o.status_code == 200 for o in outs) and len(counted_state_map) == 4
+    assert len({tuple(o.json()["state"]) for o in outs}) == 1
+
+
+def test_recognition_new_result_not_served_stale(client, counted_state_map):
+    from app.web.db import Job, Result, Survey
+    bench = _bench()
+    rec = bench.synthetic_recognition(8)
+    sid = bench.store_recognition_result(client.app, rec, "rec")
+    url = f"/api/surveys/{sid}/recognition"
+    params = {"h": 0.5, "rho": 4, "coords": False}
+    first = client.get(url, params=params).json()
+    flipped = rec.copy()
+    flipped["p_0"], flipped["p_1"] = rec["p_1"], rec["p_0"]
+    flipped["state_raw"] = flipped["state_smoothed"] = 1 - rec["state_raw"]
+    with client.app.state.Session() as db:            # a new result of the same survey, as a job gives one
+        s = db.get(Survey, sid)
+        j = Job(survey_id=sid, kind="process", status="succeeded", progress=1.0, params={}, em_iterations=[])
+        db.add(j)
+        db.flush()
+        d = Path(client.app.state.settings.data_dir) / "surveys" / str(sid) / "results" / f"job-{j.id}"
+        d.mkdir(parents=True)
+        flipped.to_parquet(d / "recognition.parquet", index=False)
+        (d / "identification.json").write_text((Path(db.get(Result, s.current_result_id).dir)
+                                                / "identification.json").read_text())
+        r = Result(survey_id=sid, job_id=j.id, dir=str(d), report={})
+        db.add(r)
+        db.flush()
+        s.current_result_id = r.id
+        db.commit()
+    second = client.get(url, params=params).json()
+    assert second["result_id"] != first["result_id"] and len(counted_state_map) == 2
+    assert second["state"] == [1 - x for x in first["state"]]
+    # deleting the survey drops its maps (ids may be reused)
+    assert client.delete(f"/api/surveys/{sid}").status_code == 204
+    assert not [k for k in client.app.state.views._d if k[1] in (first["result_id"], second["result_id"])]
+
+
+def test_recognition_views_memory_bounded():
+    import numpy as np
+
+    from app.web.store import ResultCache
+    views = ResultCache(size=3, max_bytes=10_000)
+    for i in range(10):      # 6000 bytes each: one fits
+        views.get(("recognition_view", i), lambda: {"state": np.zeros(500, np.int32), "p_max": np.zeros(500)})
+    assert list(views._d) == [("recognition_view", 9)]
+    for i in range(10):      # 1200 bytes each: the last three
+        views.get(("recognition_view", i), lambda: {"state": np.zeros(100, np.int32), "p_max": np.zeros(100)})
+    assert list(views._d) == [("recognition_view", i) for i in (7, 8, 9)]

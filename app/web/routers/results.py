@@ -21,7 +21,7 @@ from app.jsonsafe import finite_float, float_list, int_list, to_jsonable
 from app.pipeline.stages.recognition import Recognition, state_map
 
 from ..db import Result, Survey
-from ..deps import get_cache, get_db, get_store, get_survey_or_404
+from ..deps import get_cache, get_db, get_store, get_survey_or_404, get_views
 from ..repeat import track_members, track_passes
 from ..schemas import (
     GridOut,
@@ -133,6 +133,18 @@ def _load_recognition(r: Result) -> dict[str, Any]:
             "stored_pmax": stored[pcols].to_numpy(float).max(axis=1) if pcols else np.ones(len(stored)),
             "h": nl.get("h_per_km"), "rho": nl.get("rho_km"), "mode": nl.get("mode", "soft"),
             "states": states, "coords": coords, "n": len(t), "n_states": rec.n_states}
+
+
+def smoothed_map(views: ResultCache, r: Result, rec: dict[str, Any], h: float, rho: float,
+                 mode: str) -> dict[str, np.ndarray]:
+    """``{state, p_max}`` of the result's recognition map smoothed at (h, ρ, mode) by the pipeline's
+    :func:`state_map`, kept in ``views`` by (result id, result folder, h, ρ, mode): NL-means runs once
+    per setting among the last ones asked for (concurrent identical requests wait for the first one),
+    and a new result — a new id and folder — never gets another's map."""
+    def build() -> dict[str, np.ndarray]:
+        smap = state_map(rec["recognition"], h, rho, mode, rmap=rec["map"])
+        return {"state": np.asarray(smap.states).astype(np.int32), "p_max": np.asarray(smap.probs.max(axis=1))}
+    return views.get(("recognition_view", r.id, r.dir, float(h), float(rho), mode), build)
 
 
 # ---------------------------------------------------------------- endpoints
@@ -252,11 +264,12 @@ def recognition(h: float | None = Query(None, ge=0, le=100, description="NL-mean
                 mode: Literal["hard", "soft"] | None = Query(None, description="smooth hard labels or probabilities"),
                 coords: bool = Query(True, description="include positions, lines and raw states"),
                 s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
-                cache: ResultCache = Depends(get_cache)) -> RecognitionOut:
+                cache: ResultCache = Depends(get_cache), views: ResultCache = Depends(get_views)) -> RecognitionOut:
     """The recognition state map at (h, ρ): the raw posteriors smoothed by NL-means and the
     state chosen at every point by the pipeline's own function
     (:func:`app.pipeline.stages.recognition.state_map`) — the map a ``filter`` job with these
-    values uses.  Without h and ρ: the current result's map, with the (h, ρ) it was made with."""
+    values uses.  Without h and ρ: the current result's map, with the (h, ρ) it was made with.
+    The last maps asked for are kept (:func:`smoothed_map`): a repeated setting is not smoothed again."""
     t0 = time.perf_counter()
     r = current_result(s, db)
     rec = cache.get(("recognition", r.id), lambda: _load_recognition(r))
@@ -267,8 +280,8 @@ def recognition(h: float | None = Query(None, ge=0, le=100, description="NL-mean
         h = 0.5 if h is None else h
         rho = 10.0 if rho is None else rho
         mode = mode or "soft"
-        smap = state_map(rec["recognition"], h, rho, mode, rmap=rec["map"])
-        state, pmax = smap.states, smap.probs.max(axis=1)
+        view = smoothed_map(views, r, rec, h, rho, mode)
+        state, pmax = view["state"], view["p_max"]
     body = {"survey_id": s.id, "result_id": r.id, "h": h, "rho": rho, "mode": mode, "n_states": rec["n_states"],
             "states": rec["states"], "n_points": rec["n"], "smoother": "app.pipeline.stages.recognition.state_map",
             "state": np.asarray(state).astype(int).tolist(), "p_max": _clean(pmax, 3)}

@@ -19,6 +19,8 @@ from ..deps import (
     get_store,
     get_survey_or_404,
     get_survey_reader,
+    get_views,
+    of_results,
     room_for_a_survey,
     store_has_room,
 )
@@ -131,13 +133,15 @@ def update_survey(body: SurveyPatch, s: Survey = Depends(get_survey_or_404), db:
                responses={401: {"description": "token missing or wrong"}, 404: {"description": "no such survey"},
                           409: {"description": "a job is queued or running on the survey"}})
 def remove_survey(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db),
-                  store: Store = Depends(get_store), cache: ResultCache = Depends(get_cache)) -> Response:
+                  store: Store = Depends(get_store), cache: ResultCache = Depends(get_cache),
+                  views: ResultCache = Depends(get_views)) -> Response:
     """Delete a survey with its flights, jobs, results and files (409 while a job is active)."""
     try:
         ids = set(delete_survey(db, store, s))
     except (JobConflict, SurveyConflict) as e:
         raise HTTPException(409, str(e)) from e
-    cache.discard(lambda k: isinstance(k, tuple) and len(k) == 2 and k[1] in ids)
+    for c in (cache, views):        # result ids may be reused
+        c.discard(of_results(ids))
     return Response(status_code=204)
 
 
