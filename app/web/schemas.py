@@ -177,10 +177,17 @@ class LineOut(Out):
     stats: LineStats | None = Field(None, description="From the current result: dg mean/std/min/max (mGal), n")
 
 
-class QCOut(Out):
+class LinePage(Out):
+    """A page of the survey's lines (``?offset=&limit=``): ``lines_total`` says how many there are."""
+    lines_total: int = Field(0, description="Lines of the survey (all pages)")
+    offset: int = Field(0, description="Index of the page's first line among the survey's lines (by id)")
+    limit: int = Field(0, description="Most lines the page could hold (the request's limit)")
+
+
+class QCOut(LinePage):
     survey_id: int
-    flights: list[FlightOut]
-    lines: list[LineOut]
+    flights: list[FlightOut] = Field(..., description="Every flight (not paged)")
+    lines: list[LineOut] = Field(..., description="The page's lines")
 
 
 class TrackLine(Out):
@@ -191,8 +198,8 @@ class TrackLine(Out):
     northing_km: list[float | None] = Field(default_factory=list)
 
 
-class TracksOut(Out):
-    """Decimated line tracks in the survey CRS (km)."""
+class TracksOut(LinePage):
+    """Decimated line tracks in the survey CRS (km), a page of them."""
     survey_id: int
     crs: str | None = None
     lines: list[TrackLine]

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
-from sqlalchemy import select, update
+from sqlalchemy import func, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -411,6 +411,24 @@ def add_flight(db: Session, store: Store, reader: Callable, s: Survey, name: str
 
 class JobConflict(Exception):
     pass
+
+
+# ---------------------------------------------------------------- line listings (/qc, /tracks)
+#: Lines of a /qc or /tracks page by default: every realistic survey (a few to a few thousand lines)
+#: in one page, as before pagination
+LINES_PAGE_DEFAULT = 10_000
+#: Most lines of one page (a map track is ~200 points: 20,000 tracks are ~80 MB of JSON)
+LINES_PAGE_MAX = 20_000
+
+
+def line_page(db: Session, s: Survey, offset: int, limit: int) -> tuple[list[Line], int]:
+    """The survey's lines ``offset`` … ``offset + limit − 1`` in their stored order (by id), read from
+    the database page by page (not every line of the survey), and how many lines it has."""
+    total = db.scalar(select(func.count()).select_from(Line).where(Line.survey_id == s.id)) or 0
+    if limit <= 0 or offset >= total:
+        return [], total
+    rows = db.scalars(select(Line).where(Line.survey_id == s.id).order_by(Line.id).offset(offset).limit(limit))
+    return list(rows), total
 
 
 # ---------------------------------------------------------------- survey.toml fields (PATCH)

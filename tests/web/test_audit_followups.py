@@ -181,3 +181,31 @@ def test_recognition_views_memory_bounded():
     for i in range(10):      # 1200 bytes each: the last three
         views.get(("recognition_view", i), lambda: {"state": np.zeros(100, np.int32), "p_max": np.zeros(100)})
     assert list(views._d) == [("recognition_view", i) for i in (7, 8, 9)]
+
+
+# ---------------------------------------------------------------- 4. /tracks and /qc paginated
+@pytest.mark.parametrize("what", ["qc", "tracks"])
+def test_line_listings_paginated(client, tiny_src, what):
+    from app.web.services import LINES_PAGE_DEFAULT, LINES_PAGE_MAX
+    sid = import_zip(client, zip_dir(tiny_src)).json()["id"]
+    url = f"/api/surveys/{sid}/{what}"
+    full = client.get(url).json()                       # today's clients: every line, as before
+    assert [l["line"] for l in full["lines"]] == ["L1", "L2", "T1"]
+    assert (full["lines_total"], full["offset"], full["limit"]) == (3, 0, LINES_PAGE_DEFAULT)
+    page = client.get(url, params={"offset": 1, "limit": 1}).json()
+    assert [l["line"] for l in page["lines"]] == ["L2"] and page["lines_total"] == 3
+    assert page["lines"][0] == full["lines"][1]
+    assert [l["line"] for l in client.get(url, params={"offset": 2, "limit": 5}).json()["lines"]] == ["T1"]
+    assert client.get(url, params={"offset": 3}).json()["lines"] == []
+    count = client.get(url, params={"limit": 0}).json()
+    assert count["lines"] == [] and count["lines_total"] == 3
+    if what == "qc":
+        assert [f["name"] for f in page["flights"]] == ["f1"]      # flights are not paged
+    else:
+        assert page["crs"] == full["crs"] == "EPSG:32657"
+    assert client.get(url, params={"limit": LINES_PAGE_MAX}).status_code == 200
+    for bad in ({"offset": -1}, {"limit": -1}, {"limit": "nan"}, {"offset": "NaN"}, {"limit": "inf"},
+                {"limit": LINES_PAGE_MAX + 1}, {"offset": 10**30}, {"offset": "1e3"}, {"limit": ""}):
+        r = client.get(url, params=bad)
+        assert r.status_code == 422, (bad, r.text)
+        assert r.json()["detail"][0]["loc"] == ["query", next(iter(bad))]

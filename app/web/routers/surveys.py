@@ -5,8 +5,9 @@ from __future__ import annotations
 import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import Annotated
 
-from fastapi import APIRouter, Depends, File, Form, HTTPException, Response, UploadFile
+from fastapi import APIRouter, Depends, File, Form, HTTPException, Query, Response, UploadFile
 from sqlalchemy import func, select
 from sqlalchemy.orm import Session
 
@@ -37,7 +38,10 @@ from ..schemas import (
     TracksOut,
 )
 from ..services import (
+    LINES_PAGE_DEFAULT,
+    LINES_PAGE_MAX,
     MAX_LINES_BYTES,
+    MAX_SURVEY_LINES,
     JobConflict,
     NoInput,
     SettingsRejected,
@@ -47,6 +51,7 @@ from ..services import (
     delete_survey,
     has_dem,
     import_survey_tree,
+    line_page,
     patch_survey,
     replace_dem,
     result_outdated,
@@ -264,18 +269,34 @@ def delete_dem(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get
     return survey_out(db, s)
 
 
+#: ``?offset=`` of a line listing: past the last line the page is empty
+Offset = Annotated[int, Query(ge=0, le=MAX_SURVEY_LINES, description="index of the page's first line (by id), "
+                              f"0 … {MAX_SURVEY_LINES:,}")]
+#: ``?limit=`` of a line listing
+Limit = Annotated[int, Query(ge=0, le=LINES_PAGE_MAX, description=f"most lines in the page (default "
+                             f"{LINES_PAGE_DEFAULT:,}, at most {LINES_PAGE_MAX:,}; 0: only the count)")]
+
+
 @router.get("/{survey_id}/qc", response_model=QCOut)
-def survey_qc_view(s: Survey = Depends(get_survey_or_404)) -> QCOut:
-    """Per flight and per line: sampling rates, longest gaps, duration, length."""
+def survey_qc_view(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db), offset: Offset = 0,
+                   limit: Limit = LINES_PAGE_DEFAULT) -> QCOut:
+    """Per flight and per line: sampling rates, longest gaps, duration, length (every flight; the lines
+    a page at a time, ``lines_total`` saying how many there are)."""
+    rows, total = line_page(db, s, offset, limit)
     return QCOut(survey_id=s.id, flights=[FlightOut.model_validate(f) for f in s.flights],
                  lines=[LineOut(id=l.id, line=l.line, flight=l.flight, kind=l.kind, t_start=l.t_start,
-                                t_end=l.t_end, qc=l.qc or {}) for l in s.lines])
+                                t_end=l.t_end, qc=l.qc or {}) for l in rows],
+                 lines_total=total, offset=offset, limit=limit)
 
 
 @router.get("/{survey_id}/tracks", response_model=TracksOut)
-def survey_tracks(s: Survey = Depends(get_survey_or_404)) -> TracksOut:
-    """Decimated line tracks in the survey CRS (km) for the line map (available before processing)."""
-    return TracksOut(survey_id=s.id, crs=s.crs or next((l.track.get("crs") for l in s.lines if l.track), None),
+def survey_tracks(s: Survey = Depends(get_survey_or_404), db: Session = Depends(get_db), offset: Offset = 0,
+                  limit: Limit = LINES_PAGE_DEFAULT) -> TracksOut:
+    """Decimated line tracks in the survey CRS (km) for the line map (available before processing), a
+    page at a time (``lines_total`` says how many there are)."""
+    rows, total = line_page(db, s, offset, limit)
+    return TracksOut(survey_id=s.id, crs=s.crs or next((l.track.get("crs") for l in rows if l.track), None),
                      lines=[TrackLine(line=l.line, flight=l.flight, kind=l.kind,
                                       easting_km=(l.track or {}).get("easting_km", []),
-                                      northing_km=(l.track or {}).get("northing_km", [])) for l in s.lines])
+                                      northing_km=(l.track or {}).get("northing_km", [])) for l in rows],
+                     lines_total=total, offset=offset, limit=limit)
