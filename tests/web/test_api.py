@@ -147,7 +147,10 @@ def test_flight_upload(client, tmp_path):
 
     # a broken second flight: the survey keeps its first flight, nothing half-written
     bad = (fdir / "gnss.csv").read_text().splitlines()
-    bad[10] = bad[9]  # duplicated time on line 11
+    # line 11 takes line 10's time with another value (an exact repeat would be dropped as one)
+    f = bad[9].split(",")
+    f[-1] = repr(float(f[-1]) + 0.5)
+    bad[10] = ",".join(f)
     files2 = {"gravimeter": ("gravimeter.csv", (fdir / "gravimeter.csv").read_bytes(), "text/csv"),
               "gnss": ("gnss.csv", ("\n".join(bad) + "\n").encode(), "text/csv"),
               "lines": ("lines.csv", lines.assign(line=lambda d: d.line + "b").to_csv(index=False).encode(), "text/csv")}
