@@ -17,7 +17,9 @@ export function fileName(s) { return String(s ?? "").replace(/[^A-Za-z0-9_.-]+/g
 
 export function plotConfig(filename) {
   return {
-    responsive: true, displaylogo: false,
+    // no "Share chart..." (plotly.js ≥ 3 shows it by default): it uploads the plot's data, i.e. the
+    // survey's, to Plotly Cloud — a third party — from a product whose data stay on this server
+    responsive: true, displaylogo: false, showSendToCloud: false, showEditInChartStudio: false,
     toImageButtonOptions: { format: "png", filename: fileName(filename), scale: 2 },
     modeBarButtonsToRemove: ["lasso2d", "select2d"],
   };

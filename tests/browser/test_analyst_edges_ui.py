@@ -67,6 +67,9 @@ def test_plots_fit_a_window_resized_while_their_tab_was_hidden(fake_server, brow
     fits = """() => { const p = document.querySelector('#profile-plot');
                       return p.querySelector('.main-svg').getBoundingClientRect().width <= p.clientWidth + 1; }"""
     page.wait_for_function(fits, timeout=5000)
+    # no "Share chart..." in the plot toolbar: it uploads the plot's (the survey's) data to Plotly Cloud
+    assert page.locator("#profile-plot .modebar-btn[data-title='Download plot as a PNG']").count() == 1
+    assert page.locator(".modebar-btn[data-title*='Share'], .modebar-btn[data-title*='Chart Studio']").count() == 0
     _no_errors(page)
 
 
