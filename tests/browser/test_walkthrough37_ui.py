@@ -82,4 +82,21 @@ def test_a_refused_submit_stays_on_screen(fake_server, browser_page, tmp_path): 
     page.wait_for_selector("#submit-msg .error:not([hidden])", timeout=5000)
     time.sleep(1.5)                     # the job box is redrawn every 0.5 s while a job is watched
     assert detail in page.inner_text("#submit-msg")
+    # refused because a job started elsewhere (another tab): that job is shown and watched here, not
+    # "No job yet" beside "job N is still running"
+    jid = page.evaluate(f"async () => (await (await fetch('/api/surveys/{sid}')).json()).last_job.id")
+
+    def running(route):
+        if route.request.method != "GET":
+            return route.continue_()
+        body = route.fetch().json()
+        for s in body:
+            if s["id"] == sid:
+                s["last_job"]["status"] = "running"
+        route.fulfill(status=200, content_type="application/json", body=json.dumps(body))
+
+    page.route("**/api/surveys", running)
+    with page.expect_request(lambda r: r.url.endswith(f"/api/jobs/{jid}"), timeout=10000):
+        page.click("#run-job")
+    page.wait_for_selector("#job-status", timeout=5000)
     _no_errors(page)

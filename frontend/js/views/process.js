@@ -84,7 +84,7 @@ export function emTable(rows, selected) {
   const shape = rows[rows.length - 1];   // columns named by the newest run's levels; shorter rows leave cells empty
   const nq = Math.max(...rows.map((r) => r.Q.length)), nr = Math.max(...rows.map((r) => r.R.length));
   const nstates = Math.max(0, ...rows.map((r) => (r.transition ? r.transition.length : 0)));
-  const head = [...(runs ? ["EM run"] : []), "Iteration", ...Array.from({ length: nq }, (_, i) => `Q${i} (mGal²)`),
+  const head = [...(runs ? ["EM run"] : []), "Iteration", ...Array.from({ length: nq }, (_, i) => `Q${i} (mGal² per step)`),
     ...Array.from({ length: nr }, (_, j) => `R${j} ((cm/s)²)`), "Objective"];
   for (let i = 0; i < nstates; i++) head.push(`stay ${stateName(i, shape.R.length || nr)}`);
   const pad = (vals, n) => Array.from({ length: n }, (_, i) => el("td", {}, i < vals.length ? fmt(vals[i], 4) : ""));
@@ -216,12 +216,14 @@ export async function render(sec, ctx) {
 
   const onJob = (job) => {
     if (job) setRunning(["queued", "running"].includes(job.status));
+    // "job N is still running" (a refused submit) is over once that job has ended
+    if (job && !["queued", "running"].includes(job.status) && submitMsg.textContent.includes(`job ${job.id} `)) showError(submitMsg, null);
     return loadHistory();
   };
   const loadHistory = async () => {
     const jobs = await endpoints.jobs(s.id);
     history.querySelector("#job-history").replaceChildren(jobs.length ? el("table", {},
-      el("thead", {}, el("tr", {}, ["Job", "Kind", "Status", "Progress", "Created (UTC)", "Finished", "Error"].map((h) => el("th", { class: "l" }, h)))),
+      el("thead", {}, el("tr", {}, ["Job", "Kind", "Status", "Progress", "Created (UTC)", "Finished (UTC)", "Error"].map((h) => el("th", { class: "l" }, h)))),
       el("tbody", {}, jobs.map((j) => {
         const tr = el("tr", { style: "cursor:pointer" }, el("td", { class: "l" }, j.id), el("td", { class: "l" }, j.kind),
           el("td", { class: "l" }, el("span", { class: `badge ${j.status}` }, j.status)), el("td", {}, `${Math.round(100 * j.progress)}%`),
@@ -260,7 +262,22 @@ export async function render(sec, ctx) {
       watch(jobBox, job.id, ctx, onJob);
       loadHistory();
       ctx.jobStarted();
-    } catch (e) { showError(submitMsg, e); }
+    } catch (e) {
+      showError(submitMsg, e);
+      // 409: a job was started meanwhile (another browser tab, the recognition map's "Apply h, ρ"):
+      // this view said "No job yet" beside "job N is still running" — show that job and watch it
+      if (e.status === 409) {
+        await ctx.jobStarted();
+        const j = ctx.survey && ctx.survey.id === s.id ? ctx.survey.last_job : null;
+        if (j && ["queued", "running"].includes(j.status)) {
+          emSelected = null;
+          renderJob(jobBox, j);
+          setRunning(true);
+          watch(jobBox, j.id, ctx, onJob);
+          loadHistory();
+        }
+      }
+    }
   });
   await loadHistory();
   if (s.last_job) {
