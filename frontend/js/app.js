@@ -106,14 +106,27 @@ function surveyBadge(s) {
 
 function renderSurveyList() {
   const ul = document.getElementById("survey-list");
+  // the list is redrawn every 10 s (2 s while a job runs): a survey the keyboard was on keeps the focus
+  const focused = ul.contains(document.activeElement) ? document.activeElement.dataset.surveyId : null;
   ul.replaceChildren(...state.surveys.map((s) => {
     const b = surveyBadge(s);
     const li = el("li", { class: s.id === state.surveyId ? "active" : "", "data-survey-id": s.id },
       el("span", {}, surveyName(s)), el("span", { class: `badge ${b.status}`, title: b.title }, b.status),
       b.note ? el("small", { class: `last-run ${b.noteClass}`, title: b.title }, b.note) : null);
+    // a survey is chosen from the keyboard too (Tab to it, Enter or Space): the list was mouse-only
+    li.tabIndex = 0;
+    li.setAttribute("role", "button");
+    if (s.id === state.surveyId) li.setAttribute("aria-current", "true");
     li.addEventListener("click", () => selectSurvey(s.id));
+    li.addEventListener("keydown", (ev) => {
+      if (ev.key === "Enter" || ev.key === " ") { ev.preventDefault(); selectSurvey(s.id); }
+    });
     return li;
   }));
+  if (focused !== null && focused !== undefined) {
+    const li = ul.querySelector(`li[data-survey-id="${CSS.escape(focused)}"]`);
+    if (li) li.focus();
+  }
   const s = ctx.survey;
   document.getElementById("survey-title").textContent = s ? `${surveyName(s)} — ${s.flights.length} flight(s), ${s.n_lines} line(s)` : "";
   renderDemStatus(s);

@@ -281,6 +281,11 @@ def test_surveys_of_one_name_can_be_told_apart(fake_server, browser_page, tmp_pa
     names = page.eval_on_selector_all("#survey-list li span:first-child", "ss => ss.map((s) => s.textContent)")
     assert sorted(names) == sorted([f"tiny (#{ids[0]})", f"tiny (#{ids[1]})", "other"]), names
     assert page.inner_text("#survey-title").startswith(f"tiny (#{ids[1]}) —")
+    # the list answers the keyboard (it was mouse-only: Tab went from the token to "new survey name")
+    page.focus(f"#survey-list li[data-survey-id='{ids[0]}']")
+    page.keyboard.press("Enter")
+    page.wait_for_function(f"() => document.querySelector('#survey-title').textContent.startsWith('tiny (#{ids[0]}) —')")
+    assert page.evaluate("() => document.activeElement.dataset.surveyId") == str(ids[0])   # focus kept on redraw
     _no_errors(page)
 
 
