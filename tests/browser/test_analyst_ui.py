@@ -337,7 +337,7 @@ def test_maps_profiles_em_and_exports(fake_server, browser_page, tmp_path, shots
     page.click("#tabs button[data-tab=process]")
     page.wait_for_selector("#em-detail", timeout=20000)
     head = page.inner_text("#em-table thead")
-    assert "Q0 (mGal²)" in head and "R0 ((cm/s)²)" in head and "stay s1 (Q1, R0)" in head and "Q2" not in head
+    assert "Q0 (mGal² per step)" in head and "R0 ((cm/s)²)" in head and "stay s1 (Q1, R0)" in head and "Q2" not in head
     assert page.get_attribute("#em-detail", "data-iteration") == "2" and "Final iteration 2" in page.inner_text("#em-detail")
     assert page.locator("#em-transition tbody tr").count() == 2 and page.locator("#em-transition tbody td").count() == 6
     assert page.locator("#em-states tbody tr").count() == 2
@@ -384,6 +384,7 @@ def test_apply_h_rho_starts_a_filter_job(fake_server, browser_page, tmp_path, sh
     page.eval_on_selector("#rec-h", "(e) => { e.value = 1.2; e.dispatchEvent(new Event('input', {bubbles: true})); }")
     page.eval_on_selector("#rec-rho", "(e) => { e.value = 6; e.dispatchEvent(new Event('input', {bubbles: true})); }")
     page.wait_for_function("() => document.querySelector('#rec-map').dataset.h === '1.2'", timeout=10000)
+    assert page.is_visible("#rec-preview") and "current result was made with" in page.inner_text("#rec-preview")
     page.click("#rec-apply")
     page.wait_for_selector("#rec-apply-note[data-job]", timeout=10000)
     shots(page, "recognition-apply.png")

@@ -33,6 +33,8 @@ export async function render(sec, ctx) {
   const apply = el("button", { id: "rec-apply", type: "button", title: "Start a filter job with these h, ρ: NL-means → filtering → leveling → grid, reusing the stored identification (no EM)" }, "Apply h, ρ");
   const applyNote = el("span", { class: "note", id: "rec-apply-note" }, "");
   const plot = el("div", { class: "plot square", id: "rec-map" });
+  // other h, ρ than the result's are a preview: the profiles, grid and exports still show the result
+  const preview = el("p", { class: "warnline", id: "rec-preview", hidden: true });
   sec.replaceChildren(el("div", { class: "card" },
     el("h3", {}, "Recognition map — NL-means smoothing of the Markov states"),
     el("p", { class: "note" }, "Each decimated point is re-estimated from all points within ρ, weighted by exp(−h·d) with d in km. ",
@@ -40,7 +42,7 @@ export async function render(sec, ctx) {
     el("div", { class: "controls" },
       el("label", {}, "h (km⁻¹)", hIn, hOut), el("label", {}, "ρ (km)", rhoIn, rhoOut),
       el("label", {}, "mode", modeIn), el("label", {}, "show", showIn), apply, applyNote),
-    status, plot));
+    preview, status, plot));
 
   // the current result's own map first (the h, ρ it was made with), then the analyst's values
   const base = await endpoints.recognition(s.id, {});
@@ -84,6 +86,10 @@ export async function render(sec, ctx) {
     status.textContent = (raw ? `${base.n_points} points · raw (Viterbi) states, before NL-means (h, ρ and the mode apply to the smoothed states) · `
       : `${base.n_points} points · h=${r.h} km⁻¹, ρ=${r.rho} km (${r.mode}) · server ${fmt(r.elapsed_ms, 1)} ms, round trip ${Math.round(rtt)} ms · `) +
       counts.map((c, i) => `state ${i}: ${c}`).join(", ");
+    const moved = !raw && (+r.h !== +base.h || +r.rho !== +base.rho || r.mode !== base.mode);
+    preview.hidden = !moved;
+    preview.textContent = moved ? `Preview: the current result was made with h=${base.h} km⁻¹, ρ=${base.rho} km (${base.mode}); ` +
+      "its profiles, grid and exports show that. “Apply h, ρ” runs a filter job with the values above." : "";
     plot.dataset.signature = signature(shown);
     plot.dataset.h = r.h; plot.dataset.rho = r.rho; plot.dataset.show = showIn.value;
   };
