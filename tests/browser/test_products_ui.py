@@ -116,6 +116,7 @@ def test_no_dem_then_dem_upload_and_datum_choice(tmp_path, monkeypatch, browser_
         assert page.evaluate("() => document.querySelector('#grid-product option[value=bouguer]').disabled") is True
         assert "has no DEM" in page.get_attribute("#grid-product", "title")
         assert "has no DEM" in page.inner_text("#grid-product-note")
+        assert "on the left" in page.inner_text("#grid-product-note")   # this page's way, not PUT /api/…
         page.click("#tabs button[data-tab=export]")
         page.wait_for_selector("#export-bouguer-missing")
         assert "no DEM" in page.inner_text("#export-bouguer-missing")

@@ -28,7 +28,14 @@ export async function render(sec, ctx) {
   const syncChoices = () => {
     productIn.value = g.product;
     heightIn.value = g.height;
-    const av = g.available || {}, why = g.unavailable || {};
+    const av = g.available || {}, why = { ...(g.unavailable || {}) };
+    // the server's reason names the API (PUT /api/surveys/{id}/dem): the analyst gets this page's way
+    for (const k of Object.keys(why)) {
+      if (!s.has_dem && /has no DEM/.test(String(why[k]))) {
+        why[k] = "this survey has no DEM (terrain model): add one under “Terrain model (DEM)” on the left " +
+          "(a GeoTIFF, heights in metres) and process the survey again";
+      }
+    }
     for (const o of productIn.options) {
       const ok = !!(av[o.value] && av[o.value][g.height]);
       o.disabled = !ok && o.value !== g.product;

@@ -14,7 +14,7 @@ export async function render(sec, ctx) {
   }
   const [qc, tracks] = await Promise.all([endpoints.qc(s.id), endpoints.tracks(s.id)]);
   const flights = el("table", { id: "qc-flights" },
-    el("thead", {}, el("tr", {}, ["Flight", "Gravimeter rate (Hz)", "max gap (s)", "GNSS rate (Hz)", "max gap (s)",
+    el("thead", {}, el("tr", {}, ["Flight", "Gravimeter rate (Hz)", "Grav. max gap (s)", "GNSS rate (Hz)", "GNSS max gap (s)",
       "Duration (min)", "Track length (km)"].map((h, i) => el("th", { class: i ? "" : "l" }, h)))),
     el("tbody", {}, qc.flights.map((f) => el("tr", {},
       el("td", { class: "l" }, f.name), el("td", {}, fmt(f.qc.gravimeter_rate_hz, 4)), el("td", {}, fmt(f.qc.gravimeter_max_gap_s)),
