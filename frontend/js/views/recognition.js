@@ -45,7 +45,9 @@ export async function render(sec, ctx) {
     preview, status, plot));
 
   // the current result's own map first (the h, ρ it was made with), then the analyst's values
+  const t0 = performance.now();
   const base = await endpoints.recognition(s.id, {});
+  const rtt0 = performance.now() - t0;   // said "round trip 0 ms" for the first map
   hIn.value = base.h; rhoIn.value = base.rho; modeIn.value = base.mode;
   hOut.textContent = (+base.h).toFixed(1); rhoOut.textContent = (+base.rho).toFixed(1);
   let current = base.state;
@@ -84,7 +86,8 @@ export async function render(sec, ctx) {
     }
     status.classList.remove("error");   // a failed request before this one is over
     status.textContent = (raw ? `${base.n_points} points · raw (Viterbi) states, before NL-means (h, ρ and the mode apply to the smoothed states) · `
-      : `${base.n_points} points · h=${r.h} km⁻¹, ρ=${r.rho} km (${r.mode}) · server ${fmt(r.elapsed_ms, 1)} ms, round trip ${Math.round(rtt)} ms · `) +
+      : `${base.n_points} points · h=${r.h} km⁻¹, ρ=${r.rho} km (${r.mode}) · ` +
+        (rtt > 0 ? `server ${fmt(r.elapsed_ms, 1)} ms, round trip ${Math.round(rtt)} ms · ` : "")) +
       counts.map((c, i) => `state ${i}: ${c}`).join(", ");
     const moved = !raw && (+r.h !== +base.h || +r.rho !== +base.rho || r.mode !== base.mode);
     preview.hidden = !moved;
@@ -93,7 +96,7 @@ export async function render(sec, ctx) {
     plot.dataset.signature = signature(shown);
     plot.dataset.h = r.h; plot.dataset.rho = r.rho; plot.dataset.show = showIn.value;
   };
-  update(base, 0);
+  update(base, rtt0);
 
   let inflight = false, pending = false;
   const request = async () => {
