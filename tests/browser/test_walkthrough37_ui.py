@@ -9,6 +9,7 @@ import json
 import time
 
 import pytest
+from playwright.sync_api import Error as PlaywrightError
 
 from .test_analyst_ui import _processed_survey, _tab, fake_pipeline_server, fake_server  # noqa: F401  (fixture)
 
@@ -89,7 +90,10 @@ def test_a_refused_submit_stays_on_screen(fake_server, browser_page, tmp_path): 
     def running(route):
         if route.request.method != "GET":
             return route.continue_()
-        body = route.fetch().json()
+        try:
+            body = route.fetch().json()
+        except PlaywrightError:          # the page closed under a poll in flight (teardown)
+            return None
         for s in body:
             if s["id"] == sid:
                 s["last_job"]["status"] = "running"
@@ -99,4 +103,5 @@ def test_a_refused_submit_stays_on_screen(fake_server, browser_page, tmp_path): 
     with page.expect_request(lambda r: r.url.endswith(f"/api/jobs/{jid}"), timeout=10000):
         page.click("#run-job")
     page.wait_for_selector("#job-status", timeout=5000)
+    page.unroute("**/api/surveys", running)
     _no_errors(page)
