@@ -73,6 +73,7 @@ from app.io.tables import (
     gap_rows_in_windows,
     mark_no_data,
     median_rate_hz,
+    no_data_mask,
     read_csv_table,
     true_runs,
 )
@@ -269,6 +270,13 @@ def read_lines(path, display: str = "lines.csv") -> tuple[pd.DataFrame, np.ndarr
         if col in df:
             _check_names(df[col], rows, display, col)
     check_finite(df, ("t_start", "t_end"), rows, display)
+    for col in ("t_start", "t_end"):
+        bad = np.flatnonzero(no_data_mask(df[col].to_numpy()))
+        if bad.size:
+            i = int(bad[0])
+            raise InputError(display, int(rows[i]), col, f"{float(df[col].iloc[i]):g} is a no-data marker, not a "
+                             f"time: line {df['line'].iloc[i]} needs its {col.replace('_', ' ')} (s, the data files' "
+                             "time scale)")
     for col in ("t_start", "t_end"):
         bad = np.flatnonzero(np.isnan(df[col].to_numpy()))
         if bad.size:

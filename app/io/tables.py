@@ -51,6 +51,9 @@ __all__ = [
     "check_file_size",
     "mark_no_data",
     "drop_duplicate_rows",
+    "no_data_mask",
+    "read_text",
+    "clock_time_hint",
 ]
 
 
@@ -160,31 +163,92 @@ _COMMA_NUMBER = re.compile(r'\s*"?[-+]?\d+,\d+([eE][-+]?\d+)?"?\s*')
 _SNIFF_LINES = 200
 
 
-def _head_text(path: Path, n_bytes: int) -> tuple[str, str]:
-    """``(encoding, text)`` of the first ``n_bytes`` bytes (decompressed) of ``path``: the
-    encoding from a byte-order mark (UTF-8 without one), the text decoded leniently."""
+def _head_text(path: Path, n_bytes: int) -> tuple[str, str, bytes]:
+    """``(encoding, text, bytes)`` of the first ``n_bytes`` bytes (decompressed) of ``path``: the
+    encoding from a byte-order mark, else UTF-8 when the bytes are UTF-8, else cp1252 (Latin-1
+    where cp1252 leaves a byte undefined); the text decoded leniently."""
     opener = gzip.open if str(path).endswith(".gz") else open
     with opener(path, "rb") as fh:
         raw = fh.read(n_bytes)
-    enc = next((e for bom, e in _BOMS if raw.startswith(bom)), "utf-8")
+    enc = next((e for bom, e in _BOMS if raw.startswith(bom)), None) or _single_byte_encoding(raw, cut=True)
     if enc == "utf-16" and len(raw) % 2:
         raw = raw[:-1]
-    return enc, raw.decode(enc, errors="replace")
+    return enc, raw.decode(enc, errors="replace"), raw
+
+
+def _single_byte_encoding(raw: bytes, cut: bool = False) -> str:
+    """``"utf-8"`` when ``raw`` is UTF-8 (``cut``: it may end inside a character), else
+    ``"cp1252"`` (Windows' Western code page, a superset of Latin-1's printable characters), or
+    ``"latin-1"`` when a byte is one cp1252 leaves undefined.  Binary bytes (a NUL, gzip's
+    magic number) stay ``"utf-8"``: no code page makes them text, and the read says what they are."""
+    if raw[:2] == b"\x1f\x8b" or b"\x00" in raw:
+        return "utf-8"
+    try:
+        raw.decode("utf-8")
+        return "utf-8"
+    except UnicodeDecodeError as exc:
+        if cut and exc.start >= len(raw) - 3 and exc.reason == "unexpected end of data":
+            return "utf-8"
+    try:
+        raw.decode("cp1252")
+        return "cp1252"
+    except UnicodeDecodeError:
+        return "latin-1"
+
+
+def _first_bad_utf8_row(raw: bytes) -> int:
+    """1-based line number of the first byte that is not UTF-8 (``raw`` is not UTF-8)."""
+    try:
+        raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        return raw.count(b"\n", 0, exc.start) + 1
+    return 0
+
+
+def warn_not_utf8(display: str, enc: str, row: int, stacklevel: int = 3) -> None:
+    """The one warning for a text file read in a single-byte code page (not UTF-8, no BOM)."""
+    warnings.warn(f"{display}: not UTF-8 (a byte at row {row} is not a UTF-8 character) and no byte-order mark: "
+                  f"read as {'Windows-1252' if enc == 'cp1252' else 'Latin-1'} (° and µ in names and comments "
+                  "come out right; save the file as UTF-8 to say so)", stacklevel=stacklevel)
+
+
+def read_text(path: Path, display: str) -> str:
+    """A whole text file (``.gz`` decompressed): UTF-8 or UTF-16 by its byte-order mark, UTF-8
+    without one — or, when its bytes are not UTF-8, cp1252/Latin-1 with a warning
+    (:func:`warn_not_utf8`).  Unreadable (a truncated gzip …) → :class:`InputError`."""
+    check_file_size(path, display)
+    try:
+        if str(path).lower().endswith(".gz"):
+            with gzip.open(path, "rb") as fh:
+                raw = fh.read()
+        else:
+            raw = Path(path).read_bytes()
+    except (OSError, EOFError, zlib.error) as exc:
+        raise InputError(display, None, None, f"cannot read the file: {exc}") from None
+    for bom, enc in _BOMS:
+        if raw.startswith(bom):
+            return raw.decode(enc, errors="replace").lstrip("\ufeff")
+    enc = _single_byte_encoding(raw)
+    if enc != "utf-8":
+        warn_not_utf8(display, enc, _first_bad_utf8_row(raw), stacklevel=3)
+    return raw.decode(enc)
 
 
 def csv_dialect(path: Path, display: str) -> dict:
     """The ``pandas.read_csv`` keywords a table file is written in (SPEC: UTF-8, commas, points).
 
     Inferred only where the file leaves no doubt: the encoding from a byte-order mark
-    (UTF-16 with one, as Excel's "Unicode text" writes it); the separator from the header
-    line — ``;`` or a tab when it has no comma; with such a separator, a decimal comma when the
+    (UTF-16 with one, as Excel's "Unicode text" writes it), or cp1252/Latin-1 with a warning when
+    the first 64 kB are not UTF-8 (``°`` or ``µ`` saved by a Windows program); leading lines
+    starting with ``#`` skipped (``skiprows``: the row numbers stay the file's); the separator
+    from the header line — ``;`` or a tab when it has no comma; with such a separator, a decimal comma when the
     first data lines write numbers with commas (``9,81234``) and none with a point.  Both in
     one file is refused.
 
     Returns
     -------
     dict
-        ``encoding``, ``sep`` and ``decimal`` (the defaults when the file is SPEC's).
+        ``encoding``, ``skiprows``, ``sep`` and ``decimal`` (absent when the file is SPEC's).
 
     Raises
     ------
@@ -192,18 +256,25 @@ def csv_dialect(path: Path, display: str) -> dict:
         Decimal commas and decimal points in one file whose separator is not a comma.
     """
     try:
-        enc, text = _head_text(path, 1 << 16)
+        enc, text, raw = _head_text(path, 1 << 16)
     except (OSError, EOFError, zlib.error):
         return {}   # the read says what is wrong
     lines = text.lstrip("\ufeff").splitlines()
     kw: dict = {"encoding": enc} if enc != "utf-8" else {}
+    if enc in ("cp1252", "latin-1"):
+        warn_not_utf8(display, enc, _first_bad_utf8_row(raw), stacklevel=4)
+    # leading comment lines ('# written by …'): skipped, the file's own row numbers kept
+    n_comments = next((i for i, line in enumerate(lines) if not line.lstrip().startswith("#")), len(lines))
+    if n_comments:
+        kw["skiprows"] = n_comments
+        lines = lines[n_comments:]
     head = lines[0] if lines else ""
     sep = next((c for c in (";", "\t") if "," not in head and c in head), ",")
     if sep == ",":
         return kw
     kw["sep"] = sep
     first: dict[str, tuple[int, str]] = {}
-    for i, line in enumerate(lines[1:1 + _SNIFF_LINES], start=2):
+    for i, line in enumerate(lines[1:1 + _SNIFF_LINES], start=2 + n_comments):
         for cell in line.split(sep):
             for what, pat in (("comma", _COMMA_NUMBER), ("point", _DOT_NUMBER)):
                 if what not in first and pat.fullmatch(cell):
@@ -219,25 +290,27 @@ def csv_dialect(path: Path, display: str) -> dict:
     return kw
 
 
-def _too_wide(path: Path, sep: str = ",") -> int:
-    """Fields of the first line, counted on its raw bytes (pandas takes seconds to even read
+def _too_wide(path: Path, sep: str = ",", skiprows: int = 0) -> int:
+    """Fields of the header line (after ``skiprows`` comment lines), counted on its raw bytes (pandas takes seconds to even read
     a header of 100 000 fields); at most ``MAX_COLUMNS`` kB of it are read (decompressed).
     (UTF-16: the separator's byte once per separator, the line cut at the first newline byte.)"""
     opener = gzip.open if str(path).endswith(".gz") else open
     with opener(path, "rb") as fh:
+        for _ in range(skiprows):
+            fh.readline(MAX_COLUMNS * 1024)
         line = fh.readline(MAX_COLUMNS * 1024)
     return line.count(sep.encode()) + 1
 
 
 def _header(path: Path, display: str, **kw) -> list[str]:
     try:
-        n_fields = _too_wide(path, kw.get("sep", ","))
+        n_fields = _too_wide(path, kw.get("sep", ","), kw.get("skiprows", 0))
     except (OSError, EOFError, zlib.error):
         n_fields = 0   # the read below says what is wrong
     if n_fields > MAX_COLUMNS:
         # every column is tokenized (a stray separator must not be hidden): a header of 100 000
         # fields made a 1.3 MB file take 26 s to parse
-        raise InputError(display, 1, None, f"{n_fields:,} columns in the header line: more than the "
+        raise InputError(display, 1 + kw.get("skiprows", 0), None, f"{n_fields:,} columns in the header line: more than the "
                                            f"{MAX_COLUMNS:,} a table may have")
     try:
         with _source(path, display) as (src, skw):
@@ -250,7 +323,7 @@ def _header(path: Path, display: str, **kw) -> list[str]:
                                                   f"{path.name}.gz (or decompress it)") from None
         raise InputError(display, None, None, f"cannot read the file: {exc}") from None
     except pd.errors.ParserError as exc:
-        raise InputError(display, 1, None, f"cannot read the header line: {exc}") from None
+        raise InputError(display, 1 + kw.get("skiprows", 0), None, f"cannot read the header line: {exc}") from None
     return [str(c) for c in head.columns]
 
 
@@ -262,16 +335,28 @@ def _is_gzip(path: Path) -> bool:
         return False
 
 
-def _separator_hint(names: list[str]) -> str:
-    """A hint when the header came out as one field holding another separator."""
-    if names and names[0].lstrip().startswith("#"):
-        return ("; the first line is a comment ('#…'): the header line with the column names must come "
-                "first — remove the comment lines")
+def _separator_hint(names: list[str], last_comment: str = "", col: str = "") -> str:
+    """A hint when the header came out as one field holding another separator, or when the
+    missing column ``col`` is named on the leading ``#`` line above the header (skipped as a comment)."""
+    if col and re.search(rf"\b{re.escape(col)}\b", last_comment.lower()):
+        return (f"; the column names are on a comment line ({last_comment.strip()[:80]!r}), and leading lines "
+                "starting with '#' are skipped: remove the '#' before the names")
     if len(names) == 1:
         for sep, what in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars"), (" ", "blanks")):
             if sep in names[0].strip():
                 return f"; the header is one field separated by {what}: columns must be separated by commas"
     return ""
+
+
+def _last_comment(path: Path, head_row: int) -> str:
+    """The leading ``#`` line just above the header ("" when there is none)."""
+    if head_row < 2:
+        return ""
+    try:
+        lines = _head_text(path, 1 << 16)[1].lstrip("\ufeff").splitlines()
+    except (OSError, EOFError, zlib.error):
+        return ""
+    return lines[head_row - 2].lstrip().lstrip("#") if len(lines) >= head_row - 1 else ""
 
 
 def _bad_cell_hint(col: str, val: str) -> str:
@@ -299,7 +384,7 @@ def locate_bad_cell(path: Path, display: str, usecols: Sequence[str], float_cols
     offending cell (smallest line number; left-most column on ties), or None.
     """
     best: tuple[int, int, str, str] | None = None
-    offset = 0
+    offset = int(read_kw.get("skiprows", 0))
     # in chunks: the text of a whole large file as Python strings would take ~10x its size
     with _source(path, display) as (src, skw), \
             pd.read_csv(src, usecols=list(usecols), dtype=str, skip_blank_lines=False, chunksize=200_000,
@@ -323,11 +408,16 @@ def locate_bad_cell(path: Path, display: str, usecols: Sequence[str], float_cols
     if best is None:
         return None
     row, _, col, val = best
-    hint = _bad_cell_hint(col, val)
-    if col in ("time", "t_start", "t_end") and re.fullmatch(r"\s*\d{1,2}:\d{2}(:\d{2}(\.\d*)?)?\s*", val):
-        hint = (" — a clock time (hh:mm:ss): times are float seconds on the survey's one time scale (the data "
-                "files' own, e.g. GPS seconds of week), not clock strings")
+    hint = clock_time_hint(col, val) or _bad_cell_hint(col, val)
     return InputError(display, row, col, f"not a number: {val!r}{hint}")
+
+
+def clock_time_hint(col: str, val: str) -> str:
+    """The hint for a time column holding a clock time (``hh:mm:ss[.ss]``), "" otherwise."""
+    if col in ("time", "t_start", "t_end") and re.fullmatch(r"\s*\d{1,2}:\d{2}(:\d{2}(\.\d*)?)?\s*", val):
+        return (" — a clock time (hh:mm:ss): times are float seconds on the survey's one time scale (the data "
+                "files' own, e.g. GPS seconds of week), not clock strings")
+    return ""
 
 
 #: cells tokenized at a time by :func:`_read_all_columns` (at most 200 000 rows)
@@ -348,7 +438,8 @@ def _read_all_columns(path: Path, dtype: dict, display: str, n_columns: int = 1,
                                               **skw, **dialect)]
     df = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame({c: pd.Series(dtype=float) for c in keep})
     if max_rows is not None and len(df) > max_rows:
-        raise InputError(display, max_rows + 2, None, f"more than the {max_rows:,} data rows allowed per file")
+        raise InputError(display, max_rows + 2 + dialect.get("skiprows", 0), None,
+                         f"more than the {max_rows:,} data rows allowed per file")
     return df
 
 
@@ -371,7 +462,7 @@ def _unit_key(unit: str) -> str:
     return u
 
 
-def _column_lookup(names: Sequence[str], wanted: Sequence[str], display: str) -> dict[str, str]:
+def _column_lookup(names: Sequence[str], wanted: Sequence[str], display: str, header_row: int = 1) -> dict[str, str]:
     """Lower-case SPEC name → the header's own label, for the columns in ``wanted``.
 
     A label matches after stripping blanks and lower-casing; one that writes a unit after the
@@ -389,7 +480,7 @@ def _column_lookup(names: Sequence[str], wanted: Sequence[str], display: str) ->
         col, unit = m.group(1), m.group(2)
         spec, accepted = SPEC_UNITS.get(col, (None, set()))
         if _unit_key(unit) not in accepted:
-            raise InputError(display, 1, col, f"column {n.strip()!r} gives {col} in {unit!r}; SPEC's {col} is in "
+            raise InputError(display, header_row, col, f"column {n.strip()!r} gives {col} in {unit!r}; SPEC's {col} is in "
                                               f"{spec or 'its own unit'}: convert the column to {spec or 'that unit'} "
                                               f"(the unit in the header is read, never assumed)")
         lookup[col] = n
@@ -435,12 +526,13 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
     check_file_size(path, display)
     dialect = csv_dialect(path, display)
     names = _header(path, display, **dialect)
-    lookup = _column_lookup(names, list(required) + list(optional), display)
+    head_row = 1 + dialect.get("skiprows", 0)   # leading '#' lines skipped: the file's own numbering kept
+    lookup = _column_lookup(names, list(required) + list(optional), display, head_row)
     for col in required:
         if col not in lookup:
             have = ", ".join(repr(n) for n in names) or "none"
-            raise InputError(display, 1, col, f"required column '{col}' is missing (columns found: {have})"
-                                              + _separator_hint(names))
+            raise InputError(display, head_row, col, f"required column '{col}' is missing (columns found: "
+                                                     f"{have})" + _separator_hint(names, _last_comment(path, head_row), col))
     wanted = list(required) + [c for c in optional if c in lookup]
     usecols = [lookup[c] for c in wanted]
     rename = {lookup[c]: c for c in wanted}
@@ -454,7 +546,7 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
     except InputError:
         raise
     except pd.errors.ParserWarning:
-        raise InputError(display, 2, None, f"this line has more fields than the header ({len(names)}): "
+        raise InputError(display, head_row + 1, None, f"this line has more fields than the header ({len(names)}): "
                                            f"a stray separator or a decimal comma?") from None
     except pd.errors.ParserError as exc:
         raise InputError(display, parser_error_row(exc), None,
@@ -481,7 +573,7 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
             nz = np.flatnonzero(~empty)
             n = int(nz[-1]) + 1 if nz.size else 0
             df = df.iloc[:n]
-    rows = np.arange(2, n + 2, dtype=np.int64)
+    rows = np.arange(head_row + 1, n + head_row + 1, dtype=np.int64)
     if n < min_rows:
         raise InputError(display, None, None,
                          f"the file has {n} data row(s); at least {min_rows} needed")
@@ -710,14 +802,24 @@ def _zero_runs_bordered(v: np.ndarray, far: float) -> np.ndarray:
     return out
 
 
-def mark_no_data(df: pd.DataFrame, rows: np.ndarray, display: str, columns: Sequence[str]) -> pd.DataFrame:
+def no_data_mask(v: np.ndarray) -> np.ndarray:
+    """Where ``v`` holds a no-data marker (:data:`NO_DATA_MARKERS`, or a magnitude ≥ 1e30)."""
+    v = np.asarray(v, dtype=float)
+    return np.isin(v, NO_DATA_MARKERS) | (np.abs(v) >= NO_DATA_BELOW_ABS)
+
+
+def mark_no_data(df: pd.DataFrame, rows: np.ndarray, display: str, columns: Sequence[str],
+                 zero_dropout: Sequence[str] = ("f_z",),
+                 zero_runs: dict[str, float] | None = None) -> pd.DataFrame:
     """Cells holding a no-data marker made missing (NaN), in place, with a warning naming them.
 
     Markers: the numbers of :data:`NO_DATA_MARKERS` and any magnitude ≥ 1e30, in every column
     of ``columns`` but ``time``; a logger's dropout written as zeros: ``f_z`` exactly 0 (specific
     force is 0 only in free fall), ``lat`` and ``lon`` both exactly 0 on a row, a run of exact
     zeros in ``h`` bordered by heights more than :data:`ZERO_DROPOUT_H_M` from 0 — and, on those
-    rows, the other columns' exact zeros.  What follows is the missing-value rule
+    rows, the other columns' exact zeros.  Other formats name their own columns: ``zero_dropout``
+    (exactly 0 is a dropout; default ``f_z``) and ``zero_runs`` (column → the distance from 0
+    its neighbours must have for a run of zeros to be a dropout; default ``{"h": 50}``).  What follows is the missing-value rule
     (``processing.max_nan_run``: refused, or interpolated, or a hole of f_z): a marker is never
     read as a number.
 
@@ -729,15 +831,17 @@ def mark_no_data(df: pd.DataFrame, rows: np.ndarray, display: str, columns: Sequ
     cols = [c for c in columns if c in df and c != "time"]
     found: list[str] = []
     dropout = np.zeros(len(df), bool)
-    if "f_z" in df:
-        dropout |= df["f_z"].to_numpy(float) == 0.0
+    for c in zero_dropout:
+        if c in df:
+            dropout |= df[c].to_numpy(float) == 0.0
     if "lat" in df and "lon" in df:
         dropout |= (df["lat"].to_numpy(float) == 0.0) & (df["lon"].to_numpy(float) == 0.0)
-    if "h" in df:
-        dropout |= _zero_runs_bordered(df["h"].to_numpy(float), ZERO_DROPOUT_H_M)
+    for c, far in ({"h": ZERO_DROPOUT_H_M} if zero_runs is None else zero_runs).items():
+        if c in df:
+            dropout |= _zero_runs_bordered(df[c].to_numpy(float), far)
     for c in cols:
         v = df[c].to_numpy(float)
-        marker = np.isin(v, NO_DATA_MARKERS) | (np.abs(v) >= NO_DATA_BELOW_ABS)
+        marker = no_data_mask(v)
         zero = dropout & (v == 0.0)
         for mask, what in ((marker, None), (zero, "0 (a dropout)")):
             if mask.any():

@@ -170,12 +170,7 @@ def test_converter_cells_get_a_hint(tmp_path, cell, hint):
     assert (ei.value.row, ei.value.column) == (3, "time")
 
 
-def test_comment_line_and_ddmm_latitude_say_so(tmp_path):
-    p = tmp_path / "g.csv"
-    p.write_text("# exported by X\ntime,f_z\n1.0,9.81\n")
-    with pytest.raises(InputError, match="comment") as ei:
-        read_csv_table(p, "g.csv", ("time", "f_z"))
-    assert ei.value.row == 1
+def test_ddmm_latitude_says_so():
     df = pd.DataFrame({"lat": [65.5, 6530.19652]})
     with pytest.raises(InputError, match="DDMM") as ei:
         check_range(df, "lat", -90.0, 90.0, np.array([2, 3]), "gnss.csv", "latitude")
