@@ -28,7 +28,8 @@ Plain text, one sample per line, fields separated by blanks (spaces or tabs)::
   seven line types of a Geosoft database (``DB_LINE_TYPE_NORMAL, BASE, TIE,
   TEST, TREND, SPECIAL, RANDOM`` in the GX API; the letters L, B, T, S, R, P, D
   of Oasis montaj line names such as ``T110.2:16`` = tie 110, version 2,
-  flight 16).  The id is the rest of the header line, as written.
+  flight 16).  The id is the rest of the header line, as written.  An Oasis montaj
+  line name alone on a line (``L1010.1``, ``T2010``) is a block header too.
 * Instead of block headers a ``line`` column may carry the line of every row
   (mapped as ``line`` in ``[columns]``, or a header column named ``line`` in a
   file without block headers): Oasis montaj line names (``L1010``,
@@ -38,7 +39,12 @@ Plain text, one sample per line, fields separated by blanks (spaces or tabs)::
 * Missing values: ``*`` (Oasis montaj's dummy in text) and any number ≤
   −0.9·10³² (the GX API's double dummy ``GS_R8DM = −1.0E32``; ``GS_R8MN =
   −0.9E32`` is the smallest valid value).  Missing values then follow the
-  survey's NaN policy (``processing.max_nan_run``), like blank CSV cells.
+  survey's NaN policy (``processing.max_nan_run``), like blank CSV cells.  The no-data
+  markers of a CSV (``app.io.tables.mark_no_data``: −9999, −999.99, any magnitude ≥ 10³⁰ —
+  so ``+1E32`` too —, f_z exactly 0 …) are missing values as well, with a warning; rows
+  repeated exactly are dropped (``drop_duplicate_rows``); a last row with fewer fields (the
+  file cut while written) is dropped with a warning.  Text that is not UTF-8 (``/ Höhe`` saved
+  by a Windows program) is read as cp1252/Latin-1 with a warning.
 
 Sources: Seequent Oasis montaj help ("Geosoft XYZ file format",
 "Import Geosoft XYZ", "Select/Deselect Type": line types and the
@@ -82,6 +88,7 @@ import re
 import shutil
 import tempfile
 import tomllib
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -90,6 +97,7 @@ import pandas as pd
 
 from app.config import F_Z_UNIT_TO_MS2, ColumnsSection
 from app.io.errors import InputError
+from app.io.tables import clock_time_hint, drop_duplicate_rows, mark_no_data, read_text
 
 __all__ = ["XyzScan", "XyzBlock", "XyzTable", "scan_xyz", "xyz_table", "infer_f_z_unit",
            "write_xyz", "write_flight_xyz", "write_survey_xyz", "BLOCK_KEYWORDS", "LINE_KIND_OF_KEYWORD",
@@ -180,14 +188,14 @@ class XyzTable:
 def _read_text(path: Path, display: str) -> str:
     if not path.is_file():
         raise InputError(display, None, None, "file not found")
-    try:
-        if path.name.lower().endswith(".gz"):
-            with gzip.open(path, "rt", encoding="utf-8-sig", errors="replace", newline="") as fh:
-                return fh.read()
-        with open(path, encoding="utf-8-sig", errors="replace", newline="") as fh:
-            return fh.read()
-    except (OSError, EOFError) as exc:
-        raise InputError(display, None, None, f"cannot read the file: {exc}") from None
+    return read_text(path, display)
+
+
+def _keep_rows(blocks: list[XyzBlock], keep: np.ndarray) -> None:
+    """Re-index ``blocks`` (in place) to the rows ``keep`` leaves."""
+    pos = np.concatenate(([0], np.cumsum(keep)))
+    for b in blocks:
+        b.start, b.stop = int(pos[b.start]), int(pos[b.stop])
 
 
 def scan_xyz(path, display: str | None = None) -> XyzScan:
@@ -224,6 +232,10 @@ def scan_xyz(path, display: str | None = None) -> XyzScan:
             continue
         tok = s.split(None, 1)
         kw = tok[0].lower()
+        bare = _GEOSOFT_LINE_NAME.match(s) if len(tok) == 1 else None
+        if bare:   # an Oasis montaj line name alone (L1010.1, T2010): type letter and number
+            heads.append((_LETTER_KEYWORD[bare.group(1)], bare.group(2), i + 1, len(data_idx)))
+            continue
         if kw in BLOCK_KEYWORDS:
             if len(tok) < 2 or not tok[1].strip():
                 raise InputError(display, i + 1, None, f"block header {tok[0]!r} without a line number")
@@ -236,6 +248,11 @@ def scan_xyz(path, display: str | None = None) -> XyzScan:
     data_lines = [lines[i] for i in data_idx]
     counts = np.fromiter((len(ln.split()) for ln in data_lines), dtype=np.int64, count=len(data_lines))
     n_fields = int(counts[0])
+    if len(counts) > 2 and counts[-1] < n_fields and not (counts[:-1] != n_fields).any():
+        # the recording stopped (or the file was copied while written) in the middle of the last row
+        warnings.warn(f"{display}: the last row (row {int(rows[-1])}) has {int(counts[-1])} of the {n_fields} "
+                      "fields: cut short when the file ended, dropped", stacklevel=3)
+        data_lines, rows, counts = data_lines[:-1], rows[:-1], counts[:-1]
     bad = np.flatnonzero(counts != n_fields)
     if bad.size:
         k = int(bad[0])
@@ -287,8 +304,9 @@ def _parse_columns(scan: XyzScan, cols: list[int], fields: dict[int, str], text_
             if best is None:
                 raise InputError(scan.display, None, None, "cannot parse the data rows") from None
             i, j, val = best
-            raise InputError(scan.display, int(scan.rows[i]), fields.get(j, scan.label(j)),
-                             f"not a number: {val!r} (file column {scan.label(j)!r})") from None
+            fld = fields.get(j, scan.label(j))
+            raise InputError(scan.display, int(scan.rows[i]), fld,
+                             f"not a number: {val!r} (file column {scan.label(j)!r}){clock_time_hint(fld, val)}") from None
         for j in need:
             v = df[j].to_numpy()
             if j not in text_cols:
@@ -413,13 +431,17 @@ def xyz_table(scan: XyzScan, role: str, columns: ColumnsSection | None, *, combi
         blocks = _line_blocks(scan, lv, scan.label(j_line))
     else:
         blocks = [XyzBlock(b.keyword, b.line_id, b.row, b.start, b.stop) for b in scan.blocks]
+    # as in a CSV: rows repeated exactly dropped, no-data markers (−9999, +1e32 …) made missing
+    keep = ~df.duplicated().to_numpy()
+    df, rows = drop_duplicate_rows(df, rows, scan.display)
+    if not keep.all():
+        _keep_rows(blocks, keep)
+    mark_no_data(df, rows, scan.display, list(idx))
     if combined:
         data_cols = [f for f in idx if f != "time"]
         mask = ~np.all(np.isnan(df[data_cols].to_numpy(dtype=float)), axis=1)
         if not mask.all():
-            pos = np.concatenate(([0], np.cumsum(mask)))
-            for b in blocks:
-                b.start, b.stop = int(pos[b.start]), int(pos[b.stop])
+            _keep_rows(blocks, mask)
             df = df.loc[mask].reset_index(drop=True)
             rows = rows[mask]
     unit = None

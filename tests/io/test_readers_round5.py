@@ -81,3 +81,81 @@ def test_no_data_marker_as_a_line_time_is_named(clean, tmp_path):
     (root / "lines.csv").write_text(_bad_row(text, 2, col, "-9999"))
     e = expect_error(root, "lines.csv", 3, "t_start", match="no-data marker")
     assert "-9999" in str(e)
+
+
+# ----------------------------------------------------------------------------- Geosoft XYZ
+
+XYZ_NAN = {"max_nan_run": 3}
+_G, _N = "flights/F1/gravimeter.xyz", "flights/F1/gnss.xyz"
+
+
+def _set_cells(text: str, cells, value: str) -> str:
+    """``value`` in field ``col`` of the ``k``-th data row (0-based) for each ``(k, col)``."""
+    lines = text.split("\n")
+    data = [i for i, ln in enumerate(lines) if ln[:1].isdigit()]
+    for k, col in cells:
+        f = lines[data[k]].split()
+        f[col] = value
+        lines[data[k]] = "  ".join(f)
+    return "\n".join(lines)
+
+
+def _xyz(root, gfn=None, nfn=None, toml=None):
+    from tests.io.test_xyz import make_xyz_survey
+
+    kw = {"toml": toml} if toml else {}
+    make_xyz_survey(root, **kw)
+    for rel, fn in ((_G, gfn), (_N, nfn)):
+        if fn:
+            (root / rel).write_bytes(fn((root / rel).read_text()))
+    return root
+
+
+XYZ_CELLS = {"g": [(300, 1)], "n": [(301, 1), (303, 2), (305, 3), (307, 4)]}
+
+
+@pytest.mark.parametrize("marker", ["-1e32", "1e32", "-1.0E+32", "-9999", "-999.99"])
+def test_xyz_dummies_and_markers_are_missing_values(tmp_path, marker):
+    """Geosoft's dummies and the CSV markers in every column read as '*' does (+1e32, −9999 were
+    refused as out of range, −999 in vu was read as a velocity)."""
+    def edit(v):
+        return (lambda t: _set_cells(t, XYZ_CELLS["g"], v).encode(), lambda t: _set_cells(t, XYZ_CELLS["n"], v).encode())
+    ref = _read_quiet(_xyz(tmp_path / "star", *edit("*")), XYZ_NAN)[0]
+    s, msgs = _read_quiet(_xyz(tmp_path / "m", *edit(marker)), XYZ_NAN)
+    _same_tables(ref, s)
+    assert len(s.flights["F1"].gravimeter) == 1199   # the f_z hole
+    if marker not in ("-1e32", "-1.0E+32"):
+        assert any("no-data markers" in m and "first at row 305" in m for m in msgs)
+
+
+def test_xyz_repeated_rows_cut_last_row_and_bare_line_names(tmp_path):
+    ref = _read_quiet(_xyz(tmp_path / "ref"))[0]
+
+    def dup_and_rename(t: str) -> bytes:
+        lines = t.split("\n")
+        k = lines.index("Line 1001") + 5
+        lines.insert(k, lines[k])
+        return "\n".join(lines).replace("Line 1001", "L1001").replace("TIE 2001", "T2001").encode()
+
+    s, msgs = _read_quiet(_xyz(tmp_path / "d", dup_and_rename, dup_and_rename))
+    _same_tables(ref, s)
+    assert sum("repeating an earlier row exactly" in m for m in msgs) == 2
+
+    cut_ref = _read_quiet(_xyz(tmp_path / "c0", lambda t: t.rstrip("\n").rsplit("\n", 1)[0].encode() + b"\n"))[0]
+    s, msgs = _read_quiet(_xyz(tmp_path / "c", lambda t: t.rstrip("\n").rsplit("  ", 1)[0].encode() + b"\n"))
+    _same_tables(cut_ref, s)
+    assert any("last row (row 1207)" in m and "cut short" in m for m in msgs)
+
+
+def test_xyz_latin1_header_and_clock_times(tmp_path):
+    toml = '[survey]\nname = "x"\n[columns]\nh = "Höhe"\n'
+
+    def hoehe(enc):
+        return lambda t: ("/ Höhe über NN\n" + t.replace("/ time  lat  lon  h  vu", "/ time  lat  lon  Höhe  vu")).encode(enc)
+
+    ref = _read_quiet(_xyz(tmp_path / "u", nfn=hoehe("utf-8"), toml=toml))[0]
+    s, msgs = _read_quiet(_xyz(tmp_path / "l", nfn=hoehe("latin-1"), toml=toml))
+    _same_tables(ref, s)
+    assert any("not UTF-8" in m and "row 1" in m for m in msgs)
+    root = _xyz(tmp_path / "c", nfn=lambda t: _set_cells(t, [(0, 0)], "03:33:20.00").encode())
+    expect_error(root, _N, 4, "time", match="clock time")
