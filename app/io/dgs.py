@@ -61,6 +61,11 @@ with a warning: the base tie to ``base_gravity_mgal`` at the parking-place
 readings then fixes the level (a constant error of f_z is a constant error of
 z, which the tie removes).  The offset used is in ``df.attrs``.
 
+Damaged records (as in a CSV, :mod:`app.io.tables`): a record repeated exactly is dropped; a
+no-data marker (−9999, 99999999, ±1e32 …) in ``gravity``, or a run of exact zeros between
+readings more than ``GRAVITY_ZERO_DROPOUT_MGAL`` (100 mGal) from 0, is a missing reading — a
+hole of the record —, with a warning.
+
 ``long_accel`` and ``cross_accel`` are returned but not turned into ``f_x``,
 ``f_y``: their units are not documented consistently (the AT1M data
 description gives Gal for the long and mGal for the cross accelerometer) and
@@ -80,7 +85,14 @@ import pandas as pd
 
 from app.io.errors import InputError
 from app.io.gfile import MIN_FIELDS as GFILE_MIN_FIELDS
-from app.io.tables import check_finite, check_time_increasing, fill_short_nan_runs
+from app.io.tables import (
+    check_finite,
+    check_time_increasing,
+    drop_duplicate_rows,
+    fill_short_nan_runs,
+    mark_no_data,
+    read_text,
+)
 
 __all__ = ["read_dgs", "sniff_dat", "dat_hint", "DGS_FIELDS", "NOMINAL_OFFSET_MGAL", "GPS_SYNC_BIT", "SECONDS_PER_WEEK"]
 
@@ -93,6 +105,8 @@ SECONDS_PER_WEEK = 604800.0
 NOMINAL_OFFSET_MGAL = 978000.0
 #: median readings (mGal) taken as already absolute
 ABSOLUTE_READING_MGAL = (7e5, 1.3e6)
+#: a run of exact zeros in ``gravity`` between readings farther than this from 0 (mGal) is a dropout
+GRAVITY_ZERO_DROPOUT_MGAL = 100.0
 _PHYSICAL = ("gravity", "long_accel", "cross_accel", "beam", "temp", "pressure", "etemp")
 
 
@@ -176,11 +190,7 @@ def sniff_dat(path, n_lines: int = 5) -> str | None:
 
 
 def _read_records(path: Path, display: str) -> tuple[pd.DataFrame, np.ndarray]:
-    try:
-        with _open_text(path) as fh:
-            text = fh.read()
-    except (OSError, EOFError) as exc:
-        raise InputError(display, None, None, f"cannot read the file: {exc}") from None
+    text = read_text(path, display)
     all_lines = text.split("\n")
     idx = [i for i, s in enumerate(all_lines) if s.strip()]
     if not idx:
@@ -327,6 +337,10 @@ def read_dgs(path, *, time_offset_s: float | None = 0.0, rate_hz: float | None =
     if not path.is_file():
         raise InputError(display, None, None, "file not found")
     df, rows = _read_records(path, display)
+    df, rows = drop_duplicate_rows(df, rows, display)   # a record logged twice
+    # as in a CSV: a no-data marker (−9999, ±1e32 …) in gravity, or a run of exact zeros between
+    # readings farther than GRAVITY_ZERO_DROPOUT_MGAL from 0, is a missing value (a hole), with a warning
+    mark_no_data(df, rows, display, ["gravity"], zero_dropout=(), zero_runs={"gravity": GRAVITY_ZERO_DROPOUT_MGAL})
     has_gps = "gps_sow" in df
     num = [c for c in df.columns if c != "hz1_counter"]
     check_finite(df, num, rows, display)

@@ -38,6 +38,12 @@ neighbour, which uses the median interval.
 Units: accelerations are multiplied by ``scale_to_ms2`` (default 1.0: the
 file is in m/s², Z up, ≈ +9.8 at rest).
 
+Damaged records (as in a CSV, :mod:`app.io.tables`): a message repeated exactly is dropped; a
+no-data marker (−9999, ±1e32 …) in the Z, X or Y fields of the channel read, or a Z field
+exactly 0 (a dropout: specific force is 0 only in free fall), is a missing value — a hole of
+the record in Z —, with a warning; bytes that are not UTF-8 are read as cp1252 (a warning), so
+garbage in a line is "not a number" at its row; a truncated ``.gz`` is an :class:`InputError`.
+
 Saturation: ``on_saturation="drop"`` (default) removes both samples of a
 saturated message, warns (``warnings.warn``) and records the count in
 ``df.attrs["saturated_messages"]``; the gap it leaves is then judged by the
@@ -48,7 +54,8 @@ saturated line (column ``saturation``).
 
 from __future__ import annotations
 
-import gzip
+import io
+import re
 import warnings
 from pathlib import Path
 
@@ -56,7 +63,15 @@ import numpy as np
 import pandas as pd
 
 from app.io.errors import InputError
-from app.io.tables import check_finite, check_time_increasing, fill_short_nan_runs, parser_error_row
+from app.io.tables import (
+    check_finite,
+    check_time_increasing,
+    drop_duplicate_rows,
+    fill_short_nan_runs,
+    mark_no_data,
+    parser_error_row,
+    read_text,
+)
 
 __all__ = ["read_gfile", "gfile_columns", "is_gfile_name"]
 
@@ -75,27 +90,20 @@ def gfile_columns(n_fields: int) -> list[str]:
 
 
 def is_gfile_name(name: str) -> bool:
-    """File names recognised as G files in a flight directory: ``gravimeter.g``, ``*.G``, ``G*.dat``."""
+    """File names recognised as G files in a flight directory: ``gravimeter.g``, ``*.G``, ``G*.dat``
+    (each also gzip-compressed, ``.gz``)."""
+    name = name[:-3] if name.lower().endswith(".gz") else name
     low = name.lower()
     return (low == "gravimeter.g" or name.endswith(".G")
             or (name[:1] in "Gg" and low.endswith(".dat")))
 
 
-def _first_data_line(path: Path, display: str) -> str:
-    opener = gzip.open if path.suffix == ".gz" else open
-    try:
-        with opener(path, "rt", errors="replace") as fh:
-            fh.readline()  # header
-            for line in fh:
-                if line.strip():
-                    return line
-    except OSError as exc:
-        raise InputError(display, None, None, f"cannot read the file: {exc}") from None
-    raise InputError(display, None, None, "the G file has no data lines after the header")
-
-
 def _read_raw(path: Path, display: str) -> tuple[pd.DataFrame, np.ndarray]:
-    first = _first_data_line(path, display)
+    text = read_text(path, display)   # a truncated gzip, bytes that are not UTF-8: said here
+    lines = text.split("\n")
+    first = next((ln for ln in lines[1:] if ln.strip()), None)
+    if first is None:
+        raise InputError(display, None, None, "the G file has no data lines after the header")
     comma = "," in first
     fields = [f for f in (first.split(",") if comma else first.split()) if f.strip() != ""]
     if len(fields) < MIN_FIELDS:
@@ -107,13 +115,17 @@ def _read_raw(path: Path, display: str) -> tuple[pd.DataFrame, np.ndarray]:
     dtype["checksum"] = str
     kw = dict(sep=",", skipinitialspace=True) if comma else dict(sep=r"\s+")
     try:
-        df = pd.read_csv(path, header=None, skiprows=1, names=names, dtype=dtype,
+        df = pd.read_csv(io.StringIO(text), header=None, skiprows=1, names=names, dtype=dtype,
                          skip_blank_lines=False, engine="c", low_memory=False, **kw)
     except pd.errors.ParserError as exc:
-        raise InputError(display, parser_error_row(exc), None,
-                         f"the line has a different number of fields than the first message ({exc})") from None
+        row = parser_error_row(exc)
+        line = lines[row - 1].strip() if row and row <= len(lines) else ""
+        saw = re.search(r"saw (\d+)", str(exc))
+        raise InputError(display, row, None,
+                         f"this message has {saw.group(1) if saw else 'another number of'} fields, the first has "
+                         f"{len(fields)}: …{line[-80:]!r}") from None
     except ValueError:
-        raw = pd.read_csv(path, header=None, skiprows=1, names=names, dtype=str,
+        raw = pd.read_csv(io.StringIO(text), header=None, skiprows=1, names=names, dtype=str,
                           skip_blank_lines=False, engine="c", low_memory=False, **kw)
         for col in names[:-1]:
             s = raw[col]
@@ -287,6 +299,11 @@ def read_gfile(path, *, time_offset_s: float = 0.0, scale_to_ms2: float = 1.0,
     if not path.is_file():
         raise InputError(display, None, None, "file not found")
     df, rows = _read_raw(path, display)
+    df, rows = drop_duplicate_rows(df, rows, display)   # a message logged twice
+    # as in a CSV: no-data markers (−9999, ±1e32 …) and a Z field exactly 0 (a dropout) in the
+    # channels that become f_z, f_x, f_y are missing values, with a warning
+    z = (f"{z_channel}_z_1", f"{z_channel}_z_2")
+    mark_no_data(df, rows, display, list(z) + ["x_1", "x_2", "y_1", "y_2"], zero_dropout=z, zero_runs={})
     num_cols = [c for c in df.columns if c != "checksum"]
     check_finite(df, num_cols, rows, display)
     # a missing Z sample is a hole of the record (a linear fill misses the aircraft's acceleration

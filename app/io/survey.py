@@ -747,7 +747,7 @@ def flight_sources(d: Path, root: Path) -> dict[str, _Source]:
             else:
                 hint = dat_hint(f)
                 unknown_dat.append(f"{f.name} ({hint})" if hint else f.name)
-        elif low == "gravimeter.g" or f.name.endswith(".G"):
+        elif low in ("gravimeter.g", "gravimeter.g.gz") or f.name.endswith((".G", ".G.gz")):
             grav.append(_Source("gfile", f))
     where = _rel(root, d) + "/"
     if len(other_xyz) > 1:

@@ -4,6 +4,8 @@ with the clean file's reading; refusals must name file, row and column."""
 
 from __future__ import annotations
 
+import gzip
+
 import pytest
 
 from app.io.errors import InputError
@@ -85,7 +87,7 @@ def test_no_data_marker_as_a_line_time_is_named(clean, tmp_path):
 
 # ----------------------------------------------------------------------------- Geosoft XYZ
 
-XYZ_NAN = {"max_nan_run": 3}
+NAN_RUN = {"max_nan_run": 3}   # a missing value of another column is interpolated
 _G, _N = "flights/F1/gravimeter.xyz", "flights/F1/gnss.xyz"
 
 
@@ -120,8 +122,8 @@ def test_xyz_dummies_and_markers_are_missing_values(tmp_path, marker):
     refused as out of range, −999 in vu was read as a velocity)."""
     def edit(v):
         return (lambda t: _set_cells(t, XYZ_CELLS["g"], v).encode(), lambda t: _set_cells(t, XYZ_CELLS["n"], v).encode())
-    ref = _read_quiet(_xyz(tmp_path / "star", *edit("*")), XYZ_NAN)[0]
-    s, msgs = _read_quiet(_xyz(tmp_path / "m", *edit(marker)), XYZ_NAN)
+    ref = _read_quiet(_xyz(tmp_path / "star", *edit("*")), NAN_RUN)[0]
+    s, msgs = _read_quiet(_xyz(tmp_path / "m", *edit(marker)), NAN_RUN)
     _same_tables(ref, s)
     assert len(s.flights["F1"].gravimeter) == 1199   # the f_z hole
     if marker not in ("-1e32", "-1.0E+32"):
@@ -159,3 +161,86 @@ def test_xyz_latin1_header_and_clock_times(tmp_path):
     assert any("not UTF-8" in m and "row 1" in m for m in msgs)
     root = _xyz(tmp_path / "c", nfn=lambda t: _set_cells(t, [(0, 0)], "03:33:20.00").encode())
     expect_error(root, _N, 4, "time", match="clock time")
+
+
+# ----------------------------------------------------------------------------- G files, DGS records
+
+
+def _g_root(root, edit=None, gz=None):
+    from tests.io.test_gfile import MSG_HZ, _g_survey, make_messages
+
+    msgs, _ = make_messages(int(300 * MSG_HZ), t0_sod=3600.0)
+    _g_survey(root, msgs)
+    p = root / "flights/F1/F1.G"
+    if edit:
+        p.write_text(edit(p.read_text()))
+    if gz:
+        (root / "flights/F1/F1.G.gz").write_bytes(gz(gzip.compress(p.read_bytes())))
+        p.unlink()
+    return root
+
+
+def _field(text: str, k: int, j: int, value: str, sep: str = " ") -> str:
+    lines = text.split("\n")
+    f = lines[k].split(sep)
+    f[j] = value
+    lines[k] = sep.join(f)
+    return "\n".join(lines)
+
+
+def _dup_line(text: str, k: int) -> str:
+    lines = text.split("\n")
+    lines.insert(k, lines[k])
+    return "\n".join(lines)
+
+
+@pytest.mark.parametrize("marker", ["-9999", "-999.99", "1e32", "0"])
+def test_g_file_markers_and_zeros_in_z_are_holes(tmp_path, marker):
+    """A marker or a 0 in the fine Z field reads as a missing Z sample does ('nan': a hole) —
+    0 had been read as a value (a 980 000 mGal spike), −9999 refused as out of range."""
+    ref = _read_quiet(_g_root(tmp_path / "nan", lambda t: _field(t, 301, 4, "nan")), NAN_RUN)[0]
+    s, msgs = _read_quiet(_g_root(tmp_path / "m", lambda t: _field(t, 301, 4, marker)), NAN_RUN)
+    _same_tables(ref, s)
+    assert any("no-data markers" in m and "fine_z_1" in m and "row 302" in m for m in msgs)
+
+
+def test_g_file_repeated_message_garbage_and_gzip(tmp_path):
+    ref = _read_quiet(_g_root(tmp_path / "ref"))[0]
+    s, msgs = _read_quiet(_g_root(tmp_path / "dup", lambda t: _dup_line(t, 400)))
+    _same_tables(ref, s)
+    assert any("repeating an earlier row exactly" in m and "row 401" in m for m in msgs)
+    _same_tables(ref, _read_quiet(_g_root(tmp_path / "gz", gz=lambda b: b))[0])   # F1.G.gz is found
+    root = _g_root(tmp_path / "cut", gz=lambda b: b[: len(b) // 2])
+    expect_error(root, "flights/F1/F1.G.gz", None, None, match="cannot read the file")
+    root = _g_root(tmp_path / "bytes")
+    p = root / "flights/F1/F1.G"
+    raw = p.read_bytes().split(b"\n")
+    raw[20] = b"\xff\xfe garbage \xe9"
+    p.write_bytes(b"\n".join(raw))
+    expect_error(root, "flights/F1/F1.G", 21, "message_id", match="not a number")
+
+
+def _dgs_root(root, edit=None):
+    from tests.io.test_dgs import _dgs_survey
+
+    _dgs_survey(root, False, toml='[survey]\nname = "d"\n[gravimeter]\nreading_offset_mgal = 970000.0\n')
+    p = root / "flights/F1/AT1A_0042.dat"
+    if edit:
+        p.write_text(edit(p.read_text()))
+    return root
+
+
+@pytest.mark.parametrize("marker", ["-9999", "99999999", "1e32", "0.000000"])
+def test_dgs_markers_and_zeros_in_gravity_are_holes(tmp_path, marker):
+    """−9999 or 0 as a relative reading had been read (plus the offset, a plausible f_z)."""
+    ref = _read_quiet(_dgs_root(tmp_path / "nan", lambda t: _field(t, 500, 0, "", ",")), NAN_RUN)[0]
+    s, msgs = _read_quiet(_dgs_root(tmp_path / "m", lambda t: _field(t, 500, 0, marker, ",")), NAN_RUN)
+    _same_tables(ref, s)
+    assert any("no-data markers" in m and "gravity" in m and "row 501" in m for m in msgs)
+
+
+def test_dgs_repeated_record_is_dropped(tmp_path):
+    ref = _read_quiet(_dgs_root(tmp_path / "ref"))[0]
+    s, msgs = _read_quiet(_dgs_root(tmp_path / "dup", lambda t: _dup_line(t, 700)))
+    _same_tables(ref, s)
+    assert any("repeating an earlier row exactly" in m and "row 702" in m for m in msgs)
