@@ -194,32 +194,6 @@ def _dup_line(text: str, k: int) -> str:
     return "\n".join(lines)
 
 
-@pytest.mark.parametrize("marker", ["-9999", "-999.99", "1e32", "0"])
-def test_g_file_markers_and_zeros_in_z_are_holes(tmp_path, marker):
-    """A marker or a 0 in the fine Z field reads as a missing Z sample does ('nan': a hole) —
-    0 had been read as a value (a 980 000 mGal spike), −9999 refused as out of range."""
-    ref = _read_quiet(_g_root(tmp_path / "nan", lambda t: _field(t, 301, 4, "nan")), NAN_RUN)[0]
-    s, msgs = _read_quiet(_g_root(tmp_path / "m", lambda t: _field(t, 301, 4, marker)), NAN_RUN)
-    _same_tables(ref, s)
-    assert any("no-data markers" in m and "fine_z_1" in m and "row 302" in m for m in msgs)
-
-
-def test_g_file_repeated_message_garbage_and_gzip(tmp_path):
-    ref = _read_quiet(_g_root(tmp_path / "ref"))[0]
-    s, msgs = _read_quiet(_g_root(tmp_path / "dup", lambda t: _dup_line(t, 400)))
-    _same_tables(ref, s)
-    assert any("repeating an earlier row exactly" in m and "row 401" in m for m in msgs)
-    _same_tables(ref, _read_quiet(_g_root(tmp_path / "gz", gz=lambda b: b))[0])   # F1.G.gz is found
-    root = _g_root(tmp_path / "cut", gz=lambda b: b[: len(b) // 2])
-    expect_error(root, "flights/F1/F1.G.gz", None, None, match="cannot read the file")
-    root = _g_root(tmp_path / "bytes")
-    p = root / "flights/F1/F1.G"
-    raw = p.read_bytes().split(b"\n")
-    raw[20] = b"\xff\xfe garbage \xe9"
-    p.write_bytes(b"\n".join(raw))
-    expect_error(root, "flights/F1/F1.G", 21, "message_id", match="not a number")
-
-
 def _dgs_root(root, edit=None):
     from tests.io.test_dgs import _dgs_survey
 
@@ -230,17 +204,40 @@ def _dgs_root(root, edit=None):
     return root
 
 
-@pytest.mark.parametrize("marker", ["-9999", "99999999", "1e32", "0.000000"])
-def test_dgs_markers_and_zeros_in_gravity_are_holes(tmp_path, marker):
-    """−9999 or 0 as a relative reading had been read (plus the offset, a plausible f_z)."""
-    ref = _read_quiet(_dgs_root(tmp_path / "nan", lambda t: _field(t, 500, 0, "", ",")), NAN_RUN)[0]
-    s, msgs = _read_quiet(_dgs_root(tmp_path / "m", lambda t: _field(t, 500, 0, marker, ",")), NAN_RUN)
-    _same_tables(ref, s)
-    assert any("no-data markers" in m and "gravity" in m and "row 501" in m for m in msgs)
+#: format → (survey maker, line index and field of the reading, separator, a missing reading, its column)
+READING = {"g": (_g_root, 301, 4, " ", "nan", "fine_z_1"), "dgs": (_dgs_root, 500, 0, ",", "", "gravity")}
 
 
-def test_dgs_repeated_record_is_dropped(tmp_path):
-    ref = _read_quiet(_dgs_root(tmp_path / "ref"))[0]
-    s, msgs = _read_quiet(_dgs_root(tmp_path / "dup", lambda t: _dup_line(t, 700)))
+@pytest.mark.parametrize("fmt, marker", [("g", "-9999"), ("g", "-999.99"), ("g", "1e32"), ("g", "0"),
+                                         ("dgs", "-9999"), ("dgs", "99999999"), ("dgs", "1e32"), ("dgs", "0.000000")])
+def test_markers_and_zeros_in_the_reading_are_holes(tmp_path, fmt, marker):
+    """A marker or a 0 in a G file's fine Z field or a DGS gravity reading reads as a missing one
+    does (a hole): 0 had been read as a value (G: a 980 000 mGal spike; DGS: a relative reading
+    plus the offset, plausible), −9999 too (DGS) or refused as out of range (G)."""
+    make, k, j, sep, missing, col = READING[fmt]
+    ref = _read_quiet(make(tmp_path / "nan", lambda t: _field(t, k, j, missing, sep)), NAN_RUN)[0]
+    s, msgs = _read_quiet(make(tmp_path / "m", lambda t: _field(t, k, j, marker, sep)), NAN_RUN)
     _same_tables(ref, s)
-    assert any("repeating an earlier row exactly" in m and "row 702" in m for m in msgs)
+    assert any("no-data markers" in m and col in m and f"row {k + 1}" in m for m in msgs)
+
+
+@pytest.mark.parametrize("fmt", ["g", "dgs"])
+def test_a_repeated_message_or_record_is_dropped(tmp_path, fmt):
+    make = READING[fmt][0]
+    ref = _read_quiet(make(tmp_path / "ref"))[0]
+    s, msgs = _read_quiet(make(tmp_path / "dup", lambda t: _dup_line(t, 400)))
+    _same_tables(ref, s)
+    assert any("repeating an earlier row exactly" in m and "row 401" in m for m in msgs)
+
+
+def test_g_file_garbage_and_gzip(tmp_path):
+    ref = _read_quiet(_g_root(tmp_path / "ref"))[0]
+    _same_tables(ref, _read_quiet(_g_root(tmp_path / "gz", gz=lambda b: b))[0])   # F1.G.gz is found
+    root = _g_root(tmp_path / "cut", gz=lambda b: b[: len(b) // 2])
+    expect_error(root, "flights/F1/F1.G.gz", None, None, match="cannot read the file")
+    root = _g_root(tmp_path / "bytes")
+    p = root / "flights/F1/F1.G"
+    raw = p.read_bytes().split(b"\n")
+    raw[20] = b"\xff\xfe garbage \xe9"
+    p.write_bytes(b"\n".join(raw))
+    expect_error(root, "flights/F1/F1.G", 21, "message_id", match="not a number")
