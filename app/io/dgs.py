@@ -124,12 +124,21 @@ def _open_text(path: Path):
     return open(path, encoding="utf-8-sig", errors="replace", newline="")
 
 
+_SNIFF_LINE_CHARS = 1 << 16
+_SNIFF_MAX_LINES = 1000
+
+
 def _first_lines(path, n: int) -> list[str]:
-    """The first ``n`` non-blank lines of a text file, stripped ([] when unreadable)."""
+    """The first ``n`` non-blank lines of a text file, stripped ([] when unreadable), each cut at
+    ``_SNIFF_LINE_CHARS`` and at most ``_SNIFF_MAX_LINES`` lines looked at: a sniff reads a few
+    lines, never a whole file (a gzip expanding to one endless line would have been read whole)."""
     lines: list[str] = []
     try:
         with _open_text(Path(path)) as fh:
-            for raw in fh:
+            for _ in range(_SNIFF_MAX_LINES):
+                raw = fh.readline(_SNIFF_LINE_CHARS)
+                if not raw:
+                    break
                 if raw.strip():
                     lines.append(raw.strip())
                     if len(lines) >= n:

@@ -215,16 +215,21 @@ def warn_not_utf8(display: str, enc: str, row: int, stacklevel: int = 3) -> None
 def read_text(path: Path, display: str) -> str:
     """A whole text file (``.gz`` decompressed): UTF-8 or UTF-16 by its byte-order mark, UTF-8
     without one — or, when its bytes are not UTF-8, cp1252/Latin-1 with a warning
-    (:func:`warn_not_utf8`).  Unreadable (a truncated gzip …) → :class:`InputError`."""
+    (:func:`warn_not_utf8`).  Unreadable (a truncated gzip …), or a ``.gz`` that expands past the
+    per-file limit in force (:func:`table_limits`) → :class:`InputError`."""
     check_file_size(path, display)
+    lim = _LIMITS.get().max_bytes
     try:
         if str(path).lower().endswith(".gz"):
             with gzip.open(path, "rb") as fh:
-                raw = fh.read()
+                # at most the limit decompressed (a gzip bomb of a G file or XYZ read whole had no cap)
+                raw = fh.read() if lim is None else fh.read(lim + 1)
         else:
             raw = Path(path).read_bytes()
     except (OSError, EOFError, zlib.error) as exc:
         raise InputError(display, None, None, f"cannot read the file: {exc}") from None
+    if lim is not None and len(raw) > lim:
+        raise InputError(display, None, None, f"the file expands to more than the {_mb(lim)} allowed per file")
     for bom, enc in _BOMS:
         if raw.startswith(bom):
             return raw.decode(enc, errors="replace").lstrip("\ufeff")

@@ -171,3 +171,26 @@ def test_gzip_bomb_refused_before_parsing(tmp_path, monkeypatch):
     with tables.table_limits(max_bytes=1 << 20), pytest.raises(InputError, match="expands to more than"):
         read_csv_table(p, "g.csv.gz", ["time", "f_z"])
     assert calls == []
+
+
+@pytest.mark.parametrize("name", ["gravimeter.g.gz", "F1.xyz.gz", "rec.dat.gz"])
+def test_text_formats_gzip_capped_at_the_limit(tmp_path, name):
+    """G files, XYZ and DGS records are read whole as text: under a size limit a .gz that expands
+    past it is refused after reading at most the limit (a 3 kB gzip inflating to 3 MB against 1 MB),
+    and one within it reads back exactly; the format sniff reads a few capped pieces of one endless
+    line."""
+    import gzip
+
+    import app.io.tables as tables
+    from app.io.dgs import _first_lines
+
+    p = tmp_path / name
+    body = b"0" * (3 << 20)                       # one line, no newline: 3 MB
+    with gzip.open(p, "wb") as fh:
+        fh.write(body)
+    with tables.table_limits(max_bytes=1 << 20), pytest.raises(InputError, match="expands to more than"):
+        tables.read_text(p, name)
+    with tables.table_limits(max_bytes=4 << 20):
+        assert tables.read_text(p, name) == body.decode()
+    first = _first_lines(p, 5)                    # five pieces of 64 kB, not the 3 MB line
+    assert len(first) == 5 and all(len(x) == 1 << 16 for x in first)
