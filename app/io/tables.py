@@ -18,6 +18,7 @@ refused when it is larger than ``max_bytes`` (decompressed, counted while readin
 
 from __future__ import annotations
 
+import codecs
 import contextlib
 import gzip
 import io
@@ -492,6 +493,36 @@ def _column_lookup(names: Sequence[str], wanted: Sequence[str], display: str, he
     return lookup
 
 
+def _first_bad_utf8_row_streamed(path: Path) -> tuple[int, bytes]:
+    """(1-based line, the 64 kB around it) of a file's first byte that is not UTF-8, read in
+    chunks (``.gz`` decompressed) — (0, b"") when every byte is UTF-8."""
+    opener = gzip.open if str(path).endswith(".gz") else open
+    dec = codecs.getincrementaldecoder("utf-8")()
+    lines = 0
+    with opener(path, "rb") as fh:
+        while chunk := fh.read(1 << 20):
+            try:
+                dec.decode(chunk)
+            except UnicodeDecodeError as exc:
+                return lines + chunk.count(b"\n", 0, max(0, exc.start)) + 1, chunk[max(0, exc.start - 32768):
+                                                                                exc.start + 32768]
+            lines += chunk.count(b"\n")
+    return 0, b""
+
+
+def _single_byte_dialect(path: Path, display: str, dialect: dict, exc: UnicodeDecodeError) -> dict:
+    """The dialect with cp1252 (or Latin-1) as its encoding, and the warning naming the first row
+    that is not UTF-8 (:func:`warn_not_utf8`), when the UTF-8 read failed on a byte past what
+    :func:`csv_dialect` looked at.  A file that announced its encoding (a BOM), or whose bad byte
+    no code page makes text, is refused naming the row."""
+    row, around = _first_bad_utf8_row_streamed(path)
+    enc = _single_byte_encoding(around, cut=True) if around else "utf-8"
+    if dialect.get("encoding", "utf-8") not in ("utf-8", "utf-8-sig") or enc == "utf-8":
+        raise InputError(display, row or None, None, f"cannot read the file: {exc}") from None
+    warn_not_utf8(display, enc, row, stacklevel=5)
+    return {**dialect, "encoding": enc}
+
+
 def read_csv_table(path: Path | str, display: str, required: Sequence[str],
                    optional: Sequence[str] = (), str_cols: Sequence[str] = (),
                    min_rows: int = 1) -> tuple[pd.DataFrame, np.ndarray]:
@@ -547,7 +578,12 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
         with warnings.catch_warnings():
             # the first data line having more fields than the header only warns: make it an error
             warnings.simplefilter("error", pd.errors.ParserWarning)
-            df = _read_all_columns(path, dtype, display, len(names), **dialect)
+            try:
+                df = _read_all_columns(path, dtype, display, len(names), **dialect)
+            except UnicodeDecodeError as exc:
+                # a byte that is not UTF-8 past the first 64 kB csv_dialect looked at (a ° in a remark)
+                dialect = _single_byte_dialect(path, display, dialect, exc)
+                df = _read_all_columns(path, dtype, display, len(names), **dialect)
     except InputError:
         raise
     except pd.errors.ParserWarning:
@@ -567,7 +603,7 @@ def read_csv_table(path: Path | str, display: str, required: Sequence[str],
         if err is not None:
             raise err from None
         raise InputError(display, None, None, f"cannot parse the file: {exc}") from None
-    except (OSError, UnicodeDecodeError, EOFError, zlib.error) as exc:
+    except (OSError, EOFError, zlib.error) as exc:
         raise InputError(display, None, None, f"cannot read the file: {exc}") from None
     df = df.rename(columns=rename)[wanted]
     # drop blank lines at the end of the file

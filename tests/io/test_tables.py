@@ -194,3 +194,21 @@ def test_text_formats_gzip_capped_at_the_limit(tmp_path, name):
         assert tables.read_text(p, name) == body.decode()
     first = _first_lines(p, 5)                    # five pieces of 64 kB, not the 3 MB line
     assert len(first) == 5 and all(len(x) == 1 << 16 for x in first)
+
+
+def test_not_utf8_byte_past_the_sniffed_head_read_as_cp1252(tmp_path):
+    """A cp1252 '°' in a remark column at row 6001, past the 64 kB the dialect sniff reads: the
+    table comes out as the UTF-8 one, with a warning naming that row (it was refused with "'utf-8'
+    codec can't decode", no row)."""
+    t = np.arange(8000) * 0.5
+    rows = [f"{x:.1f},9.81{i % 7},ok" for i, x in enumerate(t)]
+    rows[5999] = rows[5999].replace(",ok", ",12\u00b0 turn")
+    clean, latin = tmp_path / "clean.csv", tmp_path / "latin.csv"
+    clean.write_text("time,f_z,remark\n" + "\n".join(r.replace("\u00b0", "") for r in rows) + "\n", encoding="utf-8")
+    latin.write_bytes(("time,f_z,remark\n" + "\n".join(rows) + "\n").encode("cp1252"))
+    assert latin.read_bytes().index(b"\xb0") > 1 << 16
+    with pytest.warns(UserWarning, match=r"not UTF-8 \(a byte at row 6001"):
+        got, got_rows = read_csv_table(latin, "latin.csv", ["time", "f_z"])
+    want, want_rows = read_csv_table(clean, "clean.csv", ["time", "f_z"])
+    pd.testing.assert_frame_equal(got, want)
+    np.testing.assert_array_equal(got_rows, want_rows)
