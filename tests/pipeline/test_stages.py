@@ -135,3 +135,40 @@ def test_a_declared_crs_far_from_the_survey_is_said():
     assert crs_warning("EPSG:32657", lines) is None
     w = crs_warning("EPSG:32651", lines)
     assert w is not None and "+23." in w and "EPSG:32657" in w
+
+
+def _flight_at(times, t0: float = 1000.0):
+    """A 10 Hz GNSS table flying east at 100 m/s (60° N), its positions and heights taken at
+    ``times``; heights on a cubic as above."""
+    x = np.asarray(times) - t0
+    lon = 20.0 + np.degrees(100.0 * x / (6_371_000.0 * np.cos(np.radians(60.0))))
+    return pd.DataFrame({"time": times, "lat": 60.0, "lon": lon,
+                         "h": 500.0 + 0.5 * x - 1e-4 * x ** 2 + 1e-8 * x ** 3, "vu": np.nan})
+
+
+def test_stamps_scattering_past_the_jitter_bound_follow_the_positions():
+    """±20 ms stamps at 10 Hz (20 % of a step, above the 5 % the stamps alone may scatter): where
+    the positions stayed on the receiver's clock (they do not move with the stamps) the epochs go
+    back on it — within 2 ms of the true clock, where they were 20 ms off; where the positions
+    were truly taken at those irregular times, the stamps are kept as they are."""
+    from app.core.epochs import positions_follow_stamps
+    from app.pipeline.stages.measurement import dejitter_gnss
+
+    rng = np.random.default_rng(11)
+    t = 1000.0 + 0.1 * np.arange(6000)
+    stamps = t + rng.uniform(-0.02, 0.02, t.size)
+    on_clock = _flight_at(t).assign(time=stamps)          # a logger's stamps on the receiver's epochs
+    assert abs(positions_follow_stamps(stamps, on_clock["lat"], on_clock["lon"])[0]) < 0.1
+    notes: list = []
+    out, info = dejitter_gnss(on_clock, 1.0, True, notes)
+    assert info["gnss_stamps_dejittered"] and info["gnss_stamp_positions_corr"] < 0.1
+    assert np.max(np.abs(out["time"] - t)) < 2e-3 and np.max(np.abs(stamps - t)) > 0.019
+    assert any("do not move with them" in n for n in notes)
+    irregular = _flight_at(stamps)                          # positions really taken at the stamps
+    assert positions_follow_stamps(stamps, irregular["lat"], irregular["lon"])[0] > 0.95
+    notes = []
+    out, info = dejitter_gnss(irregular, 1.0, True, notes)
+    assert not info["gnss_stamps_dejittered"] and out is irregular
+    assert any("move with the stamps" in n for n in notes)
+    parked = _flight_at(np.full(t.size, 1000.0)).assign(time=stamps)   # no motion: no verdict
+    assert np.isnan(positions_follow_stamps(stamps, parked["lat"], parked["lon"])[0])

@@ -290,6 +290,14 @@ def choose_motion_compensation(flights: dict, p) -> None:
         m.compensated = None                    # the unused version is not kept
 
 
+#: the positions' verdict on stamps scattering more than dejitter_times_s allows by default
+#: (app.core.epochs.positions_follow_stamps): below this correlation the epochs stayed on the
+#: receiver's clock (the sample survey's F01 with ±20 ms stamps: −0.004; positions truly taken at
+#: those times: 0.996), over at least this many moving epoch intervals
+POSITIONS_ON_CLOCK_MAX_CORR = 0.3
+POSITIONS_MIN_INTERVALS = 100
+
+
 def dejitter_gnss(gn: pd.DataFrame, max_gap_s: float, vu_from_h: bool, notes: list) -> tuple[pd.DataFrame, dict]:
     """The GNSS stamps put back on the receiver's uniform clock when they scatter about it like
     a logger's or a rounding's stamps (:func:`app.core.gravimeter.dejitter_times_s`: a robust
@@ -298,7 +306,12 @@ def dejitter_gnss(gn: pd.DataFrame, max_gap_s: float, vu_from_h: bool, notes: li
     true, slowly drifting times (a sawtooth): those are kept.  The positions belong to the
     clock's epochs; on stamps scattered by ±1 ms the 2 Hz test line's FIR 100 s error went from
     1.92 to 2.38 mGal, the estimate's from 1.47 to 1.86 with its 2σ coverage down to 0.96 (±2 ms:
-    0.75–0.89).  A ``vu`` derived from the heights is derived again on the clock's epochs.
+    0.75–0.89).  Stamps scattering by more than that bound are put back on the clock too (up
+    to a quarter of a step) when the positions say the epochs stayed on it: the distances
+    between consecutive epochs do not follow the stamp intervals
+    (:func:`app.core.epochs.positions_follow_stamps`, correlation below
+    :data:`POSITIONS_ON_CLOCK_MAX_CORR`; the sample survey with ±20 ms stamps at 10 Hz was 60
+    mGal off kept as stamped).  A ``vu`` derived from the heights is derived again on the clock's epochs.
     Returns the table and the evidence for the report (``gnss_stamp_jitter_ms``,
     ``gnss_stamp_jitter_lag1``, ``gnss_stamps_dejittered``)."""
     t = gn["time"].to_numpy(float)
@@ -308,10 +321,27 @@ def dejitter_gnss(gn: pd.DataFrame, max_gap_s: float, vu_from_h: bool, notes: li
     scale_s, largest_s = gm.stamp_scatter_s(t)
     info = {"gnss_stamp_jitter_ms": 1e3 * largest_s, "gnss_stamp_scatter_ms": 1e3 * scale_s,
             "gnss_stamps_dejittered": False}
+    by_positions = False
+    if not jitter > 1e-6 and scale_s > gm.ROUNDING_JITTER_S and {"lat", "lon"} <= set(gn.columns):
+        # more scatter than jitter is allowed by default: the positions say whether the epochs
+        # moved with the stamps (irregular sampling) or stayed on the receiver's clock
+        corr, n_used = epochs.positions_follow_stamps(t, gn["lat"].to_numpy(float), gn["lon"].to_numpy(float))
+        info.update(gnss_stamp_positions_corr=corr, gnss_stamp_positions_intervals=n_used)
+        if np.isfinite(corr) and n_used >= POSITIONS_MIN_INTERVALS and corr < POSITIONS_ON_CLOCK_MAX_CORR:
+            u = gm.dejitter_times_s(t, max_jitter_s=0.25 * float(np.median(np.diff(t))))
+            dev = t - u
+            jitter = float(np.max(np.abs(dev))) if dev.size else 0.0
+            by_positions = jitter > 1e-6
     if not jitter > 1e-6:   # on the clock already (float round-off), or too irregular for jitter
         if scale_s > gm.ROUNDING_JITTER_S:
+            corr = info.get("gnss_stamp_positions_corr")
+            said = ("" if corr is None or not np.isfinite(corr) else
+                    f" (the positions move with the stamps: correlation {corr:.2f} of the distances between "
+                    "epochs with their intervals)" if corr >= POSITIONS_ON_CLOCK_MAX_CORR else
+                    f" (the positions do not follow the stamps, correlation {corr:.2f}, but some stamp is a "
+                    "quarter step or more off the clock)")
             notes.append(f"GNSS time stamps scatter by {1e3 * scale_s:.1f} ms (robust scale; up to "
-                         f"{1e3 * largest_s:.1f} ms) about a uniform clock, more than stamp jitter: kept as "
+                         f"{1e3 * largest_s:.1f} ms) about a uniform clock, more than stamp jitter{said}: kept as "
                          "stamped — if the receiver's epochs are uniform, velocities differenced over these "
                          "stamps carry the aircraft's acceleration times their relative error")
         return gn, info
@@ -337,7 +367,12 @@ def dejitter_gnss(gn: pd.DataFrame, max_gap_s: float, vu_from_h: bool, notes: li
             out.iloc[a:b, out.columns.get_loc("vu")] = geodesy.vertical_velocity_from_heights_ms(
                 u[a:b], out["h"].to_numpy(float)[a:b])
     info["gnss_stamps_dejittered"] = True
-    if jitter > gm.ROUNDING_JITTER_S:
+    if by_positions:
+        notes.append(f"GNSS time stamps scatter up to {1e3 * jitter:.1f} ms about a uniform clock, uncorrelated from "
+                     f"epoch to epoch (lag-1 correlation {lag1:.2f}), and the positions do not move with them "
+                     f"(correlation {info['gnss_stamp_positions_corr']:.2f} of the distances between epochs with "
+                     "their intervals): a logger's stamps — the receiver's epochs were put back on its clock")
+    elif jitter > gm.ROUNDING_JITTER_S:
         notes.append(f"GNSS time stamps scatter up to {1e3 * jitter:.1f} ms about a uniform clock, uncorrelated from "
                      f"epoch to epoch (lag-1 correlation {lag1:.2f}): the receiver's epochs were put back on the clock")
     return out, info
