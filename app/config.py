@@ -128,42 +128,17 @@ _CRS_FILE = re.compile(r"(?i)\b(?:nadgrids|geoidgrids|grids|xy_grids|z_grids|ini
 
 
 MAX_CRS_LENGTH = 200
-_UTM_TEXT = re.compile(r"(?i)\s*(?:wgs\s*84\s*/?\s*)?utm\s*(?:zone\s*)?(\d{1,2})\s*([ns])\w*\s*")
-
-
-def _proj_reads(v: str) -> bool:
-    from pyproj import CRS
-    from pyproj.exceptions import CRSError
-
-    try:
-        CRS.from_user_input(v)
-    except CRSError:
-        return False
-    return True
 
 
 def _crs_text_fault(v: str) -> None:
-    """Refuse, with the EPSG code to write instead where one is clear, a CRS written as a WKT
-    (longer than ``MAX_CRS_LENGTH``: PROJ is asked which EPSG code it is, only up to 20 000
-    characters) or as a UTM zone in words PROJ does not read (``UTM 57N``; ``WGS 84 / UTM zone 57S`` it does)."""
-    m = _UTM_TEXT.fullmatch(v)
-    if m and 1 <= int(m.group(1)) <= 60 and not _proj_reads(v):
-        code = (32600 if m.group(2).lower() == "n" else 32700) + int(m.group(1))
-        raise ValueError(f"{v!r} is not a CRS PROJ reads: for WGS 84's UTM zone {int(m.group(1))}"
-                         f"{m.group(2).upper()} write crs = 'EPSG:{code}'")
+    """Refuse a CRS longer than ``MAX_CRS_LENGTH`` (a WKT), naming the EPSG code to write when
+    PROJ identifies one (:func:`app.core.geodesy.epsg_for_text`)."""
     if len(v) <= MAX_CRS_LENGTH:
         return
-    hint = ""
-    if len(v) <= 20_000:
-        from pyproj import CRS
-        from pyproj.exceptions import CRSError
+    from app.core.geodesy import epsg_for_text
 
-        try:
-            code = CRS.from_user_input(v).to_epsg(min_confidence=90)
-        except CRSError:
-            code = None
-        if code is not None:
-            hint = f": it is EPSG:{code}, write crs = 'EPSG:{code}'"
+    code = epsg_for_text(v)
+    hint = f": it is EPSG:{code}, write crs = 'EPSG:{code}'" if code is not None else ""
     raise ValueError(f"crs is {len(v)} characters long (a WKT?); at most {MAX_CRS_LENGTH} allowed — give an EPSG "
                      f"code or a PROJ string{hint}")
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.ndimage import median_filter
 
 
 def uniform_epochs(t_s, max_step_s: float, tolerance: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
@@ -214,8 +215,6 @@ def positions_follow_stamps(t_s, lat_deg, lon_deg, min_speed_ms: float = 20.0,
     (float, int)
         The correlation (NaN when undefined) and the number of epoch intervals it used.
     """
-    from scipy.ndimage import median_filter
-
     t, lat, lon = (np.asarray(a, dtype=float) for a in (t_s, lat_deg, lon_deg))
     if not (t.shape == lat.shape == lon.shape) or t.ndim != 1:
         raise ValueError("t_s, lat_deg and lon_deg must be one-dimensional and of one length")

@@ -7,6 +7,8 @@ gravity values in mGal (1 mGal = 1e-5 m/s²).
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 #: Earth rotation rate (rad/s), GRS80/WGS84.
@@ -365,6 +367,27 @@ def utm_crs_for(lon_deg, lat_deg) -> str:
     return f"EPSG:{32600 + zone if lat >= 0 else 32700 + zone}"
 
 
+_UTM_WORDS = re.compile(r"(?i)\s*(?:wgs\s*84\s*/?\s*)?utm\s*(?:zone\s*)?(\d{1,2})\s*([ns])\w*\s*")
+
+
+def epsg_for_text(crs: str, max_chars: int = 20_000) -> int | None:
+    """The EPSG code a CRS written some other way stands for, when that is clear: a UTM zone
+    in words (``UTM 57N``, ``utm zone 7 s``: WGS 84's zone, 326zz/327zz), or a CRS PROJ reads
+    and identifies (a WKT; at most ``max_chars`` characters are given to PROJ).  None otherwise."""
+    m = _UTM_WORDS.fullmatch(crs)
+    if m and 1 <= int(m.group(1)) <= 60:
+        return (32600 if m.group(2).lower() == "n" else 32700) + int(m.group(1))
+    if len(crs) > max_chars:
+        return None
+    from pyproj import CRS
+    from pyproj.exceptions import CRSError
+
+    try:
+        return CRS.from_user_input(crs).to_epsg(min_confidence=90)
+    except CRSError:
+        return None
+
+
 def crs_fault(crs: str) -> str | None:
     """Why ``crs`` cannot hold a survey (None when it can): unknown to PROJ, not projected
     (distances and the grid need linear units), axes in another unit than the metre, or a projection that parses and still fails on
@@ -376,6 +399,9 @@ def crs_fault(crs: str) -> str | None:
     try:
         c = CRS.from_user_input(crs)
     except CRSError as e:
+        code = epsg_for_text(crs)
+        if code is not None:   # a UTM zone in words PROJ does not read ('UTM 57N')
+            return f"{crs!r} is not a CRS PROJ reads: for WGS 84's UTM zone write crs = 'EPSG:{code}'"
         return f"unknown CRS: {str(e)[:200]}"
     if not c.is_projected:
         return (f"{c.name} is not a projected CRS: distances and the grid need one in linear units "

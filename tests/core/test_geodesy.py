@@ -161,3 +161,17 @@ def test_scale_error_matches_proj_point_scale_factors(lon, lat, crs):
     assert geodesy.scale_error(lon, lat, crs) == pytest.approx(want, rel=1e-3, abs=2e-5)   # 0.01° differences
     if (lon, lat, crs) == (159.0, 0.0, "EPSG:32657"):
         assert geodesy.scale_error(lon, lat, crs) == pytest.approx(0.9996 - 1.0, abs=2e-6)
+
+
+@pytest.mark.parametrize("text, zone, north", [("UTM 57N", 57, True), ("utm zone 7 s", 7, False),
+                                               ("WGS84 UTM 33N", 33, True)])
+def test_epsg_for_text_names_the_zone_pyproj_knows(text, zone, north):
+    """A UTM zone in words maps to the EPSG code whose PROJ definition is that zone and
+    hemisphere (read back from pyproj), and a WKT to the code PROJ identifies; nonsense to None."""
+    from pyproj import CRS
+
+    code = geodesy.epsg_for_text(text)
+    params = CRS.from_epsg(code).to_dict()
+    assert params["proj"] == "utm" and params["zone"] == zone and ("south" in params) != north
+    assert geodesy.epsg_for_text(CRS.from_epsg(32757).to_wkt()) == 32757
+    assert geodesy.epsg_for_text("not a crs at all") is None
