@@ -5,6 +5,8 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 DATA   ?= $(CURDIR)/data
 SAMPLE := sample_surveys/omolon-mini
+# the suite's worker processes (pytest-xdist); each takes whole test files, so module fixtures are built once
+TEST_WORKERS ?= 2
 
 .PHONY: install browser test test-fast demo serve bench sample clean
 
@@ -27,10 +29,10 @@ browser:
 
 test: install browser
 	$(VENV)/bin/ruff check app tests
-	$(PY) -m pytest -q -p no:cacheprovider
+	$(PY) -m pytest -q -p no:cacheprovider -n $(TEST_WORKERS) --dist loadfile
 
 test-fast: install
-	$(PY) -m pytest -q -p no:cacheprovider -m "not slow and not browser"
+	$(PY) -m pytest -q -p no:cacheprovider -n $(TEST_WORKERS) --dist loadfile -m "not slow and not browser"
 
 demo: install
 	$(VENV)/bin/aerograv process $(SAMPLE) --out out/omolon-mini
