@@ -372,11 +372,14 @@ class ProcessingParams(_Strict):
                                                   "along-line spread (it resolves no anomaly: aliased motion on a "
                                                   "1-2 Hz record), the shortest of these longer low-passes (s) whose lines "
                                                   "vary by more than its crossovers' error is used (else the one with "
-                                                  "the least); () = off")
-    fir_long_max_error_ratio: float = Field(0.5, gt=0, le=1, description="The longer low-pass replaces FIR only "
-                                            "where its crossover error is at most this share of FIR's: the error "
-                                            "FIR's crossovers show must be noise the longer low-pass removes, not "
-                                            "the lines' levels, which it keeps")
+                                                  "the least); the same where the estimate kept after the FIR guard "
+                                                  "shows such crossovers itself (model_choice.unresolved_check); "
+                                                  "() = off")
+    fir_long_max_error_ratio: float = Field(0.5, gt=0, le=1, description="The longer low-pass replaces FIR (or "
+                                            "the estimate that resolves nothing) only where its crossover error is "
+                                            "at most this share of the replaced one's: the error its crossovers show "
+                                            "must be noise the longer low-pass removes, not the lines' levels, "
+                                            "which it keeps")
     fir_guard_smoothing_std: bool = Field(True, description="When the FIR guard switches to FIR, add to FIR's std "
                                           "the anomaly it clips as the adaptive estimate sees it (var(a − FIR(a)) "
                                           "per line): an error crossing lines share, invisible at the crossovers")

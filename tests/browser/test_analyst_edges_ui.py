@@ -286,3 +286,27 @@ def test_summary_says_when_a_longer_lowpass_replaces_fir(fake_server, browser_pa
             "spread of 76.4): the 800 s low-pass is used") in text[0]
     assert "passes noise" in text[1] and "low-pass is used" not in text[1]
     _no_errors(page)
+
+
+def test_summary_says_when_the_estimate_resolves_nothing(fake_server, browser_page):  # noqa: F811
+    """Where the estimate kept by the checks before resolves nothing beyond its noise (stage 9,
+    step 4c) the summary says so after the crossovers' verdict, with the low-pass used and the
+    evidence (the figures of foreign 817); a check that did not apply adds nothing."""
+    page = browser_page
+    page.goto(fake_server.url)
+    text = page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const g = {applied: false, n_crossovers: 28, crossover_rms_mgal: 65.0, crossover_rms_fir_mgal: 64.6,
+                   p_value: 0.48, p_rank: 0.26};
+        const u = {applied: true, n_crossovers: 28, crossover_std_mgal: 43.6, spread_mgal: 20.3,
+                   long_lowpass: {applied: true, period_s: 800}};
+        const on = {warnings: [], report: {model_choice: {chosen: 'FIR', m: 2, noisy_check: {applied: false},
+                    fir_guard: g, unresolved_check: u}}};
+        const off = {warnings: [], report: {model_choice: {chosen: 'adaptive', m: 2, noisy_check: {applied: false},
+                     fir_guard: g, unresolved_check: {...u, applied: false}}}};
+        return [m.summary(on).textContent, m.summary(off).textContent];
+    }""")
+    assert ("that estimate resolves no anomaly beyond its noise (its 28 crossovers show 43.6 mGal of error "
+            "against an along-line spread of 20.3): the 800 s low-pass of z is used") in text[0]
+    assert "Model choice: adaptive" in text[1] and "resolves no anomaly" not in text[1]
+    _no_errors(page)

@@ -10,7 +10,7 @@ from app.config import ProcessingParams
 from app.core.baselines import fir_lowpass_mgal
 from app.core.model_check import fir_noise_bandwidth_hz
 from app.core.noise_model import white_velocity
-from app.pipeline.stages.choice import check_lines, choose_model, noisy_check, stationary_check
+from app.pipeline.stages.choice import check_lines, choose_model, noisy_check, stationary_check, unresolved_check
 from app.pipeline.stages.leveling import STD_FLOOR, level_survey
 
 DT_S = 0.1           # 10 Hz GNSS
@@ -473,6 +473,46 @@ def test_a_longer_lowpass_only_where_fir_resolves_nothing():
     rep = noisy_check(table, check_lines(table, noise, DT_S, off, []), noise, DT_S, off, [], fir_at)
     assert rep["applied"] and "long_lowpass" not in rep
     assert np.array_equal(table["dg_mgal"].to_numpy(), table["dg_fir_mgal"].to_numpy())
+
+
+def test_an_estimate_that_resolves_nothing_takes_a_longer_lowpass():
+    """Step 4c: the estimate chosen so far passes z's noise at 200–500 s periods (here it is
+    FIR 100 s itself, which the noisy check cannot call noisy: it compares with FIR) and its
+    crossovers show more error than its lines vary: every line then takes the longer low-pass
+    (400 or 800 s), far closer to the truth, with a std covering its error; where its
+    crossovers do not show it, the estimate stays as it was."""
+    p = ProcessingParams()
+    applied = 0
+    for seed in range(10, 18):
+        table, fir_at = _aliased_table(np.random.default_rng(seed))
+        table["dg_unleveled_mgal"] = table["dg_mgal"] = table["dg_fir_mgal"]
+        before = table["dg_mgal"].to_numpy().copy()
+        err_before = _line_demeaned_rms(table, "dg_mgal")
+        warnings: list = []
+        rep = unresolved_check(table, "adaptive", p, warnings, fir_at)
+        if not rep["applied"]:
+            assert np.array_equal(table["dg_mgal"].to_numpy(), before)
+            continue
+        applied += 1
+        assert rep["crossover_std_mgal"] >= rep["spread_mgal"] and rep["long_lowpass"]["period_s"] in (400.0, 800.0)
+        assert np.allclose(table["dg_mgal"], fir_at(rep["long_lowpass"]["period_s"]))
+        assert _line_demeaned_rms(table, "dg_mgal") < 0.5 * err_before
+        e = table["dg_mgal"] - table["dg_true_mgal"]
+        e = (e - e.groupby(table["line"]).transform("mean")).to_numpy()
+        assert np.mean(np.abs(e) < 2 * table["dg_std_mgal"].to_numpy()) >= 0.9
+        assert any(w.startswith("the adaptive estimate resolves no anomaly") for w in warnings)
+    assert applied >= 5
+
+
+def test_an_estimate_that_resolves_the_anomaly_is_kept_by_step_4c():
+    """An estimate 1 mGal from a 15 mGal anomaly: its crossovers show far less error than its
+    lines vary, so step 4c leaves it and never computes a longer low-pass."""
+    table, _ = _table(np.random.default_rng(3), 1.0)
+    before = table["dg_mgal"].to_numpy().copy()
+    calls: list = []
+    rep = unresolved_check(table, "adaptive", ProcessingParams(), [], lambda period: calls.append(period))
+    assert not rep["applied"] and rep["crossover_std_mgal"] < 0.2 * rep["spread_mgal"] and not calls
+    assert np.array_equal(table["dg_mgal"].to_numpy(), before)
 
 
 def test_no_longer_lowpass_on_lines_shorter_than_half_its_period():

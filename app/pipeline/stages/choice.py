@@ -76,6 +76,10 @@ FIR's own crossovers show at least as much error as its lines vary, the same low
 longer ``fir_long_periods_s`` is tried and the shortest that varies by more than its crossovers'
 error (else the one with the least) replaces FIR on every line.
 
+After 4 and 4b, **4c. The estimate resolving nothing** (:func:`unresolved_check`): when the
+estimate kept so far (adaptive, mixed, or FIR by the guard) shows at its own crossovers at least
+as much error as its lines vary, step 3b's longer low-pass is tried against its crossover error.
+
 Every decision is returned with its evidence (the report's ``model_choice`` section).
 """
 
@@ -527,7 +531,7 @@ LONG_LOWPASS_LINE_FACTOR = 2.1
 
 
 def longer_lowpass(table: pd.DataFrame, fir_at, fir_spread_mgal: float, fir_crossover_std_mgal: float, p,
-                   warnings: list) -> dict:
+                   warnings: list, what: str | None = None) -> dict:
     """Step 3b (in place): where FIR resolves no anomaly, a longer low-pass.
 
     When the error FIR's crossovers show (RMS of the differences over √2: the part two crossing
@@ -547,7 +551,8 @@ def longer_lowpass(table: pd.DataFrame, fir_at, fir_spread_mgal: float, fir_cros
     ``fir_long_max_error_ratio`` of FIR's: the lines' levels (drift, offsets, not leveled yet)
     also make crossover error, and a longer low-pass keeps them.  Its std adds the two errors it has in quadrature: the noise its
     crossovers show and the anomaly it clips, taken as of the order of what its lines keep
-    (their along-line spread).  Returns the evidence."""
+    (their along-line spread).  ``what``: the estimate whose spread and crossover error are
+    given when it is not FIR 100 s (step 4c), named in the warning.  Returns the evidence."""
     rep: dict = {"fir_crossover_std_mgal": fir_crossover_std_mgal, "fir_spread_mgal": fir_spread_mgal,
                  "applied": False}
     if not fir_crossover_std_mgal >= fir_spread_mgal:
@@ -586,20 +591,50 @@ def longer_lowpass(table: pd.DataFrame, fir_at, fir_spread_mgal: float, fir_cros
         # later), which a longer low-pass keeps, not noise in the band it removes (layout 193: 200 s
         # keeps 0.8 of FIR's crossover error and is 1.4x FIR's error against the truth)
         rep.update(period_s=best, reason=f"the {best:g} s low-pass keeps {xstd / fir_crossover_std_mgal:.2f} of "
-                   f"FIR's crossover error (> {p.fir_long_max_error_ratio:g}): the lines' levels, not noise it removes")
+                   f"{what or 'FIR'}'s crossover error (> {p.fir_long_max_error_ratio:g}): "
+                   + ("no less error where lines cross" if what else "the lines' levels, not noise it removes"))
         return rep
     std = float(np.hypot(xstd, spread))
     for pos in table.groupby("line", sort=False).indices.values():   # positions: col is in row order
         _use(table, table.index[pos], col[pos], std)
     rep.update(applied=True, period_s=best, resolves=bool(resolving), std_mgal=std)
-    warnings.append(f"FIR {p.fir_cutoff_period_s:g} s resolves no anomaly either (its crossovers show "
+    who = what or f"FIR {p.fir_cutoff_period_s:g} s"
+    warnings.append(f"{who} resolves no anomaly{'' if what else ' either'} (its crossovers show "
                     f"{fir_crossover_std_mgal:.1f} mGal of error against an along-line spread of "
                     f"{fir_spread_mgal:.1f}): the {best:g} s low-pass is used on every line ("
                     + (f"the shortest that varies by more than its crossovers' error, {xstd:.1f} mGal" if resolving
                        else f"none of {', '.join(f'{k:g}' for k in tried)} s resolves anything beyond its "
                             f"crossovers' error; this one has the least, {xstd:.1f} mGal")
                     + f"); only anomalies longer than ~{best:g} s of flight are resolved "
-                    "(model_choice.noisy_check.long_lowpass)")
+                    + ("(model_choice.unresolved_check)" if what else "(model_choice.noisy_check.long_lowpass)"))
+    return rep
+
+
+def unresolved_check(table: pd.DataFrame, chosen: str, p, warnings: list, fir_at=None) -> dict:
+    """Step 4c (in place): the estimate chosen so far resolves nothing beyond its noise.
+
+    When its own crossovers show at least as much error as its lines vary (RMS of the
+    differences over √2 against the median of the lines' std, as in step 3b) its variation
+    is the noise two crossing lines do not share, not anomaly: the model let through noise
+    that neither its noise fit nor the checks before saw (foreign 817: a 2 Hz point-sampled
+    platform on Doppler velocities, crossovers 65 mGal RMS for an anomaly of 12 mGal std).
+    Step 3b's longer low-pass is then tried against this estimate's crossover error, under
+    the same rules (the shortest period that resolves something, at most half the crossover
+    error, no longer than about twice the lines)."""
+    rep: dict = {"applied": False}
+    if fir_at is None or not p.fir_long_periods_s:
+        return {**rep, "reason": "off"}
+    d = crossover_differences(table, "dg_unleveled_mgal", p.leveling_include_repeat)
+    d = d[np.isfinite(d)]
+    if d.size < p.fir_guard_min_crossovers:
+        return {**rep, "reason": f"{d.size} crossovers (< {p.fir_guard_min_crossovers})"}
+    xstd = float(crossover_rms_mgal(d) / np.sqrt(2.0))
+    spread = median_line_spread_mgal(table, table["dg_unleveled_mgal"].to_numpy())
+    rep.update(crossover_std_mgal=xstd, spread_mgal=spread, n_crossovers=int(d.size))
+    if not xstd >= spread:
+        return {**rep, "reason": "its crossovers show less error than its along-line spread: it resolves the anomaly"}
+    long = longer_lowpass(table, fir_at, spread, xstd, p, warnings, what=f"the {chosen} estimate")
+    rep.update(applied=bool(long["applied"]), long_lowpass=long)
     return rep
 
 
@@ -749,18 +784,25 @@ def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=
     chosen = ("FIR" if guard.get("applied") or noisy["applied"] or repeats.get("weight_fir") == 1.0 else
               "blend with FIR" if repeats["applied"] else
               ("adaptive" if used == {"adaptive"} else "mixed"))
+    if (noisy.get("long_lowpass") or {}).get("applied"):
+        unresolved = {"applied": False, "reason": "a longer low-pass already used (step 3b)"}
+    else:
+        unresolved = unresolved_check(table, chosen, p, warnings, fir_at)
+        if unresolved["applied"]:
+            chosen = "FIR"
     n_q = len(candidates[m].ident.learned.em.Q)
     why = ("two anomaly levels (Markov-switching Q)" if n_q > 1 else
            f"one anomaly level: {candidates[m].ident.n_points} decimated points "
            f"(< {p.min_points_adaptive}) cannot tell two apart" if p.n_q is None else "n_q = 1 set")
     if chosen == "FIR":   # the low-pass's period: FIR's, or the longer one of step 3b
-        rep_period = {"fir_period_s": float((noisy.get("long_lowpass") or {}).get("period_s")
-                                            if (noisy.get("long_lowpass") or {}).get("applied")
-                                            else p.fir_cutoff_period_s)}
+        long = next((r for r in (noisy.get("long_lowpass"), unresolved.get("long_lowpass"))
+                     if (r or {}).get("applied")), None)
+        rep_period = {"fir_period_s": float(long["period_s"] if long else p.fir_cutoff_period_s)}
     else:
         rep_period = {}
     rep = {"chosen": chosen, **rep_period, "m": m, "order": order_rep, "anomaly_levels": n_q,
            "anomaly_levels_reason": why,
            "lines": lines, "noisy_check": noisy, "fir_guard": guard, "repeat_blend": repeats,
+           "unresolved_check": unresolved,
            "stationary_check": stationary_check(table, p, warnings)}
     return ModelChoice(m, table, rep)

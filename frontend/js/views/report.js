@@ -155,6 +155,14 @@ export function summary(r) {
           `(RMS ${fmt(g.crossover_rms_mgal, 3)} against ${fmt(g.crossover_rms_fir_mgal, 3)} mGal` +
           (better ? ")" : `; t-test p = ${fmt(g.p_value, 3)}, signed ranks p = ${fmt(g.p_rank, 3)})`);
       }
+      const u = mc.unresolved_check || {};
+      if (u.applied) {
+        // the estimate chosen so far resolves nothing beyond its noise: a longer low-pass (stage 9, step 4c)
+        const lp = u.long_lowpass || {};
+        text += `; that estimate resolves no anomaly beyond its noise (its ${u.n_crossovers} crossovers show ` +
+          `${fmt(u.crossover_std_mgal, 3)} mGal of error against an along-line spread of ${fmt(u.spread_mgal, 3)}): ` +
+          `the ${fmt(lp.period_s, 4)} s low-pass of z is used, resolving only anomalies longer than that`;
+      }
     }
     items.push({ cls: mc && (mc.chosen === "FIR" || mc.chosen === "blend with FIR") ? "warn" : "ok", text });
   }

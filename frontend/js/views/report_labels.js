@@ -29,6 +29,9 @@ export const LABELS = {
   reference_period_s: "Reference low-pass period (s)", msd_estimate_mgal2: "Mean square difference, adaptive (mGal²)",
   msd_fir_mgal2: "Mean square difference, FIR (mGal²)", msd_blend_mgal2: "Mean square difference, blend (mGal²)", passes_noise: "Passes noise",
   long_lowpass: "Longer low-pass", period_s: "Period (s)",
+  unresolved_check: "Does the estimate resolve anything beyond its noise", crossover_std_mgal: "Crossover error per line (mGal)",
+  spread_mgal: "Along-line spread (mGal)", fir_crossover_std_mgal: "Crossover error per line of the estimate replaced (mGal)",
+  fir_spread_mgal: "Along-line spread of the estimate replaced (mGal)", median_line_s: "Median line duration (s)", resolves: "Resolves something",
   // repeat lines
   internal_accuracy_mgal: "Internal accuracy ε (mGal)", dg_mgal: "adaptive (final)", dg_stationary_mgal: "stationary", dg_fir_mgal: "FIR 100 s",
   across_track_spread_km: "Spread across the track (km)",
