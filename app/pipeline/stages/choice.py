@@ -784,8 +784,8 @@ def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=
     chosen = ("FIR" if guard.get("applied") or noisy["applied"] or repeats.get("weight_fir") == 1.0 else
               "blend with FIR" if repeats["applied"] else
               ("adaptive" if used == {"adaptive"} else "mixed"))
-    if (noisy.get("long_lowpass") or {}).get("applied"):
-        unresolved = {"applied": False, "reason": "a longer low-pass already used (step 3b)"}
+    if noisy["applied"]:   # FIR taken there, and step 3b judged it on the same figures
+        unresolved = {"applied": False, "reason": "FIR judged by step 3b (noisy estimate)"}
     else:
         unresolved = unresolved_check(table, chosen, p, warnings, fir_at)
         if unresolved["applied"]:
