@@ -794,7 +794,7 @@ def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=
     why = ("two anomaly levels (Markov-switching Q)" if n_q > 1 else
            f"one anomaly level: {candidates[m].ident.n_points} decimated points "
            f"(< {p.min_points_adaptive}) cannot tell two apart" if p.n_q is None else "n_q = 1 set")
-    if chosen == "FIR":   # the low-pass's period: FIR's, or the longer one of step 3b
+    if chosen == "FIR":   # the low-pass's period: FIR's, or the longer one of step 3b or 4c
         long = next((r for r in (noisy.get("long_lowpass"), unresolved.get("long_lowpass"))
                      if (r or {}).get("applied")), None)
         rep_period = {"fir_period_s": float(long["period_s"] if long else p.fir_cutoff_period_s)}
