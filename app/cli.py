@@ -25,8 +25,16 @@ class CommandError(Exception):
 def _progress_bar(desc: str):
     from tqdm import tqdm
 
-    bar = tqdm(total=1000, desc=desc, unit="‰", bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}",
-               file=sys.stderr)
+    class _StageBar(tqdm):
+        """The stage after the bar as it is (tqdm's own postfix comes with a leading ", ")."""
+        stage = ""
+
+        @property
+        def format_dict(self):
+            return {**super().format_dict, "stage": self.stage}
+
+    bar = _StageBar(total=1000, desc=desc, unit="‰", bar_format="{desc}: {percentage:3.0f}%|{bar}| {stage}",
+                    file=sys.stderr)
     _BARS.append(bar)
     state = {"stage": None}
 
@@ -39,7 +47,8 @@ def _progress_bar(desc: str):
             it = info["em_iteration"]
             post = f"EM it {it.get('iteration')} Q={_fmt(it.get('Q'))} R={_fmt(it.get('R'))}"
         if post != state["stage"]:
-            bar.set_postfix_str(post)
+            bar.stage = post
+            bar.refresh()
             state["stage"] = post
         if stage == "done":
             bar.close()
