@@ -550,10 +550,30 @@ def test_the_report_gives_the_lowpass_period_used():
     period = choice.report["noisy_check"]["long_lowpass"]["period_s"]
     assert choice.report["chosen"] == "FIR" and choice.report["fir_period_s"] == period > 100.0
     assert np.allclose(choice.table["dg_mgal"], fir_at(period))
+    assert choice.report["unresolved_check"]["reason"].startswith("FIR judged by step 3b")  # not judged twice
     table, fir_at = _aliased_table(np.random.default_rng(11))
     choice = choose_model({2: _candidate(table)}, noise, DT_S, p, [], order=(2, {"m": 2}))   # no longer low-pass given
     assert choice.report["chosen"] == "FIR" and choice.report["fir_period_s"] == 100.0
     assert np.array_equal(choice.table["dg_mgal"].to_numpy(), table["dg_fir_mgal"].to_numpy())
+
+
+def test_step_4c_through_the_model_choice():
+    """choose_model wires step 4c: an estimate equal to FIR 100 s on the aliased fixture (so the
+    noisy check, which measures against FIR, stays silent and the guard has nothing to prefer)
+    is replaced by the longer low-pass, the report says FIR at that period with the evidence,
+    and the result is closer to the truth than the estimate was."""
+    noise = white_velocity(DT_S, R_CM2S2)
+    table, fir_at = _aliased_table(np.random.default_rng(12))
+    table["dg_unleveled_mgal"] = table["dg_mgal"] = table["dg_fir_mgal"]
+    err_before = _line_demeaned_rms(table, "dg_mgal")
+    choice = choose_model({2: _candidate(table)}, noise, DT_S, ProcessingParams(m=2), [], order=(2, {"m": 2}),
+                          fir_at=fir_at)
+    rep = choice.report
+    assert not rep["noisy_check"]["applied"] and not rep["fir_guard"]["applied"] and rep["unresolved_check"]["applied"]
+    period = rep["unresolved_check"]["long_lowpass"]["period_s"]
+    assert rep["chosen"] == "FIR" and rep["fir_period_s"] == period > 100.0
+    assert np.allclose(choice.table["dg_mgal"], fir_at(period))
+    assert _line_demeaned_rms(choice.table, "dg_mgal") < 0.5 * err_before
 
 
 def _noisy_fir_table(rng, scale: float, amplitude: float):
