@@ -119,7 +119,8 @@ def main(argv=None):
     S = min(a.slice, a.n)
     zs, Qs, Rs = z[:S], Q[:S], R[:S]
     n = m + 2
-    x0 = np.zeros(n); x0[:m] = np.mean(zs[:1000])
+    x0 = np.zeros(n)
+    x0[:m] = np.mean(zs[:1000])
     P0 = np.diag([1e6] * m + [Rs[0], Rs[0]])
     ours = kalman_smooth(zs, Qs, Rs, dt, m, "bf", x0=x0, P0=P0)
     try:

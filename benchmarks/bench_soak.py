@@ -19,14 +19,12 @@ from __future__ import annotations
 
 import argparse
 import collections
-import io
 import json
 import random
 import sys
 import tempfile
 import threading
 import time
-import zipfile
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 

@@ -100,15 +100,12 @@ def _best_ms(fn, repeat: int = 3) -> float:
 
 def _hostile_payloads(src: Path) -> dict[str, bytes]:
     """The hostile uploads of the tests, built from the tiny survey at ``src``."""
-    import io
-    import zipfile
-
-    from tests.web.conftest import zip_with
-    from tests.web.server_proc import inflated_survey_zip
-    from tests.web.test_hostile import _patch_headers
 
     from app.io.survey import MAX_CONFIG_BYTES
     from app.web.services import MAX_LINES_ROWS
+    from tests.web.conftest import zip_with
+    from tests.web.server_proc import inflated_survey_zip
+    from tests.web.test_hostile import _patch_headers
 
     bomb = inflated_survey_zip(src, 19)
     n = MAX_LINES_ROWS + 1
