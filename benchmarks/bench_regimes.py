@@ -123,7 +123,7 @@ def oracle(survey: Path, out: Path, merged: pd.DataFrame) -> dict:
     dt = nm["dt_s"]
     classes = sorted(merged["terrain"].dropna().unique())
     lines = []
-    for line, g in merged.groupby("line", sort=False):
+    for _line, g in merged.groupby("line", sort=False):
         g = g.sort_values("time")
         if len(g) < 50:
             continue
@@ -155,12 +155,12 @@ def oracle(survey: Path, out: Path, merged: pd.DataFrame) -> dict:
         val = rms(logq, log_a, m)
         for _ in range(2):
             for c in classes:
-                def f(v, c=c):
+                def f(v, c=c, logq=logq, log_a=log_a, m=m):   # bound now: used at once, in this pass
                     return rms({**logq, c: v}, log_a, m)
                 r = minimize_scalar(f, bounds=(logq[c] - 9, logq[c] + 9), method="bounded", options={"xatol": 0.1})
                 if r.fun < val:
                     logq[c], val = r.x, r.fun
-            r = minimize_scalar(lambda v: rms(logq, v, m), bounds=(-3, 3), method="bounded", options={"xatol": 0.1})
+            r = minimize_scalar(lambda v, logq=logq, m=m: rms(logq, v, m), bounds=(-3, 3), method="bounded", options={"xatol": 0.1})
             if r.fun < val:
                 log_a, val = r.x, r.fun
         if best is None or val < best["rms"]:

@@ -34,6 +34,38 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
+def _bad_request(srv, sids: list, bad_zips: dict, grav: bytes, gnss: bytes):
+    """One hostile request (a random kind: damaged zips, NaN or out-of-range parameters, huge ids,
+    odd names, a foreign Origin or Host, deep JSON, a bad flight name); returns its status."""
+    sid = rng_choice(sids)
+    kind = rng_choice(["zip", "nan", "bounds", "id", "name", "origin", "host", "deep", "flightname"])
+    if kind == "zip":
+        name = rng_choice(sorted(bad_zips))
+        return srv.post_files("/api/surveys/import", {"file": (name + ".zip", bad_zips[name])})[0]
+    if kind == "nan":
+        return srv.request("POST", f"/api/surveys/{sid}/jobs", b'{"kind": "process", "params": {"em_tol": NaN}}',
+                           {"Content-Type": "application/json"})[0]
+    if kind == "bounds":
+        p = rng_choice([{"grid_spacing_km": 0.005}, {"em_max_iter": 1e9}, {"nlmeans_rho_km": 1e308},
+                        {"decimation_n": 1e12}, {"ma_order_K": 1e6}])
+        return srv.json("POST", f"/api/surveys/{sid}/jobs", {"kind": "process", "params": p})[0]
+    if kind == "id":
+        return srv.get(rng_choice(["/api/surveys/99999999999999999999999", "/api/jobs/18446744073709551617",
+                                   "/api/surveys/123456/grid"]))[0]
+    if kind == "name":
+        return srv.json("POST", "/api/surveys", {"name": rng_choice(["a\nb", "x" * 5000, "a/b", "nul\x00"])})[0]
+    if kind == "origin":
+        return srv.request("POST", "/api/surveys", b'{"name": "csrf"}',
+                           {"Content-Type": "application/json", "Origin": "http://evil.example"})[0]
+    if kind == "host":
+        return srv.request("GET", "/api/surveys", headers={"Host": "rebind.evil.example"})[0]
+    if kind == "deep":
+        return srv.request("POST", "/api/surveys", b"[" * 50000 + b"]" * 50000,
+                           {"Content-Type": "application/json"})[0]
+    files = {"gravimeter": ("g.csv", grav), "gnss": ("n.csv", gnss)}
+    return srv.post_files(f"/api/surveys/{sid}/flights", files, {"flight": "bad\nname"})[0]
+
+
 def main() -> dict:
     from tests.web.conftest import make_tiny_survey, zip_dir
     from tests.web.server_proc import ServerProcess, inflated_survey_zip
@@ -123,33 +155,7 @@ def main() -> dict:
             return srv.get(path, timeout=60)[0]
 
         def bad():
-            sid = rng_choice(sids)
-            kind = rng_choice(["zip", "nan", "bounds", "id", "name", "origin", "host", "deep", "flightname"])
-            if kind == "zip":
-                name = rng_choice(sorted(bad_zips))
-                return srv.post_files("/api/surveys/import", {"file": (name + ".zip", bad_zips[name])})[0]
-            if kind == "nan":
-                return srv.request("POST", f"/api/surveys/{sid}/jobs", b'{"kind": "process", "params": {"em_tol": NaN}}',
-                                   {"Content-Type": "application/json"})[0]
-            if kind == "bounds":
-                p = rng_choice([{"grid_spacing_km": 0.005}, {"em_max_iter": 1e9}, {"nlmeans_rho_km": 1e308},
-                                {"decimation_n": 1e12}, {"ma_order_K": 1e6}])
-                return srv.json("POST", f"/api/surveys/{sid}/jobs", {"kind": "process", "params": p})[0]
-            if kind == "id":
-                return srv.get(rng_choice(["/api/surveys/99999999999999999999999", "/api/jobs/18446744073709551617",
-                                           "/api/surveys/123456/grid"]))[0]
-            if kind == "name":
-                return srv.json("POST", "/api/surveys", {"name": rng_choice(["a\nb", "x" * 5000, "a/b", "nul\x00"])})[0]
-            if kind == "origin":
-                return srv.request("POST", "/api/surveys", b'{"name": "csrf"}',
-                                   {"Content-Type": "application/json", "Origin": "http://evil.example"})[0]
-            if kind == "host":
-                return srv.request("GET", "/api/surveys", headers={"Host": "rebind.evil.example"})[0]
-            if kind == "deep":
-                return srv.request("POST", "/api/surveys", b"[" * 50000 + b"]" * 50000,
-                                   {"Content-Type": "application/json"})[0]
-            files = {"gravimeter": ("g.csv", grav), "gnss": ("n.csv", gnss)}
-            return srv.post_files(f"/api/surveys/{sid}/flights", files, {"flight": "bad\nname"})[0]
+            return _bad_request(srv, sids, bad_zips, grav, gnss)
 
         ops = [("upload", flight_upload)] * 20 + [("import", import_zip)] * 10 + [("job", submit_job)] * 15 + \
               [("read", read)] * 35 + [("bad", bad)] * 20
