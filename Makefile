@@ -28,7 +28,7 @@ browser:
 	fi
 
 test: install browser
-	$(VENV)/bin/ruff check app tests
+	$(VENV)/bin/ruff check app tests benchmarks
 	$(PY) -m pytest -q -p no:cacheprovider -n $(TEST_WORKERS) --dist loadfile
 
 test-fast: install
