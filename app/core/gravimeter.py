@@ -421,6 +421,63 @@ def motion_compensated_means(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s:
     return out
 
 
+def height_matched_means(series: IntegratedSeries, t_epochs_s, runs, tau_s: float = 0.0, scale: float = 1.0,
+                         time_offset_s: float = 0.0) -> np.ndarray:
+    """Means of ``f_g`` on the GNSS intervals as GNSS **heights** see the motion (m/s²), for a record
+    whose vertical velocity was derived from its heights.
+
+    Where the GNSS has heights only, ``V`` is the derivative of the not-a-knot cubic spline through
+    the heights of each contiguous run (:func:`app.core.geodesy.vertical_velocity_from_heights_ms`),
+    and ``(V_k − V_{k−1})/Δt`` is the mean acceleration of that spline, not of the aircraft: at
+    1–2 Hz the heights are point samples of a motion with power up to ~1 Hz (turbulence), which the
+    spline cannot follow, and :func:`interval_means` — the aircraft's true mean acceleration —
+    then differs from it by far more than the anomaly.  Here the gravimeter's double integral
+    ``∫∫ f_g dt²`` (:func:`double_integral_m`, exact at the epochs) is sampled at the same epochs
+    and put through the same spline operator, so the aircraft's motion, which both the heights and
+    the double integral contain in full, cancels in ``z`` however coarsely the epochs sample it.
+    What is left is the twice-integrated anomaly (smooth, so the spline keeps it) and the errors.
+
+    Per run of ``runs`` (index ranges ``[a, b)``, the GNSS's contiguous stretches as the heights'
+    spline used them) and, within a run, per stretch where the double integral is known (the
+    gravimeter's span and holes); elsewhere, and at each stretch's first epoch, the values of
+    :func:`interval_means`.  A stretch's best quadratic is taken out before the spline and its
+    exact mean added back (the spline reproduces cubics), so the ~10⁷ m of ``½·g·t²`` does not
+    cost precision.
+
+    Parameters
+    ----------
+    series : IntegratedSeries
+    t_epochs_s : ndarray, shape (n,)
+        GNSS epoch times (s), strictly increasing.
+    runs : sequence of (int, int)
+        Contiguous GNSS runs over which the heights' spline was formed.
+    tau_s, scale, time_offset_s : float
+        As in :func:`interval_means`.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        NaN at the first epoch and outside the gravimeter's span (as :func:`interval_means`).
+    """
+    from app.core.geodesy import vertical_velocity_from_heights_ms
+
+    t = np.asarray(t_epochs_s, dtype=float)
+    out = interval_means(series, t, tau_s, scale, time_offset_s=time_offset_s)
+    G = double_integral_m(series, t, tau_s, scale, time_offset_s=time_offset_s)
+    for a, b in runs:
+        ok = np.isfinite(G[a:b])
+        d = np.diff(np.concatenate([[0], ok.astype(np.int8), [0]]))
+        for s0, s1 in zip(np.flatnonzero(d == 1) + a, np.flatnonzero(d == -1) + a):
+            if s1 - s0 < 4:
+                continue
+            x = t[s0:s1] - t[s0]
+            c = np.polyfit(x / max(x[-1], 1e-9), G[s0:s1], 2)
+            quad = np.polyval(c, x / max(x[-1], 1e-9))
+            v = vertical_velocity_from_heights_ms(t[s0:s1], G[s0:s1] - quad)
+            out[s0 + 1:s1] = np.diff(v) / np.diff(x) + 2.0 * c[0] / max(x[-1], 1e-9) ** 2
+    return out
+
+
 def apply_first_order_lag(t_s, f, tau_s: float, scale: float = 1.0, f0=None) -> np.ndarray:
     """Pass a finely, uniformly sampled signal through ``τ·ẏ + k·y = f``.
 
@@ -520,7 +577,7 @@ def estimate_time_offset_s(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: f
 
 def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 0.0,
                     scale: float = 1.0, max_offset_s: float = 2.0,
-                    band_hz: tuple[float, float] = (0.01, 1.0)) -> TimeOffsetFit:
+                    band_hz: tuple[float, float] = (0.01, 1.0), height_runs=None) -> TimeOffsetFit:
     """Time offset between gravimeter and GNSS by cross-correlation of accelerations.
 
     The gravimeter's interval-mean specific force and the GNSS acceleration
@@ -540,6 +597,9 @@ def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 
         Search range ±max_offset_s.
     band_hz : (float, float)
         Pass band for the comparison (Hz).
+    height_runs : sequence of (int, int), optional
+        When ``vu_ms`` was derived from heights: the runs of its spline, and the gravimeter's
+        side is :func:`height_matched_means` (the motion seen as the heights see it).
 
     Returns
     -------
@@ -570,7 +630,7 @@ def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 
     acc_bp = sosfiltfilt(sos, fill_nan(acc))[sl]
 
     def grav_bp(offset):
-        f = interval_means(series, t, tau_s, scale, time_offset_s=offset)
+        f = _gnss_side_means(series, t, tau_s, scale, offset, height_runs)
         return sosfiltfilt(sos, fill_nan(f))[sl]
 
     g0 = grav_bp(0.0)
@@ -589,7 +649,7 @@ def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 
     # the GNSS acceleration carries the noise (differenced velocities or heights), the gravimeter's
     # band-passed force hardly any: regress the former on the latter, so its noise does not bias
     gain = float(np.sum(g * g) / np.sum(g * acc_bp))
-    gain_low, gain_low_corr = _low_band_gain(series, t, acc, (tau_s, scale, off), fs, sl)
+    gain_low, gain_low_corr = _low_band_gain(series, t, acc, (tau_s, scale, off), fs, sl, height_runs)
     c_min = cost(off)
     # curvature of the residual variance by a central difference (a tenth of a GNSS step)
     h = 0.1 * dt
@@ -604,8 +664,15 @@ def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 
 GAIN_LOW_BAND_HZ = (0.01, 0.05)
 
 
+def _gnss_side_means(series, t, tau_s, scale, offset, height_runs):
+    """:func:`interval_means`, or :func:`height_matched_means` over ``height_runs`` when given."""
+    if height_runs is None:
+        return interval_means(series, t, tau_s, scale, time_offset_s=offset)
+    return height_matched_means(series, t, height_runs, tau_s, scale, time_offset_s=offset)
+
+
 def _low_band_gain(series: IntegratedSeries, t: np.ndarray, acc: np.ndarray, response: tuple, fs: float,
-                   sl: slice) -> tuple[float, float]:
+                   sl: slice, height_runs=None) -> tuple[float, float]:
     """Gain and correlation of the gravimeter's interval means (``response`` = τ s, scale, time
     offset s) against the GNSS acceleration ``acc`` (m/s², per epoch ``t``) in :data:`GAIN_LOW_BAND_HZ`,
     over the epochs ``sl``; the gain is ``Σ g² / Σ g·a`` (the GNSS side regressed on the
@@ -619,7 +686,7 @@ def _low_band_gain(series: IntegratedSeries, t: np.ndarray, acc: np.ndarray, res
         return float("nan"), float("nan")
     sos = butter(4, [lo, hi], btype="band", fs=fs, output="sos")
     tau_s, scale, off = response
-    g = sosfiltfilt(sos, fill_nan(interval_means(series, t, tau_s, scale, time_offset_s=off)))[sl]
+    g = sosfiltfilt(sos, fill_nan(_gnss_side_means(series, t, tau_s, scale, off, height_runs)))[sl]
     a = sosfiltfilt(sos, fill_nan(acc))[sl]
     edge = int(round(2.0 / lo * fs))   # two periods of the band's low edge: the filters' end transients
     if g.size < 4 * edge:

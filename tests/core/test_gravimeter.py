@@ -329,3 +329,94 @@ def test_a_lag_declared_wrong_lowers_the_gain_but_hardly_the_low_band_one():
     fit = gm.fit_time_offset(series, t, v, tau_s=0.0, max_offset_s=5.0)
     assert fit.gain < 0.7
     assert 0.7 < fit.gain_low < 1.05
+
+
+#: a phugoid and height-hold band (0.03–0.17 Hz) and turbulence the 1–2 Hz heights cannot follow (0.23–1.7 Hz)
+_MOTION_HZ = np.array([0.031, 0.07, 0.12, 0.17, 0.23, 0.41, 0.67, 0.93, 1.31, 1.7])
+_MOTION_AMP = np.array([0.05, 0.08, 0.1, 0.1, 0.15, 0.2, 0.15, 0.1, 0.08, 0.05])     # m/s²
+_MOTION_PH = np.array([0.9, 2.2, 0.1, 1.4, 0.3, 1.1, 2.0, 0.7, 2.9, 1.6])
+
+
+def _motion(t):
+    """Vertical velocity (m/s) and height (m) of the sinusoids' acceleration (analytic)."""
+    w = 2 * np.pi * _MOTION_HZ
+    t = np.asarray(t, float)[..., None]
+    v = np.sum(-_MOTION_AMP / w * np.cos(w * t + _MOTION_PH), -1)
+    h = np.sum(-_MOTION_AMP / w ** 2 * np.sin(w * t + _MOTION_PH), -1)
+    return v, h
+
+
+def _fast_meter(g0, c, offset=0.0, t0=100.0, t1=700.0):
+    """An 18.24 Hz interval-mean gravimeter reading the motion + g0 + c·t, its clock behind GNSS
+    time by ``offset`` (s)."""
+    a_edges = t0 + np.arange(int((t1 - t0) * RATE)) * T_GRAV
+    b_edges = a_edges + T_GRAV
+    vals = (_motion(b_edges)[0] - _motion(a_edges)[0]) / T_GRAV + g0 + c * 0.5 * (a_edges + b_edges)
+    return gm.integrate_samples(0.5 * (a_edges + b_edges) - offset, vals)
+
+
+@pytest.mark.parametrize("rate_hz", [1.0, 2.0])
+def test_height_matched_means_cancel_motion_the_heights_cannot_follow(rate_hz):
+    # 1–2 Hz GNSS heights (point samples) of a motion with power up to 1.7 Hz: the spline through
+    # them has its own acceleration, thousands of mGal from the aircraft's, which the gravimeter's
+    # exact interval means follow; put through the same spline, the gravimeter's double integral
+    # leaves g0 + c·t (the spline keeps a linear trend) and the 18 Hz spline's interpolation of
+    # the motion at the epochs (a few hundredths of a mGal, white)
+    from app.core.geodesy import vertical_velocity_from_heights_ms
+
+    g0, c = 9.8, 2e-5
+    series = _fast_meter(g0, c)
+    t = np.arange(110.0, 690.0, 1.0 / rate_hz)
+    vu = vertical_velocity_from_heights_ms(t, _motion(t)[1])
+    acc = np.diff(vu) / np.diff(t)
+    want = g0 + c * 0.5 * (t[1:] + t[:-1])
+    hm = gm.height_matched_means(series, t, [(0, t.size)])
+    err_hm = np.sqrt(np.mean((hm[1:] - acc - want) ** 2)) * 1e5            # mGal
+    err_plain = np.sqrt(np.mean((gm.interval_means(series, t)[1:] - acc - want) ** 2)) * 1e5
+    assert np.isnan(hm[0])
+    assert err_plain > 1000.0
+    assert err_hm < 0.2
+    k = int(50 * rate_hz)                                         # the anomaly band: a 50 s mean
+    lo = np.convolve(hm[1:] - acc - want, np.ones(k) / k, "valid") * 1e5
+    assert np.max(np.abs(lo)) < 0.01
+    # two runs (a record gap between them): each keeps its own spline, the gap's interval the plain mean
+    cut = t.size // 2
+    t2 = np.concatenate([t[:cut], t[cut + 5:]])
+    vu2 = np.concatenate([vertical_velocity_from_heights_ms(t2[:cut], _motion(t2[:cut])[1]),
+                          vertical_velocity_from_heights_ms(t2[cut:], _motion(t2[cut:])[1])])
+    hm2 = gm.height_matched_means(series, t2, [(0, cut), (cut, t2.size)])
+    z2 = hm2[1:] - np.diff(vu2) / np.diff(t2) - (g0 + c * 0.5 * (t2[1:] + t2[:-1]))
+    inside = np.ones(t2.size - 1, bool)
+    inside[cut - 1] = False                                      # the interval across the gap
+    assert np.max(np.abs(z2[inside])) * 1e5 < 1.0
+    assert hm2[cut] == gm.interval_means(series, t2)[cut]
+
+
+def test_height_matched_means_outside_the_gravimeter_span_and_with_lag():
+    series = _fast_meter(9.8, 0.0)
+    t = np.arange(90.0, 720.0, 1.0)                              # beyond the record on both sides
+    hm = gm.height_matched_means(series, t, [(0, t.size)])
+    assert np.array_equal(np.isnan(hm), np.isnan(gm.interval_means(series, t)))
+    # a steady output through a lag and a scale: f_g's mean is g0 on every interval
+    stamps = np.arange(0.5, 300.0, T_GRAV)
+    steady = gm.integrate_samples(stamps, np.full(stamps.size, 9.8 / 1.02))
+    tt = np.arange(5.0, 290.0, 1.0)
+    hm_s = gm.height_matched_means(steady, tt, [(0, tt.size)], tau_s=0.5, scale=1.02)
+    assert np.isnan(hm_s[0]) and np.allclose(hm_s[1:], 9.8, atol=1e-9)
+
+
+def test_time_offset_of_heights_only_gnss_found_through_the_heights_spline():
+    # 1 Hz heights of the motion, the gravimeter 0.137 s behind: as the heights see the motion
+    # (height_runs), the offset comes out right; the exact means against the spline's acceleration
+    # fit the turbulence the heights alias into the band instead
+    from app.core.geodesy import vertical_velocity_from_heights_ms
+
+    offset = 0.137
+    series = _fast_meter(9.8, 0.0, offset=offset, t0=0.0, t1=1000.0)
+    t = np.arange(20.0, 980.0, 1.0)
+    vu = vertical_velocity_from_heights_ms(t, _motion(t)[1])
+    fit = gm.fit_time_offset(series, t, vu, max_offset_s=3.0, band_hz=(0.01, 0.2), height_runs=[(0, t.size)])
+    plain = gm.fit_time_offset(series, t, vu, max_offset_s=3.0, band_hz=(0.01, 0.2))
+    assert abs(fit.offset_s - offset) < 0.005
+    assert fit.correlation > 0.99
+    assert abs(plain.offset_s - offset) > 5 * abs(fit.offset_s - offset)

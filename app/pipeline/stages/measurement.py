@@ -142,10 +142,13 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
                      "integrated on their stamps as irregular sampling — if the instrument's clock is uniform, "
                      "that scatter times the aircraft's acceleration is in z")
     series = gm.integrate_samples(uniform, gr["f_z"].to_numpy(float), dejitter=False)
-    if getattr(flight, "vu_derived_from_h", False):
+    runs = height_runs(series, t, vu_from_h, p)
+    if vu_from_h:
         notes.append("vu derived from the GNSS heights (the file has no vu column): derivative of the not-a-knot "
-                     "cubic spline through h, per contiguous run")
-    offset_info = time_offset(series, t, vu, tau, k, p, notes)
+                     "cubic spline through h, per contiguous run"
+                     + ("; the gravimeter's double integral put through the same spline, so the aircraft's motion "
+                        "cancels however coarsely the heights sample it" if runs is not None else ""))
+    offset_info = time_offset(series, t, vu, tau, k, p, notes, runs)
     check_acceleration_gain(flight, offset_info, notes)
     # the report's time_offsets section: the stamps the samples were integrated on
     offset_info["gravimeter_stamp_jitter_ms"] = 1e3 * largest_s
@@ -154,9 +157,9 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     offset_info.update(gnss_stamps)
     offset = offset_info.get("offset_s", 0.0)
     applied = bool(offset_info.get("applied", False))
-    fbar = gm.interval_means(series, t, tau, k, time_offset_s=offset if applied else 0.0)
+    fbar = gnss_side_means(series, t, runs, tau, k, offset if applied else 0.0)
     z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
-    dz_dtau = 1e5 * (gm.interval_means(series, t, tau + 1.0, k, time_offset_s=offset if applied else 0.0) - fbar)
+    dz_dtau = 1e5 * (gnss_side_means(series, t, runs, tau + 1.0, k, offset if applied else 0.0) - fbar)
     mask_gaps(z, t, gr["time"].to_numpy(float) + (offset if applied else 0.0), p.gravimeter_gap_margin_s, notes)
     # a flight without lines is judged on its airborne epochs
     judged = judged_epochs(t, ve, vn, line_windows if line_windows is not None and len(line_windows) else None)
@@ -450,7 +453,28 @@ def _fillable(t, t_new, ins, y, derivative: bool, max_error_mgal: float, cutoff_
 LARGE_TIME_OFFSET_S = 1.0
 
 
-def time_offset(series, t, vu, tau: float, k: float, p, notes: list) -> dict:
+def height_runs(series: gm.IntegratedSeries, t, vu_from_h: bool, p) -> list | None:
+    """The GNSS runs over which the heights' spline derived vu, when the gravimeter is to be
+    compared with the heights through the same spline (:func:`app.core.gravimeter.height_matched_means`):
+    vu from the heights, ``height_matched_means`` on, and a gravimeter sampled at least as often as
+    the GNSS (a slower one's double integral between its samples is a spline's guess of the motion:
+    :func:`slow_gravimeter_z` cancels the motion at its sample boundaries instead).  None otherwise."""
+    if not (vu_from_h and p.height_matched_means) or t.size < 4:
+        return None
+    if series.step_s > 1.01 * float(np.median(np.diff(t))):
+        return None
+    return gnss_runs(t, p.max_gap_s)
+
+
+def gnss_side_means(series: gm.IntegratedSeries, t, runs, tau: float, k: float, offset: float) -> np.ndarray:
+    """The gravimeter's means on the GNSS intervals (m/s²): as the heights see the motion over
+    ``runs`` (:func:`height_runs`), else the exact interval means."""
+    if runs is None:
+        return gm.interval_means(series, t, tau, k, time_offset_s=offset)
+    return gm.height_matched_means(series, t, runs, tau, k, time_offset_s=offset)
+
+
+def time_offset(series, t, vu, tau: float, k: float, p, notes: list, runs=None) -> dict:
     """The gravimeter–GNSS time offset and the decision to apply it (with its evidence).
 
     Applied only when the estimate is significant (``time_offset_min_z`` standard errors)
@@ -460,7 +484,7 @@ def time_offset(series, t, vu, tau: float, k: float, p, notes: list) -> dict:
         return {"estimated": False}
     band = (0.01, acceleration_band_top_hz(float(np.median(np.diff(t))), series.step_s))
     try:
-        fit = gm.fit_time_offset(series, t, vu, tau, k, p.max_time_offset_s, band_hz=band)
+        fit = gm.fit_time_offset(series, t, vu, tau, k, p.max_time_offset_s, band_hz=band, height_runs=runs)
     except ValueError as exc:  # too short a flight, etc.
         notes.append(f"time offset not estimated: {exc}")
         return {"estimated": False}
@@ -835,9 +859,15 @@ def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600
     gr = flight.gravimeter
     series = gm.integrate_samples(gr["time"].to_numpy(float), gr["f_z"].to_numpy(float))
     off = m.time_offset_s if m.time_offset_applied else 0.0
-    tt = t[a - 1:b] if a > 0 else t[a:b]
-    fraw = gm.interval_means(series, tt, 0.0, 1.0, time_offset_s=off)
-    fdot = gm.interval_means(series, tt, 1.0, 1.0, time_offset_s=off) - fraw
+    seg = slice(a - 1, b) if a > 0 else slice(a, b)
+    tt = t[seg]
+    # as z was formed: over the heights' spline runs where vu came from the heights (the
+    # segment's own spline would differ from theirs at its ends)
+    runs = height_runs(series, t, m.heights_only, cfg.processing)
+    fraw = gnss_side_means(series, t if runs is not None else tt, runs, 0.0, 1.0, off)
+    fdot = gnss_side_means(series, t if runs is not None else tt, runs, 1.0, 1.0, off) - fraw
+    if runs is not None:
+        fraw, fdot = fraw[seg], fdot[seg]
     z = anomaly_measurement_mgal(fraw, tt, m.vu_ms[a - 1:b] if a > 0 else m.vu_ms[a:b],
                                  m.gamma_mgal[a - 1:b] if a > 0 else m.gamma_mgal[a:b],
                                  m.eotvos_mgal[a - 1:b] if a > 0 else m.eotvos_mgal[a:b]) * 1e-5
