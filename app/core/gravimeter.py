@@ -471,10 +471,10 @@ def height_matched_means(series: IntegratedSeries, t_epochs_s, runs, tau_s: floa
             if s1 - s0 < 4:
                 continue
             x = t[s0:s1] - t[s0]
-            c = np.polyfit(x / max(x[-1], 1e-9), G[s0:s1], 2)
-            quad = np.polyval(c, x / max(x[-1], 1e-9))
-            v = vertical_velocity_from_heights_ms(t[s0:s1], G[s0:s1] - quad)
-            out[s0 + 1:s1] = np.diff(v) / np.diff(x) + 2.0 * c[0] / max(x[-1], 1e-9) ** 2
+            span = max(float(x[-1]), 1e-9)
+            c = np.polyfit(x / span, G[s0:s1], 2)            # c[0]·(x/span)² + …: mean acceleration 2·c[0]/span²
+            v = vertical_velocity_from_heights_ms(t[s0:s1], G[s0:s1] - np.polyval(c, x / span))
+            out[s0 + 1:s1] = np.diff(v) / np.diff(x) + 2.0 * c[0] / span ** 2
     return out
 
 
@@ -630,7 +630,7 @@ def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 
     acc_bp = sosfiltfilt(sos, fill_nan(acc))[sl]
 
     def grav_bp(offset):
-        f = _gnss_side_means(series, t, tau_s, scale, offset, height_runs)
+        f = gnss_side_means(series, t, tau_s, scale, offset, height_runs)
         return sosfiltfilt(sos, fill_nan(f))[sl]
 
     g0 = grav_bp(0.0)
@@ -664,8 +664,11 @@ def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 
 GAIN_LOW_BAND_HZ = (0.01, 0.05)
 
 
-def _gnss_side_means(series, t, tau_s, scale, offset, height_runs):
-    """:func:`interval_means`, or :func:`height_matched_means` over ``height_runs`` when given."""
+def gnss_side_means(series: IntegratedSeries, t, tau_s: float, scale: float, offset: float,
+                    height_runs=None) -> np.ndarray:
+    """The gravimeter's means on the GNSS intervals (m/s²) as the GNSS sees the motion: the exact
+    :func:`interval_means`, or :func:`height_matched_means` over ``height_runs`` when the GNSS
+    vu came from its heights."""
     if height_runs is None:
         return interval_means(series, t, tau_s, scale, time_offset_s=offset)
     return height_matched_means(series, t, height_runs, tau_s, scale, time_offset_s=offset)
@@ -686,7 +689,7 @@ def _low_band_gain(series: IntegratedSeries, t: np.ndarray, acc: np.ndarray, res
         return float("nan"), float("nan")
     sos = butter(4, [lo, hi], btype="band", fs=fs, output="sos")
     tau_s, scale, off = response
-    g = sosfiltfilt(sos, fill_nan(_gnss_side_means(series, t, tau_s, scale, off, height_runs)))[sl]
+    g = sosfiltfilt(sos, fill_nan(gnss_side_means(series, t, tau_s, scale, off, height_runs)))[sl]
     a = sosfiltfilt(sos, fill_nan(acc))[sl]
     edge = int(round(2.0 / lo * fs))   # two periods of the band's low edge: the filters' end transients
     if g.size < 4 * edge:

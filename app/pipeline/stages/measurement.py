@@ -157,9 +157,9 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     offset_info.update(gnss_stamps)
     offset = offset_info.get("offset_s", 0.0)
     applied = bool(offset_info.get("applied", False))
-    fbar = gnss_side_means(series, t, runs, tau, k, offset if applied else 0.0)
+    fbar = gm.gnss_side_means(series, t, tau, k, offset if applied else 0.0, runs)
     z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
-    dz_dtau = 1e5 * (gnss_side_means(series, t, runs, tau + 1.0, k, offset if applied else 0.0) - fbar)
+    dz_dtau = 1e5 * (gm.gnss_side_means(series, t, tau + 1.0, k, offset if applied else 0.0, runs) - fbar)
     mask_gaps(z, t, gr["time"].to_numpy(float) + (offset if applied else 0.0), p.gravimeter_gap_margin_s, notes)
     # a flight without lines is judged on its airborne epochs
     judged = judged_epochs(t, ve, vn, line_windows if line_windows is not None and len(line_windows) else None)
@@ -464,14 +464,6 @@ def height_runs(series: gm.IntegratedSeries, t, vu_from_h: bool, p) -> list | No
     if series.step_s > 1.01 * float(np.median(np.diff(t))):
         return None
     return gnss_runs(t, p.max_gap_s)
-
-
-def gnss_side_means(series: gm.IntegratedSeries, t, runs, tau: float, k: float, offset: float) -> np.ndarray:
-    """The gravimeter's means on the GNSS intervals (m/s²): as the heights see the motion over
-    ``runs`` (:func:`height_runs`), else the exact interval means."""
-    if runs is None:
-        return gm.interval_means(series, t, tau, k, time_offset_s=offset)
-    return gm.height_matched_means(series, t, runs, tau, k, time_offset_s=offset)
 
 
 def time_offset(series, t, vu, tau: float, k: float, p, notes: list, runs=None) -> dict:
@@ -864,8 +856,8 @@ def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600
     # as z was formed: over the heights' spline runs where vu came from the heights (the
     # segment's own spline would differ from theirs at its ends)
     runs = height_runs(series, t, m.heights_only, cfg.processing)
-    fraw = gnss_side_means(series, t if runs is not None else tt, runs, 0.0, 1.0, off)
-    fdot = gnss_side_means(series, t if runs is not None else tt, runs, 1.0, 1.0, off) - fraw
+    fraw = gm.gnss_side_means(series, t if runs is not None else tt, 0.0, 1.0, off, runs)
+    fdot = gm.gnss_side_means(series, t if runs is not None else tt, 1.0, 1.0, off, runs) - fraw
     if runs is not None:
         fraw, fdot = fraw[seg], fdot[seg]
     z = anomaly_measurement_mgal(fraw, tt, m.vu_ms[a - 1:b] if a > 0 else m.vu_ms[a:b],
