@@ -155,6 +155,8 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     offset_info["gravimeter_stamp_scatter_ms"] = 1e3 * scale_s
     offset_info["gravimeter_stamps_dejittered"] = bool(jitter > 0)
     offset_info.update(gnss_stamps)
+    # how z's gravimeter side was formed: through the heights' spline (height_matched_means) or not
+    offset_info["height_matched_means"] = runs is not None
     offset = offset_info.get("offset_s", 0.0)
     applied = bool(offset_info.get("applied", False))
     fbar = gm.gnss_side_means(series, t, tau, k, offset if applied else 0.0, runs)
@@ -856,10 +858,8 @@ def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600
     # as z was formed: over the heights' spline runs where vu came from the heights (the
     # segment's own spline would differ from theirs at its ends)
     runs = height_runs(series, t, m.heights_only, cfg.processing)
-    fraw = gm.gnss_side_means(series, t if runs is not None else tt, 0.0, 1.0, off, runs)
-    fdot = gm.gnss_side_means(series, t if runs is not None else tt, 1.0, 1.0, off, runs) - fraw
-    if runs is not None:
-        fraw, fdot = fraw[seg], fdot[seg]
+    fraw = gm.gnss_side_means(series, t, 0.0, 1.0, off, runs)[seg]
+    fdot = gm.gnss_side_means(series, t, 1.0, 1.0, off, runs)[seg] - fraw
     z = anomaly_measurement_mgal(fraw, tt, m.vu_ms[a - 1:b] if a > 0 else m.vu_ms[a:b],
                                  m.gamma_mgal[a - 1:b] if a > 0 else m.gamma_mgal[a:b],
                                  m.eotvos_mgal[a - 1:b] if a > 0 else m.eotvos_mgal[a:b]) * 1e-5
