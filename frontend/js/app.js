@@ -300,10 +300,21 @@ async function main() {
   const tok = document.getElementById("token");
   tok.value = getToken();
   tok.addEventListener("change", () => setToken(tok.value.trim()));
-  for (const b of document.querySelectorAll("#tabs button")) b.addEventListener("click", () => showTab(b.dataset.tab));
+  // a tab clicked while the survey list is still on its way is the one shown once it arrives (the
+  // address's tab would otherwise win and the click be lost)
+  let booting = true;
+  let clickedWhileLoading = null;
+  for (const b of document.querySelectorAll("#tabs button")) {
+    b.addEventListener("click", () => {
+      if (booting) clickedWhileLoading = b.dataset.tab;
+      showTab(b.dataset.tab);
+    });
+  }
   setupUploads();
   await loadSurveys();
+  booting = false;
   if (!applyHash() && state.surveys.length) selectSurvey(state.surveys[0].id, false);
+  if (clickedWhileLoading && clickedWhileLoading !== state.tab && ctx.survey) showTab(clickedWhileLoading);
   window.addEventListener("popstate", applyHash);
   window.addEventListener("hashchange", applyHash);
   pollSurveys();

@@ -58,6 +58,23 @@ def test_back_and_forward_walk_the_tabs(fake_server, browser_page, tmp_path):  #
     _no_errors(page)
 
 
+def test_a_tab_clicked_while_the_page_loads_is_not_lost(fake_server, browser_page, tmp_path):  # noqa: F811
+    """The survey list held back until after a click on "Anomaly grid": once it arrives the grid
+    is shown, not the address's tab (the click used to be lost under load)."""
+    page = browser_page
+    sid = _processed_survey(fake_server.url, tmp_path)
+    held = []
+    page.route("**/api/surveys", lambda route: route.continue_() if held else held.append(route))
+    page.goto(f"{fake_server.url}/#survey={sid}&tab=qc")
+    assert held, "the page asked for the survey list"
+    _tab(page, "grid")
+    held[0].continue_()
+    page.wait_for_selector("#grid-plot .main-svg", timeout=20000)
+    assert _active(page) == "grid" and page.is_hidden("#view-qc")
+    assert page.url.endswith(f"#survey={sid}&tab=grid")
+    _no_errors(page)
+
+
 def test_plots_fit_a_window_resized_while_their_tab_was_hidden(fake_server, browser_page, tmp_path):  # noqa: F811
     page = browser_page
     _open_processed(page, fake_server.url, tmp_path, "profile", "#profile-plot[data-line] .main-svg")
