@@ -335,6 +335,11 @@ class ProcessingParams(_Strict):
     band_delay_min_t: float = Field(4.0, ge=1, le=1000, description="The residual delay is taken out when it "
                                     "exceeds this many standard errors (one independent sample per 1/(2B) s of "
                                     "the band's width B)")
+    band_delay_flights_p: float = Field(0.001, gt=0, le=1, description="The flights' own residual delays are "
+                                        "taken out apart (each where it exceeds band_delay_min_t standard errors) "
+                                        "when they disagree at this p-value (Cochran's χ²; the time offsets, "
+                                        "applied per flight, can leave each flight its own delay); else one pooled "
+                                        "delay for the instrument")
     # --- anomaly model
     m: int | None = Field(None, ge=1, le=3, description="Order of the difference operator ∇^m δg = q; None "
                           "chooses it from the data (model_order)")
@@ -753,7 +758,7 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("max_gap_s", "despike_threshold", "apply_time_offset", "calibrate"),
      ("gnss_rate_hz", "rate_tolerance", "geoid_height_m", "gravimeter_gap_margin_s", "height_step_threshold", "despike_max_fraction",
       "max_nan_run", "estimate_time_offset", "max_time_offset_s", "time_offset_min_z", "time_offset_min_improvement",
-      "slow_gravimeter_min_ratio", "height_matched_means", "band_delay_check", "band_delay_min_t", "gnss_fill_max_error_mgal", "lag_check_s",
+      "slow_gravimeter_min_ratio", "height_matched_means", "band_delay_check", "band_delay_min_t", "band_delay_flights_p", "gnss_fill_max_error_mgal", "lag_check_s",
       "lag_check_min_change_s", "lag_from_time_offsets", "lag_band_fit", "lag_band_fit_z", "lag_band_confirm_z",
       "lag_check_min_improvement", "lag_one_scale", "lag_one_scale_min_improvement")),
     ("noise", "Noise model: the error of z and the local GNSS noise level",

@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import signal
+from scipy import signal, stats
 
 from app.core.geodesy import MGAL_PER_MS2, vertical_velocity_from_heights_ms
 from app.core.gravimeter import fill_nan
@@ -783,6 +783,39 @@ def band_delay_fit(segments, dt_s: float | None, band_hz: tuple[float, float],
     se = float(np.sqrt(np.mean(res ** 2) / (np.mean(jb ** 2) * n_ind)))
     return BandDelay(-c, se, -c / se if se > 0 else float("nan"), n_ind,
                      float(np.sqrt(np.mean(zb ** 2))), float(np.sqrt(np.mean(res ** 2))), n)
+
+
+def delay_heterogeneity(delays_s, se_s) -> dict:
+    """Do several independent estimates of one delay disagree by more than their errors?
+
+    Cochran's test: with the inverse-variance mean ``d̄ = Σ wᵢdᵢ / Σ wᵢ`` (``wᵢ = 1/seᵢ²``),
+    ``χ² = Σ wᵢ(dᵢ − d̄)²`` has k − 1 degrees of freedom when the k estimates share one true
+    value.  Estimates that are not finite (a flight too short to fit) are left out.
+
+    Parameters
+    ----------
+    delays_s, se_s : array_like, shape (k,)
+        The estimates and their standard errors (s; any unit, the same for both).
+
+    Returns
+    -------
+    dict
+        ``mean_s`` (d̄), ``chi2``, ``dof`` (k − 1 over the usable estimates) and ``p_value``
+        (``P(χ²_dof ≥ chi2)``); with fewer than two usable estimates ``dof`` is 0 and the
+        figures NaN.
+    """
+    d = np.asarray(delays_s, dtype=float)
+    se = np.asarray(se_s, dtype=float)
+    if d.shape != se.shape or d.ndim != 1:
+        raise ValueError("delays_s and se_s must be 1-D of one length")
+    ok = np.isfinite(d) & np.isfinite(se) & (se > 0)
+    if ok.sum() < 2:
+        return {"mean_s": float("nan"), "chi2": float("nan"), "dof": 0, "p_value": float("nan")}
+    w = 1.0 / se[ok] ** 2
+    mean = float(np.sum(w * d[ok]) / np.sum(w))
+    chi2 = float(np.sum(w * (d[ok] - mean) ** 2))
+    dof = int(ok.sum()) - 1
+    return {"mean_s": mean, "chi2": chi2, "dof": dof, "p_value": float(stats.chi2.sf(chi2, dof))}
 
 
 def delay_correction_mgal(t_s, a_mgal, delay_s: float, lowpass_hz: float) -> np.ndarray:

@@ -145,6 +145,10 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     bd = page.locator("#report-band-delay tbody tr").first.locator("td")
     assert [bd.nth(i).inner_text() for i in range(6)] == ["18.1", "0.34", "52.7", "0.01–0.05", "59.64 → 24.08", "yes"]
     assert bd.last.inner_text().startswith("the gravimeter is 18.1 ms late against the GNSS")
+    assert page.inner_text("#report-band-delay-agree").startswith("Each flight's own delay: they agree (χ² 0.23 on 2")
+    rows = page.locator("#report-band-delay-flights tbody tr")
+    assert rows.count() == 3
+    assert [rows.nth(1).locator("td").nth(i).inner_text() for i in (0, 1, 4)] == ["F02", "18.3", "pooled (18.1 ms)"]
     assert page.inner_text("#report-common-level").startswith(
         "Common level of the 3 flights: their offsets at 12 crossovers spread by 4.33 mGal, so their mean — the level "
         "leveling keeps — is uncertain by 2.5 mGal; included in δg's std and the grid std")

@@ -477,3 +477,23 @@ def test_cumulative_trapezoid_against_scipy():
     t = np.cumsum(rng.uniform(0.05, 0.15, 500))
     y = np.sin(t) + 0.1 * rng.standard_normal(t.size)
     np.testing.assert_allclose(cumulative_trapezoid(y, t), scipy_ct(y, t, initial=0.0), rtol=1e-12, atol=1e-12)
+
+
+def test_delay_heterogeneity_is_cochrans_chi2():
+    """Two estimates: χ² is (d₁ − d₂)²/(se₁² + se₂²) on one degree of freedom, whose tail is
+    erfc(√(χ²/2)); equal estimates agree perfectly; what is not finite is left out."""
+    import math
+
+    from app.core.measurement import delay_heterogeneity
+
+    h = delay_heterogeneity([0.010, 0.040], [0.010, 0.020])
+    chi2 = 0.030 ** 2 / (0.010 ** 2 + 0.020 ** 2)
+    assert h["dof"] == 1 and h["chi2"] == pytest.approx(chi2)
+    assert h["p_value"] == pytest.approx(math.erfc(math.sqrt(chi2 / 2.0)))
+    assert h["mean_s"] == pytest.approx((0.010 / 1e-4 + 0.040 / 4e-4) / (1 / 1e-4 + 1 / 4e-4))
+    same = delay_heterogeneity([0.02, 0.02, 0.02], [0.001, 0.005, 0.01])
+    assert same["chi2"] == pytest.approx(0.0, abs=1e-20) and same["p_value"] == pytest.approx(1.0) and same["dof"] == 2
+    nan = delay_heterogeneity([0.02, np.nan, 0.03], [0.01, 0.01, np.nan])
+    assert nan["dof"] == 0 and np.isnan(nan["p_value"])
+    with pytest.raises(ValueError):
+        delay_heterogeneity([0.0, 0.1], [0.1])

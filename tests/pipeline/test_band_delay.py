@@ -33,18 +33,21 @@ def _flight(rng, t0, delay_s, n=40_000):
     return SimpleNamespace(t_s=t, vu_ms=vu, ve_ms=np.full(n, 80.0), vn_ms=np.zeros(n), z_mgal=z)
 
 
-def _survey(delay_s, seed=4):
+def _survey(delay_s, seed=4, delay2_s=None):
     rng = np.random.default_rng(seed)
-    flights = {"F1": _flight(rng, 1000.0, delay_s), "F2": _flight(rng, 90_000.0, delay_s)}
+    flights = {"F1": _flight(rng, 1000.0, delay_s),
+               "F2": _flight(rng, 90_000.0, delay_s if delay2_s is None else delay2_s)}
     lines = pd.DataFrame({"flight": ["F1", "F1", "F2", "F2"],
                           "t_start": [1300.0, 2800.0, 90_300.0, 91_800.0],
                           "t_end": [2500.0, 4600.0, 91_500.0, 94_600.0]})
     return flights, lines
 
 
-def _refit(flights, lines):
+def _refit(flights, lines, only=None):
     segs = []
     for name, m in flights.items():
+        if only is not None and name != only:
+            continue
         use = np.zeros(m.t_s.size, bool)
         for a, b in lines.loc[lines["flight"] == name, ["t_start", "t_end"]].to_numpy(float):
             use |= (m.t_s >= a) & (m.t_s <= b)
@@ -88,3 +91,26 @@ def test_off_and_too_short():
     short = pd.DataFrame({"flight": ["F1"], "t_start": [1300.0], "t_end": [1400.0]})
     rec = check_band_delay(flights, short, ProcessingParams(), [])
     assert not rec["applied"] and "too few" in rec["reason"]
+
+
+def test_flights_left_different_delays_are_put_right_each_apart():
+    """The time offsets are applied per flight, so each can be left its own delay: F1 on time,
+    F2 30 ms late.  The pooled delay (about half of F2's) would move F1 by what F2 needs; the
+    flights disagree (Cochran's χ²), so F2 alone is put right and F1 is untouched."""
+    flights, lines = _survey(0.0, seed=5, delay2_s=0.03)
+    pooled = _refit(flights, lines)
+    assert 0.005 < pooled.delay_s < 0.025 and abs(pooled.t_stat) > 4     # what one delay would take out
+    before = {k: m.z_mgal.copy() for k, m in flights.items()}
+    warnings = []
+    rec = check_band_delay(flights, lines, ProcessingParams(), warnings)
+    assert rec["applied"] and rec["per_flight"] and rec["heterogeneity"]["p_value"] < 1e-3
+    assert rec["flights"]["F2"]["delay_s"] == pytest.approx(0.03, abs=max(3 * rec["flights"]["F2"]["se_s"], 1e-3))
+    assert abs(rec["flights"]["F1"]["t_stat"]) < 4
+    np.testing.assert_array_equal(flights["F1"].z_mgal, before["F1"])
+    assert abs(_refit(flights, lines, only="F2").t_stat) < 3                 # nothing left on F2
+    assert "F2 (+" in rec["reason"] and "F1 (" not in rec["reason"]
+    assert any("disagree" in w for w in warnings)
+    # flights that agree keep the one pooled delay (the case above), and the report says they agree
+    flights, lines = _survey(0.02)
+    rec = check_band_delay(flights, lines, ProcessingParams(), [])
+    assert "per_flight" not in rec and rec["heterogeneity"]["p_value"] > 1e-3 and rec["heterogeneity"]["dof"] == 1

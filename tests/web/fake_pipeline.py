@@ -104,6 +104,10 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
         "band_delay": {"band_hz": [0.01, 0.05], "lowpass_hz": 0.1, "min_t": 4.0, "applied": True,
                        "delay_s": 0.0181, "se_s": 0.00034, "t_stat": 52.7, "n_independent": 541.0,
                        "band_rms_mgal": 59.64, "band_rms_corrected_mgal": 24.08, "n_epochs": 67600,
+                       "flights": {"F01": {"delay_s": 0.0180, "se_s": 0.0006, "t_stat": 30.0, "n_epochs": 22000},
+                                   "F02": {"delay_s": 0.0183, "se_s": 0.0005, "t_stat": 36.6, "n_epochs": 24000},
+                                   "F03": {"delay_s": 0.0179, "se_s": 0.0007, "t_stat": 25.6, "n_epochs": 21600}},
+                       "heterogeneity": {"mean_s": 0.01812, "chi2": 0.23, "dof": 2, "p_value": 0.89, "p_limit": 0.001},
                        "reason": "the gravimeter is 18.1 ms late against the GNSS at 0.01–0.05 Hz (52.7 standard "
                                  "errors) after the time offset and lag: taken out of z below 0.1 Hz"},
         "lag_check": {"declared_tau_s": 2.0, "estimated_tau_s": [1.9995, 1.9990, 1.9992], "applied": False,

@@ -31,6 +31,7 @@ from app.core.measurement import (
     anomaly_measurement_mgal,
     band_delay_fit,
     delay_correction_mgal,
+    delay_heterogeneity,
     gnss_acceleration_ms2,
     gravimeter_height_misfit_m,
     height_outlier_mask,
@@ -1430,7 +1431,15 @@ def check_band_delay(flights: dict, lines, p, warnings: list) -> dict | None:
     over the lines (the airborne epochs without a line table), the flights pooled (one
     instrument); taken out below 10 × 1/``fir_cutoff_period_s`` (:func:`delay_correction_mgal`)
     when it exceeds ``band_delay_min_t`` standard errors, z above that left as the offset fit
-    made it.  Each record's runs on one time step are fitted apart (a hole left as a hole)."""
+    made it.  Each record's runs on one time step are fitted apart (a hole left as a hole).
+
+    **Flights that disagree are fitted apart.**  The time offsets are applied per flight (each
+    where significant and useful), so what they leave can differ between flights; when the
+    flights' own delays disagree by more than their errors (:func:`delay_heterogeneity`,
+    p < ``band_delay_flights_p``) each flight's own delay is taken out where it exceeds
+    ``band_delay_min_t`` standard errors, and no other.  (Foreign survey 947: offsets of −45
+    and −32 ms applied on two flights, the third's −31 ms not; the flights' delays after them
+    −6 ± 5, +11 ± 15, +38 ± 3 ms; pooled +30 ms, which put 36 ms back into the first.)"""
     steps = [np.diff(m.t_s) for m in flights.values() if m.t_s.size > 1]
     if not p.band_delay_check or not steps:
         return None
@@ -1442,35 +1451,67 @@ def check_band_delay(flights: dict, lines, p, warnings: list) -> dict | None:
     if not band[1] < nyq:
         rec["reason"] = f"the band {band[0]:g}–{band[1]:g} Hz is not below the GNSS Nyquist frequency"
         return rec
-    segments, accel = [], {}
+    per_flight, accel = {}, {}
     for name, m in flights.items():
         a = gnss_acceleration_ms2(m.t_s, m.vu_ms) * geodesy.MGAL_PER_MS2
         accel[name] = a
         usable = judged_epochs(m.t_s, m.ve_ms, m.vn_ms, line_windows(lines, name))
-        segments.extend((m.t_s[i0:i1], m.z_mgal[i0:i1], a[i0:i1], usable[i0:i1]) for i0, i1 in gnss_runs(m.t_s, 0.0))
-    fit = band_delay_fit(segments, None, band)   # each run on its own step (flights may differ)
+        per_flight[name] = [(m.t_s[i0:i1], m.z_mgal[i0:i1], a[i0:i1], usable[i0:i1])
+                            for i0, i1 in gnss_runs(m.t_s, 0.0)]
+    # each run on its own step (flights may differ)
+    fit = band_delay_fit([s for segs in per_flight.values() for s in segs], None, band)
     rec.update({"delay_s": fit.delay_s, "se_s": fit.se_s, "t_stat": fit.t_stat, "n_independent": fit.n_independent,
                 "band_rms_mgal": fit.band_rms_mgal, "band_rms_corrected_mgal": fit.band_rms_corrected_mgal,
                 "n_epochs": fit.n_epochs})
     if not np.isfinite(fit.t_stat):
         rec["reason"] = f"too few line epochs to fit ({fit.n_epochs})"
         return rec
-    if abs(fit.t_stat) < p.band_delay_min_t:
-        rec["reason"] = (f"residual delay {1e3 * fit.delay_s:+.1f} ms at {band[0]:g}–{band[1]:g} Hz is "
-                         f"{abs(fit.t_stat):.1f} standard errors (< {p.band_delay_min_t:g}): z kept")
+    delays = _flights_band_delays(per_flight, band, rec, p) if len(flights) > 1 else None
+    if delays is None:       # one instrument, one delay
+        if abs(fit.t_stat) < p.band_delay_min_t:
+            rec["reason"] = (f"residual delay {1e3 * fit.delay_s:+.1f} ms at {band[0]:g}–{band[1]:g} Hz is "
+                             f"{abs(fit.t_stat):.1f} standard errors (< {p.band_delay_min_t:g}): z kept")
+            return rec
+        delays = dict.fromkeys(flights, fit.delay_s)
+        rec["reason"] = (f"the gravimeter is {1e3 * abs(fit.delay_s):.1f} ms {'late' if fit.delay_s > 0 else 'early'} "
+                         f"against the GNSS at {band[0]:g}–{band[1]:g} Hz "
+                         f"({abs(fit.t_stat):.1f} standard errors) after the time offset and lag: taken out of z below "
+                         f"{lowpass:g} Hz (z's band RMS {fit.band_rms_mgal:.3g} → {fit.band_rms_corrected_mgal:.3g} mGal)")
+    elif not delays:
+        rec["reason"] += f": no flight's own delay reaches {p.band_delay_min_t:g} standard errors, z kept"
         return rec
-    for name, m in flights.items():
+    else:
+        rec["reason"] += (": taken out of z below " f"{lowpass:g} Hz on "
+                          + ", ".join(f"{n} ({1e3 * d:+.1f} ms)" for n, d in delays.items()))
+    for name, d in delays.items():
+        m = flights[name]
         corr = np.zeros(m.t_s.size)
         for i0, i1 in gnss_runs(m.t_s, 0.0):       # each run on one step (a hole left as a hole)
             r = slice(i0, i1)
             if i1 - i0 > 1:
                 nyq_r = 0.5 / float(np.median(np.diff(m.t_s[r])))     # a flight logged slower: its own
-                corr[r] = delay_correction_mgal(m.t_s[r], accel[name][r], fit.delay_s, min(lowpass, 0.8 * nyq_r))
+                corr[r] = delay_correction_mgal(m.t_s[r], accel[name][r], d, min(lowpass, 0.8 * nyq_r))
         m.z_mgal = np.where(np.isfinite(corr), m.z_mgal - corr, m.z_mgal)
     rec["applied"] = True
-    rec["reason"] = (f"the gravimeter is {1e3 * abs(fit.delay_s):.1f} ms {'late' if fit.delay_s > 0 else 'early'} "
-                     f"against the GNSS at {band[0]:g}–{band[1]:g} Hz "
-                     f"({abs(fit.t_stat):.1f} standard errors) after the time offset and lag: taken out of z below "
-                     f"{lowpass:g} Hz (z's band RMS {fit.band_rms_mgal:.3g} → {fit.band_rms_corrected_mgal:.3g} mGal)")
     warnings.append(f"gravimeter timing: {rec['reason']} (report band_delay)")
     return rec
+
+
+def _flights_band_delays(per_flight: dict, band: tuple, rec: dict, p) -> dict | None:
+    """Each flight's own band delay (:func:`check_band_delay`), recorded in ``rec['flights']`` and
+    ``rec['heterogeneity']``: None when the flights agree (the pooled delay stands), else
+    ``{flight: delay_s}`` for the flights whose own delay is significant (``rec['reason']`` says
+    why they are fitted apart)."""
+    fits = {name: band_delay_fit(segs, None, band) for name, segs in per_flight.items()}
+    rec["flights"] = {name: {"delay_s": f.delay_s, "se_s": f.se_s, "t_stat": f.t_stat, "n_epochs": f.n_epochs}
+                      for name, f in fits.items()}
+    het = delay_heterogeneity([f.delay_s for f in fits.values()], [f.se_s for f in fits.values()])
+    rec["heterogeneity"] = {**het, "p_limit": p.band_delay_flights_p}
+    if not (het["dof"] and het["p_value"] < p.band_delay_flights_p):
+        return None
+    rec["per_flight"] = True
+    rec["reason"] = (f"the flights' delays disagree ({', '.join(f'{n} {1e3 * f.delay_s:+.1f} ± {1e3 * f.se_s:.1f} ms' for n, f in fits.items() if np.isfinite(f.delay_s))}; "
+                     f"χ² {het['chi2']:.1f} on {het['dof']} degrees of freedom, p = {het['p_value']:.2g} < "
+                     f"{p.band_delay_flights_p:g}: the time offsets left each its own), each fitted apart")
+    return {name: f.delay_s for name, f in fits.items()
+            if np.isfinite(f.t_stat) and abs(f.t_stat) >= p.band_delay_min_t}

@@ -220,11 +220,28 @@ const RENDER = {
       v.reason || (v.offset_as_lag && v.offset_as_lag.reason) || (v.one_scale && v.one_scale.reason) || (v.band_fit && v.band_fit.reason) || "—"]],
     { id: "report-lag-check" })],
   // the gravimeter's timing left at the anomaly's edge (stage 1): fitted on the GNSS jerk, taken out when significant
-  band_delay: (v) => [table(["Residual delay (ms)", "SE (ms)", "t", "Band (Hz)", "z's band RMS (mGal)", "Applied", "Reason"],
-    [[v.delay_s == null ? "—" : fmt(1e3 * v.delay_s, 3), v.se_s == null ? "—" : fmt(1e3 * v.se_s, 2), fmt(v.t_stat, 3),
-      (v.band_hz || []).map((x) => fmt(x, 3)).join("–"),
-      `${fmt(v.band_rms_mgal, 4)} → ${fmt(v.band_rms_corrected_mgal, 4)}`, yes(v.applied), v.reason || "—"]],
-    { id: "report-band-delay" })],
+  // (flights pooled unless their own delays disagree: then each flight's own, where significant)
+  band_delay: (v) => {
+    const out = [table(["Residual delay (ms)", "SE (ms)", "t", "Band (Hz)", "z's band RMS (mGal)", "Applied", "Reason"],
+      [[v.delay_s == null ? "—" : fmt(1e3 * v.delay_s, 3), v.se_s == null ? "—" : fmt(1e3 * v.se_s, 2), fmt(v.t_stat, 3),
+        (v.band_hz || []).map((x) => fmt(x, 3)).join("–"),
+        `${fmt(v.band_rms_mgal, 4)} → ${fmt(v.band_rms_corrected_mgal, 4)}`, yes(v.applied), v.reason || "—"]],
+      { id: "report-band-delay" })];
+    if (v.flights && v.heterogeneity) {
+      const h = v.heterogeneity;
+      out.push(el("p", { class: "note", id: "report-band-delay-agree" },
+        `Each flight's own delay: ${v.per_flight ? "they disagree" : "they agree"} (χ² ${fmt(h.chi2, 3)} on ${h.dof} `
+        + `degrees of freedom, p = ${fmt(h.p_value, 2)}; fitted apart below p = ${fmt(h.p_limit, 4)})`));
+      const takenOut = (d) => (!v.applied ? "no"
+        : v.per_flight ? (Math.abs(d.t_stat) >= v.min_t ? `its own (${fmt(1e3 * d.delay_s, 3)} ms)` : "no")
+          : `pooled (${fmt(1e3 * v.delay_s, 3)} ms)`);
+      out.push(table(["Flight", "Own delay (ms)", "SE (ms)", "t", "Taken out of z"],
+        Object.entries(v.flights).map(([f, d]) => [f, d.delay_s == null ? "—" : fmt(1e3 * d.delay_s, 3),
+          d.se_s == null ? "—" : fmt(1e3 * d.se_s, 2), fmt(d.t_stat, 3), takenOut(d)]),
+        { id: "report-band-delay-flights" }));
+    }
+    return out;
+  },
   spike_repair: (v) => [perFlight(v, ["Flagged epochs", "Fraction", "Epochs", "Threshold (robust σ)", "Outcome"], (d) => [
     String(d.flagged ?? "—"), pct(d.fraction), String(d.epochs ?? "—"), fmt(d.threshold, 3),
     spikeOutcome(d)])],
