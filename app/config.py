@@ -397,8 +397,15 @@ class ProcessingParams(_Strict):
                                           "guard's paired test (its p-value accounts for how few there are)")
     fir_guard_p: float = Field(0.05, gt=0, lt=0.5, description="Significance of those tests (one-sided p of the "
                                "paired t-test on the squared crossover differences, or of the signed-rank test on "
-                               "their magnitudes when the crossover RMS agrees; on the 13 regimes of "
-                               "benchmarks/bench_regimes.py, all better than FIR, both p ≥ 0.19)")
+                               "their magnitudes when the crossover RMS agrees), below fir_guard_many_crossovers")
+    fir_guard_many_crossovers: int = Field(20, ge=2, le=1_000_000, description="From this many crossovers on, the FIR "
+                                           "guard's tests use fir_guard_p_many: FIR's crossovers understate its error "
+                                           "(two crossing lines share the anomaly it clips), so with many crossovers a "
+                                           "small bias of the test reads as significant")
+    fir_guard_p_many: float = Field(0.01, gt=0, lt=0.5, description="Significance of the FIR guard's tests with at "
+                                    "least fir_guard_many_crossovers crossovers (of 21 firings at p < 0.05 re-run "
+                                    "without the guard, 15 of the 17 with ≥ 20 crossovers were better than FIR, "
+                                    "all but one of those at p ≥ 0.01; MEASUREMENTS.md session 43)")
     repeat_blend: bool = Field(True, description="Where the crossovers are too few for the FIR guard (a test-line "
                                "survey), blend FIR 100 s into the estimate with the weight whose repeat passes agree "
                                "best with the other passes' light low-pass of z "
@@ -790,7 +797,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
     ("choice", "Model choice: flattened and noisy estimates, FIR guard, test lines",
      ("fir_guard", "flatten_check", "repeat_blend"),
      ("choice_min_crossovers", "flatten_min_ratio", "noisy_max_ratio", "noisy_max_disagreement", "fir_long_periods_s",
-      "fir_long_max_error_ratio", "fir_guard_smoothing_std", "fir_guard_min_crossovers", "fir_guard_p",
+      "fir_long_max_error_ratio", "fir_guard_smoothing_std", "fir_guard_min_crossovers", "fir_guard_p", "fir_guard_many_crossovers",
+      "fir_guard_p_many",
       "repeat_blend_reference_period_s", "repeat_blend_reference_periods", "repeat_blend_min_passes",
       "repeat_level_check", "repeat_level_factor", "repeat_level_significance")),
     ("leveling", "Leveling at the crossovers",

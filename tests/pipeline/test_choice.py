@@ -253,6 +253,33 @@ def test_fir_guard_is_not_blinded_by_one_wild_crossover():
     assert np.mean(np.abs(e) < 2 * table["dg_std_mgal"]) < 0.8
 
 
+def test_fir_guard_asks_for_more_with_many_crossovers():
+    """The level of the guard's tests depends on how many crossovers there are: below
+    fir_guard_many_crossovers it is fir_guard_p (the case above fires at ranks p < 0.05), from
+    there on fir_guard_p_many.  With the same 6 crossovers counted as many, the stricter 0.01
+    is out of reach of the signed ranks (their least one-sided p with 6 pairs is 1/64) and the
+    estimate stays."""
+    from app.pipeline.stages.choice import fir_guard
+
+    rng = np.random.default_rng(7)
+    table, noise = _table(rng, 0.0)
+    err = np.zeros(len(table))
+    for line, g in table.groupby("line"):
+        s_km = np.hypot(g["easting_km"] - g["easting_km"].iloc[0], g["northing_km"] - g["northing_km"].iloc[0])
+        err[g.index] = 6.0 * np.sqrt(2) * np.sin(2 * np.pi * s_km / 9.0 + rng.uniform(0, 2 * np.pi))
+        if line == "M2":
+            err[g.index] += 150.0 * np.exp(-0.5 * ((g["easting_km"] - 10.0) / 1.0) ** 2)
+    table["dg_unleveled_mgal"] = table["dg_true_mgal"] + err
+    table["dg_mgal"] = table["dg_unleveled_mgal"]
+    kept = table["dg_mgal"].to_numpy().copy()
+    rep = fir_guard(table, noise, DT_S, ProcessingParams(fir_guard_many_crossovers=6), [])
+    assert rep["n_crossovers"] == 6 and rep["p_level"] == ProcessingParams().fir_guard_p_many == 0.01
+    assert rep["p_rank"] >= 1 / 64 and rep["p_value"] > 0.05 and not rep["applied"]
+    np.testing.assert_array_equal(table["dg_mgal"].to_numpy(), kept)
+    rep = fir_guard(table, noise, DT_S, ProcessingParams(), [])
+    assert rep["p_level"] == 0.05 and rep["applied"]
+
+
 def test_order_choice_is_not_blinded_by_one_wild_crossover():
     """m = 2's estimate with a smooth 6 mGal error and one 150 mGal bump at a crossing, m = 1's
     with 1 mGal: the t-test on the squared crossover differences misses it (p > 0.05), the
