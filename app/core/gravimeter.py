@@ -30,6 +30,8 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.signal import savgol_filter
 
+from app.core.geodesy import vertical_velocity_from_heights_ms
+
 #: Stamp deviation (s) from a uniform clock that a millisecond rounding explains; the default
 #: bound of :func:`dejitter_times_s` is the larger of this and 5 % of the step.
 ROUNDING_JITTER_S = 1.5e-3
@@ -459,7 +461,6 @@ def height_matched_means(series: IntegratedSeries, t_epochs_s, runs, tau_s: floa
     ndarray, shape (n,)
         NaN at the first epoch and outside the gravimeter's span (as :func:`interval_means`).
     """
-    from app.core.geodesy import vertical_velocity_from_heights_ms
 
     t = np.asarray(t_epochs_s, dtype=float)
     out = interval_means(series, t, tau_s, scale, time_offset_s=time_offset_s)

@@ -213,14 +213,9 @@ def test_a_flattened_line_does_not_take_a_stationary_estimate_that_passes_noise(
             < 0.5 * _rms(table.loc[k, "dg_stationary_mgal"], table.loc[k, "dg_true_mgal"]))
 
 
-def test_fir_guard_is_not_blinded_by_one_wild_crossover():
-    """Every line's estimate carries a smooth 9 km error of ~6 mGal (several times FIR's
-    error) and line M2 a 150 mGal bump at its crossing with T1: the crossover RMS is many
-    times FIR's, yet the squared differences' t-test is not significant (that one crossover
-    dominates their variance).  The signed ranks see that the estimate disagrees more at
-    every crossover, the guard fires and every line takes FIR, closer to the truth."""
-    from app.pipeline.stages.choice import fir_guard
-
+def _wild_crossover_table():
+    """The fixture's lines with an estimate off by a smooth 9 km error of ~6 mGal on every line
+    and a 150 mGal bump on M2 at its crossing with T1: (table, noise, err)."""
     rng = np.random.default_rng(7)
     table, noise = _table(rng, 0.0)
     err = np.zeros(len(table))
@@ -231,6 +226,18 @@ def test_fir_guard_is_not_blinded_by_one_wild_crossover():
             err[g.index] += 150.0 * np.exp(-0.5 * ((g["easting_km"] - 10.0) / 1.0) ** 2)
     table["dg_unleveled_mgal"] = table["dg_true_mgal"] + err
     table["dg_mgal"] = table["dg_unleveled_mgal"]
+    return table, noise, err
+
+
+def test_fir_guard_is_not_blinded_by_one_wild_crossover():
+    """Every line's estimate carries a smooth 9 km error of ~6 mGal (several times FIR's
+    error) and line M2 a 150 mGal bump at its crossing with T1: the crossover RMS is many
+    times FIR's, yet the squared differences' t-test is not significant (that one crossover
+    dominates their variance).  The signed ranks see that the estimate disagrees more at
+    every crossover, the guard fires and every line takes FIR, closer to the truth."""
+    from app.pipeline.stages.choice import fir_guard
+
+    table, noise, err = _wild_crossover_table()
     warnings: list = []
     rep = fir_guard(table, noise, DT_S, ProcessingParams(), warnings)
     assert rep["n_crossovers"] == 6
@@ -261,16 +268,7 @@ def test_fir_guard_asks_for_more_with_many_crossovers():
     estimate stays."""
     from app.pipeline.stages.choice import fir_guard
 
-    rng = np.random.default_rng(7)
-    table, noise = _table(rng, 0.0)
-    err = np.zeros(len(table))
-    for line, g in table.groupby("line"):
-        s_km = np.hypot(g["easting_km"] - g["easting_km"].iloc[0], g["northing_km"] - g["northing_km"].iloc[0])
-        err[g.index] = 6.0 * np.sqrt(2) * np.sin(2 * np.pi * s_km / 9.0 + rng.uniform(0, 2 * np.pi))
-        if line == "M2":
-            err[g.index] += 150.0 * np.exp(-0.5 * ((g["easting_km"] - 10.0) / 1.0) ** 2)
-    table["dg_unleveled_mgal"] = table["dg_true_mgal"] + err
-    table["dg_mgal"] = table["dg_unleveled_mgal"]
+    table, noise, err = _wild_crossover_table()
     kept = table["dg_mgal"].to_numpy().copy()
     rep = fir_guard(table, noise, DT_S, ProcessingParams(fir_guard_many_crossovers=6), [])
     assert rep["n_crossovers"] == 6 and rep["p_level"] == ProcessingParams().fir_guard_p_many == 0.01

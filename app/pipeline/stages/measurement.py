@@ -1510,7 +1510,9 @@ def _flights_band_delays(per_flight: dict, band: tuple, rec: dict, p) -> dict | 
     if not (het["dof"] and het["p_value"] < p.band_delay_flights_p):
         return None
     rec["per_flight"] = True
-    rec["reason"] = (f"the flights' delays disagree ({', '.join(f'{n} {1e3 * f.delay_s:+.1f} ± {1e3 * f.se_s:.1f} ms' for n, f in fits.items() if np.isfinite(f.delay_s))}; "
+    each = ", ".join(f"{n} {1e3 * f.delay_s:+.1f} ± {1e3 * f.se_s:.1f} ms" for n, f in fits.items()
+                     if np.isfinite(f.delay_s))
+    rec["reason"] = (f"the flights' delays disagree ({each}; "
                      f"χ² {het['chi2']:.1f} on {het['dof']} degrees of freedom, p = {het['p_value']:.2g} < "
                      f"{p.band_delay_flights_p:g}: the time offsets left each its own), each fitted apart")
     return {name: f.delay_s for name, f in fits.items()
