@@ -149,3 +149,30 @@ def loglikelihood(x, c, d, Q, R, transition, initial) -> float:
     init_super[0, ch.const_index] = pi
     _, _, ll = forward_backward(logb[None], data.valid, ch.transition(a), init_super)
     return float(ll[0])
+
+
+def level_shares(probs, n_r: int) -> np.ndarray:
+    """Share of the points each anomaly level holds under a map's posteriors.
+
+    Parameters
+    ----------
+    probs : array_like, shape (T, N)
+        State probabilities of T decimated points, N = n_q·n_r states ordered ``i·n_r + j``
+        (anomaly level i, GNSS noise level j); each row sums to 1.
+    n_r : int
+        Number of GNSS noise levels.
+
+    Returns
+    -------
+    ndarray, shape (n_q,)
+        The mean over the points of each anomaly level's posterior mass (sums to 1).
+    """
+    P = np.asarray(probs, dtype=float)
+    if P.ndim != 2 or P.shape[0] == 0:
+        raise ValueError(f"probs must be a non-empty (T, N) array, got shape {P.shape}")
+    if int(n_r) < 1 or P.shape[1] % int(n_r):
+        raise ValueError(f"{P.shape[1]} states are not a whole number of levels of n_r = {n_r}")
+    if not np.all(np.isfinite(P)) or np.any(P < 0):
+        raise ValueError("probs must be finite and non-negative")
+    mass = P.reshape(P.shape[0], -1, int(n_r)).sum(axis=2)
+    return mass.mean(axis=0) / max(float(mass.sum(axis=1).mean()), np.finfo(float).tiny)

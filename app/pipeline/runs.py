@@ -28,7 +28,7 @@ from app.pipeline.stages.filtering import (
     rescaled_pass_warnings,
 )
 from app.pipeline.stages.gridding import grid_survey
-from app.pipeline.stages.identification import Identification, identify
+from app.pipeline.stages.identification import Identification, identify, level_support
 from app.pipeline.stages.leveling import add_common_level_std, level_survey, reading_error_std_mgal
 from app.pipeline.stages.lines import survey_lines
 from app.pipeline.stages.measurement import measure
@@ -238,7 +238,8 @@ def _recognised_by(idents: dict, m: int, p):
     a, b = idents[m], idents[r]
     if (len(a.learned.em.Q), len(a.learned.em.R)) != (len(b.learned.em.Q), len(b.learned.em.R)):
         return a
-    hybrid = Identification(m, b.regularized, a.learned, b.recognition, b.n_points, a.warnings)
+    hybrid = Identification(m, b.regularized, a.learned, b.recognition, b.n_points, a.warnings,
+                            own_recognition=a.recognition)
     hybrid.recognition_m = r
     return hybrid
 
@@ -348,6 +349,9 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     tr.close()
     report = build_report(survey_name or cfg.survey.name, idf.crs, table, idf.flights, leveled, best.ident, grid,
                           warnings)
+    support, support_warnings = level_support(best.ident, p.level_support_min_share, p.level_support_map_share)
+    report["identification"]["level_support"] = support
+    warnings.extend(support_warnings)
     report.update(idf.measurement_report)
     report["noise_model"] = idf.noise.describe()
     report["model_choice"] = choice.report
@@ -355,14 +359,19 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
         "free_air": "grid" if grid is not None else None,
         "bouguer": "grid_bouguer" if grid_bouguer is not None else None,
         "free_air_flight_height": "grid_flight" if grid_flight is not None else None}}
-    level_rep = best.filtered.report(p)
+    _add_filter_sections(report, best.filtered.report(p), grid, {**idf.timings, **tr.timings})
+    return report
+
+
+def _add_filter_sections(report: dict, level_rep: dict | None, grid, timings: dict) -> None:
+    """The report's sections of the filtering and gridding (in place): the levels used
+    (``level_refinement``), the grid std's cross-validation, the stage timings and threads."""
     if level_rep is not None:
         report["level_refinement"] = level_rep
     if grid is not None and grid.cross_validation:
         report["grid_std_cross_validation"] = grid.cross_validation
-    report["timings_s"] = {**idf.timings, **tr.timings}
+    report["timings_s"] = timings
     report["threads"] = thread_count()  # the line loops' threads (the output does not depend on them)
-    return report
 
 
 IDENTIFIED_DIR = "identified"

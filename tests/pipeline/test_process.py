@@ -34,6 +34,10 @@ def test_outputs_follow_spec(tiny_processed):
     np.testing.assert_allclose(np.asarray(ident["transition"]).sum(axis=1), 1.0, atol=1e-9)
     for s in ident["states"]:
         assert set(s) == {"index", "Q", "R"}
+    support = report["identification"]["level_support"]   # where the EM and the map put each level
+    assert support["Q_mgal2"] == report["identification"]["Q_mgal2"]
+    for key in ("share_em", "share_map"):
+        assert len(support[key]) == len(support["Q_mgal2"]) and abs(sum(support[key]) - 1.0) < 1e-9
     rows = ident["em"]["iterations"]
     assert rows[0]["iteration"] == 0 and len(rows) >= 2
     for r in rows:
