@@ -461,7 +461,6 @@ def height_matched_means(series: IntegratedSeries, t_epochs_s, runs, tau_s: floa
     ndarray, shape (n,)
         NaN at the first epoch and outside the gravimeter's span (as :func:`interval_means`).
     """
-
     t = np.asarray(t_epochs_s, dtype=float)
     out = interval_means(series, t, tau_s, scale, time_offset_s=time_offset_s)
     G = double_integral_m(series, t, tau_s, scale, time_offset_s=time_offset_s)

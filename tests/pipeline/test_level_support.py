@@ -63,3 +63,15 @@ def test_no_warning_where_the_level_is_learned_or_little_used(own, used):
     assert rep["unsupported"] == [] and warnings == []
     if own is None:
         assert rep["share_em"] == rep["share_map"] and rep["map_from_m"] == 2
+
+
+def test_points_without_finite_posteriors_are_left_out_and_never_stop_the_processing():
+    used = _recognition(0.54)
+    used.table.iloc[:10] = np.nan                     # 10 points of the first 540 (all high) unusable
+    rep, warnings = level_support(_ident(_recognition(0.01), used), 0.02, 0.1)
+    np.testing.assert_allclose(rep["share_map"], [460 / 990, 530 / 990])
+    assert rep["unsupported"] == [1] and len(warnings) == 1
+    empty = _recognition(0.5)
+    empty.table.iloc[:] = np.nan
+    rep, warnings = level_support(_ident(_recognition(0.01), empty), 0.02, 0.1)
+    assert rep["share_map"] is None and rep["unsupported"] == [] and warnings == []

@@ -97,8 +97,11 @@ def identify(lines: list, dt_s: float, noise, cfg: SurveyConfig, m: int, callbac
 
 
 def _shares(rec: Recognition):
-    probs = rec.table[[f"p_{i}" for i in range(rec.n_states)]].to_numpy()
-    return level_shares(probs, rec.n_r)
+    """:func:`level_shares` of a recognition's raw posteriors over its points with finite
+    posteriors; None when there is none (a diagnostic must not stop the processing)."""
+    probs = rec.table[[f"p_{i}" for i in range(rec.n_states)]].to_numpy(float)
+    probs = probs[np.all(np.isfinite(probs), axis=1)]
+    return level_shares(probs, rec.n_r) if probs.shape[0] else None
 
 
 def level_support(ident: Identification, min_share: float, map_share: float) -> tuple[dict, list[str]]:
@@ -113,14 +116,16 @@ def level_support(ident: Identification, min_share: float, map_share: float) -> 
     so: those stretches are smoothed with a level the data there did not give.
 
     Returns the report's ``identification.level_support`` (``Q_mgal2``, ``share_em``,
-    ``share_map``, ``map_from_m``, ``em_converged``, ``unsupported``: indices of such levels)
-    and the warnings."""
+    ``share_map``, ``map_from_m``, ``em_converged``, ``unsupported``: indices of such levels;
+    a share is None where its recognition has no point with finite posteriors) and the warnings."""
     em = ident.learned.em
     own = ident.own_recognition or ident.recognition
     q = np.asarray(em.Q, dtype=float)
     share_em, share_map = _shares(own), _shares(ident.recognition)
-    bad = [i for i in range(q.size) if share_em[i] < min_share and share_map[i] >= map_share]
-    rep = {"Q_mgal2": q.tolist(), "share_em": share_em.tolist(), "share_map": share_map.tolist(),
+    known = share_em is not None and share_map is not None and share_em.size == share_map.size == q.size
+    bad = [i for i in range(q.size) if known and share_em[i] < min_share and share_map[i] >= map_share]
+    rep = {"Q_mgal2": q.tolist(), "share_em": None if share_em is None else share_em.tolist(),
+           "share_map": None if share_map is None else share_map.tolist(),
            "map_from_m": int(getattr(ident, "recognition_m", ident.m)),
            "em_converged": bool(getattr(em, "converged", True)), "unsupported": bad}
     warnings = [f"anomaly level Q = {q[i]:.3g} mGal² (order m = {ident.m}) holds {100 * share_em[i]:.2g} % of the "
