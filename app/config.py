@@ -444,6 +444,9 @@ class ProcessingParams(_Strict):
     level_support_map_share: float = Field(0.1, ge=0, le=1, description="The report warns (identification."
                                            "level_support) when the state map applies a level below "
                                            "level_support_min_share to at least this share of the points")
+    level_support_backoff: bool = Field(True, description="Such a level is filtered with its Q at the last EM "
+                                        "iteration where every level still held level_support_min_share of the "
+                                        "points (the level as learned from a terrain, before its state shed them)")
     refine_levels: bool = Field(True, description="Re-estimate Q_i, R_j by full-rate Kalman likelihood given the "
                                 "recognised states (the decimated EM can collapse a smooth state's Q)")
     refine_lift_only: bool = Field(True, description="The refinement may only raise a Q level above the EM's, "
@@ -789,8 +792,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
       "ma_order_L")),
     ("identification", "Identification: EM learning of the levels and transitions",
      ("n_q", "n_r", "em_max_iter", "em_tol"),
-     ("min_points_adaptive", "include_tie_lines", "level_support_min_share", "level_support_map_share", "refine_levels",
-      "refine_lift_only", "refine_lift_max_stationary", "refine_max_epochs")),
+     ("min_points_adaptive", "include_tie_lines", "level_support_min_share", "level_support_map_share",
+      "level_support_backoff", "refine_levels", "refine_lift_only", "refine_lift_max_stationary", "refine_max_epochs")),
     ("recognition", "Recognition map: NL-means smoothing and cross-line evidence",
      ("nlmeans_h_per_km", "nlmeans_rho_km", "nlmeans_mode"),
      ("recognition_pool_h_per_km", "recognition_pool_rho_km")),

@@ -176,3 +176,57 @@ def level_shares(probs, n_r: int) -> np.ndarray:
         raise ValueError("probs must be finite and non-negative")
     mass = P.reshape(P.shape[0], -1, int(n_r)).sum(axis=2)
     return mass.mean(axis=0) / max(float(mass.sum(axis=1).mean()), np.finfo(float).tiny)
+
+
+
+def stationary_distribution(a) -> np.ndarray:
+    """Stationary distribution of a Markov chain.
+
+    Parameters
+    ----------
+    a : array_like, shape (N, N)
+        Transition matrix (rows sum to 1).
+
+    Returns
+    -------
+    ndarray, shape (N,)
+        The left eigenvector of ``a`` for eigenvalue 1, normalised to sum to 1: the long-run
+        share of the steps in each state.
+    """
+    a = np.asarray(a, dtype=float)
+    if a.ndim != 2 or a.shape[0] != a.shape[1] or a.shape[0] == 0:
+        raise ValueError(f"a must be a square (N, N) matrix, got shape {a.shape}")
+    if not np.all(np.isfinite(a)) or np.any(a < 0) or not np.allclose(a.sum(1), 1.0, atol=1e-6):
+        raise ValueError("a must be a stochastic matrix (non-negative, rows summing to 1)")
+    w, v = np.linalg.eig(a.T)
+    k = int(np.argmin(np.abs(w - 1.0)))
+    pi = np.abs(np.real(v[:, k]))
+    return pi / pi.sum()
+
+
+def last_supported_iteration(transitions, n_r: int, min_share: float) -> int | None:
+    """The last EM iteration whose chain still gave every anomaly level ``min_share`` of the steps.
+
+    Parameters
+    ----------
+    transitions : sequence of array_like, each (N, N)
+        The transition matrix of each EM iteration (the records' ``transition``), N = n_q·n_r
+        states ordered ``i·n_r + j``.
+    n_r : int
+        Number of GNSS noise levels.
+    min_share : float
+        Least long-run share (0–1, the chain's :func:`stationary_distribution` summed over the
+        noise levels) a level must hold to count as learned from a part of the data.
+
+    Returns
+    -------
+    int or None
+        Index into ``transitions``; None when no iteration had every level at ``min_share``.
+    """
+    if len(transitions) == 0:
+        raise ValueError("no transition matrices")
+    if not 0.0 <= float(min_share) <= 1.0:
+        raise ValueError(f"min_share must be within [0, 1], got {min_share}")
+    ok = [k for k, a in enumerate(transitions)
+          if np.all(level_shares(stationary_distribution(a)[None], n_r) >= min_share)]
+    return ok[-1] if ok else None

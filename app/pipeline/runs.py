@@ -28,7 +28,7 @@ from app.pipeline.stages.filtering import (
     rescaled_pass_warnings,
 )
 from app.pipeline.stages.gridding import grid_survey
-from app.pipeline.stages.identification import Identification, identify, level_support
+from app.pipeline.stages.identification import Identification, back_off_levels, identify, level_support
 from app.pipeline.stages.leveling import add_common_level_std, level_survey, reading_error_std_mgal
 from app.pipeline.stages.lines import survey_lines
 from app.pipeline.stages.measurement import measure
@@ -241,6 +241,8 @@ def _recognised_by(idents: dict, m: int, p):
     hybrid = Identification(m, b.regularized, a.learned, b.recognition, b.n_points, a.warnings,
                             own_recognition=a.recognition)
     hybrid.recognition_m = r
+    if p.level_support_backoff:   # a level m's EM emptied but r's map applies: as learned before it emptied
+        hybrid = back_off_levels(hybrid, p.level_support_min_share, p.level_support_map_share)
     return hybrid
 
 

@@ -5,12 +5,12 @@ order m.  The result is what a later ``filter`` run starts from (:mod:`app.pipel
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
 from app.config import SurveyConfig
-from app.core.recognition import level_shares
+from app.core.recognition import last_supported_iteration, level_shares, stationary_distribution
 from app.pipeline.stages.learning import Learned, learn_survey
 from app.pipeline.stages.recognition import Recognition, recognize_survey
 from app.pipeline.stages.regularization import Regularized, regularize_lines
@@ -34,6 +34,10 @@ class Identification:
     own_recognition : Recognition or None
         When ``recognition`` is another order's map (:func:`app.pipeline.runs.recognition_order_ident`),
         the raw posteriors of this order's own Θ: where its EM put each level.
+    level_backoff : dict or None
+        When :func:`back_off_levels` replaced unsupported levels: the EM's final levels, the
+        iteration whose levels replaced them and the shares there (``learned.em.Q`` holds the
+        levels used).
     """
 
     m: int
@@ -43,6 +47,7 @@ class Identification:
     n_points: int
     warnings: list
     own_recognition: Recognition | None = None
+    level_backoff: dict | None = None
 
 
 _TOO_FEW = re.compile(r"only (\d+) decimated points \(need (\d+)\)")
@@ -120,16 +125,68 @@ def level_support(ident: Identification, min_share: float, map_share: float) -> 
     a share is None where its recognition has no point with finite posteriors) and the warnings."""
     em = ident.learned.em
     own = ident.own_recognition or ident.recognition
-    q = np.asarray(em.Q, dtype=float)
+    backoff = ident.level_backoff
+    q = np.asarray(em.Q if backoff is None else backoff["Q_em_mgal2"], dtype=float)
     share_em, share_map = _shares(own), _shares(ident.recognition)
     known = share_em is not None and share_map is not None and share_em.size == share_map.size == q.size
     bad = [i for i in range(q.size) if known and share_em[i] < min_share and share_map[i] >= map_share]
     rep = {"Q_mgal2": q.tolist(), "share_em": None if share_em is None else share_em.tolist(),
            "share_map": None if share_map is None else share_map.tolist(),
            "map_from_m": int(getattr(ident, "recognition_m", ident.m)),
-           "em_converged": bool(getattr(em, "converged", True)), "unsupported": bad}
+           "em_converged": bool(getattr(em, "converged", True)), "unsupported": bad, "backoff": backoff}
+    if backoff is not None and backoff.get("iteration") is not None:
+        then = [f"{q_used:.3g} mGal²" for q_used in np.asarray(backoff["Q_used_mgal2"])[bad]]
+        fate = (f"they are filtered with its level at EM iteration {backoff['iteration']} ({', '.join(then)}), "
+                "the last where every level held that share")
+    else:
+        fate = "those stretches are filtered with a level their data did not give"
     warnings = [f"anomaly level Q = {q[i]:.3g} mGal² (order m = {ident.m}) holds {100 * share_em[i]:.2g} % of the "
                 f"decimated points under its own EM{'' if rep['em_converged'] else ', which did not converge'}, "
-                f"but the state map applies it to {100 * share_map[i]:.0f} %: those stretches are filtered with "
-                "a level their data did not give (report identification.level_support)" for i in bad]
+                f"but the state map applies it to {100 * share_map[i]:.0f} %: {fate} "
+                "(report identification.level_support)" for i in bad]
     return rep, warnings
+
+
+def back_off_levels(ident: Identification, min_share: float, map_share: float) -> Identification:
+    """The identification with each unsupported level (:func:`level_support`) at its value of the
+    last EM iteration whose chain still gave every level ``min_share`` of the steps.
+
+    Such a level was learned from a terrain until its state shed its points; from there on its
+    Q is fitted to the few jumps left to it (seed 3's heights-only 1 Hz regime: 0.024 mGal² at
+    iteration 14, the last whose transitions gave it 2 % of the steps, 0.13 at 60).  The share
+    of an iteration is its transition matrix's stationary distribution (the records keep no
+    posteriors): the long-run share the chain as learned then expects.  The map that applies
+    the level to a tenth or more of the survey is another order's, which found that terrain.
+    The other levels keep their final values.  Unchanged (``level_backoff`` records why) when
+    the records hold no transition matrices, when no iteration had every level at
+    ``min_share``, or when the levels would no longer ascend."""
+    rep, _ = level_support(ident, min_share, map_share)
+    bad = rep["unsupported"]
+    if not bad:
+        return ident
+    em = ident.learned.em
+    records = [r for r in em.iterations if len(r.get("Q", ())) == len(em.Q) and len(r.get("R", ())) == len(em.R)]
+    q_em = np.asarray(em.Q, dtype=float)
+    info = {"Q_em_mgal2": q_em.tolist(), "Q_used_mgal2": q_em.tolist(), "iteration": None}
+    if not records or any(len(r.get("transition", ())) != len(em.Q) * len(em.R) for r in records):
+        return _with(ident, level_backoff={**info, "reason": "the EM records hold no transition matrices"})
+    k = last_supported_iteration([r["transition"] for r in records], len(em.R), min_share)
+    if k is None:
+        return _with(ident, level_backoff={**info, "reason": f"no iteration had every level at {min_share:g}"})
+    q = q_em.copy()
+    q[bad] = np.asarray(records[k]["Q"], dtype=float)[bad]
+    if not (np.all(np.diff(q) > 0) and np.all(np.isfinite(q)) and np.all(q > 0)):
+        return _with(ident, level_backoff={**info, "reason": "the levels would no longer ascend"})
+    info.update(Q_used_mgal2=q.tolist(), iteration=int(records[k]["iteration"]),
+                share_at_iteration=level_shares(stationary_distribution(records[k]["transition"])[None],
+                                                len(em.R)).tolist(),
+                reason=f"levels {bad} held < {min_share:g} of the points under their own EM")
+    return _with(ident, learned=replace(ident.learned, em=replace(em, Q=q)), level_backoff=info)
+
+
+def _with(ident: Identification, **changes) -> Identification:
+    """A copy of ``ident`` with ``changes``, keeping the borrowed map's order (``recognition_m``)."""
+    out = replace(ident, **changes)
+    if hasattr(ident, "recognition_m"):
+        out.recognition_m = ident.recognition_m
+    return out

@@ -11,6 +11,7 @@ import numpy as np
 
 from app.config import SurveyConfig
 from app.core.mjls_em import fit_em
+from app.core.recognition import stationary_distribution
 from app.pipeline.stages.regularization import Regularized
 
 
@@ -59,14 +60,6 @@ def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
     em = results[(best["n_q"], best["n_r"])]
     selection = {"criterion": "BIC" if len(table) > 1 else "fixed", "candidates": table, "chosen": best["model"]}
     return em, selection
-
-
-def stationary_distribution(a: np.ndarray) -> np.ndarray:
-    """Stationary distribution of the transition matrix ``a`` (rows sum to 1)."""
-    w, v = np.linalg.eig(a.T)
-    k = int(np.argmin(np.abs(w - 1.0)))
-    pi = np.abs(np.real(v[:, k]))
-    return pi / pi.sum()
 
 
 @dataclass
