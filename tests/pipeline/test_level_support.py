@@ -9,8 +9,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from app.core.recognition import level_shares
-from app.pipeline.stages.identification import Identification, level_support
+from app.core.mjls_em import EMResult
+from app.core.recognition import last_supported_iteration, level_shares, stationary_distribution
+from app.pipeline.stages.identification import Identification, back_off_levels, level_support
+from app.pipeline.stages.learning import Learned
 from app.pipeline.stages.recognition import Recognition
 
 
@@ -75,3 +77,68 @@ def test_points_without_finite_posteriors_are_left_out_and_never_stop_the_proces
     empty.table.iloc[:] = np.nan
     rep, warnings = level_support(_ident(_recognition(0.01), empty), 0.02, 0.1)
     assert rep["share_map"] is None and rep["unsupported"] == [] and warnings == []
+
+
+# ----------------------------------------------------------------- the level as learned before it emptied
+def _chain(high_share: float, n_r: int = 2, stay: float = 0.9) -> np.ndarray:
+    """A 2-level × n_r transition matrix whose stationary distribution gives anomaly level 1
+    ``high_share`` of the steps (closed form of a two-state chain: π₁ = p / (p + q) for leaving
+    rates p (0 → 1) and q (1 → 0); the noise levels are entered uniformly)."""
+    q = 1.0 - stay
+    p = q * high_share / (1.0 - high_share)
+    lvl = np.array([[1.0 - p, p], [q, 1.0 - q]])
+    return np.kron(lvl, np.full((n_r, n_r), 1.0 / n_r))
+
+
+def test_stationary_distribution_and_last_supported_iteration_by_closed_form():
+    for share in (0.5, 0.1, 0.02, 0.001):
+        np.testing.assert_allclose(level_shares(stationary_distribution(_chain(share))[None], 2),
+                                   [1.0 - share, share], atol=1e-12)
+    chains = [_chain(s) for s in (0.5, 0.1, 0.03, 0.021, 0.019, 0.005)]
+    assert last_supported_iteration(chains, 2, 0.02) == 3
+    assert last_supported_iteration(chains, 2, 0.2) == 0
+    assert last_supported_iteration(chains[4:], 2, 0.02) is None
+    with pytest.raises(ValueError, match="stochastic"):
+        stationary_distribution(2 * _chain(0.1))
+
+
+def _emptied(shares, qs, q_final=(0.004, 0.13)) -> Identification:
+    """A borrowed-map identification whose m = 2 EM records (Q levels ``qs``, chains giving the
+    high level ``shares`` of the steps) end with the high level at 1 % of the points while the
+    map applies it to 54 %."""
+    records = [{"iteration": k, "Q": list(q), "R": [1.0, 3.0], "objective": float(k), "transition": _chain(s).tolist()}
+               for k, (s, q) in enumerate(zip(shares, qs))]
+    em = EMResult(np.array(q_final), np.array([1.0, 3.0]), _chain(shares[-1]), np.full((1, 4), 0.25), 0.0,
+                  records, False, [0], [], 3)
+    learned = Learned(em, {}, [], [True], records)
+    ident = Identification(2, None, learned, _recognition(0.54), 1000, [], own_recognition=_recognition(0.01))
+    ident.recognition_m = 1
+    return ident
+
+
+def test_an_emptied_level_is_filtered_at_its_value_before_it_emptied():
+    shares = [0.5, 0.1, 0.05, 0.021, 0.01, 0.001]
+    qs = [(0.008, 0.07), (0.003, 0.027), (0.003, 0.021), (0.0033, 0.024), (0.0035, 0.05), (0.004, 0.13)]
+    out = back_off_levels(_emptied(shares, qs), 0.02, 0.1)
+    # iteration 3 is the last whose chain gives the high level >= 2 %; the low level keeps its final value
+    np.testing.assert_allclose(out.learned.em.Q, [0.004, 0.024])
+    assert out.recognition_m == 1 and out.recognition is not None and out.own_recognition is not None
+    assert out.level_backoff["iteration"] == 3 and out.level_backoff["Q_em_mgal2"] == [0.004, 0.13]
+    np.testing.assert_allclose(out.level_backoff["share_at_iteration"], [0.979, 0.021], atol=1e-9)
+    rep, warnings = level_support(out, 0.02, 0.1)
+    assert rep["Q_mgal2"] == [0.004, 0.13] and rep["unsupported"] == [1] and rep["backoff"]["iteration"] == 3
+    assert len(warnings) == 1 and "iteration 3 (0.024 mGal²)" in warnings[0]
+
+
+def test_backoff_leaves_supported_or_unrecoverable_levels_alone():
+    qs = [(0.008, 0.07)] * 3
+    supported = _emptied([0.5, 0.3, 0.3], qs)
+    supported.own_recognition = _recognition(0.3)             # its own EM learned it on 30 %
+    assert back_off_levels(supported, 0.02, 0.1) is supported
+    never = back_off_levels(_emptied([0.01, 0.01, 0.01], qs), 0.02, 0.1)
+    assert never.level_backoff["iteration"] is None and "no iteration" in never.level_backoff["reason"]
+    np.testing.assert_allclose(never.learned.em.Q, [0.004, 0.13])
+    # the earlier value would fall below the smooth level: the levels would no longer ascend
+    inverted = back_off_levels(_emptied([0.5, 0.1, 0.001], [(0.008, 0.07), (0.01, 0.003), (0.004, 0.13)]), 0.02, 0.1)
+    assert inverted.level_backoff["iteration"] is None and "ascend" in inverted.level_backoff["reason"]
+    np.testing.assert_allclose(inverted.learned.em.Q, [0.004, 0.13])

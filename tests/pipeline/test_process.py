@@ -35,7 +35,7 @@ def test_outputs_follow_spec(tiny_processed):
     for s in ident["states"]:
         assert set(s) == {"index", "Q", "R"}
     support = report["identification"]["level_support"]   # where the EM and the map put each level
-    assert support["Q_mgal2"] == report["identification"]["Q_mgal2"]
+    assert support["Q_mgal2"] == report["identification"]["Q_mgal2"] and "backoff" in support
     for key in ("share_em", "share_map"):
         assert len(support[key]) == len(support["Q_mgal2"]) and abs(sum(support[key]) - 1.0) < 1e-9
     rows = ident["em"]["iterations"]

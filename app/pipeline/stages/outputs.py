@@ -64,6 +64,7 @@ def build_report(survey_name: str, crs: str, table: pd.DataFrame, flights: dict,
     figures the data alone give (crossovers, repeat lines), warnings.  The caller adds the
     sections of the other stages (noise model, model choice, base ties, timings …)."""
     em = ident.learned.em
+    backoff = getattr(ident, "level_backoff", None)
     rep = {
         "survey": survey_name,
         "crs": crs,
@@ -75,7 +76,9 @@ def build_report(survey_name: str, crs: str, table: pd.DataFrame, flights: dict,
         "spike_repair": {n: m.despike for n, m in flights.items()},
         "gnss_filled_epochs": {n: int(m.gnss_filled) for n, m in flights.items()},
         "crossovers": leveled.report,
-        "identification": {"Q_mgal2": np.asarray(em.Q).tolist(), "R_cm2s2": np.asarray(em.R).tolist(),
+        # the EM's levels (a level it emptied is filtered with an earlier iteration's: level_support.backoff)
+        "identification": {"Q_mgal2": np.asarray(em.Q if backoff is None else backoff["Q_em_mgal2"]).tolist(),
+                           "R_cm2s2": np.asarray(em.R).tolist(),
                            "transition": np.asarray(em.transition).tolist()},
         "warnings": warnings,
     }
