@@ -445,8 +445,9 @@ class ProcessingParams(_Strict):
                                            "level_support) when the state map applies a level below "
                                            "level_support_min_share to at least this share of the points")
     level_support_backoff: bool = Field(True, description="Such a level is filtered with its Q at the last EM "
-                                        "iteration where every level still held level_support_min_share of the "
-                                        "points (the level as learned from a terrain, before its state shed them)")
+                                        "iteration whose transition matrix still gave every level "
+                                        "level_support_min_share of the steps (the level as learned from a terrain, "
+                                        "before its state shed its points)")
     refine_levels: bool = Field(True, description="Re-estimate Q_i, R_j by full-rate Kalman likelihood given the "
                                 "recognised states (the decimated EM can collapse a smooth state's Q)")
     refine_lift_only: bool = Field(True, description="The refinement may only raise a Q level above the EM's, "

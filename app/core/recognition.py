@@ -178,7 +178,6 @@ def level_shares(probs, n_r: int) -> np.ndarray:
     return mass.mean(axis=0) / max(float(mass.sum(axis=1).mean()), np.finfo(float).tiny)
 
 
-
 def stationary_distribution(a) -> np.ndarray:
     """Stationary distribution of a Markov chain.
 
@@ -191,7 +190,9 @@ def stationary_distribution(a) -> np.ndarray:
     -------
     ndarray, shape (N,)
         The left eigenvector of ``a`` for eigenvalue 1, normalised to sum to 1: the long-run
-        share of the steps in each state.
+        share of the steps in each state (of the steps from the start the eigensolver's
+        eigenvector stands for when the chain has several closed classes, e.g. two absorbing
+        states: the long-run shares then depend on where the chain starts).
     """
     a = np.asarray(a, dtype=float)
     if a.ndim != 2 or a.shape[0] != a.shape[1] or a.shape[0] == 0:

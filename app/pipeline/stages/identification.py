@@ -137,7 +137,7 @@ def level_support(ident: Identification, min_share: float, map_share: float) -> 
     if backoff is not None and backoff.get("iteration") is not None:
         then = [f"{q_used:.3g} mGal²" for q_used in np.asarray(backoff["Q_used_mgal2"])[bad]]
         fate = (f"they are filtered with its level at EM iteration {backoff['iteration']} ({', '.join(then)}), "
-                "the last where every level held that share")
+                f"the last whose transitions gave every level {100 * min_share:.2g} % of the steps")
     else:
         fate = "those stretches are filtered with a level their data did not give"
     warnings = [f"anomaly level Q = {q[i]:.3g} mGal² (order m = {ident.m}) holds {100 * share_em[i]:.2g} % of the "
