@@ -120,6 +120,13 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     assert page.locator("#report-diff-table tbody tr").count() == 3
     assert page.locator("#report-crossover-table tbody tr").count() == 1
     assert page.locator("#report-em-selection tr.chosen").inner_text().startswith("2x1")
+    # where each level was learned and where it is applied: the emptied level, and the level it is filtered with
+    flagged = page.locator("#report-level-support tr.flagged")
+    assert flagged.count() == 1
+    cells = flagged.locator("td")
+    assert cells.nth(1).inner_text() == "0.353" and cells.nth(2).inner_text() == "0.062"
+    assert cells.nth(3).inner_text() == "1 %" and cells.nth(4).inner_text() == "54 %"
+    assert cells.last.inner_text() == "emptied by its EM: its level at iteration 14 used"
     assert page.locator("#report-noise-candidates tbody tr").count() == 2
     # the time stamps and the noise family's check against the FIR differences, with their evidence
     offsets = page.locator("#report-time-offsets tbody tr")

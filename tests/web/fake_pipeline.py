@@ -71,7 +71,14 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                        # (only a leveled survey has it; here to show how the page renders it)
                        "common_level": {"std_mgal": 2.5, "spread_mgal": 4.33, "n_units": 3, "n_crossovers": 12,
                                         "offsets_mgal": {"F01": 3.0, "F02": -1.0, "F03": -2.0}, "applied": True}},
-        "identification": {"Q_mgal2": [0.041, 0.353], "R_cm2s2": [1.679], "transition": [[0.98, 0.02], [0.03, 0.97]]},
+        "identification": {"Q_mgal2": [0.041, 0.353], "R_cm2s2": [1.679], "transition": [[0.98, 0.02], [0.03, 0.97]],
+                           # a level its EM emptied, filtered with its value of an earlier iteration
+                           "level_support": {"Q_mgal2": [0.041, 0.353], "share_em": [0.99, 0.01],
+                                             "share_map": [0.46, 0.54], "map_from_m": 1, "em_converged": False,
+                                             "unsupported": [1],
+                                             "backoff": {"Q_em_mgal2": [0.041, 0.353], "Q_used_mgal2": [0.041, 0.062],
+                                                         "iteration": 14, "share_at_iteration": [0.978, 0.022],
+                                                         "reason": "levels [1] held < 0.02 of the points"}}},
         "timings_s": {"ingest": 0.1, "learning": 0.2},
         "warnings": warnings,
         "repeat_lines": {"R1": {"repeats": 3, "internal_accuracy_mgal": {

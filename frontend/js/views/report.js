@@ -413,8 +413,26 @@ function identificationCard(r) {
       table(["State", "Q (mGal² per step)", "R ((cm/s)²)", "Stay probability"], id.states.map((s) => [`state ${s.index}`, fmt(s.Q, 4), fmt(s.R, 4),
         id.transition && id.transition[s.index] ? fmt(id.transition[s.index][s.index], 4) : "—"])));
   }
+  const levels = levelSupport(((r.report || {}).identification || {}).level_support);
+  if (levels) out.push(...levels);
   if (id.lines_skipped && Object.keys(id.lines_skipped).length) out.push(el("h4", {}, "Lines not identified"), readableView(id.lines_skipped));
   return out;
+}
+
+// each anomaly level: where its own EM learned it, where the state map applies it, and the level
+// filtered with (an emptied level at its value of an earlier EM iteration: identification.level_support)
+function levelSupport(ls) {
+  if (!ls || !Array.isArray(ls.Q_mgal2) || !ls.Q_mgal2.length) return null;
+  const bo = ls.backoff && ls.backoff.iteration !== null && ls.backoff.iteration !== undefined ? ls.backoff : null;
+  const used = bo ? bo.Q_used_mgal2 : ls.Q_mgal2;
+  const flagged = new Set(ls.unsupported || []);
+  const why = (i) => (!flagged.has(i) ? "" : bo ? `emptied by its EM: its level at iteration ${bo.iteration} used`
+    : "emptied by its EM: filtered with its final level");
+  return [el("h4", {}, `Anomaly levels: where their own EM learned them and where the state map (order m = ${ls.map_from_m ?? "—"}'s) applies them`),
+    table(["Level", "Q learned (mGal² per step)", "Q filtered with", "Share under its own EM", "Share under the map", ""],
+      ls.Q_mgal2.map((q, i) => ({ attrs: { class: flagged.has(i) ? "flagged" : "" }, cells: [`level ${i}`, fmt(q, 4),
+        fmt(used[i], 4), pct(ls.share_em ? ls.share_em[i] : null), pct(ls.share_map ? ls.share_map[i] : null), why(i)] })),
+      { id: "report-level-support" })];
 }
 
 // the top of the panel: what the result is, the warnings (first, boxed), the decisions in words
