@@ -165,7 +165,7 @@ def back_off_levels(ident: Identification, min_share: float, map_share: float) -
     if not bad:
         return ident
     em = ident.learned.em
-    records = [r for r in em.iterations if len(r.get("Q", ())) == len(em.Q) and len(r.get("R", ())) == len(em.R)]
+    records = list(em.iterations)   # this fit's own iteration table (the candidates' other fits are not in it)
     q_em = np.asarray(em.Q, dtype=float)
     info = {"Q_em_mgal2": q_em.tolist(), "Q_used_mgal2": q_em.tolist(), "iteration": None}
     if not records or any(len(r.get("transition", ())) != len(em.Q) * len(em.R) for r in records):
