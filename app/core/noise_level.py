@@ -363,3 +363,61 @@ def band_fit_coefficient(y_mgal, x, dt_s: float, band_hz: tuple[float, float], u
     se = float(np.sqrt(ss_after / sxx / max(dof - 1.0, 1.0)))
     return BandFit(float(c), se, float(np.sqrt(syy / n)), float(np.sqrt(ss_after / n)), n, float(dof))
 
+
+
+class Run(NamedTuple):
+    """One stretch of :func:`elevated_runs`: samples ``start`` … ``stop − 1``."""
+
+    start: int
+    stop: int
+
+
+def elevated_runs(values, t_s, threshold: float, min_duration_s: float = 0.0,
+                  bridge_s: float = 0.0) -> list[Run]:
+    """Stretches of a series above a threshold (the noise episodes of a line's R(t)).
+
+    A stretch is a maximal run of consecutive samples with ``values > threshold``; two
+    stretches whose gap (from the last sample of one to the first of the next) is at most
+    ``bridge_s`` are one stretch; a stretch is kept when it lasts at least ``min_duration_s``,
+    its duration being ``t[stop − 1] − t[start]`` plus the median sample step (one sample
+    lasts one step).  NaN values are never above the threshold.
+
+    Parameters
+    ----------
+    values : ndarray, shape (n,)
+        The series (any unit, e.g. R(t) in (cm/s)²).
+    t_s : ndarray, shape (n,)
+        Sample times (s), finite and strictly increasing.
+    threshold : float
+        Level (the unit of ``values``).
+    min_duration_s, bridge_s : float
+        Shortest stretch kept, longest gap bridged (s, ≥ 0).
+
+    Returns
+    -------
+    list of Run
+        In time order, not overlapping.
+    """
+    v = np.asarray(values, dtype=float)
+    t = np.asarray(t_s, dtype=float)
+    if v.ndim != 1 or t.shape != v.shape:
+        raise ValueError(f"values and t_s must be one-dimensional of one length, got {v.shape} and {t.shape}")
+    if not np.all(np.isfinite(t)) or (t.size > 1 and not np.all(np.diff(t) > 0)):
+        raise ValueError("t_s must be finite and strictly increasing")
+    if not np.isfinite(threshold):
+        raise ValueError(f"threshold must be finite, got {threshold}")
+    if not (min_duration_s >= 0 and bridge_s >= 0):
+        raise ValueError("min_duration_s and bridge_s must be >= 0")
+    if v.size == 0:
+        return []
+    step = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    above = np.concatenate([[False], np.nan_to_num(v, nan=-np.inf) > threshold, [False]])
+    edges = np.flatnonzero(np.diff(above.astype(np.int8)))
+    starts, stops = edges[0::2], edges[1::2]
+    runs: list[list[int]] = []
+    for a, b in zip(starts, stops):
+        if runs and t[a] - t[runs[-1][1] - 1] <= bridge_s:
+            runs[-1][1] = int(b)
+        else:
+            runs.append([int(a), int(b)])
+    return [Run(a, b) for a, b in runs if t[b - 1] - t[a] + step >= min_duration_s]

@@ -198,3 +198,52 @@ def test_band_fit_of_unrelated_records_and_bad_input():
     with pytest.raises(ValueError, match="band_hz"):
         band_fit_coefficient(e, x, dt, (0.02, 1.5))
 
+
+
+def test_elevated_runs_by_hand():
+    from app.core.noise_level import Run, elevated_runs
+
+    t = np.arange(20.0) * 0.5                       # 2 Hz
+    v = np.zeros(20)
+    v[2:5] = 5.0                                    # 1.0–2.0 s: three samples, 1.5 s
+    v[6:8] = 5.0                                    # 3.0–3.5 s: gap 1.0 s after the first
+    v[15] = 9.0                                     # one sample, 0.5 s
+    v[10] = np.nan                                  # NaN is never above
+    assert elevated_runs(v, t, 1.0) == [Run(2, 5), Run(6, 8), Run(15, 16)]
+    assert elevated_runs(v, t, 1.0, bridge_s=1.0) == [Run(2, 8), Run(15, 16)]
+    assert elevated_runs(v, t, 1.0, bridge_s=0.99) == [Run(2, 5), Run(6, 8), Run(15, 16)]
+    assert elevated_runs(v, t, 1.0, min_duration_s=1.5) == [Run(2, 5)]
+    assert elevated_runs(v, t, 1.0, min_duration_s=1.51) == []
+    assert elevated_runs(v, t, 1.0, min_duration_s=2.0, bridge_s=1.0) == [Run(2, 8)]
+    assert elevated_runs(v, t, 6.0) == [Run(15, 16)]
+    assert elevated_runs(np.full(4, 2.0), np.arange(4.0), 1.0) == [Run(0, 4)]   # to both ends
+    assert elevated_runs(np.zeros(0), np.zeros(0), 1.0) == []
+
+
+def test_elevated_runs_rejects_bad_input():
+    from app.core.noise_level import elevated_runs
+
+    with pytest.raises(ValueError, match="increasing"):
+        elevated_runs(np.zeros(3), np.array([0.0, 2.0, 1.0]), 1.0)
+    with pytest.raises(ValueError, match="one length"):
+        elevated_runs(np.zeros(3), np.arange(4.0), 1.0)
+    with pytest.raises(ValueError, match="threshold"):
+        elevated_runs(np.zeros(3), np.arange(3.0), np.nan)
+    with pytest.raises(ValueError, match=">= 0"):
+        elevated_runs(np.zeros(3), np.arange(3.0), 1.0, min_duration_s=-1.0)
+
+
+def test_band_level_episode_is_found_where_it_was_drawn():
+    # white velocity noise with a ×4 std episode (R ×16) at 2000–2600 s: the band level R(t)
+    # above 4× its median marks that stretch, to within the 60 s averaging window
+    from app.core.noise_level import elevated_runs
+
+    rng = np.random.default_rng(7)
+    n = 60_000
+    sig = np.full(n + 1, 1.0)
+    sig[20_000:26_000] *= 4.0
+    r = band_noise_variance_cm2s2(_z_noise(rng.standard_normal(n + 1) * sig), DT)
+    t = np.arange(n) * DT
+    runs = elevated_runs(r, t, 4.0 * np.median(r), min_duration_s=30.0, bridge_s=10.0)
+    assert len(runs) == 1
+    assert abs(t[runs[0].start] - 2000.0) < 30.0 and abs(t[runs[0].stop - 1] - 2600.0) < 30.0
