@@ -518,6 +518,13 @@ class ProcessingParams(_Strict):
                                     "largest changes were losses (docs/MEASUREMENTS.md, session 20)")
     noise_band_hz: tuple[float, float] = Field((0.1, 0.5), description="Band (Hz) in which the 'band' noise "
                                                "model measures the local GNSS noise level")
+    noise_episode_factor: float = Field(4.0, gt=1, le=1e6, description="Report (and warn of) the stretches of the lines "
+                                        "where the noise level the smoother used, R(t), exceeds this many times the "
+                                        "survey's typical level (its median over the lines' epochs): the report's "
+                                        "noise_episodes.  Nothing is filtered differently")
+    noise_episode_min_s: float = Field(30.0, ge=0, le=1e5, description="Shortest noise episode listed (s)")
+    noise_episode_bridge_s: float = Field(10.0, ge=0, le=1e5, description="Gaps up to this long (s) inside a noise "
+                                          "episode are bridged (one episode, not two)")
     noise_family: Literal["auto", "white velocity", "Gauss-Markov velocity", "white height", "coloured height",
                           "white + Gauss-Markov velocity", "velocity + height", "white velocity + coloured height",
                           "white + coloured height", "coloured velocity + height"] = Field(
@@ -783,7 +790,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("noise_level_unmix", "noise_corner_check", "noise_corner_alpha", "noise_family_check", "noise_family_alpha",
       "white_level_bounded", "white_level_fitted", "noise_fit_repeats", "em_level_scale_min", "noise_height_tau_min_s",
       "noise_knee_max_fraction", "noise_fit_octave_weights", "noise_anomaly_rolloff", "noise_fit_fmax_hz",
-      "noise_fit_min_s", "noise_velocity_bound", "noise_velocity_bound_fmax_hz", "noise_velocity_bound_quantile")),
+      "noise_fit_min_s", "noise_velocity_bound", "noise_velocity_bound_fmax_hz", "noise_velocity_bound_quantile",
+      "noise_episode_factor", "noise_episode_min_s", "noise_episode_bridge_s")),
     ("order", "Anomaly model: the order m",
      ("m", "model_order"),
      ("recognition_order", "order_choice_p", "order_blend")),

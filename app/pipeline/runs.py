@@ -33,7 +33,7 @@ from app.pipeline.stages.leveling import add_common_level_std, level_survey, rea
 from app.pipeline.stages.lines import survey_lines
 from app.pipeline.stages.measurement import measure
 from app.pipeline.stages.model_order import candidate_orders, choose_model_order
-from app.pipeline.stages.noise import check_noise_corners, check_noise_family, model_noise
+from app.pipeline.stages.noise import check_noise_corners, check_noise_family, model_noise, noise_episodes
 from app.pipeline.stages.outputs import build_report, identification_json, write_outputs
 from app.pipeline.stages.products import apply_products, flight_height_table, refresh_bouguer
 from app.pipeline.stages.recognition import state_map
@@ -351,9 +351,7 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     tr.close()
     report = build_report(survey_name or cfg.survey.name, idf.crs, table, idf.flights, leveled, best.ident, grid,
                           warnings)
-    support, support_warnings = level_support(best.ident, p.level_support_min_share, p.level_support_map_share)
-    report["identification"]["level_support"] = support
-    warnings.extend(support_warnings)
+    _add_noted_sections(report, best.ident, table, p, warnings)
     report.update(idf.measurement_report)
     report["noise_model"] = idf.noise.describe()
     report["model_choice"] = choice.report
@@ -363,6 +361,18 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
         "free_air_flight_height": "grid_flight" if grid_flight is not None else None}}
     _add_filter_sections(report, best.filtered.report(p), grid, {**idf.timings, **tr.timings})
     return report
+
+
+def _add_noted_sections(report: dict, ident, table, p, warnings: list) -> None:
+    """The report's sections that only say what the analyst should know (in place, each with its
+    warnings): where each anomaly level is learned and applied (``identification.level_support``),
+    and the lines' noise episodes (``noise_episodes``)."""
+    support, support_warnings = level_support(ident, p.level_support_min_share, p.level_support_map_share)
+    report["identification"]["level_support"] = support
+    warnings.extend(support_warnings)
+    report["noise_episodes"], episode_warnings = noise_episodes(table, p.noise_episode_factor, p.noise_episode_min_s,
+                                                                p.noise_episode_bridge_s)
+    warnings.extend(episode_warnings)
 
 
 def _add_filter_sections(report: dict, level_rep: dict | None, grid, timings: dict) -> None:

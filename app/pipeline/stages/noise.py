@@ -7,7 +7,9 @@
 * :func:`noise_levels` — the local level R(t) of every flight, measured in that band;
 * :func:`level_scale` — the factor that carries the measured level to the fitted model's.
 
-:func:`model_noise` runs the three and returns a :class:`NoiseStage`.
+:func:`model_noise` runs the three and returns a :class:`NoiseStage`.  After filtering,
+:func:`noise_episodes` lists the stretches of the lines where the level the smoother used was
+far above the survey's typical one (the report's ``noise_episodes``).
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ from app.core.accuracy import REPEAT_MAX_SPREAD_KM, across_track_spread_km
 from app.core.geodesy import MGAL_PER_MS2
 from app.core.measurement import gnss_acceleration_ms2, height_velocity_misfit_m, response_prediction_mgal
 from app.core.model_check import difference_nll, fir_noise_variance_mgal2, noise_overstated, repeat_contrasts
-from app.core.noise_level import band_noise_variance_cm2s2, local_noise_variance_cm2s2
+from app.core.noise_level import band_noise_variance_cm2s2, elevated_runs, local_noise_variance_cm2s2
 from app.core.noise_model import FAMILIES, VelocityBound, fit_noise_model, pass_differences, velocity_bound
 from app.pipeline.stages.lines import LineData, finite_segments, line_crossovers
 from app.pipeline.stages.measurement import FlightMeasurement
@@ -501,3 +503,87 @@ def predicted_fir_variance_mgal2(stage: NoiseStage, lines: list[LineData], dt_s:
     level = float(np.median(np.concatenate([stage.r_local[ln.flight][ln.sl][np.isfinite(ln.z_mgal)]
                                             for ln in lines])))
     return fir_noise_variance_mgal2(stage.model, level, dt_s, p.fir_cutoff_period_s)
+
+
+def noise_episodes(table, factor: float, min_duration_s: float, bridge_s: float) -> tuple[dict, list[str]]:
+    """The stretches of the lines where the noise level the smoother used, R(t) (the table's
+    ``R_cm2s2``), exceeds ``factor`` × the survey's typical level (its median over the lines'
+    epochs) for at least ``min_duration_s`` (gaps up to ``bridge_s`` bridged:
+    :func:`app.core.noise_level.elevated_runs`), for the report and a warning.
+
+    There the smoother leans on the anomaly model more than elsewhere and ``dg_std_mgal`` is
+    wider.  R(t) is measured in :func:`level_band` and carried to the anomaly band with the
+    survey's noise shape; an episode whose error has another shape — multipath in positions
+    differentiated to velocities, whose error falls towards low frequencies — holds less noise
+    in the anomaly band than R(t) says, and the estimate can be worse than FIR 100 s there (the
+    independent generator's survey 994, line M004: 5.0 against FIR's 1.4 mGal over a 270 s
+    episode of 16× the typical level).
+
+    Parameters
+    ----------
+    table : DataFrame
+        One row per epoch of the lines in time order within each line: ``line``, ``flight``,
+        ``time`` (s), ``easting_km``, ``northing_km``, ``R_cm2s2``, ``dg_std_mgal``.
+    factor : float
+        Threshold over the typical level (> 1).
+    min_duration_s, bridge_s : float
+        Shortest episode listed, longest gap bridged (s).
+
+    Returns
+    -------
+    (dict, list of str)
+        The report's ``noise_episodes`` (typical level, threshold, the episodes with their line,
+        times, along-line km, peak and mean level over the typical one, mean std against the
+        line's median std outside its episodes) and the warnings.
+    """
+    r_all = table["R_cm2s2"].to_numpy(float)
+    ok = np.isfinite(r_all) & (r_all > 0)
+    rep = {"factor": float(factor), "min_duration_s": float(min_duration_s), "bridge_s": float(bridge_s),
+           "typical_R_cm2s2": None, "threshold_R_cm2s2": None, "episodes": [], "lines": [], "epoch_fraction": 0.0}
+    if not ok.any():
+        return rep, []
+    typical = float(np.median(r_all[ok]))
+    rep.update({"typical_R_cm2s2": typical, "threshold_R_cm2s2": factor * typical})
+    n_in = 0
+    for line, g in table.groupby("line", sort=False):
+        t = g["time"].to_numpy(float)
+        if t.size < 2 or not np.all(np.diff(t) > 0):
+            continue
+        r = g["R_cm2s2"].to_numpy(float)
+        std = g["dg_std_mgal"].to_numpy(float)
+        along = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(g["easting_km"].to_numpy(float)),
+                                                          np.diff(g["northing_km"].to_numpy(float))))])
+        runs = elevated_runs(r, t, factor * typical, min_duration_s, bridge_s)
+        if not runs:
+            continue
+        inside = np.zeros(t.size, bool)
+        for a, b in runs:
+            inside[a:b] = True
+        quiet = std[~inside & np.isfinite(std)]
+        for a, b in runs:
+            seg, sd = r[a:b], std[a:b]
+            rep["episodes"].append({
+                "line": str(line), "flight": str(g["flight"].iloc[a]), "t_start_s": float(t[a]),
+                "t_end_s": float(t[b - 1]), "duration_s": float(t[b - 1] - t[a]),
+                "along_start_km": float(along[a]), "along_end_km": float(along[b - 1]),
+                "R_peak_over_typical": float(np.nanmax(seg) / typical),
+                "R_mean_over_typical": float(np.nanmean(seg) / typical),
+                "std_mean_mgal": float(np.nanmean(sd)) if np.isfinite(sd).any() else None,
+                "std_line_quiet_mgal": float(np.median(quiet)) if quiet.size else None})
+        n_in += int(inside.sum())
+    rep["lines"] = sorted({e["line"] for e in rep["episodes"]})
+    rep["epoch_fraction"] = n_in / max(1, len(table))
+    if not rep["episodes"]:
+        return rep, []
+    ep = rep["episodes"]
+    worst = max(ep, key=lambda e: e["R_peak_over_typical"])
+    where = ", ".join(f"{e['line']} {e['along_start_km']:.0f}–{e['along_end_km']:.0f} km" for e in ep[:6])
+    more = f" and {len(ep) - 6} more" if len(ep) > 6 else ""
+    warning = (f"noise episodes: {len(ep)} stretch{'es' if len(ep) > 1 else ''} of {len(rep['lines'])} "
+               f"line{'s' if len(rep['lines']) > 1 else ''} ({where}{more}; {100 * rep['epoch_fraction']:.1f} % of "
+               f"the epochs) where the noise level R(t) exceeds {factor:g}× the survey's typical "
+               f"{typical:.3g} (cm/s)², up to {worst['R_peak_over_typical']:.0f}× on {worst['line']}: the "
+               "estimate there leans on the anomaly model and its std is wider; where the episode's error "
+               "is not the survey's shape (multipath in positions) it can be worse than FIR 100 s — compare "
+               "the two on those stretches")
+    return rep, [warning]
