@@ -128,6 +128,10 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     assert cells.nth(3).inner_text() == "1 %" and cells.nth(4).inner_text() == "54 %"
     assert cells.last.inner_text() == "emptied by its EM: its level at iteration 14 used"
     assert page.locator("#report-noise-candidates tbody tr").count() == 2
+    # the noise episodes: where on which line, how far above the typical level, the std there and elsewhere
+    ep = page.locator("#report-noise-episodes tbody tr")
+    assert ep.count() == 1
+    assert ep.first.inner_text().split("\t") == ["M004", "F02", "0–18.3", "226.5", "18.8", "13.7", "7.75", "3.78"]
     # the time stamps and the noise family's check against the FIR differences, with their evidence
     offsets = page.locator("#report-time-offsets tbody tr")
     assert "\t1.9\t" in offsets.nth(0).inner_text() and offsets.nth(0).locator("td").nth(-2).inner_text() == "yes"

@@ -80,6 +80,12 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                                                          "iteration": 14, "share_at_iteration": [0.978, 0.022],
                                                          "reason": "levels [1] held < 0.02 of the points"}}},
         "timings_s": {"ingest": 0.1, "learning": 0.2},
+        "noise_episodes": {"factor": 4.0, "min_duration_s": 30.0, "bridge_s": 10.0, "typical_R_cm2s2": 0.55,
+                           "threshold_R_cm2s2": 2.2, "lines": ["M004"], "epoch_fraction": 0.09,
+                           "episodes": [{"line": "M004", "flight": "F02", "t_start_s": 1200.0, "t_end_s": 1426.5,
+                                         "duration_s": 226.5, "along_start_km": 0.0, "along_end_km": 18.3,
+                                         "R_peak_over_typical": 18.8, "R_mean_over_typical": 13.7,
+                                         "std_mean_mgal": 7.75, "std_line_quiet_mgal": 3.78}]},
         "warnings": warnings,
         "repeat_lines": {"R1": {"repeats": 3, "internal_accuracy_mgal": {
             "dg_mgal": 3.73, "dg_fir_mgal": 2.10, "dg_stationary_mgal": 1.17}}},

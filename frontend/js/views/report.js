@@ -343,13 +343,13 @@ const TITLES = {
   calibration: "In-flight calibration", grid_std_cross_validation: "Grid σ cross-validation", products: "Products (atmosphere, datum, terrain, grids)",
   repeat_tracks_inferred: "Repeat tracks inferred from positions", model_order_candidates: "Anomaly orders identified",
   adaptive_minus_fir: "Adaptive − FIR 100 s per line (before leveling)", reused_identification: "Identification reused (filter job)",
-  model_order_likelihood: "Model order by likelihood",
+  model_order_likelihood: "Model order by likelihood", noise_episodes: "Noise episodes (where R(t) was far above its typical level)",
 };
 // shown in the header (survey, CRS), the warnings box and the timings (threads)
 const SKIP = new Set(["warnings", "survey", "crs", "threads"]);
 // the sections in the order an analyst reads them: accuracy, the estimate's choices, the noise and the
 // identification, what the measurement decided, then the rest; sections the page does not know follow
-const ORDER = ["crossovers", "repeat_lines", "adaptive_minus_fir", "model_choice", "noise_model", "model_order", "model_order_candidates",
+const ORDER = ["crossovers", "repeat_lines", "adaptive_minus_fir", "model_choice", "noise_model", "noise_episodes", "model_order", "model_order_candidates",
   "identification", "spike_repair", "base_ties", "time_offsets", "lag_check", "band_delay", "gnss_filled_epochs", "calibration",
   "level_refinement", "products", "grid", "repeat_tracks_inferred", "counts", "timings_s"];
 
@@ -380,7 +380,25 @@ function timings(v, rep) {
   rep.threads !== undefined ? el("p", { class: "note" }, `Lines filtered on ${rep.threads} thread(s) (the outputs do not depend on it).`) : null];
 }
 
+// the stretches where the noise level the smoother used was far above the survey's typical one
+function noiseEpisodes(v) {
+  if (!v || typeof v !== "object") return [readableView(v, TITLES)];
+  const eps = Array.isArray(v.episodes) ? v.episodes : [];
+  const head = el("p", { class: "note" }, v.typical_R_cm2s2 === null || v.typical_R_cm2s2 === undefined
+    ? "No noise level R(t) on the lines."
+    : `Stretches of at least ${fmt(v.min_duration_s, 3)} s where R(t) exceeds ${fmt(v.factor, 3)}× the survey's typical `
+      + `${fmt(v.typical_R_cm2s2, 3)} (cm/s)² (gaps up to ${fmt(v.bridge_s, 3)} s bridged): the estimate there leans on the `
+      + "anomaly model and its std is wider; compare it with FIR 100 s on the line's profile. Nothing was filtered differently.");
+  if (!eps.length) return [head, el("p", { id: "report-noise-episodes" }, "None.")];
+  return [head, el("div", { class: "scroll" }, table(["Line", "Flight", "Along line (km)", "Duration (s)", "R peak / typical",
+    "R mean / typical", "Std there (mGal)", "Std elsewhere on the line (mGal)"],
+  eps.map((e) => ({ attrs: { "data-line": e.line }, cells: [e.line, e.flight, `${fmt(e.along_start_km, 3)}–${fmt(e.along_end_km, 3)}`,
+    fmt(e.duration_s, 3), fmt(e.R_peak_over_typical, 3), fmt(e.R_mean_over_typical, 3), fmt(e.std_mean_mgal, 3),
+    fmt(e.std_line_quiet_mgal, 3)] })), { id: "report-noise-episodes" }))];
+}
+
 Object.assign(RENDER, {
+  noise_episodes: (v) => noiseEpisodes(v),
   model_choice: (v) => modelChoice(v),
   timings_s: (v, r) => timings(v, r.report || {}),
   calibration: (v) => [v === null ? el("p", { class: "note" }, "Not run (no calibration lines).") : sectionView(v, TITLES)].flat(),
