@@ -131,7 +131,7 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     # the noise episodes: where on which line, how far above the typical level, the std there and elsewhere
     ep = page.locator("#report-noise-episodes tbody tr")
     assert ep.count() == 1
-    assert ep.first.inner_text().split("\t") == ["M004", "F02", "0–18.3", "226.5", "18.8", "13.7", "7.75", "3.78"]
+    assert ep.first.inner_text().split("\t") == ["L1", "f1", "0.5–1.8", "226.5", "18.8", "13.7", "7.75", "3.78"]
     # the time stamps and the noise family's check against the FIR differences, with their evidence
     offsets = page.locator("#report-time-offsets tbody tr")
     assert "\t1.9\t" in offsets.nth(0).inner_text() and offsets.nth(0).locator("td").nth(-2).inner_text() == "yes"
@@ -183,6 +183,13 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     legend = page.text_content("#profile-plot .legend")
     assert "not leveled" in legend and "(final, leveled)" not in legend
     assert page.locator("#profile-not-leveled").count() == 1
+    # the report's noise episode on this line: outlined over its km, in the legend and the status line
+    assert page.get_attribute("#profile-plot", "data-line") == "L1"
+    shapes = page.evaluate("() => document.querySelector('#profile-plot').layout.shapes"
+                           ".filter((s) => s.name === 'noise-episode').map((s) => [s.x0, s.x1])")
+    assert shapes == [[0.5, 1.8]]
+    assert "noise episode: R(t) over 4× its typical level" in legend
+    assert "noise episode (dashed): 0.5–1.8 km, R up to 18.8× typical" in page.inner_text("#profile-status")
     # the grid title says the level is relative
     _tab(page, "grid")
     page.wait_for_selector("#grid-plot .main-svg .gtitle", timeout=20000)

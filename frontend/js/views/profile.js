@@ -21,6 +21,12 @@ function stateShapes(x, state) {
   return shapes;
 }
 
+// the line's noise episodes (report noise_episodes): outlined, not filled, over both panels
+function episodeShapes(eps) {
+  return eps.map((e) => ({ type: "rect", xref: "x", yref: "paper", x0: e.along_start_km, x1: e.along_end_km, y0: 0, y1: 1,
+    fillcolor: "rgba(0,0,0,0)", line: { color: "#b2182b", width: 1.5, dash: "dash" }, layer: "above", name: "noise-episode" }));
+}
+
 let drawLine = null;  // (line) => select and draw it, set by render
 
 // a click on a line in a map brought us here: show that line
@@ -42,6 +48,8 @@ export async function render(sec, ctx) {
   const states = (report && report.identification && report.identification.states) || [];
   const levStatus = report ? report.leveling_status : null;
   const diffs = Object.fromEntries(((report && report.adaptive_minus_fir) || []).map((d) => [d.line, d]));
+  const ne = report && report.report ? report.report.noise_episodes : null;
+  const episodes = ne && Array.isArray(ne.episodes) ? ne.episodes : [];
   const withData = lines.filter((l) => l.stats);
   const sel = el("select", { id: "profile-line" }, withData.map((l) => el("option", { value: l.line },
     `${l.line} (${l.kind}, flight ${l.flight}, ${fmt(l.qc.length_km, 1)} km, σ̄ ${fmt(l.stats.sigma_mean_mgal, 2)} mGal)`)));
@@ -121,6 +129,11 @@ export async function render(sec, ctx) {
       traces.push({ x: [null], y: [null], type: "scatter", mode: "markers", name: `shaded: ${esc(stateLabel(states, k))}`, legendgroup: "states",
         marker: { symbol: "square", size: 13, color: stateColor(k), opacity: 0.35 }, hoverinfo: "skip" });
     }
+    const eps = episodes.filter((e) => e.line === p.line);
+    if (eps.length) {
+      traces.push({ x: [null], y: [null], type: "scatter", mode: "lines", name: `noise episode: R(t) over ${fmt(ne.factor, 3)}× its typical level`,
+        line: { color: "#b2182b", width: 1.5, dash: "dash" }, hoverinfo: "skip" });
+    }
     // y range from the filtered series (z can carry large transients at the line ends)
     const vals = [...lo, ...hi, ...p.dg_stationary, ...p.dg_fir, ...(p.dg_bouguer || []), ...(atDatum ? p.dg_flight : [])]
       .filter((v) => v !== null && Number.isFinite(v));
@@ -132,7 +145,7 @@ export async function render(sec, ctx) {
       yaxis: { title: { text: "Gravity anomaly δg (mGal)" }, range: vals.length ? [ymin - pad, ymax + pad] : undefined, domain: [0.36, 1] },
       yaxis2: { title: { text: "adaptive − FIR, σ (mGal)" }, domain: [0, 0.27], zeroline: true },
       legend: { orientation: "h", y: -0.12 },
-      shapes: stateShapes(x, p.state),
+      shapes: [...stateShapes(x, p.state), ...episodeShapes(eps)],
       hovermode: "x unified",
     };
     await Plotly.react(plot, traces, layout, plotConfig(`${s.name}-line-${p.line}`));
@@ -143,10 +156,12 @@ export async function render(sec, ctx) {
     if (track !== null && tc) tc.show(track);
     status.textContent = `${p.n_total} epochs (${p.step === 1 ? "all" : `1 in ${p.step}`} shown) · shaded bands: the recognised state where it is not state 0 (legend; colours as on the recognition map) · mean σ ${fmt(sigma.reduce((a, b) => a + b, 0) / Math.max(1, sigma.length), 3)} mGal` +
       (d ? ` · adaptive − FIR: RMS ${fmt(d.rms_mgal, 3)} mGal (std ${fmt(d.std_mgal, 3)})` : "") +
-      (track !== null ? ` · a pass of repeat track ${track}: its passes are overlaid in "Repeat track"` : "");
+      (track !== null ? ` · a pass of repeat track ${track}: its passes are overlaid in "Repeat track"` : "") +
+      (eps.length ? ` · noise episode${eps.length > 1 ? "s" : ""} (dashed): ${eps.map((e) => `${fmt(e.along_start_km, 3)}–${fmt(e.along_end_km, 3)} km, R up to ${fmt(e.R_peak_over_typical, 3)}× typical`).join("; ")} — the estimate leans on the anomaly model there` : "");
     plot.dataset.line = p.line;
     plot.dataset.leveled = leveled ? "1" : "0";
     plot.dataset.products = products.join(" ");
+    plot.dataset.episodes = String(eps.length);
   };
   const syncTitle = titleFromChoice(sel);
   drawLine = (line) => {
