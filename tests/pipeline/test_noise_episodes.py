@@ -50,6 +50,8 @@ def test_no_levels_no_episodes():
     table = _line("A", 0.0, 100, np.full(100, np.nan), np.full(100, 1.0))
     rep, warns = noise_episodes(table, 4.0, 30.0, 10.0)
     assert rep["typical_R_cm2s2"] is None and rep["episodes"] == [] and warns == []
+    rep, warns = noise_episodes(table.drop(columns="R_cm2s2"), 4.0, 30.0, 10.0)   # no level column at all
+    assert rep["typical_R_cm2s2"] is None and rep["episodes"] == [] and warns == []
 
 
 def test_episodes_are_where_the_simulator_drew_them(tmp_path):

@@ -536,7 +536,7 @@ def noise_episodes(table, factor: float, min_duration_s: float, bridge_s: float)
         times, along-line km, peak and mean level over the typical one, mean std against the
         line's median std outside its episodes) and the warnings.
     """
-    r_all = table["R_cm2s2"].to_numpy(float)
+    r_all = table["R_cm2s2"].to_numpy(float) if "R_cm2s2" in table else np.zeros(0)
     ok = np.isfinite(r_all) & (r_all > 0)
     rep = {"factor": float(factor), "min_duration_s": float(min_duration_s), "bridge_s": float(bridge_s),
            "typical_R_cm2s2": None, "threshold_R_cm2s2": None, "episodes": [], "lines": [], "epoch_fraction": 0.0}
