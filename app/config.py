@@ -518,6 +518,13 @@ class ProcessingParams(_Strict):
                                     "largest changes were losses (docs/MEASUREMENTS.md, session 20)")
     noise_band_hz: tuple[float, float] = Field((0.1, 0.5), description="Band (Hz) in which the 'band' noise "
                                                "model measures the local GNSS noise level")
+    noise_family_crossover_check: bool = Field(True, description="When the noise fit chose another family than "
+                                               "white velocity (the paper's) by fewer than twice the BIC margin, and "
+                                               "the survey has noise_family_crossover_min crossovers or more: identify "
+                                               "and filter again with white velocity and use it when its estimate "
+                                               "agrees significantly better at the crossovers (the order choice's "
+                                               "paired tests at order_choice_p).  Process jobs only")
+    noise_family_crossover_min: int = Field(20, ge=3, le=1_000_000, description="Crossovers needed for that check")
     noise_episode_factor: float = Field(4.0, gt=1, le=1e6, description="Report (and warn of) the stretches of the lines "
                                         "where the noise level the smoother used, R(t), exceeds this many times the "
                                         "survey's typical level (its median over the lines' epochs): the report's "
@@ -791,7 +798,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
       "white_level_bounded", "white_level_fitted", "noise_fit_repeats", "em_level_scale_min", "noise_height_tau_min_s",
       "noise_knee_max_fraction", "noise_fit_octave_weights", "noise_anomaly_rolloff", "noise_fit_fmax_hz",
       "noise_fit_min_s", "noise_velocity_bound", "noise_velocity_bound_fmax_hz", "noise_velocity_bound_quantile",
-      "noise_episode_factor", "noise_episode_min_s", "noise_episode_bridge_s")),
+      "noise_episode_factor", "noise_episode_min_s", "noise_episode_bridge_s", "noise_family_crossover_check",
+      "noise_family_crossover_min")),
     ("order", "Anomaly model: the order m",
      ("m", "model_order"),
      ("recognition_order", "order_choice_p", "order_blend")),

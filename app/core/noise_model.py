@@ -464,6 +464,9 @@ def velocity_bound(d_segments_m, dt_s: float, fmax_hz: float = 0.05, nw: float =
 
 # --------------------------------------------------------------------------- fit
 #: Candidate families: (name, [(order, phi free?)]).
+#: BIC units a richer noise family must gain over a simpler one to be chosen (:func:`fit_noise_model`)
+BIC_MARGIN = 10.0
+
 FAMILIES: tuple = (
     ("white velocity", ((1, False),)),
     ("Gauss-Markov velocity", ((1, True),)),
@@ -653,7 +656,7 @@ def knee_hz(phi: float, dt_s: float) -> float:
 
 def fit_noise_model(z_segments, dt_s: float, m: int = 2, fmax_hz: float = 0.2,
                     families=FAMILIES, nw: float = 3.0, min_duration_s: float = 120.0,
-                    n_starts: int = 4, seed: int = 0, bic_margin: float = 10.0,
+                    n_starts: int = 4, seed: int = 0, bic_margin: float = BIC_MARGIN,
                     differences=(), octave_weights: bool = False,
                     knee_max_fraction: float | None = None, hidden_knees: bool = True,
                     prefer_height: bool = False, height_tau_min_s: float = 20.0,

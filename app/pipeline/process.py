@@ -10,12 +10,21 @@ those of :mod:`app.pipeline.stages`, run by :mod:`app.pipeline.runs`.
 
 from __future__ import annotations
 
+import os
+import shutil
 from pathlib import Path
+
+import numpy as np
+import pandas as pd
 
 from app.io import export
 from app.io.survey import read_survey
 from app.pipeline.parallel import thread_count
-from app.pipeline.runs import PLANS, Progress, Tracker, run_filter, run_identify, save_identified
+from app.pipeline.runs import PLANS, Identified, Progress, Tracker, run_filter, run_identify, save_identified
+from app.pipeline.stages.noise import CHECK_FAMILY, family_check_due, family_crossover_choice
+
+#: where the noise family's crossover check writes the white-velocity run's outputs (removed after)
+FAMILY_CHECK_DIR = ".noise-family-check"
 
 
 def process_survey(survey_dir, out_dir, overrides: dict | None = None, progress: Progress | None = None,
@@ -49,11 +58,60 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None, progress:
     tr.start("ingest")
     survey = read_survey(survey_dir, overrides)
     identified = run_identify(survey, tr)
+    check, alternative = _family_alternative(survey_dir, overrides, identified, out, tr)
+    report = run_filter(identified, out, tr)
+    identified, report = _family_checked(check, alternative, identified, report, out)
     if keep_identification:
         save_identified(identified, out)
-    report = run_filter(identified, out, tr)
     export.write_json(report, out / "report.json")
     return report
+
+
+def _family_alternative(survey_dir, overrides: dict | None, identified: Identified, out: Path, tr: Tracker):
+    """The noise family's crossover check, first half (``noise_family_crossover_check``): when
+    :func:`~app.pipeline.stages.noise.family_check_due`, the survey identified and filtered again
+    with white velocity noise into ``<out>/.noise-family-check`` (stage "noise family check").
+    Returns (the check's record, None or (Identified, report, directory) of that run)."""
+    p = identified.cfg.processing
+    check = family_check_due(identified.noise.describe(), identified.n_crossovers, p)
+    if not check["due"]:
+        return check, None
+    tr.start("noise family check")
+    tmp = out / FAMILY_CHECK_DIR
+    silent = Tracker(None)
+    try:
+        alt_idf = run_identify(read_survey(survey_dir, {**(overrides or {}), "noise_family": CHECK_FAMILY}), silent)
+        alt_report = run_filter(alt_idf, tmp, silent)
+    except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError) as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        check["reason"] += f"; the white-velocity run failed ({exc}): the fit's family kept"
+        check["applied"] = False
+        return check, None
+    return check, (alt_idf, alt_report, tmp)
+
+
+def _family_checked(check: dict, alternative, identified: Identified, report: dict, out: Path):
+    """The noise family's crossover check, second half: the two runs compared at the
+    crossovers (:func:`~app.pipeline.stages.noise.family_crossover_choice`); when white velocity
+    wins, its outputs replace the first run's in ``out`` and its report and identification are
+    returned, with a warning.  The check's record goes in ``noise_model.crossover_check``."""
+    if alternative is not None:
+        alt_idf, alt_report, tmp = alternative
+        try:
+            family_crossover_choice(check, pd.read_csv(out / "crossovers.csv"), pd.read_csv(tmp / "crossovers.csv"),
+                                    identified.cfg.processing.order_choice_p)
+            if check["applied"]:
+                for f in sorted(tmp.iterdir()):
+                    if f.is_file():
+                        os.replace(f, out / f.name)
+                alt_report["timings_s"] = report.get("timings_s", alt_report.get("timings_s"))
+                alt_report["warnings"].append(f"noise family: {check['family']} was chosen by the spectra, "
+                                              f"{check['reason']}")
+                identified, report = alt_idf, alt_report
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+    report.setdefault("noise_model", {})["crossover_check"] = {k: v for k, v in check.items() if k != "due"}
+    return identified, report
 
 
 def _write_recognition_raw(out: Path, ident) -> None:

@@ -21,9 +21,16 @@ import numpy as np
 from app.core.accuracy import REPEAT_MAX_SPREAD_KM, across_track_spread_km
 from app.core.geodesy import MGAL_PER_MS2
 from app.core.measurement import gnss_acceleration_ms2, height_velocity_misfit_m, response_prediction_mgal
-from app.core.model_check import difference_nll, fir_noise_variance_mgal2, noise_overstated, repeat_contrasts
+from app.core.model_check import (
+    crossover_comparison,
+    difference_nll,
+    fir_noise_variance_mgal2,
+    noise_overstated,
+    repeat_contrasts,
+    significantly_worse,
+)
 from app.core.noise_level import band_noise_variance_cm2s2, elevated_runs, local_noise_variance_cm2s2
-from app.core.noise_model import FAMILIES, VelocityBound, fit_noise_model, pass_differences, velocity_bound
+from app.core.noise_model import BIC_MARGIN, FAMILIES, VelocityBound, fit_noise_model, pass_differences, velocity_bound
 from app.pipeline.stages.lines import LineData, finite_segments, line_crossovers
 from app.pipeline.stages.measurement import FlightMeasurement
 
@@ -587,3 +594,84 @@ def noise_episodes(table, factor: float, min_duration_s: float, bridge_s: float)
                "is not the survey's shape (multipath in positions) it can be worse than FIR 100 s — compare "
                "the two on those stretches")
     return rep, [warning]
+
+
+#: the family a crossover check falls back on: the paper's (seed 000) white velocity error
+CHECK_FAMILY = "white velocity"
+
+
+def family_check_due(noise_report: dict, n_crossovers: int, p) -> dict:
+    """Should the survey be identified and filtered again with white velocity noise
+    (``noise_family_crossover_check``)?  Due when the fit chose another family (``noise_family =
+    'auto'``) by fewer than ``2 × BIC_MARGIN`` BIC units over white velocity — a near tie the
+    spectra do not settle — and the survey has at least ``noise_family_crossover_min``
+    crossovers to compare the two estimates on.  The seed-10 white regime: coloured height by
+    10.9 units, 30 crossovers; filtered with it 1.04× FIR, with white velocity 0.91×.
+
+    Parameters
+    ----------
+    noise_report : dict
+        :meth:`NoiseStage.describe` (``family``, ``candidates`` with their ``bic``).
+    n_crossovers : int
+    p : ProcessingParams
+
+    Returns
+    -------
+    dict
+        ``{"due": bool, "family", "alternative", "bic_gap", "n_crossovers", "reason"}``.
+    """
+    family = str(noise_report.get("family"))
+    bic = {c.get("family"): c.get("bic") for c in noise_report.get("candidates") or []}
+    gap = (float(bic[CHECK_FAMILY]) - float(bic[family])
+           if bic.get(CHECK_FAMILY) is not None and bic.get(family) is not None else None)
+    rec = {"due": False, "family": family, "alternative": CHECK_FAMILY, "bic_gap": gap,
+           "n_crossovers": int(n_crossovers)}
+    limit = 2.0 * BIC_MARGIN
+    if not p.noise_family_crossover_check:
+        rec["reason"] = "off (noise_family_crossover_check)"
+    elif p.noise_family != "auto":
+        rec["reason"] = f"the family is set in survey.toml ({p.noise_family})"
+    elif family == CHECK_FAMILY:
+        rec["reason"] = "the fit chose white velocity"
+    elif gap is None:
+        rec["reason"] = "no BIC of both families to compare"
+    elif gap >= limit:
+        rec["reason"] = f"{family} beats white velocity by {gap:.1f} BIC units (≥ {limit:g}): settled by the spectra"
+    elif n_crossovers < p.noise_family_crossover_min:
+        rec["reason"] = (f"{n_crossovers} crossovers (< {p.noise_family_crossover_min}) cannot compare the two "
+                         "estimates")
+    else:
+        rec["due"] = True
+        rec["reason"] = (f"{family} beats white velocity by only {gap:.1f} BIC units (< {limit:g}): both filtered, "
+                         "compared at the crossovers")
+    return rec
+
+
+def family_crossover_choice(check: dict, cx_family, cx_alternative, p_level: float) -> dict:
+    """The noise family's crossover check decided (in place on ``check``, also returned):
+    white velocity replaces the family the fit chose when its estimate agrees significantly
+    better at the crossovers — the paired tests of the order choice on the crossover
+    differences before leveling (:func:`app.core.model_check.crossover_comparison`,
+    :func:`~app.core.model_check.significantly_worse` at ``p_level``).  ``cx_family``,
+    ``cx_alternative``: the two runs' ``crossovers.csv`` tables (line_a, line_b, easting_km,
+    northing_km, diff_before_mgal), which must list the same crossovers in the same order."""
+    same = (len(cx_family) == len(cx_alternative) and len(cx_family) > 0
+            and bool(np.all(cx_family["line_a"].to_numpy() == cx_alternative["line_a"].to_numpy()))
+            and bool(np.all(cx_family["line_b"].to_numpy() == cx_alternative["line_b"].to_numpy()))
+            and bool(np.allclose(cx_family["easting_km"].to_numpy(float), cx_alternative["easting_km"].to_numpy(float)))
+            and bool(np.allclose(cx_family["northing_km"].to_numpy(float), cx_alternative["northing_km"].to_numpy(float))))
+    check["applied"] = False
+    if not same:
+        check["reason"] += "; the two runs' crossovers differ, the fit's family kept"
+        return check
+    cmp = crossover_comparison(cx_family["diff_before_mgal"].to_numpy(float),
+                               cx_alternative["diff_before_mgal"].to_numpy(float))
+    check.update({"crossovers_compared": cmp.n, "crossover_rms_mgal": {check["family"]: cmp.rms_a_mgal,
+                                                                        CHECK_FAMILY: cmp.rms_b_mgal},
+                  "p_value": cmp.p_value, "p_rank": cmp.p_rank, "p_level": float(p_level)})
+    check["applied"] = bool(significantly_worse(cmp, p_level))
+    verdict = ("white velocity used: its estimate agrees significantly better" if check["applied"]
+               else f"{check['family']} kept: white velocity's estimate does not agree significantly better")
+    check["reason"] += (f"; {verdict} (crossover RMS {cmp.rms_a_mgal:.3g} → {cmp.rms_b_mgal:.3g} mGal at {cmp.n}; "
+                        f"t-test p = {cmp.p_value:.3g}, signed ranks p = {cmp.p_rank:.3g}, needs < {p_level:g})")
+    return check
