@@ -128,6 +128,10 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     assert cells.nth(3).inner_text() == "1 %" and cells.nth(4).inner_text() == "54 %"
     assert cells.last.inner_text() == "emptied by its EM: its level at iteration 14 used"
     assert page.locator("#report-noise-candidates tbody tr").count() == 2
+    fam = page.inner_text("#report-family-crossovers")
+    assert fam.startswith("Family checked at the crossovers against white velocity: white velocity used instead of "
+                          "coloured height — crossover RMS 7.06 (coloured height) against 5.87 mGal (white velocity) "
+                          "at 30, p = 0.023 (t-test), 0.002 (signed ranks)")
     # the noise episodes: where on which line, how far above the typical level, the std there and elsewhere
     ep = page.locator("#report-noise-episodes tbody tr")
     assert ep.count() == 1

@@ -96,6 +96,13 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                           **({"drift_mgal_per_h": -1.36} if base_gravity_mgal is not None else {})} for f in flights},
         "model_order": {"m": 1, "loglik": {"1": -758411.8, "2": -758515.9}, "Q_stationary_mgal2": {"1": 0.82, "2": 1.6e-5}},
         "noise_model": {"family": "white velocity", "dt_s": 0.1,
+                        # a family the spectra chose at the margin, replaced at the crossovers
+                        "crossover_check": {"family": "coloured height", "alternative": "white velocity",
+                                            "bic_gap": 10.9, "n_crossovers": 30, "applied": True,
+                                            "crossovers_compared": 30, "p_value": 0.0229, "p_rank": 0.00174,
+                                            "p_level": 0.05, "crossover_rms_mgal": {"coloured height": 7.06,
+                                                                                    "white velocity": 5.87},
+                                            "reason": "coloured height beats white velocity by only 10.9 BIC units"},
                         "components": [{"order": 1, "phi": 0.0, "weight_mgal2": 1e8, "label": "velocity white"}],
                         "fit": "Whittle, prewhitened multitaper", "level_band_hz": [0.1, 0.5], "level_scale": 1.0,
                         "candidates": [{"family": "white velocity", "nll": 12512.1, "n_params": 2, "bic": 25038.0},

@@ -321,6 +321,17 @@ const RENDER = {
           : `. The corner moved below the data stands (p = ${fmt(vb.cautious_shape.p_value, 4)} against the heights)`) : "");
       out.push(el("p", { class: vb.refitted ? "warnline" : "note", id: "report-velocity-bound" }, text));
     }
+    // a family that won at the margin, filtered again with white velocity and compared at the crossovers
+    const cc = v.crossover_check;
+    if (cc) {
+      const rms = cc.crossover_rms_mgal || {};
+      const text = `Family checked at the crossovers against ${cc.alternative ?? "white velocity"}: ` +
+        (cc.applied ? `${cc.alternative} used instead of ${cc.family}` : "not changed") +
+        (cc.crossovers_compared ? ` — crossover RMS ${fmt(rms[cc.family], 3)} (${cc.family}) against ${fmt(rms[cc.alternative], 3)} mGal ` +
+          `(${cc.alternative}) at ${cc.crossovers_compared}, p = ${fmt(cc.p_value, 3)} (t-test), ${fmt(cc.p_rank, 3)} (signed ranks)` : "") +
+        (cc.reason ? `. ${cc.reason}` : "");
+      out.push(el("p", { class: cc.applied ? "warnline" : "note", id: "report-family-crossovers" }, text));
+    }
     if (v.candidates && v.candidates.length) {
       const c = [...v.candidates].sort((a, b) => (a.bic ?? Infinity) - (b.bic ?? Infinity));
       out.push(el("h4", {}, "Candidates by BIC (the family used is marked)"), table(["Family", "−log L", "Parameters", "BIC", "ΔBIC", ""],
