@@ -19,6 +19,7 @@ def test_check_is_due_only_on_a_near_tie_with_enough_crossovers():
     near = _noise("coloured height", {"white velocity": 1010.9, "coloured height": 1000.0})
     rec = family_check_due(near, 30, p)
     assert rec["due"] and rec["bic_gap"] == pytest.approx(10.9) and rec["alternative"] == "white velocity"
+    assert rec["applied"] is False and rec["candidates_bic"] == {"white velocity": 1010.9, "coloured height": 1000.0}
     assert not family_check_due(near, 19, p)["due"]                      # too few crossovers
     far = _noise("coloured height", {"white velocity": 1020.0, "coloured height": 1000.0})
     assert not family_check_due(far, 30, p)["due"]                       # 20 BIC units: settled

@@ -618,14 +618,16 @@ def family_check_due(noise_report: dict, n_crossovers: int, p) -> dict:
     Returns
     -------
     dict
-        ``{"due": bool, "family", "alternative", "bic_gap", "n_crossovers", "reason"}``.
+        ``{"due": bool, "applied": False, "family", "alternative", "bic_gap", "n_crossovers",
+        "candidates_bic" (the fit's BIC of every family), "reason"}``.
     """
     family = str(noise_report.get("family"))
     bic = {c.get("family"): c.get("bic") for c in noise_report.get("candidates") or []}
     gap = (float(bic[CHECK_FAMILY]) - float(bic[family])
            if bic.get(CHECK_FAMILY) is not None and bic.get(family) is not None else None)
-    rec = {"due": False, "family": family, "alternative": CHECK_FAMILY, "bic_gap": gap,
-           "n_crossovers": int(n_crossovers)}
+    rec = {"due": False, "applied": False, "family": family, "alternative": CHECK_FAMILY, "bic_gap": gap,
+           "n_crossovers": int(n_crossovers),
+           "candidates_bic": {str(k): float(v) for k, v in bic.items() if v is not None}}
     limit = 2.0 * BIC_MARGIN
     if not p.noise_family_crossover_check:
         rec["reason"] = "off (noise_family_crossover_check)"
