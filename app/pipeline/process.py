@@ -10,11 +10,11 @@ those of :mod:`app.pipeline.stages`, run by :mod:`app.pipeline.runs`.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import shutil
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from app.io import export
@@ -58,8 +58,12 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None, progress:
     tr.start("ingest")
     survey = read_survey(survey_dir, overrides)
     identified = run_identify(survey, tr)
-    check, alternative = _family_alternative(survey_dir, overrides, identified, out, tr)
-    report = run_filter(identified, out, tr)
+    check, alternative = _family_alternative(survey, identified, out, tr)
+    try:
+        report = run_filter(identified, out, tr)
+    except BaseException:
+        shutil.rmtree(out / FAMILY_CHECK_DIR, ignore_errors=True)   # no second run's files left behind
+        raise
     identified, report = _family_checked(check, alternative, identified, report, out)
     if keep_identification:
         save_identified(identified, out)
@@ -67,11 +71,13 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None, progress:
     return report
 
 
-def _family_alternative(survey_dir, overrides: dict | None, identified: Identified, out: Path, tr: Tracker):
+def _family_alternative(survey, identified: Identified, out: Path, tr: Tracker):
     """The noise family's crossover check, first half (``noise_family_crossover_check``): when
-    :func:`~app.pipeline.stages.noise.family_check_due`, the survey identified and filtered again
-    with white velocity noise into ``<out>/.noise-family-check`` (stage "noise family check").
-    Returns (the check's record, None or (Identified, report, directory) of that run)."""
+    :func:`~app.pipeline.stages.noise.family_check_due`, the survey (as read once) identified and
+    filtered again with white velocity noise into ``<out>/.noise-family-check`` (stage "noise
+    family check").  A failure of that optional run keeps the first run and is said
+    (``failed``, a warning).  Returns (the check's record, None or (Identified, report,
+    directory) of that run)."""
     p = identified.cfg.processing
     check = family_check_due(identified.noise.describe(), identified.n_crossovers, p)
     if not check["due"]:
@@ -79,13 +85,14 @@ def _family_alternative(survey_dir, overrides: dict | None, identified: Identifi
     tr.start("noise family check")
     tmp = out / FAMILY_CHECK_DIR
     silent = Tracker(None)
+    cfg = survey.config.model_copy(update={"processing": p.model_copy(update={"noise_family": CHECK_FAMILY})})
     try:
-        alt_idf = run_identify(read_survey(survey_dir, {**(overrides or {}), "noise_family": CHECK_FAMILY}), silent)
+        alt_idf = run_identify(dataclasses.replace(survey, config=cfg), silent)
         alt_report = run_filter(alt_idf, tmp, silent)
-    except (ValueError, RuntimeError, FloatingPointError, np.linalg.LinAlgError) as exc:
+    except Exception as exc:   # an optional second run: its failure must not cost the first run's result
         shutil.rmtree(tmp, ignore_errors=True)
-        check["reason"] += f"; the white-velocity run failed ({exc}): the fit's family kept"
-        check["applied"] = False
+        check["failed"] = f"{type(exc).__name__}: {exc}"
+        check["reason"] += f"; the white-velocity run failed ({check['failed']}): the fit's family kept"
         return check, None
     return check, (alt_idf, alt_report, tmp)
 
@@ -110,6 +117,8 @@ def _family_checked(check: dict, alternative, identified: Identified, report: di
                 identified, report = alt_idf, alt_report
         finally:
             shutil.rmtree(tmp, ignore_errors=True)
+    if check.get("failed"):
+        report.setdefault("warnings", []).append(f"noise family: {check['reason']}")
     report.setdefault("noise_model", {})["crossover_check"] = {k: v for k, v in check.items() if k != "due"}
     return identified, report
 

@@ -81,3 +81,42 @@ def test_near_tie_on_a_simulated_survey_is_settled_by_the_crossovers(tmp_path):
         return float(np.sqrt(np.mean((e - e.groupby(core["line"]).transform("mean")) ** 2)))
 
     assert rms("dg_mgal") < 0.95 * rms("dg_fir_mgal")
+
+
+def test_a_failed_second_run_keeps_the_first_and_says_so(tmp_path, monkeypatch, tiny_survey):
+    # the check forced due on the tiny survey and its white-velocity run made to fail: the first
+    # run's outputs stay, nothing of the second is left, the report and a warning say why
+    import copy
+
+    from app.pipeline import process
+    from app.pipeline.stages import noise
+
+    def due(noise_report, n, p):
+        rec = noise.family_check_due(noise_report, n, p)
+        return {**rec, "due": True, "reason": "forced"}
+
+    calls = []
+    real = process.run_identify
+
+    def identify(survey, tr):
+        calls.append(copy.deepcopy(survey))
+        if len(calls) == 2:
+            raise KeyError("column 'x'")
+        return real(survey, tr)
+
+    monkeypatch.setattr(process, "family_check_due", due)
+    monkeypatch.setattr(process, "run_identify", identify)
+    out = tmp_path / "out"
+    rep = process.process_survey(tiny_survey, out)
+    chk = rep["noise_model"]["crossover_check"]
+    assert chk["applied"] is False and chk["failed"] == "KeyError: \"column 'x'\""
+    assert any(w.startswith("noise family: forced; the white-velocity run failed") for w in rep["warnings"])
+    assert (out / "lines.parquet").exists() and not (out / process.FAMILY_CHECK_DIR).exists()
+    # the second run got the survey as read, unchanged by the first run (it is not read twice),
+    # with only the noise family changed
+    first, second = calls
+    assert second.config.processing.noise_family == "white velocity"
+    assert first.config.processing.noise_family == "auto"
+    for f in first.flights:
+        assert second.flights[f].gravimeter.equals(first.flights[f].gravimeter)
+        assert second.flights[f].gnss.equals(first.flights[f].gnss)
