@@ -256,3 +256,31 @@ def test_long_ill_conditioned_autocovariance_still_fits():
     c, k, f, be = fit_ma_component(g)
     assert k <= 4 and f < 0.01 and np.all(np.isfinite(c))
     np.testing.assert_allclose(ma_autocovariance(c)[:4], a, atol=1e-3)
+
+
+def test_long_autocovariance_factored_exactly_and_as_scipy_does():
+    """A long autocovariance (J = 1 000: an MA(3) padded with zero lags, and a slowly
+    decaying AR(1)-like spectrum through a first difference, which puts a zero at ω = 0)
+    is factored by the cepstrum: the MA(3) comes back as its own minimum-phase factor
+    (its roots lie inside the unit circle), and the differenced one agrees with SciPy's
+    homomorphic minimum-phase filter of the symmetric sequence (``signal.minimum_phase``),
+    whose magnitude response is the square root of the spectrum."""
+    from scipy import signal
+
+    b = np.array([1.0, 0.5, -0.3, 0.1])
+    assert np.all(np.abs(np.roots(b)) < 1.0)        # minimum phase
+    J = 1000
+    g = np.zeros(J + 1)
+    g[:b.size] = ma_autocovariance(b)
+    f = spectral_factor(g)
+    np.testing.assert_allclose(f[:b.size], b, atol=1e-10)
+    assert np.max(np.abs(f[b.size:])) < 1e-10
+    # AR(1) with φ = 0.995 (a slow Gauss–Markov error), then a first difference
+    h = np.convolve(0.995 ** np.arange(4000), [1.0, -1.0])
+    g2 = np.array([h[: h.size - j] @ h[j:] for j in range(J + 1)])
+    f2 = spectral_factor(g2)
+    a2 = ma_autocovariance(f2)
+    assert np.linalg.norm(a2 - g2) / np.linalg.norm(g2) < 1e-5
+    peer = signal.minimum_phase(np.concatenate([g2[:0:-1], g2]), method="homomorphic", n_fft=1 << 16)
+    assert peer.size == J + 1
+    np.testing.assert_allclose(f2[:50], peer[:50], atol=1e-3 * abs(peer[0]))
