@@ -20,7 +20,17 @@ import pandas as pd
 from app.io import export
 from app.io.survey import read_survey
 from app.pipeline.parallel import thread_count
-from app.pipeline.runs import PLANS, Identified, Progress, Tracker, run_filter, run_identify, save_identified
+from app.pipeline.runs import (
+    PLANS,
+    Identified,
+    Measured,
+    Progress,
+    Tracker,
+    measure_survey,
+    run_filter,
+    run_identify,
+    save_identified,
+)
 from app.pipeline.stages.noise import CHECK_FAMILY, family_check_due, family_crossover_choice
 
 #: where the noise family's crossover check writes the white-velocity run's outputs (removed after)
@@ -57,8 +67,9 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None, progress:
     out.mkdir(parents=True, exist_ok=True)
     tr.start("ingest")
     survey = read_survey(survey_dir, overrides)
-    identified = run_identify(survey, tr)
-    check, alternative = _family_alternative(survey, identified, out, tr)
+    measured = measure_survey(survey, tr)
+    identified = run_identify(survey, tr, measured)
+    check, alternative = _family_alternative(survey, measured, identified, out, tr)
     try:
         report = run_filter(identified, out, tr)
     except BaseException:
@@ -71,11 +82,11 @@ def process_survey(survey_dir, out_dir, overrides: dict | None = None, progress:
     return report
 
 
-def _family_alternative(survey, identified: Identified, out: Path, tr: Tracker):
+def _family_alternative(survey, measured: Measured, identified: Identified, out: Path, tr: Tracker):
     """The noise family's crossover check, first half (``noise_family_crossover_check``): when
-    :func:`~app.pipeline.stages.noise.family_check_due`, the survey (as read once) identified and
-    filtered again with white velocity noise into ``<out>/.noise-family-check`` (stage "noise
-    family check").  A failure of that optional run keeps the first run and is said
+    :func:`~app.pipeline.stages.noise.family_check_due`, the survey (as read and measured once:
+    ``measured``, which no noise family changes) identified and filtered again with white
+    velocity noise into ``<out>/.noise-family-check`` (stage "noise family check").  A failure of that optional run keeps the first run and is said
     (``failed``, a warning).  Returns (the check's record, None or (Identified, report,
     directory) of that run)."""
     p = identified.cfg.processing
@@ -87,7 +98,7 @@ def _family_alternative(survey, identified: Identified, out: Path, tr: Tracker):
     silent = Tracker(None)
     cfg = survey.config.model_copy(update={"processing": p.model_copy(update={"noise_family": CHECK_FAMILY})})
     try:
-        alt_idf = run_identify(dataclasses.replace(survey, config=cfg), silent)
+        alt_idf = run_identify(dataclasses.replace(survey, config=cfg), silent, measured)
         alt_report = run_filter(alt_idf, tmp, silent)
     except Exception as exc:   # an optional second run: its failure must not cost the first run's result
         shutil.rmtree(tmp, ignore_errors=True)

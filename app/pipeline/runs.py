@@ -8,6 +8,7 @@
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -163,14 +164,34 @@ class Identified:
         return SurveyConfig.model_validate(self.config)
 
 
-def run_identify(survey, tr: Tracker) -> Identified:
-    """Measurement → lines → noise model → FIR → identification of every candidate order."""
-    cfg = survey.config
-    p = cfg.processing
+@dataclass
+class Measured:
+    """Result of :func:`measure_survey`: the measurement stage's flights and decisions, the
+    survey's lines cut from them and their crossover count — nothing the noise model or a
+    later stage decides."""
+
+    measurement: object
+    lines: object
+    n_crossovers: int
+
+
+def measure_survey(survey, tr: Tracker) -> Measured:
+    """Measurement → lines (stages 1–2), shared by every identification of the survey."""
     tr.start("measurement")
     meas = measure(survey, progress=tr.emit)
     sl = survey_lines(survey, meas)
-    n_cx = count_crossovers(sl.lines, p.leveling_include_repeat)
+    return Measured(meas, sl, count_crossovers(sl.lines, survey.config.processing.leveling_include_repeat))
+
+
+def run_identify(survey, tr: Tracker, measured: Measured | None = None) -> Identified:
+    """Measurement → lines → noise model → FIR → identification of every candidate order.
+    ``measured``: the survey's measurement already made (:func:`measure_survey`; it depends
+    on no setting after stage 2, so a second identification with another noise family starts
+    from it), used on a copy — the caller's stays as it was."""
+    cfg = survey.config
+    p = cfg.processing
+    measured = measure_survey(survey, tr) if measured is None else copy.deepcopy(measured)
+    meas, sl, n_cx = measured.measurement, measured.lines, measured.n_crossovers
     tr.start("noise")
     noise = model_noise(sl.lines, meas.flights, meas.dt_s, p, n_cx)
     tr.start("fir")

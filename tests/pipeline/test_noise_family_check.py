@@ -95,17 +95,24 @@ def test_a_failed_second_run_keeps_the_first_and_says_so(tmp_path, monkeypatch, 
         rec = noise.family_check_due(noise_report, n, p)
         return {**rec, "due": True, "reason": "forced"}
 
-    calls = []
-    real = process.run_identify
+    calls, measured_by = [], []
+    real, real_measure = process.run_identify, process.measure_survey
 
-    def identify(survey, tr):
+    def identify(survey, tr, measured=None):
         calls.append(copy.deepcopy(survey))
+        measured_by.append(measured)
         if len(calls) == 2:
             raise KeyError("column 'x'")
-        return real(survey, tr)
+        return real(survey, tr, measured)
+
+    def measure(survey, tr):
+        measured = real_measure(survey, tr)
+        measured_by.append(("measured", measured))
+        return measured
 
     monkeypatch.setattr(process, "family_check_due", due)
     monkeypatch.setattr(process, "run_identify", identify)
+    monkeypatch.setattr(process, "measure_survey", measure)
     out = tmp_path / "out"
     rep = process.process_survey(tiny_survey, out)
     chk = rep["noise_model"]["crossover_check"]
@@ -120,3 +127,6 @@ def test_a_failed_second_run_keeps_the_first_and_says_so(tmp_path, monkeypatch, 
     for f in first.flights:
         assert second.flights[f].gravimeter.equals(first.flights[f].gravimeter)
         assert second.flights[f].gnss.equals(first.flights[f].gnss)
+    # measured once: both identifications start from that one measurement
+    (tag, measured), m1, m2 = measured_by
+    assert tag == "measured" and m1 is measured and m2 is measured
