@@ -418,6 +418,15 @@ class ProcessingParams(_Strict):
                                                   "in periods: sharp (the default FIR's 2 periods let its transition "
                                                   "band round off what it should keep)")
     repeat_blend_min_passes: int = Field(3, ge=2, le=1000, description="Passes of one track the repeat blend needs")
+    repeat_blend_shrink: bool = Field(False, description="The repeat blend's weight shrunk towards 0 (the adaptive "
+                                      "estimate alone) by its jackknife error over the passes (positive-part "
+                                      "James-Stein, app.core.model_check.shrunk_repeat_blend_weight). With four "
+                                      "passes the weight scatters over most of [0, 1]: unshrunk it took FIR whole "
+                                      "on test lines whose estimate was 0.35-0.8x FIR's error (own test lines "
+                                      "0.69 -> 0.62x FIR with it), but shrunk it also lets through estimates that "
+                                      "round off a sharp anomaly (independent generator's 1032 0.99 -> 1.03x FIR; "
+                                      "a 2.3x-FIR estimate 1.13-1.53x): off, since a blend that is wrongly taken "
+                                      "stays at or below FIR's error and one wrongly left does not")
     # --- regularization (SPEC §2 step 1)
     decimation_n: int | None = Field(None, ge=2, le=MAX_DECIMATION_N, description="Decimation factor n; chosen for ~1 km steps when None")
     decimation_step_km: float = Field(1.0, gt=0, le=50)
@@ -826,6 +835,7 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
       "fir_long_max_error_ratio", "fir_guard_smoothing_std", "fir_guard_min_crossovers", "fir_guard_p", "fir_guard_many_crossovers",
       "fir_guard_p_many",
       "repeat_blend_reference_period_s", "repeat_blend_reference_periods", "repeat_blend_min_passes",
+      "repeat_blend_shrink",
       "repeat_level_check", "repeat_level_factor", "repeat_level_significance")),
     ("leveling", "Leveling at the crossovers",
      ("leveling_degree", "leveling_per_flight", "leveling_significance"),

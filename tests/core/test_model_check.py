@@ -515,3 +515,64 @@ def test_leave_one_out_msd_test_finds_the_better_estimate_and_is_calibrated():
     assert np.isnan(leave_one_out_msd_test(a[:, :100], b[:, :100], r[:, :100], blk)[1])   # 2 blocks
     with pytest.raises(ValueError):
         leave_one_out_msd_test(a, b, r, 0)
+
+
+def _test_line_draw(rng, k=4, n=40, shared_a=0.0, ref_noise=13.0):
+    """Four passes of one track at n independent positions (a 40 km line holds about 40
+    independent stretches of a 100 s low-pass): the anomaly g, an estimate a with
+    a shared error (``shared_a`` × a smooth pattern, the same on every pass) and 0.5 mGal of
+    pass noise, FIR b with 1.5 mGal of pass noise and a small shared rounding, and a reference
+    whose pass noise (``ref_noise``) dwarfs both — a 2 Hz test line's 50 s low-pass of z."""
+    x = np.linspace(0, 8 * np.pi, n)
+    g = 10.0 * np.sin(x)
+    a = g + shared_a * np.sin(3.1 * x) + rng.normal(0.0, 0.5, (k, n))
+    b = g - 0.3 * np.sin(x) + rng.normal(0.0, 1.5, (k, n))
+    ref = g + rng.normal(0.0, ref_noise, (k, n))
+    return g, a, b, ref
+
+
+def _blend_mse(a, b, g, w):
+    """Mean square error of the blend (1 − w)·a + w·b against the anomaly g (mGal²)."""
+    return float(np.mean(((1 - w) * a + w * b - g) ** 2))
+
+
+def test_shrunk_repeat_blend_weight_against_simulated_truth():
+    """Over 200 simulated test lines whose estimate is better than FIR (the truth's weight of
+    FIR is 0), the passes' raw weight scatters over [0, 1] and its blend loses to the estimate
+    alone; shrunk by its jackknife error it is 0 on most draws and its blend's mean square error
+    is far closer to the estimate's.  Where the estimate carries a large shared error (4 mGal,
+    the truth's weight near 1), the evidence stands out of its scatter and the shrunk weight
+    stays near the raw one.  Fewer than 3 passes: no jackknife, the weight is not shrunk."""
+    from app.core.model_check import repeat_blend_weight, shrunk_repeat_blend_weight
+
+    rng = np.random.default_rng(47)
+    raw, used, mse_raw, mse_used, mse_a = [], [], [], [], []
+    for _ in range(200):
+        g, a, b, ref = _test_line_draw(rng)
+        s = shrunk_repeat_blend_weight(a, b, ref)
+        assert s.raw == pytest.approx(repeat_blend_weight(a, b, ref))
+        assert 0.0 <= s.weight <= s.raw and len(s.leave_one_out) == 4 and s.se >= 0
+        assert s.weight == pytest.approx(s.raw * max(0.0, 1 - s.se ** 2 / s.raw ** 2) if s.raw > 0 else 0.0)
+        raw.append(s.raw)
+        used.append(s.weight)
+        mse_raw.append(_blend_mse(a, b, g, s.raw))
+        mse_used.append(_blend_mse(a, b, g, s.weight))
+        mse_a.append(_blend_mse(a, b, g, 0.0))
+    raw, used = np.array(raw), np.array(used)
+    assert np.mean(raw > 0.2) > 0.25                 # the raw weight scatters
+    assert np.mean(used == 0.0) > 0.7                # shrunk: mostly the estimate alone
+    assert np.mean(mse_used) < 0.85 * np.mean(mse_raw)
+    assert np.mean(mse_used) < 1.3 * np.mean(mse_a)
+    # a large shared error in the estimate: FIR wins, and the weight survives the shrinkage
+    kept = []
+    for _ in range(50):
+        g, a, b, ref = _test_line_draw(rng, shared_a=4.0)
+        s = shrunk_repeat_blend_weight(a, b, ref)
+        kept.append((s.raw, s.weight))
+    kept = np.array(kept)
+    assert np.median(kept[:, 0]) > 0.6 and np.median(kept[:, 1]) > 0.55
+    assert np.median(kept[:, 1]) > 0.85 * np.median(kept[:, 0])
+    # two passes: nothing to leave out
+    g, a, b, ref = _test_line_draw(rng, k=2)
+    s = shrunk_repeat_blend_weight(a, b, ref)
+    assert s.weight == s.raw and np.isnan(s.se)

@@ -821,11 +821,18 @@ def test_repeat_passes_blend_fir_into_a_test_line_estimate_as_the_truth_would():
     blend = rep["repeat_blend"]
     assert w_true > 0.95
     assert blend["applied"] and blend["passes"] == 4 and blend["weight_fir"] == pytest.approx(w_true, abs=0.25)
+    assert "weight_raw" not in blend          # not shrunk by default (repeat_blend_shrink)
     assert rep["chosen"] in ("blend with FIR", "FIR")
     assert _line_demeaned(out, "dg_mgal") < min(0.6 * est0, 1.15 * fir0)
     assert any("repeat passes" in w and "blend" in w for w in warnings)
     err = (out["dg_mgal"] - out["dg_true_mgal"]).groupby(out["line"]).transform(lambda x: x - x.mean())
     assert np.mean(np.abs(err) < 2 * out["dg_std_mgal"]) > 0.9
+
+    # repeat_blend_shrink: the same weight shrunk by its jackknife error over the passes, reported
+    shrunk = choose_model({2: _candidate(table)}, noise, DT_S, ProcessingParams(repeat_blend_shrink=True), [],
+                          order=(2, {})).report["repeat_blend"]
+    assert shrunk["weight_raw"] == pytest.approx(blend["weight_fir"]) and len(shrunk["weight_leave_one_out"]) == 4
+    assert 0.0 < shrunk["weight_fir"] < shrunk["weight_raw"] and shrunk["weight_se"] > 0
 
     sound = _test_line_table(np.random.default_rng(4), lambda g, rng: g + rng.normal(0.0, 0.5, g.size))
     out = choose_model({2: _candidate(sound)}, noise, DT_S, ProcessingParams(), [], order=(2, {}))

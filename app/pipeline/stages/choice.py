@@ -107,6 +107,7 @@ from app.core.model_check import (
     leave_one_out_msd_mgal2,
     repeat_blend_weight,
     repeat_noise_variance_mgal2,
+    shrunk_repeat_blend_weight,
     significantly_worse,
     smooth_error_bound_mgal2,
 )
@@ -716,12 +717,19 @@ def repeat_blend(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> 
     if not vals:
         return {"applied": False, "reason": "no common stretch of the passes"}
     est, fir, ref = ([v[k] for v in vals] for k in range(3))
-    w = repeat_blend_weight(est, fir, ref)   # one weight for the survey, over every track
+    # one weight for the survey, over every track; shrunk by its scatter over the passes
+    shrunk = shrunk_repeat_blend_weight(est, fir, ref) if p.repeat_blend_shrink else None
+    w = shrunk.weight if shrunk is not None else repeat_blend_weight(est, fir, ref)
     msd = [float(np.nanmean(np.concatenate([leave_one_out_msd_mgal2(x, r) for x, r in zip(xs, ref)])))
            for xs in (est, fir, [(1 - w) * e + w * f for e, f in zip(est, fir)])]
     rep = {"weight_fir": w, "passes": int(sum(x.shape[0] for x in est)), "tracks": len(vals),
            "reference_period_s": p.repeat_blend_reference_period_s,
            "msd_estimate_mgal2": msd[0], "msd_fir_mgal2": msd[1], "msd_blend_mgal2": msd[2], "applied": w > 0}
+    if shrunk is not None:
+        rep.update(weight_raw=shrunk.raw, weight_se=shrunk.se, weight_leave_one_out=list(shrunk.leave_one_out))
+        if shrunk.raw > 0 and w < shrunk.raw:
+            rep["reason"] = (f"the passes' weight {shrunk.raw:.2f} scatters by {shrunk.se:.2f} over the passes "
+                             f"(jackknife): shrunk to {w:.2f}")
     if not rep["applied"]:
         return rep
     measured = [v for v in repeat_fir_noise_mgal2(table).values() if v > 0]
@@ -734,8 +742,11 @@ def repeat_blend(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> 
         blended, std = blend_estimates(fir_v, g["dg_unleveled_mgal"].to_numpy(float), mix, w)
         # where FIR has no value the estimate stays, with its own std
         _use(table, g.index, blended, np.where(np.isfinite(fir_v), std, sa))
+    shrunk_note = (f" (the passes' own weight {shrunk.raw:.2f}, shrunk by its jackknife error {shrunk.se:.2f})"
+                   if shrunk is not None and w < shrunk.raw else "")
     warnings.append(f"test line: the repeat passes agree best with the other passes' "
-                    f"{p.repeat_blend_reference_period_s:g} s low-pass of z when {w:.2f} of FIR 100 s is blended into "
+                    f"{p.repeat_blend_reference_period_s:g} s low-pass of z when {w:.2f}{shrunk_note} of FIR 100 s is "
+                    f"blended into "
                     f"the adaptive estimate ({rep['passes']} passes; mean square {msd[0]:.2f} adaptive, {msd[1]:.2f} FIR, "
                     f"{msd[2]:.2f} blend, mGal², the reference's noise included): that blend used")
     return rep

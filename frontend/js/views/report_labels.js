@@ -26,6 +26,8 @@ export const LABELS = {
   noisy_check: "Noisy-estimate check", fir_guard: "FIR guard at the crossovers", repeat_blend: "Blend with FIR judged by the repeat passes",
   stationary_check: "Stationary-smoother check", max_ratio: "Largest variance ratio allowed", max_disagreement: "Largest disagreement allowed",
   median_disagreement: "Median disagreement with FIR", median_variance_ratio: "Median variance ratio", weight_fir: "Weight of FIR 100 s",
+  weight_raw: "Weight of FIR from the passes, before shrinking", weight_se: "Its jackknife error over the passes",
+  weight_leave_one_out: "Weight with each pass left out",
   reference_period_s: "Reference low-pass period (s)", msd_estimate_mgal2: "Mean square difference, adaptive (mGal²)",
   msd_fir_mgal2: "Mean square difference, FIR (mGal²)", msd_blend_mgal2: "Mean square difference, blend (mGal²)", passes_noise: "Passes noise",
   long_lowpass: "Longer low-pass", period_s: "Period (s)",
