@@ -215,11 +215,12 @@ def spectral_factor(gamma: np.ndarray) -> np.ndarray:
     if J == 0:
         return np.array([np.sqrt(max(gamma[0], 0.0))])
     by_roots = _roots_factor(gamma) if J <= _ROOTS_MAX_LAG else None
-    if by_roots is not None and _misfit(ma_autocovariance(by_roots), gamma) < _FACTOR_EXACT:
+    roots_misfit = _misfit(ma_autocovariance(by_roots), gamma) if by_roots is not None else np.inf
+    if roots_misfit < _FACTOR_EXACT:
         return by_roots
     by_ceps = _cepstral_factor(gamma)
-    if by_roots is not None and (not np.all(np.isfinite(by_ceps)) or _misfit(ma_autocovariance(by_roots), gamma)
-                                 <= _misfit(ma_autocovariance(by_ceps), gamma)):
+    if by_roots is not None and (not np.all(np.isfinite(by_ceps))
+                                 or roots_misfit <= _misfit(ma_autocovariance(by_ceps), gamma)):
         return by_roots
     if not np.all(np.isfinite(by_ceps)):  # the white factor, a start only
         by_ceps = np.zeros(J + 1)

@@ -86,8 +86,8 @@ def _family_alternative(survey, measured: Measured, identified: Identified, out:
     """The noise family's crossover check, first half (``noise_family_crossover_check``): when
     :func:`~app.pipeline.stages.noise.family_check_due`, the survey (as read and measured once:
     ``measured``, which no noise family changes) identified and filtered again with white
-    velocity noise into ``<out>/.noise-family-check`` (stage "noise family check").  A failure of that optional run keeps the first run and is said
-    (``failed``, a warning).  Returns (the check's record, None or (Identified, report,
+    velocity noise into ``<out>/.noise-family-check`` (stage "noise family check").  A failure
+    of that optional run keeps the first run and is said (``failed``, a warning).  Returns (the check's record, None or (Identified, report,
     directory) of that run)."""
     p = identified.cfg.processing
     check = family_check_due(identified.noise.describe(), identified.n_crossovers, p)

@@ -31,8 +31,8 @@ from app.pipeline.stages.filtering import (
 from app.pipeline.stages.gridding import grid_survey
 from app.pipeline.stages.identification import Identification, back_off_levels, identify, level_support
 from app.pipeline.stages.leveling import add_common_level_std, level_survey, reading_error_std_mgal
-from app.pipeline.stages.lines import survey_lines
-from app.pipeline.stages.measurement import measure
+from app.pipeline.stages.lines import SurveyLines, survey_lines
+from app.pipeline.stages.measurement import Measurement, measure
 from app.pipeline.stages.model_order import candidate_orders, choose_model_order
 from app.pipeline.stages.noise import check_noise_corners, check_noise_family, model_noise, noise_episodes
 from app.pipeline.stages.outputs import build_report, identification_json, write_outputs
@@ -170,8 +170,8 @@ class Measured:
     survey's lines cut from them and their crossover count — nothing the noise model or a
     later stage decides."""
 
-    measurement: object
-    lines: object
+    measurement: Measurement
+    lines: SurveyLines
     n_crossovers: int
 
 

@@ -244,15 +244,18 @@ def test_spectrum_fold_sum_vs_model(design):
 def test_long_ill_conditioned_autocovariance_still_fits():
     """A 1 500-lag autocovariance (an MA(3) plus a 10⁻⁹ decaying tail, like a height-noise
     component differenced m + 2 times): the roots of its degree-3 000 polynomial are lost to
-    round-off, so the spectral factor falls back to a white start, and the least-squares fit
-    still recovers the MA(3) within the 1 % misfit (it used to raise from least_squares)."""
+    round-off (they used to give a white start), the cepstrum factors it — the MA(3) itself
+    comes back — and the least-squares fit recovers the MA(3) within the 1 % misfit (it used
+    to raise from least_squares)."""
     b = np.array([1.0, 0.5, -0.3, 0.1])
     J = 1500
     g = np.zeros(J + 1)
     a = ma_autocovariance(b)
     g[:a.size] = a
     g += 1e-9 * 0.995 ** np.arange(J + 1) * np.cos(0.01 * np.arange(J + 1))
-    assert np.all(np.isfinite(spectral_factor(g)))
+    start = spectral_factor(g)
+    assert np.all(np.isfinite(start))
+    np.testing.assert_allclose(start[:4], b, atol=1e-6)
     c, k, f, be = fit_ma_component(g)
     assert k <= 4 and f < 0.01 and np.all(np.isfinite(c))
     np.testing.assert_allclose(ma_autocovariance(c)[:4], a, atol=1e-3)
