@@ -1,9 +1,11 @@
-"""Threads for the per-line Kalman loops.
+"""Threads for the per-line Kalman loops and the per-flight measurement.
 
 The smoother's numba kernels release the GIL (``nogil``), so the lines of a survey can be
-filtered, and their likelihoods summed, on several cores at once.  Every use keeps the lines'
-order (results are gathered and reduced in line order), so the output is the same whatever the
-number of threads — ``AEROGRAV_THREADS`` changes only the wall time.
+filtered, and their likelihoods summed, on several cores at once; stage 1 measures the flights
+of a survey the same way (:func:`app.pipeline.stages.measurement.each_flight`: splines and
+array arithmetic, which release the GIL for most of their time).  Every use keeps the items'
+order (results are gathered and reduced in line or flight order), so the output is the same
+whatever the number of threads — ``AEROGRAV_THREADS`` changes only the wall time.
 
 ``AEROGRAV_THREADS``: threads per process (default: the CPUs this process may use, at most 8;
 1 = run the lines one after another).

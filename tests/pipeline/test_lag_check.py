@@ -11,9 +11,11 @@ z's RMS at 0.02–0.05 Hz by 41 %; a real lag error lowers it (declared 2.0, tru
 """
 
 import numpy as np
+import pytest
 
 from app.io.survey import read_survey
-from app.pipeline.stages.measurement import check_lag, check_lag_with_search, lag_band_check
+from app.pipeline.parallel import thread_count
+from app.pipeline.stages.measurement import check_lag, check_lag_with_search, each_flight, lag_band_check
 from app.simulate import simulate_survey
 
 LAYOUT_177 = dict(n_main=8, main_length_km=25.0, main_spacing_km=4.0, n_tie=0, n_flights=1, n_repeat=4,
@@ -260,7 +262,7 @@ def test_a_flight_that_cannot_be_measured_at_the_one_scale_lag_leaves_tau_alone(
     assert not one["applied"] and "could not be measured at τ = 0.100 s" in one["reason"], one
 
 
-def test_a_lag_far_from_the_declared_one_is_found_by_the_band_minimum(tmp_path):
+def test_a_lag_far_from_the_declared_one_is_found_by_the_band_minimum(tmp_path, monkeypatch):
     """A GT-1A (true τ = 2.0 s) declared 0 or 1 s: the in-flight checks, linear about the τ they
     start from and sharing the lag with the time offset, stop short (1.43 / 1.10 s on the sample
     survey); the search for the least RMS of z at 0.02–0.05 Hz finds the truth, beyond the first
@@ -277,3 +279,27 @@ def test_a_lag_far_from_the_declared_one_is_found_by_the_band_minimum(tmp_path):
         s = info["band_search"]
         assert s["applied"] and s["band_rms_mgal"] < 0.5 * s["band_rms_check_mgal"]
         assert any("is least at τ" in w for w in warnings), warnings
+        if declared == 0.0:
+            # the flights are measured on the line threads: another thread count, the same search
+            monkeypatch.setenv("AEROGRAV_THREADS", "1" if thread_count() > 1 else "2")
+            again = check_lag_with_search(survey, survey.config, [])
+            monkeypatch.delenv("AEROGRAV_THREADS")
+            assert again == (tau, info)
+
+
+def test_each_flight_keeps_the_order_and_raises_as_the_loop_would(monkeypatch):
+    """The flights measured on threads: results in the flights' order whatever finishes first,
+    and the first failing flight's error (in order) raised, as the plain loop raises it."""
+    import time
+
+    monkeypatch.setenv("AEROGRAV_THREADS", "3")
+
+    def slow_first(x):
+        time.sleep(0.05 * (3 - x))          # the first item finishes last
+        if x in (1, 2):
+            raise ValueError(f"flight {x}")
+        return 10 * x
+
+    assert each_flight(lambda x: slow_first(x) if x == 0 else 10 * x, [0, 1, 2]) == [0, 10, 20]
+    with pytest.raises(ValueError, match="flight 1"):
+        each_flight(slow_first, [0, 1, 2])

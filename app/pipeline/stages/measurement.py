@@ -45,6 +45,7 @@ from app.core.noise_level import band_fit_coefficient, band_rms_mgal, local_nois
 from app.io.errors import InputError
 from app.io.survey import gnss_runs
 from app.io.tables import median_rate_hz
+from app.pipeline.parallel import line_map
 
 
 @dataclass
@@ -78,6 +79,15 @@ class FlightMeasurement:
     #: ∂z/∂τ (mGal/s): how z moves with the lag τ (the gravimeter's jerk on the GNSS intervals;
     #: z is linear in τ at a fixed time offset), for :func:`band_lag`
     dz_dtau_mgal_s: np.ndarray | None = None
+
+
+def each_flight(fn, items) -> list:
+    """``[fn(x) for x in items]`` on the line threads (:func:`app.pipeline.parallel.line_map`),
+    in the items' order: the flights of a survey are measured at once where the machine has
+    the cores (their numerics release the GIL), and every sum over them is taken in their order,
+    so the results do not depend on the thread count.  An exception is raised as the loop would
+    raise it (the first item's, in order)."""
+    return list(line_map()(fn, items))
 
 
 def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
@@ -923,11 +933,21 @@ def check_lag(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, 
     p = cfg.processing
     taus, names, offsets, fitted = [], [], [], []
     declared = {}        # each checked flight measured once with survey.toml's τ, for every check below
-    for name in sorted(survey.flights)[:3]:
+    def measured_and_fitted(name):
         try:
-            declared[name] = measure_flight(survey.flights[name], cfg, compensation=False)
-            cal = calibrate_gravimeter(survey.flights[name], cfg, params=("tau",), measured=declared[name])
+            m = measure_flight(survey.flights[name], cfg, compensation=False)
         except (ValueError, np.linalg.LinAlgError):
+            return None, None
+        try:
+            return m, calibrate_gravimeter(survey.flights[name], cfg, params=("tau",), measured=m)
+        except (ValueError, np.linalg.LinAlgError):
+            return m, None
+
+    checked = sorted(survey.flights)[:3]
+    for name, (m, cal) in zip(checked, each_flight(measured_and_fitted, checked)):
+        if m is not None:
+            declared[name] = m
+        if cal is None:
             continue
         fitted.append(name)
         offsets.append(cal["time_offset_s"] if cal["time_offset_applied"] else 0.0)
@@ -1050,14 +1070,17 @@ def lag_band_search(survey, cfg: SurveyConfig, tau_check_s: float, tau_declared_
 
     def rms(tau: float) -> float:
         if tau not in cache:
-            ss, n_tot = 0.0, 0
-            for flight in flights:
+            def power(flight):
                 try:
                     m = measure_flight(flight, cfg, tau_s=float(tau), compensation=False)
                 except (ValueError, np.linalg.LinAlgError):
-                    continue
-                e, n = band_power(m, band, airborne(m) & np.isfinite(m.z_mgal))
-                ss, n_tot = ss + e, n_tot + n
+                    return None
+                return band_power(m, band, airborne(m) & np.isfinite(m.z_mgal))
+
+            ss, n_tot = 0.0, 0
+            for got in each_flight(power, flights):
+                if got is not None:
+                    ss, n_tot = ss + got[0], n_tot + got[1]
             cache[tau] = float(np.sqrt(ss / n_tot)) if n_tot else float("nan")
         return cache[tau]
 
@@ -1186,7 +1209,8 @@ def band_lag(survey, cfg: SurveyConfig, names: list, declared: dict,
             info["reason"] = f"the band fit leaves the lag's range (τ = {tau:.3f} s)"
             return None, info
         try:
-            measured = [measure_flight(survey.flights[n], cfg, tau_s=tau, compensation=False) for n in names]
+            measured = each_flight(lambda n, t=tau: measure_flight(survey.flights[n], cfg, tau_s=t, compensation=False),
+                                   names)
         except (ValueError, np.linalg.LinAlgError) as exc:
             info["reason"] = f"a flight could not be measured at τ = {tau:.3f} s: {exc}"
             return None, info
@@ -1399,9 +1423,11 @@ def measure(survey, progress=None) -> Measurement:
         tau_s, lag_check = check_lag_with_search(survey, cfg, warnings)
     flights, base_ties = {}, {}
     names = list(survey.flights)
-    for i, name in enumerate(names):
-        flights[name] = measure_flight(survey.flights[name], cfg, tau_s=tau_s, scale=scale,
-                                       line_windows=line_windows(getattr(survey, "lines", None), name))
+    measured = line_map()(lambda name: measure_flight(survey.flights[name], cfg, tau_s=tau_s, scale=scale,
+                                                      line_windows=line_windows(getattr(survey, "lines", None), name)),
+                          names)
+    for i, (name, m) in enumerate(zip(names, measured)):     # in the flights' order as each is done
+        flights[name] = m
         if progress is not None:
             progress((i + 1) / len(names))
     choose_motion_compensation(flights, p)
