@@ -410,10 +410,20 @@ class ProcessingParams(_Strict):
                                "survey), blend FIR 100 s into the estimate with the weight whose repeat passes agree "
                                "best with the other passes' light low-pass of z "
                                "(app.core.model_check.repeat_blend_weight); the report's model_choice.repeat_blend")
-    repeat_blend_reference_period_s: float = Field(50.0, gt=0, le=100, description="The repeat blend's reference: "
-                                                   "FIR of z at this period (s), half FIR's, so that it rounds off "
-                                                   "little of the anomaly; its noise, independent between passes, "
-                                                   "only adds scatter")
+    repeat_blend_reference: Literal["smoother", "lowpass"] = Field(
+        "smoother", description="The repeat blend's reference on the other passes: 'smoother' — each pass smoothed "
+        "at repeat_blend_reference_q_factor x Q(t) under the fitted noise model (it rounds off little of the "
+        "anomaly, and its noise is a fraction of a low-pass of z's: on 56 test lines the weight's jackknife error "
+        "over the passes 0.1-0.7 against 0.2-3); 'lowpass' — FIR of z at repeat_blend_reference_period_s")
+    repeat_blend_reference_q_factor: float = Field(300.0, ge=1, le=1e6, description="The smoother reference's anomaly "
+                                                   "level over the estimate's Q(t): about 2.6x its bandwidth (m = 2); "
+                                                   "at 10x the reference shares half the estimate's rounding and the "
+                                                   "weight comes out half the truth's (MEASUREMENTS.md, session 48)")
+    repeat_blend_reference_period_s: float = Field(50.0, gt=0, le=100, description="The repeat level check's "
+                                                   "reference, and the repeat blend's with repeat_blend_reference = "
+                                                   "'lowpass': FIR of z at this period (s), half FIR's, so that it "
+                                                   "rounds off little of the anomaly; its noise, independent between "
+                                                   "passes, only adds scatter")
     repeat_blend_reference_periods: float = Field(6.0, ge=1, le=20, description="Length of the reference's kernel "
                                                   "in periods: sharp (the default FIR's 2 periods let its transition "
                                                   "band round off what it should keep)")
@@ -834,6 +844,7 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("choice_min_crossovers", "flatten_min_ratio", "noisy_max_ratio", "noisy_max_disagreement", "fir_long_periods_s",
       "fir_long_max_error_ratio", "fir_guard_smoothing_std", "fir_guard_min_crossovers", "fir_guard_p", "fir_guard_many_crossovers",
       "fir_guard_p_many",
+      "repeat_blend_reference", "repeat_blend_reference_q_factor",
       "repeat_blend_reference_period_s", "repeat_blend_reference_periods", "repeat_blend_min_passes",
       "repeat_blend_shrink",
       "repeat_level_check", "repeat_level_factor", "repeat_level_significance")),

@@ -323,6 +323,11 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
         lc = cands[m_best].filtered.repeat_level
         if lc and lc.get("factor", 1.0) != 1.0:
             warnings.append(f"test line: anomaly level x {lc['factor']:.3g}: {lc['reason']}")
+    if (p.repeat_blend and p.repeat_blend_reference == "smoother"
+            and count_crossovers(idf.lines, p.leveling_include_repeat) < p.fir_guard_min_crossovers):
+        # a test line's blend with FIR (stage 9) judged against the other passes smoothed lightly
+        cands[m_best].filtered.repeat_reference(idf.dt_s, m_best, p.smoother, idf.noise.model, p.q_from_posteriors,
+                                                p.repeat_blend_reference_q_factor, p.repeat_blend_min_passes)
     if p.std_state_mixture:  # and the std of the mixture of levels
         cands[m_best].filtered.mixture_std(idf.dt_s, m_best, p.smoother, idf.noise.model)
     # levels from too few points (one level, or two from < 2 x min_points_adaptive): the std

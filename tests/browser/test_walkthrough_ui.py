@@ -148,6 +148,17 @@ def test_model_choice_on_a_test_line_gives_the_repeat_blend(fake_server, browser
                                   "the 4 repeat passes agree best with each other's 50 s low-pass of z when 0.641 of "
                                   "FIR 100 s is blended in (mean square 61.23 adaptive, 60.87 FIR, 60.31 blend"), got
     assert got["cls"] == "warn"
+    # the default reference since session 48: the other passes smoothed lightly, named as such
+    text = page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const rep = {warnings: [], report: {model_choice: {chosen: 'blend with FIR', m: 2, noisy_check: {applied: false},
+            fir_guard: {applied: false, reason: '0 crossovers (< 4)'},
+            repeat_blend: {weight_fir: 0.8379, passes: 4, tracks: 1, reference: 'estimate at 300 x Q(t)',
+                           reference_q_factor: 300, msd_estimate_mgal2: 37.70, msd_fir_mgal2: 33.38,
+                           msd_blend_mgal2: 33.1, applied: true, fir_std_floor_mgal: 2.1}}}};
+        return [...m.summary(rep).querySelectorAll('li')].find((l) => l.textContent.startsWith('Model choice')).textContent;
+    }""")
+    assert "agree best with each other's estimate at 300 x Q(t) when 0.838 of FIR 100 s is blended in" in text, text
     _no_errors(page)
 
 

@@ -854,3 +854,53 @@ def test_repeat_blend_stands_aside_where_the_crossovers_judge():
     rep = choose_model({2: _candidate(table)}, noise, DT_S, ProcessingParams(), [], order=(2, {})).report
     assert "p_value" in rep["fir_guard"]
     assert rep["repeat_blend"]["applied"] is False and "crossovers" in rep["repeat_blend"]["reason"]
+
+
+def _with_light_reference(table: pd.DataFrame, rng, noise_mgal: float = 0.5) -> pd.DataFrame:
+    """The column the filtering stage gives a test line by default (each pass smoothed at
+    ``repeat_blend_reference_q_factor`` x Q(t)), simulated: the anomaly through a light 20 s
+    low-pass, plus noise of its own on each pass (a 20 s low-pass of white noise, ``noise_mgal``
+    RMS) — the anomaly kept, far less noise than a low-pass of z."""
+    out = table.copy()
+    ref = np.empty(len(out))
+    for _, g in out.groupby("line", sort=False):
+        w = fir_lowpass_mgal(rng.normal(0.0, 1.0, len(g)), DT_S, 20.0)
+        ref[g.index] = fir_lowpass_mgal(g["dg_true_mgal"].to_numpy(), DT_S, 20.0) + noise_mgal * w / np.std(w)
+    out["dg_repeat_reference_mgal"] = ref
+    return out
+
+
+def test_repeat_blend_against_the_passes_smoothed_lightly():
+    """The blend's default reference, the other passes smoothed lightly (column
+    ``dg_repeat_reference_mgal``), against the 50 s low-pass of z: on a rounded-off estimate
+    (the truth's weight ~1) and a sound one (~0), the weight lands as near the truth's, and its
+    jackknife error over the passes is smaller (the reference's noise is a fraction of the
+    low-pass's: 0.5 against ~3 mGal here).  Without the column (results stored before it) the
+    low-pass of z is used."""
+    from app.core.model_check import shrunk_repeat_blend_weight
+    from app.pipeline.stages.choice import _track_values, repeat_passes
+
+    noise = white_velocity(DT_S, R_CM2S2)
+    cases = ((lambda g, rng: fir_lowpass_mgal(g, DT_S, 220.0), 3), (lambda g, rng: g + rng.normal(0.0, 0.5, g.size), 4))
+    for estimate, seed in cases:
+        table = _with_light_reference(_test_line_table(np.random.default_rng(seed), estimate),
+                                      np.random.default_rng(seed + 10))
+        w_true = _truth_weight(table)
+        light = choose_model({2: _candidate(table)}, noise, DT_S, ProcessingParams(), [], order=(2, {})).report
+        low = choose_model({2: _candidate(table)}, noise, DT_S, ProcessingParams(repeat_blend_reference="lowpass"),
+                           [], order=(2, {})).report
+        rb_light, rb_low = light["repeat_blend"], low["repeat_blend"]
+        assert rb_light["reference"] == "estimate at 300 x Q(t)" and rb_light["reference_q_factor"] == 300
+        assert rb_low["reference"] == "50 s low-pass of z" and "reference_q_factor" not in rb_low
+        assert abs(rb_light["weight_fir"] - w_true) < 0.15
+        assert abs(rb_light["weight_fir"] - w_true) <= abs(rb_low["weight_fir"] - w_true) + 0.05
+        tracks = [t for t in repeat_passes(table) if len(t) >= 3]
+        se = {}
+        for ref in (True, False):
+            vals = [_track_values(t, DT_S, 50.0, 6.0, ref) for t in tracks]
+            se[ref] = shrunk_repeat_blend_weight(*([v[k] for v in vals] for k in range(3))).se
+        assert se[True] < 0.5 * se[False], se
+    # results stored without the column: the low-pass of z, whatever the setting
+    old = table.drop(columns="dg_repeat_reference_mgal")
+    rb = choose_model({2: _candidate(old)}, noise, DT_S, ProcessingParams(), [], order=(2, {})).report["repeat_blend"]
+    assert rb["reference"] == "50 s low-pass of z"

@@ -58,6 +58,8 @@ def test_testline_with_stamp_jitter_is_not_flattened(tmp_path):
     # no crossovers: the passes judged the estimate against FIR (stage 9 step 4b), all four
     rb = report["model_choice"]["repeat_blend"]
     assert rb["passes"] == 4 and 0.0 <= rb["weight_fir"] <= 1.0 and "crossovers" in report["model_choice"]["fir_guard"]["reason"]
+    # against the other passes smoothed at 300 x Q(t) (the default reference)
+    assert rb["reference"] == "estimate at 300 x Q(t)" and rb["reference_q_factor"] == 300
 
 
 def test_testline_with_a_missing_gnss_epoch_and_gravimeter_sample(tmp_path):

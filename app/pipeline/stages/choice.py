@@ -677,16 +677,19 @@ def _guarded_fir(table: pd.DataFrame, noise, dt_s: float, p, floor_mgal: float, 
         rep["fir_smoothing_std_mgal"] = float(np.nanmedian(np.sqrt(np.fmax(list(clipped.values()), 0.0))))
 
 
-def _track_values(passes: list, dt_s: float, period_s: float, length_periods: float):
-    """One track's estimate, FIR 100 s and reference (FIR of z at ``period_s``, kernel of
-    ``length_periods`` periods), each (passes, common positions) at the positions every pass
-    has all three (:func:`app.core.accuracy.repeat_line_accuracy`); None without a common stretch."""
+def _track_values(passes: list, dt_s: float, period_s: float, length_periods: float, smoother_ref: bool = False):
+    """One track's estimate, FIR 100 s and reference, each (passes, common positions) at the
+    positions every pass has all three (:func:`app.core.accuracy.repeat_line_accuracy`); None
+    without a common stretch.  The reference: the pass smoothed lightly (column
+    ``dg_repeat_reference_mgal``, :meth:`app.pipeline.stages.filtering.Filtered.repeat_reference`)
+    with ``smoother_ref``, else FIR of z at ``period_s`` with a kernel of ``length_periods`` periods."""
     e = [g["easting_km"].to_numpy() for _, g in passes]
     n = [g["northing_km"].to_numpy() for _, g in passes]
     cols = []
     for _, g in passes:
         est, fir = g["dg_unleveled_mgal"].to_numpy(float), g["dg_fir_mgal"].to_numpy(float)
-        ref = fir_lowpass_mgal(g["z_mgal"].to_numpy(float), dt_s, period_s, length_periods)
+        ref = (g["dg_repeat_reference_mgal"].to_numpy(float) if smoother_ref else
+               fir_lowpass_mgal(g["z_mgal"].to_numpy(float), dt_s, period_s, length_periods))
         ok = np.isfinite(est) & np.isfinite(fir) & np.isfinite(ref)  # the same positions for all three
         cols.append([np.where(ok, v, np.nan) for v in (est, fir, ref)])
     try:
@@ -712,8 +715,11 @@ def repeat_blend(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> 
     tracks = [t for t in repeat_passes(table) if len(t) >= p.repeat_blend_min_passes]
     if not tracks:
         return {"applied": False, "reason": f"no repeat track of {p.repeat_blend_min_passes} passes or more"}
-    vals = [v for v in (_track_values(t, dt_s, p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods)
-                        for t in tracks) if v is not None]
+    smoother_ref = p.repeat_blend_reference == "smoother" and "dg_repeat_reference_mgal" in table
+    reference = (f"estimate at {p.repeat_blend_reference_q_factor:g} x Q(t)" if smoother_ref else
+                 f"{p.repeat_blend_reference_period_s:g} s low-pass of z")
+    vals = [v for v in (_track_values(t, dt_s, p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods,
+                                      smoother_ref) for t in tracks) if v is not None]
     if not vals:
         return {"applied": False, "reason": "no common stretch of the passes"}
     est, fir, ref = ([v[k] for v in vals] for k in range(3))
@@ -723,7 +729,9 @@ def repeat_blend(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> 
     msd = [float(np.nanmean(np.concatenate([leave_one_out_msd_mgal2(x, r) for x, r in zip(xs, ref)])))
            for xs in (est, fir, [(1 - w) * e + w * f for e, f in zip(est, fir)])]
     rep = {"weight_fir": w, "passes": int(sum(x.shape[0] for x in est)), "tracks": len(vals),
-           "reference_period_s": p.repeat_blend_reference_period_s,
+           "reference": reference,
+           **({"reference_q_factor": p.repeat_blend_reference_q_factor} if smoother_ref else
+              {"reference_period_s": p.repeat_blend_reference_period_s}),
            "msd_estimate_mgal2": msd[0], "msd_fir_mgal2": msd[1], "msd_blend_mgal2": msd[2], "applied": w > 0}
     if shrunk is not None:
         rep.update(weight_raw=shrunk.raw, weight_se=shrunk.se, weight_leave_one_out=list(shrunk.leave_one_out))
@@ -745,7 +753,7 @@ def repeat_blend(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> 
     shrunk_note = (f" (the passes' own weight {shrunk.raw:.2f}, shrunk by its jackknife error {shrunk.se:.2f})"
                    if shrunk is not None and w < shrunk.raw else "")
     warnings.append(f"test line: the repeat passes agree best with the other passes' "
-                    f"{p.repeat_blend_reference_period_s:g} s low-pass of z when {w:.2f}{shrunk_note} of FIR 100 s is "
+                    f"{reference} when {w:.2f}{shrunk_note} of FIR 100 s is "
                     f"blended into "
                     f"the adaptive estimate ({rep['passes']} passes; mean square {msd[0]:.2f} adaptive, {msd[1]:.2f} FIR, "
                     f"{msd[2]:.2f} blend, mGal², the reference's noise included): that blend used")

@@ -574,6 +574,36 @@ class Filtered:
             self.table[c] = v
         self.table["dg_unleveled_mgal"] = cols["dg_mgal"]
 
+    def repeat_reference(self, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool, factor: float,
+                         min_passes: int) -> None:
+        """The repeat blend's reference (in place: column ``dg_repeat_reference_mgal``, NaN off the
+        repeat tracks of ``min_passes`` or more): each pass smoothed again at ``factor``·Q(t) under
+        the fitted noise model and its R(t).
+
+        The blend (stage 9, :func:`app.pipeline.stages.choice.repeat_blend`) compares each pass
+        with the mean reference of the *other* passes: what it needs of the reference is noise
+        independent between passes (any per-pass estimate has that) and little of the anomaly
+        rounded off where the estimate and FIR 100 s differ.  A light low-pass of z keeps the
+        anomaly but, at 2 Hz, carries ~13 mGal of noise against 1–2 mGal between the two
+        estimates, and the weight scatters over most of [0, 1] with four passes.  The smoother at
+        a level far above the estimate's (about 2.6× its bandwidth at 300·Q for m = 2) keeps
+        most of the anomaly the estimate rounds off and, knowing the noise's shape, passes a
+        fraction of the low-pass's noise."""
+        tracks = [t for t in self._repeat_tracks({}, "").values() if len(t) >= min_passes]
+        col = np.full(len(self.table), np.nan)
+        if tracks and self.prepared and self.r_lines is not None:
+            passes = [(i, off, n) for t in tracks for i, off, n in t]
+
+            def smooth(item):
+                i, _, _ = item
+                pr = self.prepared[i]
+                q = factor * self.estimate_q(pr, q_from_posteriors)
+                return filter_line(pr.z_ext, q, self.r_lines[i], dt_s, m, method, noise)[0][pr.inner]
+
+            for (_, off, n), x in zip(passes, line_map()(smooth, passes)):
+                col[off:off + n] = x
+        self.table["dg_repeat_reference_mgal"] = col
+
     def _track_scatter(self, passes: list, est: np.ndarray, std: np.ndarray, min_samples: float, period_s: float):
         """A repeat track's passes of the estimate ``est`` and of the variance ``std²`` at their
         common points (:func:`app.core.accuracy.repeat_line_accuracy`), with the track's

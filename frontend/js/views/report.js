@@ -145,7 +145,7 @@ export function summary(r) {
         // a test line: the passes' least-error blend with FIR 100 s (stage 9, step 4b)
         const rb = mc.repeat_blend;
         text += ` — too few crossovers to judge; the ${rb.passes} repeat passes agree best with each other's ` +
-          `${fmt(rb.reference_period_s, 3)} s low-pass of z when ${fmt(rb.weight_fir, 3)} of FIR 100 s is blended in ` +
+          `${rb.reference ? String(rb.reference) : fmt(rb.reference_period_s, 3) + " s low-pass of z"} when ${fmt(rb.weight_fir, 3)} of FIR 100 s is blended in ` +
           `(mean square ${fmt(rb.msd_estimate_mgal2, 4)} adaptive, ${fmt(rb.msd_fir_mgal2, 4)} FIR, ` +
           `${fmt(rb.msd_blend_mgal2, 4)} blend, mGal², the reference's noise included)`;
       } else if (g.n_crossovers && g.crossover_rms_fir_mgal !== undefined) {
