@@ -416,7 +416,8 @@ class ProcessingParams(_Strict):
         "anomaly, and its noise is a fraction of a low-pass of z's: on 56 test lines the weight's jackknife error "
         "over the passes 0.1-0.7 against 0.2-3); 'lowpass' — FIR of z at repeat_blend_reference_period_s")
     repeat_blend_reference_q_factor: float = Field(300.0, ge=1, le=1e6, description="The smoother reference's anomaly "
-                                                   "level over the estimate's Q(t): about 2.6x its bandwidth (m = 2); "
+                                                   "level over the estimate's Q(t): about 2.6x its bandwidth (m = 2, white "
+                                                   "velocity noise: the bandwidth goes as Q^(1/6)); "
                                                    "at 10x the reference shares half the estimate's rounding and the "
                                                    "weight comes out half the truth's (MEASUREMENTS.md, session 48)")
     repeat_blend_reference_period_s: float = Field(50.0, gt=0, le=100, description="The repeat level check's "

@@ -720,6 +720,10 @@ def repeat_blend(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> 
                  f"{p.repeat_blend_reference_period_s:g} s low-pass of z")
     vals = [v for v in (_track_values(t, dt_s, p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods,
                                       smoother_ref) for t in tracks) if v is not None]
+    if smoother_ref and not vals:   # the filtering stage smoothed none of these passes: the low-pass of z
+        smoother_ref, reference = False, f"{p.repeat_blend_reference_period_s:g} s low-pass of z"
+        vals = [v for v in (_track_values(t, dt_s, p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods)
+                            for t in tracks) if v is not None]
     if not vals:
         return {"applied": False, "reason": "no common stretch of the passes"}
     est, fir, ref = ([v[k] for v in vals] for k in range(3))

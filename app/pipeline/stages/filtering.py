@@ -586,7 +586,8 @@ class Filtered:
         rounded off where the estimate and FIR 100 s differ.  A light low-pass of z keeps the
         anomaly but, at 2 Hz, carries ~13 mGal of noise against 1–2 mGal between the two
         estimates, and the weight scatters over most of [0, 1] with four passes.  The smoother at
-        a level far above the estimate's (about 2.6× its bandwidth at 300·Q for m = 2) keeps
+        a level far above the estimate's (at 300·Q about 2.6× its bandwidth for m = 2 under white
+        velocity noise, where the bandwidth goes as Q^(1/6)) keeps
         most of the anomaly the estimate rounds off and, knowing the noise's shape, passes a
         fraction of the low-pass's noise."""
         tracks = [t for t in self._repeat_tracks({}, "").values() if len(t) >= min_passes]
