@@ -28,7 +28,7 @@ export const LABELS = {
   median_disagreement: "Median disagreement with FIR", median_variance_ratio: "Median variance ratio", weight_fir: "Weight of FIR 100 s",
   weight_raw: "Weight of FIR from the passes, before shrinking", weight_se: "Its jackknife error over the passes",
   weight_leave_one_out: "Weight with each pass left out",
-  reference: "Reference: the other passes' …", reference_q_factor: "Reference smoother's anomaly level over Q(t)",
+  reference: "Reference each pass is compared with (the other passes')", reference_q_factor: "Reference smoother's anomaly level over Q(t)",
   reference_period_s: "Reference low-pass period (s)", msd_estimate_mgal2: "Mean square difference, adaptive (mGal²)",
   msd_fir_mgal2: "Mean square difference, FIR (mGal²)", msd_blend_mgal2: "Mean square difference, blend (mGal²)", passes_noise: "Passes noise",
   long_lowpass: "Longer low-pass", period_s: "Period (s)",
