@@ -715,15 +715,17 @@ def repeat_blend(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> 
     tracks = [t for t in repeat_passes(table) if len(t) >= p.repeat_blend_min_passes]
     if not tracks:
         return {"applied": False, "reason": f"no repeat track of {p.repeat_blend_min_passes} passes or more"}
+    def values(smoother_ref: bool) -> list:
+        return [v for v in (_track_values(t, dt_s, p.repeat_blend_reference_period_s,
+                                          p.repeat_blend_reference_periods, smoother_ref) for t in tracks)
+                if v is not None]
+
     smoother_ref = p.repeat_blend_reference == "smoother" and "dg_repeat_reference_mgal" in table
+    vals = values(smoother_ref)
+    if smoother_ref and not vals:   # the filtering stage smoothed none of these passes: the low-pass of z
+        smoother_ref, vals = False, values(False)
     reference = (f"estimate at {p.repeat_blend_reference_q_factor:g} x Q(t)" if smoother_ref else
                  f"{p.repeat_blend_reference_period_s:g} s low-pass of z")
-    vals = [v for v in (_track_values(t, dt_s, p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods,
-                                      smoother_ref) for t in tracks) if v is not None]
-    if smoother_ref and not vals:   # the filtering stage smoothed none of these passes: the low-pass of z
-        smoother_ref, reference = False, f"{p.repeat_blend_reference_period_s:g} s low-pass of z"
-        vals = [v for v in (_track_values(t, dt_s, p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods)
-                            for t in tracks) if v is not None]
     if not vals:
         return {"applied": False, "reason": "no common stretch of the passes"}
     est, fir, ref = ([v[k] for v in vals] for k in range(3))
