@@ -499,20 +499,41 @@ class ProcessingParams(_Strict):
                                           "the tracks keep the spread; 0 = off")
     repeat_level_check: bool = Field(True, description="Where the crossovers are too few to judge the estimate "
                                      "(fewer than fir_guard_min_crossovers: a test line) and a repeat track has "
-                                     "repeat_blend_min_passes passes or more, the anomaly level Q(t) is lowered to "
-                                     "Q(t) / repeat_level_factor when the passes then agree significantly better with "
-                                     "the other passes' repeat_blend_reference_period_s low-pass of z "
-                                     "(repeat_level_significance)")
-    repeat_level_factor: float = Field(3.0, gt=1, le=100, description="The repeat level check tries Q(t) / this.  "
-                                       "Only lowered: the figure favours less smoothing (it shares the reference's "
-                                       "smoothing error), and on 74 generated test lines Q x 3 where it chose so "
-                                       "made 5 of 18 less repeatable and one 9 % worse against the truth, while "
-                                       "Q / 3 made all 6 it chose more repeatable and 5 more accurate")
-    repeat_level_significance: float = Field(0.1, gt=0, le=1, description="Q(t) / repeat_level_factor is used "
+                                     "repeat_blend_min_passes passes or more, the anomaly level Q(t) is scaled by "
+                                     "1 / repeat_level_factor (or by repeat_level_factor, with repeat_level_raise) "
+                                     "when the passes then agree significantly better with the other passes' "
+                                     "reference (repeat_level_reference) away from the ends of their common stretch "
+                                     "(repeat_level_edge_km; repeat_level_significance)")
+    repeat_level_factor: float = Field(3.0, gt=1, le=100, description="The repeat level check tries Q(t) / this "
+                                       "(and Q(t) x this with repeat_level_raise)")
+    repeat_level_raise: bool = Field(True, description="The repeat level check also tries Q(t) x repeat_level_factor. "
+                                     "Against the other passes smoothed at 300 x Q(t), over the interiors of 88 "
+                                     "generated test lines, the levels it raised (and lowered) were all the better of "
+                                     "the three against the truth; against the 50 s low-pass of z (the check's "
+                                     "earlier reference) Q x 3 made 5 of 18 less repeatable and one 9 % worse")
+    repeat_level_reference: Literal["smoother", "lowpass"] = Field(
+        "smoother", description="The repeat level check's reference: each pass smoothed at "
+        "repeat_blend_reference_q_factor x Q(t) under the fitted noise model ('smoother'), or the light low-pass of z "
+        "of repeat_blend_reference_period_s ('lowpass', the earlier reference: ~13 mGal of noise at 2 Hz, which left "
+        "the check little power)")
+    repeat_level_edge_km: float = Field(10.0, ge=0, le=1000, description="The repeat level check compares the passes "
+                                        "only this far (km) or more from the ends of their common stretch (all of it "
+                                        "where fewer than three test blocks would remain), and a scaled level is used "
+                                        "only there, on every line this far or more from its ends (the ends keep "
+                                        "theirs): near the ends the smoother sees the anomaly from one side and the "
+                                        "run-in's manoeuvres, and a level that suits the interior is not the one they "
+                                        "need (scaled along whole lines, held-out test lines 69-84 gained 0.540 -> "
+                                        "0.526 x FIR in the interiors and lost 0.598 -> 0.609 over whole lines).  "
+                                        "0: the whole common stretch judged, the levels scaled everywhere")
+    repeat_level_block_s: float = Field(50.0, gt=0, le=10_000, description="Block length (s of flight) of the repeat "
+                                        "level check's t-test over the passes' figure difference: several times the "
+                                        "difference's own correlation (its integrated autocorrelation 0.8 km, up to 4 "
+                                        "km, over 88 generated test lines at 100 m positions; blocks of 50 s at "
+                                        "60 m/s are 3 km)")
+    repeat_level_significance: float = Field(0.1, gt=0, le=1, description="A scaled level is used "
                                              "only where the passes agree better so at this one-sided level "
-                                             "(t-test over 100 s blocks of the passes' figure difference; simulated "
-                                             "test lines: never with the level right in 10, on 7 of 10 with it 10x "
-                                             "too high)")
+                                             "(t-test over repeat_level_block_s blocks of the passes' figure "
+                                             "difference)")
     rescale_noisy_passes: bool = Field(True, description="Repeat passes whose departures from the other passes "
                                        "show more noise than their posterior (the passes' mean noise ratio above 1 "
                                        "at std_repeat_significance, std_repeat_min_samples stretches) are smoothed "
@@ -848,7 +869,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
       "repeat_blend_reference", "repeat_blend_reference_q_factor",
       "repeat_blend_reference_period_s", "repeat_blend_reference_periods", "repeat_blend_min_passes",
       "repeat_blend_shrink",
-      "repeat_level_check", "repeat_level_factor", "repeat_level_significance")),
+      "repeat_level_check", "repeat_level_factor", "repeat_level_raise", "repeat_level_reference",
+      "repeat_level_edge_km", "repeat_level_block_s", "repeat_level_significance")),
     ("leveling", "Leveling at the crossovers",
      ("leveling_degree", "leveling_per_flight", "leveling_significance"),
      ("leveling_cross_validate", "leveling_cv_significance", "leveling_cv_significance_untied",

@@ -267,6 +267,23 @@ def _recognised_by(idents: dict, m: int, p):
     return hybrid
 
 
+def _test_line_level(filtered, idf, m: int, p, warnings: list) -> None:
+    """A test line's anomaly level checked by its repeat passes (``repeat_level_*``,
+    :meth:`app.pipeline.stages.filtering.Filtered.repeat_level_check`), in place; a warning
+    says when it was scaled."""
+    factors = (1.0 / p.repeat_level_factor, 1.0) + ((p.repeat_level_factor,) if p.repeat_level_raise else ())
+    filtered.repeat_level_check(
+        idf.dt_s, m, p.smoother, idf.noise.model, p.q_from_posteriors, factors, p.repeat_level_significance,
+        p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods, p.repeat_blend_min_passes,
+        p.repeat_level_block_s,
+        reference_q_factor=(p.repeat_blend_reference_q_factor if p.repeat_level_reference == "smoother" else None),
+        edge_km=p.repeat_level_edge_km)
+    lc = filtered.repeat_level
+    if lc and lc.get("factor", 1.0) != 1.0:
+        warnings.append(f"test line: anomaly level x {lc['factor']:.3g}"
+                        + (f" ({lc['scaled']})" if lc.get("scaled") else "") + f": {lc['reason']}")
+
+
 def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = None, rho_km: float | None = None,
                survey_name: str | None = None, orders: list[int] | None = None,
                q_start: dict | None = None, q_stationary: dict | None = None) -> dict:
@@ -314,15 +331,8 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
                                                     p.fir_cutoff_period_s, p.std_repeat_significance)
         warnings.extend(rescaled_pass_warnings(cands[m_best].filtered.noisy_passes))
     if p.repeat_level_check and count_crossovers(idf.lines, p.leveling_include_repeat) < p.fir_guard_min_crossovers:
-        # a test line: its level lowered where its repeat passes agree better so (the crossovers cannot judge it)
-        cands[m_best].filtered.repeat_level_check(idf.dt_s, m_best, p.smoother, idf.noise.model, p.q_from_posteriors,
-                                                  (1.0 / p.repeat_level_factor, 1.0),
-                                                  p.repeat_level_significance,
-                                                  p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods,
-                                                  p.repeat_blend_min_passes, p.fir_cutoff_period_s)
-        lc = cands[m_best].filtered.repeat_level
-        if lc and lc.get("factor", 1.0) != 1.0:
-            warnings.append(f"test line: anomaly level x {lc['factor']:.3g}: {lc['reason']}")
+        # a test line: its level scaled where its repeat passes agree better so (the crossovers cannot judge it)
+        _test_line_level(cands[m_best].filtered, idf, m_best, p, warnings)
     if (p.repeat_blend and p.repeat_blend_reference == "smoother"
             and count_crossovers(idf.lines, p.leveling_include_repeat) < p.fir_guard_min_crossovers):
         # a test line's blend with FIR (stage 9) judged against the other passes smoothed lightly

@@ -260,7 +260,8 @@ def test_a_repeat_pass_smoothed_with_its_own_noise_is_named(fake_server, browser
 
 def test_a_test_lines_lowered_level_is_named(fake_server, browser_page):  # noqa: F811
     """Generated test line 248: its repeat passes agreed better at Q/3; the summary says so with
-    the two figures and the p-value, and says nothing where the level was kept."""
+    the two figures and the p-value, and says nothing where the level was kept.  A level raised
+    against the smoother reference names that reference and the interior it was judged on."""
     page = browser_page
     page.goto(fake_server.url)
     got = page.evaluate("""async () => {
@@ -269,11 +270,19 @@ def test_a_test_lines_lowered_level_is_named(fake_server, browser_page):  # noqa
             .querySelectorAll('li')].filter((l) => l.textContent.startsWith('Test line level')).map((l) => l.textContent);
         const lowered = {factors: [0.3333333, 1.0], msd_mgal2: [743.7, 887.75], p_values: {'0.333333': 0.0123},
                          reference_period_s: 50, factor: 0.3333333};
-        return {lowered: text(lowered), kept: text({...lowered, factor: 1.0})};
+        const raised = {factors: [0.3333333, 1.0, 3.0], msd_mgal2: [5.817, 4.304, 3.721],
+                        p_values: {'0.333333': 0.98, '3': 0.0312}, reference: 'estimate at 300 x Q(t)',
+                        reference_q_factor: 300, edge_km: 10, factor: 3.0,
+                        scaled: "Q(t) x 3 in the lines' interiors (10 km or more from their ends)"};
+        return {lowered: text(lowered), kept: text({...lowered, factor: 1.0}), raised: text(raised)};
     }""")
     assert got["lowered"] == ["Test line level: Q × 0.333 — the repeat passes agree better with the other passes' 50 s "
                               "low-pass of z (mean square 743.7 against 887.75 mGal², p = 0.01)."], got
     assert got["kept"] == [], got
+    # raised, against the other passes' smoother reference: the figures of Q x 3 and Q, and its p
+    assert got["raised"] == ["Test line level: Q × 3 in the lines' interiors (10 km or more from their ends) — the "
+                             "repeat passes agree better there with the other passes' estimate at 300 × Q(t) (mean "
+                             "square 3.721 against 4.304 mGal², p = 0.03)."], got
     _no_errors(page)
 
 

@@ -491,3 +491,45 @@ def test_a_test_lines_level_is_lowered_where_its_passes_agree_better_so():
         assert g.repeat_level["factor"] == 1.0, g.repeat_level
         np.testing.assert_array_equal(g.table["dg_mgal"].to_numpy(), kept)
         np.testing.assert_allclose(g.Q_levels, [q])
+
+
+def test_a_test_lines_level_is_raised_or_lowered_by_its_passes_against_their_smoother_reference():
+    """Against the other passes smoothed at 300 x Q(t), away from the tracks' ends, the check
+    looks both ways: with the model's level 10x too low (the estimate rounds the anomaly off)
+    it raises Q by 3 — in the lines' interiors, where it judged, every line smoothed again
+    with that Q(t), exactly — and the error against the truth there falls; with it 10x too
+    high it lowers Q by 3; with the level right nothing changes."""
+    q = 2e-5
+    inner = slice(400, -400)       # 12 km in: 30 m per epoch
+    args = (0.1, 50.0, 6.0, 3, 50.0)
+    # seeds 90-97: raised on 6 of 8 with the level 10x too low, lowered on 7 of 8 with it 10x too
+    # high, never moved with the level right
+    for seed in (90, 91, 92):
+        for q_used, want in ((q / 10, 3.0), (10 * q, 1 / 3)):
+            f, truths, dt, T = _level_track(seed, q, q_used)
+            before = f.table["dg_mgal"].to_numpy().reshape(4, T).copy()
+            f.repeat_level_check(dt, 2, "bf", None, True, (1 / 3, 1.0, 3.0), *args, reference_q_factor=300.0,
+                                 edge_km=10.0)
+            rep = f.repeat_level
+            assert rep["factor"] == want, rep
+            assert rep["reference"] == "estimate at 300 x Q(t)" and rep["edge_km"] == 10.0, rep
+            np.testing.assert_allclose(f.Q_levels, [q_used])
+            # Q(t) scaled 10 km or more from the ends of each 90 km pass (30 m per epoch), kept nearer
+            along = np.arange(T) * dt * 60.0 / 1000.0
+            q_t = np.where(np.minimum(along, along[-1] - along) >= 10.0, q_used * want, q_used)
+            np.testing.assert_allclose(f.table["Q_mgal2"].to_numpy().reshape(4, T)[0], q_t)
+            after = f.table["dg_mgal"].to_numpy().reshape(4, T)
+            ref = kalman_smooth(f.prepared[0].z_ext, q_t, np.full(T, 1.0), dt, m=2)
+            np.testing.assert_allclose(after[0], ref.dg_mgal, rtol=1e-9, atol=1e-9)
+            err = [float(np.sqrt(np.mean((x[:, inner] - np.array(truths)[:, inner]) ** 2))) for x in (before, after)]
+            assert err[1] < 0.95 * err[0], (seed, q_used, err)
+        g, _, dt, T = _level_track(seed, q, q)
+        kept = g.table["dg_mgal"].to_numpy().copy()
+        g.repeat_level_check(dt, 2, "bf", None, True, (1 / 3, 1.0, 3.0), *args, reference_q_factor=300.0,
+                             edge_km=10.0)
+        assert g.repeat_level["factor"] == 1.0, g.repeat_level
+        np.testing.assert_array_equal(g.table["dg_mgal"].to_numpy(), kept)
+        # the interior only: 90 km passes less 10 km at either end
+        interior = g.repeat_level["positions"]
+        g.repeat_level_check(dt, 2, "bf", None, True, (1 / 3, 1.0, 3.0), *args, reference_q_factor=300.0, edge_km=0.0)
+        assert abs(interior / g.repeat_level["positions"] - 70.0 / 90.0) < 0.01, (interior, g.repeat_level)

@@ -6,7 +6,7 @@ stationary (Q₁, R) smoother and the FIR 100 s low-pass beside it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -104,6 +104,25 @@ def hold_states(n_epochs: int, idx: np.ndarray, states: np.ndarray) -> np.ndarra
     return states[k]
 
 
+def _stretch_interior(along_km: np.ndarray, edge_km: float, min_points: int) -> np.ndarray:
+    """Boolean mask of the positions ``along_km`` at least ``edge_km`` from both ends of their
+    range; every position where fewer than ``min_points`` would remain."""
+    keep = (along_km >= np.min(along_km) + edge_km) & (along_km <= np.max(along_km) - edge_km)
+    return keep if keep.sum() >= min_points else np.ones(along_km.size, bool)
+
+
+def _interior(pr: PreparedLine, edge_km: float) -> np.ndarray:
+    """Boolean mask over a prepared line's extended epochs: on the line and at least
+    ``edge_km`` along it (its cumulative horizontal distance) from both of its ends."""
+    e = np.asarray(pr.line.easting_km, float)
+    n = np.asarray(pr.line.northing_km, float)
+    along = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(e), np.diff(n)))])
+    inside = np.minimum(along, along[-1] - along) >= edge_km
+    out = np.zeros(pr.z_ext.size, bool)
+    out[pr.inner] = inside
+    return out
+
+
 def filter_line(z_mgal, Q_mgal2, R_cm2s2, dt_s: float, m: int, method: str, noise=None):
     """Non-stationary Kalman smoother on one line: (dg_mgal, dg_std_mgal)."""
     res = kalman_smooth(np.asarray(z_mgal, float), np.asarray(Q_mgal2, float),
@@ -116,7 +135,9 @@ class PreparedLine:
     """One line ready for smoothing: the line, its states held on the full-rate grid, and z
     and R(t) over the line plus ``MARGIN_S`` of run-in on either side (``inner`` selects the
     line itself).  ``idx``/``pq``: the decimated points' indices and Q-level probabilities
-    (None for a line that was not identified)."""
+    (None for a line that was not identified).  ``q_factor``: where set (shape of ``z_ext``),
+    Q(t) is multiplied by it (a test line's level scaled in the lines' interiors,
+    :meth:`Filtered.repeat_level_check`)."""
 
     line: LineData
     s_full: np.ndarray
@@ -126,6 +147,7 @@ class PreparedLine:
     r_ext: np.ndarray | None
     idx: np.ndarray | None
     pq: np.ndarray | None
+    q_factor: np.ndarray | None = None
 
 
 def prepare_lines(lines: list[LineData], flights: dict[str, FlightMeasurement], reg, smap, n_q: int, n_r: int,
@@ -247,10 +269,10 @@ class Filtered:
 
     def estimate_q(self, pr: PreparedLine, q_from_posteriors: bool) -> np.ndarray:
         """Q(t) over the extended line as the estimate uses it: the one level, or
-        :func:`q_series` of the levels."""
-        if len(self.Q_levels) == 1:
-            return np.full(pr.z_ext.size, float(self.Q_levels[0]))
-        return q_series(pr, self.Q_levels, self.n_r, q_from_posteriors)
+        :func:`q_series` of the levels (times the line's ``q_factor`` where set)."""
+        q = (np.full(pr.z_ext.size, float(self.Q_levels[0])) if len(self.Q_levels) == 1 else
+             q_series(pr, self.Q_levels, self.n_r, q_from_posteriors))
+        return q if pr.q_factor is None else q * pr.q_factor
 
     def level_spread_std(self, dt_s: float, m: int, method: str, noise, factor: float,
                          n_points: int | None = None, min_points: int | None = None,
@@ -488,26 +510,36 @@ class Filtered:
 
     def repeat_level_check(self, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool, factors,
                            significance: float, ref_period_s: float, ref_periods: float, min_passes: int,
-                           period_s: float = 100.0) -> None:
+                           period_s: float = 100.0, reference_q_factor: float | None = None,
+                           edge_km: float = 0.0) -> None:
         """A test-line survey's anomaly level chosen by its repeat passes (in place; before any
         std is widened).  Each factor f of ``factors`` scales Q(t) as a whole; the repeat passes
         (tracks of ``min_passes`` or more) are smoothed at f·Q(t), and each pass is compared with
-        the other passes' light low-pass of z (FIR of z at ``ref_period_s``, a kernel of
-        ``ref_periods`` periods) by :func:`app.core.model_check.leave_one_out_msd_mgal2`: the
+        the other passes' reference by :func:`app.core.model_check.leave_one_out_msd_mgal2`: the
         passes share the anomaly, not the noise, so the figure ranks the levels by their error
         against the truth, up to the reference's own noise (the same for every f) and smoothing
-        error.  The factor with the least figure is used — every line smoothed again at f·Q(t),
-        the levels scaled — where the passes agree significantly better so (one-sided p below
+        error.  The reference is each pass smoothed at ``reference_q_factor`` × Q(t) under the
+        noise model (a level far above the estimate's: it keeps most of what the estimate rounds
+        off and, knowing the noise's shape, carries a fraction of a low-pass's noise), or, with
+        ``reference_q_factor`` None, a light low-pass of z (FIR of z at ``ref_period_s``, a
+        kernel of ``ref_periods`` periods).  Only positions at least ``edge_km`` from the ends
+        of each track's common stretch are compared (all of them where fewer than three blocks
+        would remain): near the ends the smoother sees the anomaly from one side only and the
+        run-in's manoeuvres, and the level that suits them is not the one the line needs.  The
+        factor with the least figure is used — every line smoothed again at f·Q(t), the levels
+        scaled — where the passes agree significantly better so (one-sided p below
         ``significance``, :func:`app.core.model_check.leave_one_out_msd_test` over blocks of
-        ``period_s`` of flight); else the levels stay.  The report's ``level_refinement.repeat_level_check`` gives the
-        figure of each factor.  Only where the crossovers are too few to judge the estimate
-        (the caller's condition): a repeat track says little about the lines off it."""
+        ``period_s`` of flight); else the levels stay.  The report's
+        ``level_refinement.repeat_level_check`` gives the figure of each factor.  Only where the
+        crossovers are too few to judge the estimate (the caller's condition): a repeat track
+        says little about the lines off it."""
         tracks = [t for t in self._repeat_tracks({}, "").values() if len(t) >= min_passes]
         if not tracks or not self.prepared or self.r_lines is None:
             return
         est = self.table["dg_mgal"].to_numpy()
-        refs = {i: fir_lowpass_mgal(self.prepared[i].line.z_mgal, dt_s, ref_period_s, ref_periods)
-                for t in tracks for i, _, _ in t}
+        ids = [i for t in tracks for i, _, _ in t]
+        refs = self._level_check_references(ids, dt_s, m, method, noise, q_from_posteriors, ref_period_s, ref_periods,
+                                            reference_q_factor)
 
         def values(f: float) -> list:
             """Per track: (estimate at f·Q(t), reference), each (passes, common positions)."""
@@ -533,17 +565,27 @@ class Filtered:
             self.repeat_level = {"factor": 1.0, "reason": "no common stretch of the passes"}
             return
         vals = {f: values(f) for f in sorted({float(x) for x in factors} | {1.0})}
-        msd = {f: float(np.nanmean(np.concatenate([leave_one_out_msd_mgal2(x, r) for x, r, _ in v])))
-               for f, v in vals.items()}
-        speed = float(np.mean([self.prepared[i].line.speed_ms for t in tracks for i, _, _ in t]))
+        speed = float(np.mean([self.prepared[i].line.speed_ms for i in ids]))
         step_km = float(np.median(np.diff(vals[1.0][0][2].along_km)))
         block = max(1, int(round(period_s * speed / 1000.0 / step_km)))
+        if edge_km > 0 and len({len(v) for v in vals.values()}) == 1:
+            # the tracks' interiors (each track's own common stretch less edge_km at either end)
+            masks = [_stretch_interior(np.asarray(acc.along_km), edge_km, 3 * block) for _, _, acc in vals[1.0]]
+            vals = {f: [(x[:, k], r[:, k], acc) for (x, r, acc), k in zip(v, masks)] for f, v in vals.items()}
+        msd = {f: float(np.nanmean(np.concatenate([leave_one_out_msd_mgal2(x, r) for x, r, _ in v])))
+               for f, v in vals.items()}
         tests = {f: leave_one_out_msd_test([x for x, _, _ in vals[f]], [x for x, _, _ in vals[1.0]],
                                            [r for _, r, _ in vals[1.0]], block)
                  for f in vals if f != 1.0}
+        ref_name = (f"estimate at {reference_q_factor:g} x Q(t)" if reference_q_factor is not None else
+                    f"{ref_period_s:g} s low-pass of z")
         rep = {"factors": list(vals), "msd_mgal2": [msd[f] for f in vals],
                "p_values": {f"{f:g}": tests[f][1] for f in tests}, "significance": float(significance),
-               "block_positions": block, "reference_period_s": float(ref_period_s), "factor": 1.0}
+               "block_positions": block, "block_s": float(period_s), "reference": ref_name,
+               **({"reference_q_factor": float(reference_q_factor)} if reference_q_factor is not None else
+                  {"reference_period_s": float(ref_period_s)}),
+               "edge_km": float(edge_km), "positions": int(sum(x.shape[1] for x, _, _ in vals[1.0])),
+               "factor": 1.0}
         self.repeat_level = rep
         better = [f for f in tests if tests[f][0] < 0 and tests[f][1] < significance]
         if not better:
@@ -551,12 +593,38 @@ class Filtered:
             return
         best = min(better, key=lambda f: msd[f])
         rep["factor"] = best
-        rep["reason"] = (f"the passes agree better with the others' {ref_period_s:g} s low-pass of z at {best:g} x Q "
+        rep["reason"] = (f"the passes agree better with the others' {ref_name} at {best:g} x Q "
                          f"({msd[best]:.4g} against {msd[1.0]:.4g} mGal², the reference's noise included; one-sided "
                          f"p = {tests[best][1]:.3g} over {block}-position blocks)")
-        self.Q_levels = np.asarray(self.Q_levels, float) * best
-        rep["Q_used_mgal2"] = self.Q_levels.tolist()
+        if edge_km > 0:
+            # used where it was judged: Q(t) scaled in each line's interior (edge_km or more from
+            # its ends), the ends and run-ins kept at the level they had
+            for i, pr in enumerate(self.prepared):
+                self.prepared[i] = replace(pr, q_factor=(1.0 if pr.q_factor is None else pr.q_factor)
+                                           * np.where(_interior(pr, edge_km), best, 1.0))
+            rep["scaled"] = f"Q(t) x {best:g} in the lines' interiors ({edge_km:g} km or more from their ends)"
+        else:
+            self.Q_levels = np.asarray(self.Q_levels, float) * best
+            rep["Q_used_mgal2"] = self.Q_levels.tolist()
+        self._smooth_again(dt_s, m, method, noise, q_from_posteriors)
 
+    def _level_check_references(self, ids: list, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool,
+                                ref_period_s: float, ref_periods: float, reference_q_factor: float | None) -> dict:
+        """:meth:`repeat_level_check`'s reference per prepared line index of ``ids``: the line
+        smoothed at ``reference_q_factor`` × Q(t), or (None) the FIR low-pass of z at
+        ``ref_period_s`` with a kernel of ``ref_periods`` periods (mGal, the line's epochs)."""
+        if reference_q_factor is None:
+            return {i: fir_lowpass_mgal(self.prepared[i].line.z_mgal, dt_s, ref_period_s, ref_periods) for i in ids}
+
+        def reference(i: int) -> np.ndarray:
+            pr = self.prepared[i]
+            q = float(reference_q_factor) * self.estimate_q(pr, q_from_posteriors)
+            return filter_line(pr.z_ext, q, self.r_lines[i], dt_s, m, method, noise)[0][pr.inner]
+        return dict(zip(ids, line_map()(reference, ids)))
+
+    def _smooth_again(self, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool) -> None:
+        """Every line smoothed again at its Q(t) (:meth:`estimate_q`): ``dg_mgal``,
+        ``dg_unleveled_mgal``, ``dg_std_mgal`` and ``Q_mgal2`` replaced (in place)."""
         def smooth(i: int):
             pr = self.prepared[i]
             q = self.estimate_q(pr, q_from_posteriors)
@@ -680,9 +748,10 @@ class Filtered:
             pr, r, off, n = self.prepared[i], self.r_lines[i], int(offsets[i]), sizes[i]
             if pr.pq is None:
                 return None
-            q = q_series(pr, self.Q_levels, self.n_r, True, "arithmetic")
+            scale = 1.0 if pr.q_factor is None else pr.q_factor
+            q = q_series(pr, self.Q_levels, self.n_r, True, "arithmetic") * scale
             arith = filter_line(pr.z_ext, q, r, dt_s, m, method, noise)[1][pr.inner]
-            runs = [filter_line(pr.z_ext, np.full(pr.z_ext.size, qk), r, dt_s, m, method, noise)
+            runs = [filter_line(pr.z_ext, np.full(pr.z_ext.size, qk) * scale, r, dt_s, m, method, noise)
                     for qk in self.Q_levels]
             pos = np.arange(n, dtype=float)
             w = np.array([np.interp(pos, pr.idx, pr.pq[:, k]) for k in range(len(self.Q_levels))])

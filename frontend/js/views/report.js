@@ -86,12 +86,16 @@ export function summary(r) {
       (done.length > 1 ? "these passes carry" : "this pass carries") +
       " more noise than the noise model gave them, measured by their departures from the other passes." });
   }
-  // a test line's level lowered where its repeat passes agree better so
+  // a test line's level scaled where its repeat passes agree better so
   const lc = (rep.level_refinement || {}).repeat_level_check;
   if (lc && lc.factor !== undefined && lc.factor !== 1) {
-    const p = Object.values(lc.p_values || {})[0];
-    items.push({ cls: "warn", text: `Test line level: Q × ${fmt(lc.factor, 3)} — the repeat passes agree better with the other passes' ` +
-      `${fmt(lc.reference_period_s, 3)} s low-pass of z (mean square ${fmt(lc.msd_mgal2[0], 4)} against ${fmt(lc.msd_mgal2[1], 4)} mGal², p = ${fmt(p, 2)}).` });
+    const at = (lc.factors || []).indexOf(lc.factor), one = (lc.factors || []).indexOf(1);
+    const p = (lc.p_values || {})[String(Math.round(lc.factor * 1e6) / 1e6)] ?? Object.values(lc.p_values || {})[0];
+    const ref = lc.reference_q_factor !== undefined ? `estimate at ${fmt(lc.reference_q_factor, 3)} × Q(t)`
+      : `${fmt(lc.reference_period_s, 3)} s low-pass of z`;
+    const where = lc.scaled ? ` in the lines' interiors (${fmt(lc.edge_km, 3)} km or more from their ends)` : "";
+    items.push({ cls: "warn", text: `Test line level: Q × ${fmt(lc.factor, 3)}${where} — the repeat passes agree better ` +
+      `${where ? "there " : ""}with the other passes' ${ref} (mean square ${fmt(lc.msd_mgal2[at >= 0 ? at : 0], 4)} against ${fmt(lc.msd_mgal2[one >= 0 ? one : 1], 4)} mGal², p = ${fmt(p, 2)}).` });
   }
   if (rep.lag_check) {
     const lc = rep.lag_check;
