@@ -533,3 +533,28 @@ def test_a_test_lines_level_is_raised_or_lowered_by_its_passes_against_their_smo
         interior = g.repeat_level["positions"]
         g.repeat_level_check(dt, 2, "bf", None, True, (1 / 3, 1.0, 3.0), *args, reference_q_factor=300.0, edge_km=0.0)
         assert abs(interior / g.repeat_level["positions"] - 70.0 / 90.0) < 0.01, (interior, g.repeat_level)
+
+
+def test_a_short_test_lines_level_is_judged_and_scaled_along_whole_lines():
+    """Passes too short for an interior (27 km: 10 km off either end leaves less than three
+    50 s blocks) are judged over their whole common stretch, and the level found there is
+    used along whole lines (the levels scaled), not in an interior that does not exist."""
+    q = 2e-5
+    dt, T, R, speed = 0.5, 900, 1.0, 60.0
+    for seed in (90, 91, 92, 93):
+        rng = np.random.default_rng(seed)
+        lines, zs, truths = _repeat_passes(rng, 4, T, dt, q, R, speed)
+        for ln, z in zip(lines, zs):
+            ln.z_mgal = z
+        f = _track_table(lines, zs, 10 * q, R, T, dt)
+        f.table["Q_mgal2"] = 10 * q
+        f.repeat_level_check(dt, 2, "bf", None, True, (1 / 3, 1.0, 3.0), 0.1, 50.0, 6.0, 3, 50.0,
+                             reference_q_factor=300.0, edge_km=10.0)
+        rep = f.repeat_level
+        assert rep["edge_km"] == 0.0 and "scaled" not in rep, rep
+        if rep["factor"] != 1.0:
+            np.testing.assert_allclose(f.Q_levels, [10 * q * rep["factor"]])
+            np.testing.assert_allclose(f.table["Q_mgal2"].to_numpy(), 10 * q * rep["factor"])
+            break
+    else:
+        raise AssertionError("the check never moved the level on four short tracks 10x too rough")

@@ -526,10 +526,12 @@ class Filtered:
         of each track's common stretch are compared (all of them where fewer than three blocks
         would remain): near the ends the smoother sees the anomaly from one side only and the
         run-in's manoeuvres, and the level that suits them is not the one the line needs.  The
-        factor with the least figure is used — every line smoothed again at f·Q(t), the levels
-        scaled — where the passes agree significantly better so (one-sided p below
-        ``significance``, :func:`app.core.model_check.leave_one_out_msd_test` over blocks of
-        ``period_s`` of flight); else the levels stay.  The report's
+        factor with the least figure is used where the passes agree significantly better so
+        (one-sided p below ``significance``, :func:`app.core.model_check.leave_one_out_msd_test`
+        over blocks of ``period_s`` of flight), and only where it was judged: with ``edge_km``
+        > 0 every line's Q(t) is multiplied by f ``edge_km`` or more from its ends (its
+        ``q_factor``; the ends and run-ins keep theirs), with 0 the levels are scaled; every
+        line is then smoothed again.  Else the levels stay.  The report's
         ``level_refinement.repeat_level_check`` gives the figure of each factor.  Only where the
         crossovers are too few to judge the estimate (the caller's condition): a repeat track
         says little about the lines off it."""
@@ -572,6 +574,10 @@ class Filtered:
             # the tracks' interiors (each track's own common stretch less edge_km at either end)
             masks = [_stretch_interior(np.asarray(acc.along_km), edge_km, 3 * block) for _, _, acc in vals[1.0]]
             vals = {f: [(x[:, k], r[:, k], acc) for (x, r, acc), k in zip(v, masks)] for f, v in vals.items()}
+            if all(k.all() for k in masks):   # stretches too short for an interior: judged, and used, whole
+                edge_km = 0.0
+        else:
+            edge_km = 0.0
         msd = {f: float(np.nanmean(np.concatenate([leave_one_out_msd_mgal2(x, r) for x, r, _ in v])))
                for f, v in vals.items()}
         tests = {f: leave_one_out_msd_test([x for x, _, _ in vals[f]], [x for x, _, _ in vals[1.0]],
