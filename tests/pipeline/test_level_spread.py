@@ -558,3 +558,25 @@ def test_a_short_test_lines_level_is_judged_and_scaled_along_whole_lines():
             break
     else:
         raise AssertionError("the check never moved the level on four short tracks 10x too rough")
+
+
+def test_a_lines_interior_is_measured_along_it_and_a_missing_position_adds_no_distance():
+    """The interior a test line's scaled level applies to: epochs at least edge_km along the
+    line (its cumulative horizontal distance, here a 30 km line bent at 10 km) from both ends,
+    none in the run-ins; a position missing mid-line leaves the distance as it was."""
+    from types import SimpleNamespace
+
+    from app.pipeline.stages.filtering import _interior
+    s = np.linspace(0.0, 30.0, 301)                     # 100 m steps
+    e = np.where(s <= 10.0, s, 10.0)                    # east 10 km, then north 20 km
+    n = np.where(s <= 10.0, 0.0, s - 10.0)
+    line = SimpleNamespace(easting_km=e.copy(), northing_km=n.copy())
+    pr = PreparedLine(line, None, None, np.zeros(341), slice(20, 321), None, None, None)
+    mask = _interior(pr, 10.0)
+    assert not mask[:20].any() and not mask[321:].any()
+    np.testing.assert_array_equal(np.flatnonzero(mask) - 20, np.arange(100, 201))
+    # one missing fix at 15 km: its two steps add nothing (29.8 km in all), and the rest of the
+    # line keeps its distance (a NaN carried along would have cut the interior at 15 km)
+    line.easting_km[150] = np.nan
+    mask = _interior(pr, 10.0)
+    np.testing.assert_array_equal(np.flatnonzero(mask) - 20, np.arange(100, 201))

@@ -113,10 +113,12 @@ def _stretch_interior(along_km: np.ndarray, edge_km: float, min_points: int) -> 
 
 def _interior(pr: PreparedLine, edge_km: float) -> np.ndarray:
     """Boolean mask over a prepared line's extended epochs: on the line and at least
-    ``edge_km`` along it (its cumulative horizontal distance) from both of its ends."""
+    ``edge_km`` along it (its cumulative horizontal distance; an epoch without a position adds
+    no distance) from both of its ends."""
     e = np.asarray(pr.line.easting_km, float)
     n = np.asarray(pr.line.northing_km, float)
-    along = np.concatenate([[0.0], np.cumsum(np.hypot(np.diff(e), np.diff(n)))])
+    step = np.hypot(np.diff(e), np.diff(n))
+    along = np.concatenate([[0.0], np.cumsum(np.where(np.isfinite(step), step, 0.0))])   # a missing fix: no step
     inside = np.minimum(along, along[-1] - along) >= edge_km
     out = np.zeros(pr.z_ext.size, bool)
     out[pr.inner] = inside
