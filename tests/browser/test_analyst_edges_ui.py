@@ -66,6 +66,10 @@ def test_a_tab_clicked_while_the_page_loads_is_not_lost(fake_server, browser_pag
     held = []
     page.route("**/api/surveys", lambda route: route.continue_() if held else held.append(route))
     page.goto(f"{fake_server.url}/#survey={sid}&tab=qc")
+    for _ in range(200):   # the module scripts may ask for the list after the load event: up to 10 s
+        if held:
+            break
+        page.wait_for_timeout(50)
     assert held, "the page asked for the survey list"
     _tab(page, "grid")
     held[0].continue_()
