@@ -623,12 +623,18 @@ class Filtered:
         ``ref_period_s`` with a kernel of ``ref_periods`` periods (mGal, the line's epochs)."""
         if reference_q_factor is None:
             return {i: fir_lowpass_mgal(self.prepared[i].line.z_mgal, dt_s, ref_period_s, ref_periods) for i in ids}
+        return dict(zip(ids, self._smoothed_at(ids, float(reference_q_factor), dt_s, m, method, noise,
+                                               q_from_posteriors)))
 
-        def reference(i: int) -> np.ndarray:
+    def _smoothed_at(self, ids: list, factor: float, dt_s: float, m: int, method: str, noise,
+                     q_from_posteriors: bool) -> list:
+        """The prepared lines ``ids`` smoothed at ``factor`` × their Q(t) (:meth:`estimate_q`) with
+        their R(t): one array per line over the line's own epochs (mGal), in the order of ``ids``."""
+        def smooth(i: int) -> np.ndarray:
             pr = self.prepared[i]
-            q = float(reference_q_factor) * self.estimate_q(pr, q_from_posteriors)
-            return filter_line(pr.z_ext, q, self.r_lines[i], dt_s, m, method, noise)[0][pr.inner]
-        return dict(zip(ids, line_map()(reference, ids)))
+            return filter_line(pr.z_ext, factor * self.estimate_q(pr, q_from_posteriors), self.r_lines[i], dt_s, m,
+                               method, noise)[0][pr.inner]
+        return list(line_map()(smooth, ids))
 
     def _smooth_again(self, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool) -> None:
         """Every line smoothed again at its Q(t) (:meth:`estimate_q`): ``dg_mgal``,
@@ -670,14 +676,8 @@ class Filtered:
         col = np.full(len(self.table), np.nan)
         if tracks and self.prepared and self.r_lines is not None:
             passes = [(i, off, n) for t in tracks for i, off, n in t]
-
-            def smooth(item):
-                i, _, _ = item
-                pr = self.prepared[i]
-                q = factor * self.estimate_q(pr, q_from_posteriors)
-                return filter_line(pr.z_ext, q, self.r_lines[i], dt_s, m, method, noise)[0][pr.inner]
-
-            for (_, off, n), x in zip(passes, line_map()(smooth, passes)):
+            smoothed = self._smoothed_at([i for i, _, _ in passes], factor, dt_s, m, method, noise, q_from_posteriors)
+            for (_, off, n), x in zip(passes, smoothed):
                 col[off:off + n] = x
         self.table["dg_repeat_reference_mgal"] = col
 
