@@ -776,6 +776,15 @@ class ProcessingParams(_Strict):
                                                     "lines were flown more than this far apart in height (m) at a "
                                                     "crossover: the anomaly differs with height, which leveling takes "
                                                     "for drift (not when the lines were continued to a datum)")
+    leveling_repeat_tracks: bool = Field(True, description="On a survey without crossovers, level each repeat "
+                                         "track's passes against each other: each pass's offset and each flight's "
+                                         "drift (leveling_degree) fitted to the passes' differences at common points, "
+                                         "applied when their F-test passes leveling_significance; the passes' mean "
+                                         "level kept")
+    leveling_repeat_block_s: float = Field(50.0, gt=0, le=3600, description="Length (s of flight) of the blocks whose "
+                                           "mean differences the repeat-track leveling fits: the estimates' errors are "
+                                           "correlated over about the smoother's span, so shorter blocks would count "
+                                           "one error many times")
     leveling_include_repeat: bool = Field(False, description="Use repeat lines' crossings in leveling (repeats of one track overlap along their whole length; with per-flight leveling they are corrected through their flight)")
     grid_line_error_fraction: float = Field(0.0, ge=0, le=1, description="Share of the lines' posterior variance "
                                             "treated as an error shared along each line in the collocation")
@@ -874,7 +883,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
     ("leveling", "Leveling at the crossovers",
      ("leveling_degree", "leveling_per_flight", "leveling_significance"),
      ("leveling_cross_validate", "leveling_cv_significance", "leveling_cv_significance_untied",
-      "leveling_offset_fallback", "leveling_max_height_difference_m", "leveling_include_repeat")),
+      "leveling_offset_fallback", "leveling_max_height_difference_m", "leveling_include_repeat",
+      "leveling_repeat_tracks", "leveling_repeat_block_s")),
     ("gridding", "Gridding and the grid std",
      ("grid_spacing_km", "gridding", "grid_mask_km"),
      ("grid_line_error_fraction", "grid_std_line_floor", "grid_std_cross_validate", "grid_error_corr_km")),

@@ -109,6 +109,12 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     cv_row = page.inner_text("#report-leveling-cv tbody tr")
     assert "1.31" in cv_row and "0.83" in cv_row
     assert "adaptive (final) estimate is the least repeatable (3.73 mGal)" in summary
+    # no crossovers: the repeat passes leveled against each other, said in words and in a table
+    assert ("Repeat track R1: its 3 passes leveled against each other (no crossovers) — mean corrections "
+            "-0.69 to 0.81 mGal (F-test p = 0.002); their mean level is kept.") in summary
+    rl = page.inner_text("#report-repeat-leveling tbody tr")
+    assert "leveled" in rl and "13 × 3" in rl and "1.16 → 0.62" in rl and "R1-1 0.81" in rl
+    assert "adaptive before leveling 4.02 mGal" in page.inner_text("#report-sec-repeat_lines")
     # why FIR: the guard's evidence, both tests
     assert ("Model choice: FIR (anomaly order m = 2, blended with m = 1 at weight 0.296 — the least crossover mean "
             "square once the flights' drift is removed (RMS 4.53 mGal against 4.58 for m = 2 and 4.8 for m = 1 alone)) "

@@ -70,7 +70,14 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                        "std_check": {"n": 1, "rms_ratio": 0.57, "factor": 1.0},
                        # (only a leveled survey has it; here to show how the page renders it)
                        "common_level": {"std_mgal": 2.5, "spread_mgal": 4.33, "n_units": 3, "n_crossovers": 12,
-                                        "offsets_mgal": {"F01": 3.0, "F02": -1.0, "F03": -2.0}, "applied": True}},
+                                        "offsets_mgal": {"F01": 3.0, "F02": -1.0, "F03": -2.0}, "applied": True},
+                       # (only a survey without crossovers has it; here to show how the page renders it)
+                       "repeat_tracks": {"R1": {"passes": ["R1-1", "R1-2", "R1-3"], "status": "leveled", "p_value": 0.0021,
+                                                "degree": 1, "block_km": 3.0, "n_blocks": 13, "n_parameters": 3,
+                                                "rms_before_mgal": 1.16, "rms_after_mgal": 0.62,
+                                                "offsets_mgal": {"R1-1": 0.4, "R1-2": -0.1, "R1-3": -0.3},
+                                                "drift_mgal_per_h": {"F01": [1.5]},
+                                                "mean_correction_mgal": {"R1-1": 0.81, "R1-2": -0.12, "R1-3": -0.69}}}},
         "identification": {"Q_mgal2": [0.041, 0.353], "R_cm2s2": [1.679], "transition": [[0.98, 0.02], [0.03, 0.97]],
                            # a level its EM emptied, filtered with its value of an earlier iteration
                            "level_support": {"Q_mgal2": [0.041, 0.353], "share_em": [0.99, 0.01],
@@ -89,7 +96,7 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                                          "std_mean_mgal": 7.75, "std_line_quiet_mgal": 3.78}]},
         "warnings": warnings,
         "repeat_lines": {"R1": {"repeats": 3, "internal_accuracy_mgal": {
-            "dg_mgal": 3.73, "dg_fir_mgal": 2.10, "dg_stationary_mgal": 1.17}}},
+            "dg_mgal": 3.73, "dg_unleveled_mgal": 4.02, "dg_fir_mgal": 2.10, "dg_stationary_mgal": 1.17}}},
         "grid": {"nx": 10, "ny": 5, "valid_cells": 49},
         "base_ties": {f: {"static_periods": [], "applied": base_gravity_mgal is not None,
                           "absolute": base_gravity_mgal is not None,

@@ -14,7 +14,7 @@ import numpy as np
 import pandas as pd
 from scipy.stats import f as f_dist
 
-from app.core.accuracy import crossover_std_factor
+from app.core.accuracy import REPEAT_MAX_SPREAD_KM, across_track_spread_km, crossover_std_factor, repeat_line_accuracy
 from app.core.leveling import (
     LineTrack,
     common_level_std,
@@ -24,6 +24,7 @@ from app.core.leveling import (
     keep_mean_level,
     level_lines,
 )
+from app.core.repeat_leveling import fit_repeat_levels
 
 #: Per-epoch lower bound of ``dg_std_mgal`` that stage 9 sets on lines that do not resolve the
 #: anomaly (:func:`app.pipeline.stages.choice.check_lines`); :func:`level_survey` applies it
@@ -135,7 +136,10 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True,
         return pd.DataFrame(columns=cols), {"status": f"not leveled: {exc}"}
     if len(cx) == 0:
         warnings.append("no crossovers between lines: leveling skipped")
-        return pd.DataFrame(columns=cols), {"status": "not leveled: no crossovers"}
+        rep = {"status": "not leveled: no crossovers"}
+        if p.leveling_repeat_tracks:
+            rep["repeat_tracks"] = level_repeat_tracks(table, p, warnings)
+        return pd.DataFrame(columns=cols), rep
     heights = crossover_heights(table, cx, p.leveling_max_height_difference_m, warnings)
     ranges = {str(l): (float(g["time"].min()), float(g["time"].max()))
               for l, g in table.groupby("line", sort=False)}
@@ -179,6 +183,111 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True,
     keep = _not_lone(table, cx, untied)
     rep["std_check"] = std_check(after[keep], fit.pred_var[keep], p)
     return cx[cols], rep
+
+
+def _repeat_passes(table: pd.DataFrame) -> dict:
+    """``{track: [pass rows, …]}`` of the table's repeat tracks with two passes or more (each
+    pass a line's rows in time order)."""
+    if "track" not in table or not (table["kind"] == "repeat").any():
+        return {}
+    rep = table[table["kind"] == "repeat"]
+    out = {}
+    for track, g in rep.groupby("track", sort=False):
+        passes = [gg.sort_values("time") for _, gg in g.groupby("line", sort=False)]
+        if len(passes) >= 2:
+            out[str(track)] = passes
+    return out
+
+
+def _pass_levels(passes: list, p):
+    """Fit and test the passes' offsets and drifts (:func:`app.core.repeat_leveling.fit_repeat_levels`)
+    on ``dg_unleveled_mgal`` at their common points, blocks of ``leveling_repeat_block_s`` at the
+    passes' median ground speed: the drift of ``leveling_degree``, where refused one offset per
+    pass (``leveling_offset_fallback``).  Returns (fit, block_km, reason): reason None = accepted."""
+    geo = [(g["easting_km"].to_numpy(float), g["northing_km"].to_numpy(float)) for g in passes]
+    dg = [g["dg_unleveled_mgal"].to_numpy(float) for g in passes]
+    tm = [np.where(np.isfinite(d), g["time"].to_numpy(float), np.nan) for g, d in zip(passes, dg)]
+    step_km = 0.1
+    vals = np.asarray(repeat_line_accuracy([(e, n, d) for (e, n), d in zip(geo, dg)], step_km=step_km).values_mgal)
+    times = np.asarray(repeat_line_accuracy([(e, n, t) for (e, n), t in zip(geo, tm)], step_km=step_km).values_mgal)
+    speeds = []
+    for (e, n), g in zip(geo, passes):
+        dt = np.diff(g["time"].to_numpy(float))
+        ds = np.hypot(np.diff(e), np.diff(n))
+        ok = (dt > 0) & np.isfinite(ds)
+        if ok.any():
+            speeds.append(np.median(ds[ok] / dt[ok]))
+    block_km = float(p.leveling_repeat_block_s * np.median(speeds)) if speeds else float("nan")
+    if not np.isfinite(block_km) or block_km <= 0:
+        raise ValueError("the passes' ground speed is unknown")
+    block = max(1, int(round(block_km / step_km)))
+    flights = [str(g["flight"].iloc[0]) for g in passes]
+    fit = fit_repeat_levels(vals, times, flights, degree=p.leveling_degree, block=block)
+    if fit.p_value > p.leveling_significance and p.leveling_degree > 0 and p.leveling_offset_fallback:
+        offsets = fit_repeat_levels(vals, times, flights, degree=0, block=block)
+        if offsets.p_value <= p.leveling_significance:
+            fit = offsets
+    reason = None if fit.p_value <= p.leveling_significance else (
+        f"the passes' offsets and drift are not significant (F-test p = {fit.p_value:.3g} > {p.leveling_significance})")
+    return fit, block * step_km, reason
+
+
+def level_repeat_tracks(table: pd.DataFrame, p, warnings: list) -> dict:
+    """A survey without crossovers: level each repeat track's passes against each other (in
+    place, ``dg_mgal`` = ``dg_unleveled_mgal`` − the pass's correction where accepted).
+
+    The passes' differences from their mean at common points show each pass's offset (a tare,
+    its flight's reading offset) and each flight's drift in time of ``leveling_degree``
+    (:func:`app.core.repeat_leveling.fit_repeat_levels`), applied when the F-test on their
+    block means has p ≤ ``leveling_significance``; the passes' mean level is kept (without a
+    base tie it stays the gravimeter's reading offset).  Left alone: tracks whose passes lie
+    more than ``REPEAT_MAX_SPREAD_KM`` apart across the track, or whose median heights differ
+    by more than ``leveling_max_height_difference_m`` (the anomaly differs between them) unless
+    the values were continued to a datum.  Returns the report's ``crossovers.repeat_tracks``:
+    per track the passes, status, F-test, the fitted offsets and drifts, each pass's mean
+    correction (what was subtracted on average) and the block length."""
+    out = {}
+    for track, passes in _repeat_passes(table).items():
+        names = [str(g["line"].iloc[0]) for g in passes]
+        entry = {"passes": names}
+        out[track] = entry
+        spread = across_track_spread_km([g["easting_km"].to_numpy(float) for g in passes],
+                                        [g["northing_km"].to_numpy(float) for g in passes])
+        heights = [float(np.nanmedian(g["h"])) for g in passes] if "h" in table else []
+        if spread > REPEAT_MAX_SPREAD_KM:
+            entry["status"] = f"not leveled: the passes lie {spread:.2f} km apart across the track"
+            continue
+        if heights and "dg_flight_mgal" not in table and max(heights) - min(heights) > p.leveling_max_height_difference_m:
+            entry["status"] = (f"not leveled: the passes were flown {max(heights) - min(heights):.0f} m apart in height "
+                               "(the anomaly differs between them)")
+            continue
+        try:
+            fit, block_km, reason = _pass_levels(passes, p)
+        except ValueError as exc:
+            entry["status"] = f"not leveled: {exc}"
+            continue
+        entry.update(degree=int(fit.drift_mgal.shape[1]), p_value=fit.p_value, block_km=block_km,
+                     n_blocks=fit.n_blocks, n_parameters=fit.n_parameters,
+                     rms_before_mgal=fit.rms_before_mgal, rms_after_mgal=fit.rms_after_mgal,
+                     offsets_mgal=dict(zip(names, map(float, fit.offsets_mgal))),
+                     drift_mgal_per_h={str(g["flight"].iloc[0]): [float(b) for b in fit.drift_mgal[fit.flight_of_pass[k]]]
+                                       for k, g in enumerate(passes)})
+        if reason is not None:
+            entry["status"] = f"not leveled: {reason}"
+            continue
+        means = {}
+        for k, g in enumerate(passes):
+            corr = fit.correction(k, g["time"].to_numpy(float))
+            table.loc[g.index, "dg_mgal"] = g["dg_unleveled_mgal"].to_numpy(float) - corr
+            means[names[k]] = float(np.mean(corr))
+        entry.update(status="leveled", mean_correction_mgal=means)
+        lo, hi = min(means.values()), max(means.values())
+        drift = ", ".join(f"{b:+.2f}" for b in fit.drift_mgal.ravel())
+        warnings.append(f"repeat track {track}: no crossovers, so its {len(passes)} passes were leveled against each "
+                        f"other (mean corrections {lo:+.2f} to {hi:+.2f} mGal" + (f", drift {drift} mGal/h" if drift else "")
+                        + f"; F-test p = {fit.p_value:.2g}, their differences {fit.rms_before_mgal:.2f} → "
+                        f"{fit.rms_after_mgal:.2f} mGal RMS over {block_km:.1f} km blocks); their mean level is kept")
+    return out
 
 
 def flight_of_line(table: pd.DataFrame) -> dict[str, str]:

@@ -91,8 +91,8 @@ def build_report(survey_name: str, crs: str, table: pd.DataFrame, flights: dict,
 
 
 def repeat_accuracy(table: pd.DataFrame) -> dict:
-    """Internal accuracy of the repeat tracks (SPEC §3) for the adaptive, FIR and stationary
-    estimates."""
+    """Internal accuracy of the repeat tracks (SPEC §3) for the adaptive estimate (leveled and
+    not: the baselines are not leveled), FIR and stationary estimates."""
     rep = table[table["kind"] == "repeat"]
     out = {}
     if rep.empty or "track" not in rep:
@@ -102,7 +102,7 @@ def repeat_accuracy(table: pd.DataFrame) -> dict:
         if len(groups) < 2:
             continue
         res = {}
-        for col in ("dg_mgal", "dg_fir_mgal", "dg_stationary_mgal"):
+        for col in [c for c in ("dg_mgal", "dg_unleveled_mgal", "dg_fir_mgal", "dg_stationary_mgal") if c in g]:
             try:
                 res[col] = float(accuracy.repeat_line_accuracy(
                     [(gg["easting_km"].to_numpy(), gg["northing_km"].to_numpy(), gg[col].to_numpy())

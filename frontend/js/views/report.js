@@ -48,6 +48,14 @@ export function summary(r) {
       : { cls: "warn", text: `Leveling NOT applied — ${String(xo.status).replace(/^not leveled:\s*/, "")}; crossover RMS ${fmt(xo.rms_before_mgal, 3)} mGal` +
         (xo.rms_after_if_leveled_mgal !== undefined ? ` (${fmt(xo.rms_after_if_leveled_mgal, 3)} if leveled).` : ".") });
   }
+  // no crossovers: the repeat tracks' passes leveled against each other (stage 10)
+  for (const [track, t] of Object.entries(xo.repeat_tracks || {})) {
+    const corr = Object.values(t.mean_correction_mgal || {});
+    items.push(t.status === "leveled"
+      ? { cls: "ok", text: `Repeat track ${track}: its ${t.passes.length} passes leveled against each other (no crossovers) — mean corrections ` +
+          `${fmt(Math.min(...corr), 3)} to ${fmt(Math.max(...corr), 3)} mGal (F-test p = ${fmt(t.p_value, 3)}); their mean level is kept.` }
+      : { cls: "note", text: `Repeat track ${track}: passes not leveled against each other — ${String(t.status).replace(/^not leveled:\s*/, "")}.` });
+  }
   const em = (r.identification || {}).em || {};
   const unreliable = r.warnings.filter((w) => /unreliable|not identified|learning on tie/i.test(w));
   if (em.n_iterations || unreliable.length) {
@@ -271,6 +279,19 @@ const RENDER = {
         (c.applied ? "; included in δg's std and the grid std (no absolute base tie)." : ` (not added to the std: ${c.reason ?? "—"}).`)),
         table(["Flight", "Offset (mGal)"], Object.entries(c.offsets_mgal || {}).map(([f, o]) => [f, fmt(o, 3)]), { id: "report-common-level-offsets" }));
     }
+    // without crossovers: each repeat track's passes leveled against each other
+    const rt = Object.entries(v.repeat_tracks || {});
+    if (rt.length) {
+      out.push(el("h4", {}, "Repeat passes leveled against each other (no crossovers)"),
+        table(["Track", "Status", "F-test p", "Drift degree", "Blocks (km)", "Differences RMS before → after (mGal)", "Mean correction per pass (mGal)"],
+          rt.map(([track, t]) => ({ attrs: { "data-track": track }, cells: [track, t.status ?? "—", fmt(t.p_value, 3),
+            t.degree === undefined ? "—" : String(t.degree), t.block_km === undefined ? "—" : `${t.n_blocks} × ${fmt(t.block_km, 2)}`,
+            t.rms_before_mgal === undefined ? "—" : `${fmt(t.rms_before_mgal, 3)} → ${fmt(t.rms_after_mgal, 3)}`,
+            Object.entries(t.mean_correction_mgal || {}).map(([ln, c]) => `${ln} ${fmt(c, 3)}`).join(", ") || "—"] })),
+          { id: "report-repeat-leveling" }),
+        el("p", { class: "note" }, "Each pass's offset and its flight's drift in time, fitted to the passes' differences from their mean " +
+          "at common points (block means); the passes' mean level is kept — without a base tie it is still the gravimeter's reading offset."));
+    }
     if (r.crossovers && r.crossovers.length) {
       out.push(el("h4", {}, `Crossovers (${r.crossovers.length})`), el("div", { class: "scroll" }, table(["Line a", "Line b", "E (km)", "N (km)", "before (mGal)", "after (mGal)"],
         r.crossovers.map((c) => [String(c.line_a), String(c.line_b), fmt(c.easting_km, 2), fmt(c.northing_km, 2), fmt(c.diff_before_mgal, 3), fmt(c.diff_after_mgal, 3)]),
@@ -286,7 +307,9 @@ const RENDER = {
         ...t.nums.map((x, i) => (x === null ? String(t.acc[ESTIMATES[i][0]] ?? "—") : el("span", { class: x === t.worst ? "worst" : "" }, fmt(x, 3)))),
         t.worstName || "—"] })), { id: "report-repeat-table" }),
     el("p", { class: "note" }, "Internal accuracy ε = sqrt(Σ(g − ḡ)² / (n (K−1))) over the K passes of a track, per estimate; " +
-      "the least repeatable in red. The passes are overlaid in Line profiles → Repeat track.")];
+      "the least repeatable in red. The passes are overlaid in Line profiles → Repeat track." +
+      rows.filter((t) => typeof t.acc.dg_unleveled_mgal === "number" && t.acc.dg_unleveled_mgal !== t.acc.dg_mgal)
+        .map((t) => ` Track ${t.track}: adaptive before leveling ${fmt(t.acc.dg_unleveled_mgal, 3)} mGal (the baselines are not leveled).`).join(""))];
   },
   noise_model: (v) => {
     const out = [table(["Family", "Fit", "Level band (Hz)", "Level scale", "Fitted up to (Hz)"],

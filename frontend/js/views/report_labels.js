@@ -36,7 +36,7 @@ export const LABELS = {
   spread_mgal: "Along-line spread (mGal)", fir_crossover_std_mgal: "Crossover error per line of the estimate replaced (mGal)",
   fir_spread_mgal: "Along-line spread of the estimate replaced (mGal)", median_line_s: "Median line duration (s)", resolves: "Resolves something",
   // repeat lines
-  internal_accuracy_mgal: "Internal accuracy ε (mGal)", dg_mgal: "adaptive (final)", dg_stationary_mgal: "stationary", dg_fir_mgal: "FIR 100 s",
+  internal_accuracy_mgal: "Internal accuracy ε (mGal)", dg_mgal: "adaptive (final)", dg_unleveled_mgal: "adaptive before leveling", dg_stationary_mgal: "stationary", dg_fir_mgal: "FIR 100 s",
   across_track_spread_km: "Spread across the track (km)",
   // level refinement
   Q_mgal2: "Anomaly levels Q (mGal² per step)", Q_full_rate_ml_mgal2: "Q by full-rate likelihood (mGal² per step)",

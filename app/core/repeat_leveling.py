@@ -1,0 +1,176 @@
+"""Leveling of repeat passes of one track against each other (stage 10 without crossovers).
+
+A survey with no crossing lines (a test line flown K times) has no crossovers to level, but
+its passes overlap along their whole length: at every common position ``s`` pass ``i`` reads
+``x_i(s) = g(s) + c_i + d_f(t_i(s)) + e_i(s)`` — the same anomaly ``g``, the pass's own
+offset ``c_i`` (a tare, the reading offset of its flight), the drift ``d_f`` of its flight
+``f`` in time (a polynomial without constant term) and its error ``e_i``.  The anomaly drops
+out of each pass's difference from the passes' mean,
+
+    r_i(s) = x_i(s) − mean_j x_j(s) = (c_i − c̄) + d_f(i)(t_i(s)) − mean_j d_f(j)(t_j(s)) + …,
+
+so offsets and drifts are a linear regression on those differences.  Passes flown in
+alternating directions see a drift in time as along-track trends of opposite signs, which
+the anomaly cannot mimic.  Only the differences are seen: the corrections average to zero over
+the common points (the passes' mean level is kept, whatever fixed it — a base tie or nothing).
+
+The differences' errors are correlated along the track (each pass is a smoothed estimate),
+so the regression is fitted to their means over blocks of ``block`` common positions, which
+are close to independent when a block is longer than the error's correlation length, and an
+F-test says whether the model explains more than those errors (``(K − 1)`` independent
+differences per block: each block's ``K`` differences sum to zero).
+
+Units: anomalies, offsets and drifts mGal; times s (drift polynomials in hours about each
+flight's mean time).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import numpy as np
+from scipy.stats import f as f_dist
+
+
+class RepeatLevels(NamedTuple):
+    """Offsets and drifts of K passes of one track fitted to their differences.
+
+    Attributes
+    ----------
+    offsets_mgal : ndarray, shape (K,)
+        Each pass's constant offset, chosen so that the corrections average to zero over the
+        passes' common points (their mean level is kept).
+    drift_mgal : ndarray, shape (F, degree)
+        Each flight's drift coefficients of ``((t − t_ref) / 3600)^k``, k = 1 … degree
+        (mGal per hour^k); shape (F, 0) for degree 0.
+    t_ref_s : ndarray, shape (F,)
+        Each flight's reference time (s): the mean time of its passes' common points.
+    flight_of_pass : ndarray, shape (K,)
+        Index into the flight axis of each pass.
+    p_value : float
+        F-test of the fitted model against no correction on the block means.
+    rms_before_mgal, rms_after_mgal : float
+        RMS of the block means of the passes' differences from their mean, before and after
+        the correction.
+    n_blocks : int
+        Blocks per pass.
+    n_parameters : int
+        Offsets (K − 1) plus drift coefficients.
+    """
+
+    offsets_mgal: np.ndarray
+    drift_mgal: np.ndarray
+    t_ref_s: np.ndarray
+    flight_of_pass: np.ndarray
+    p_value: float
+    rms_before_mgal: float
+    rms_after_mgal: float
+    n_blocks: int
+    n_parameters: int
+
+    def correction(self, k: int, time_s) -> np.ndarray:
+        """The correction (mGal, to subtract) of pass ``k`` at times ``time_s`` (s), any shape."""
+        t = np.asarray(time_s, dtype=float)
+        f = int(self.flight_of_pass[k])
+        hours = (t - self.t_ref_s[f]) / 3600.0
+        out = np.full(t.shape, float(self.offsets_mgal[k]))
+        for j, b in enumerate(self.drift_mgal[f], start=1):
+            out = out + b * hours ** j
+        return out
+
+
+def _block_means(a: np.ndarray, block: int) -> np.ndarray:
+    """Means over consecutive blocks of ``block`` columns of ``a`` (K, n) → (K, n // block)."""
+    nb = a.shape[1] // block
+    return a[:, :nb * block].reshape(a.shape[0], nb, block).mean(axis=2)
+
+
+def fit_repeat_levels(values_mgal, times_s, flight_of_pass=None, degree: int = 1,
+                      block: int = 30) -> RepeatLevels:
+    """Fit each pass's offset and each flight's drift to the passes' differences.
+
+    Parameters
+    ----------
+    values_mgal : array_like, shape (K, n)
+        The K passes' anomaly estimates at n common positions along the track (mGal; e.g.
+        :func:`app.core.accuracy.repeat_line_accuracy`'s ``values_mgal``), finite.
+    times_s : array_like, shape (K, n)
+        The time each pass was at each common position (s).
+    flight_of_pass : sequence of K hashables, optional
+        The flight of each pass (default: all one flight); each flight gets its own drift.
+    degree : int
+        Degree of the drift polynomial in time (0: offsets only, 1 or 2).
+    block : int
+        Common positions per block (the differences are fitted as block means).
+
+    Returns
+    -------
+    RepeatLevels
+
+    Raises
+    ------
+    ValueError
+        Fewer than 2 passes, shapes that differ, non-finite values, a degree outside 0–2, or
+        too few blocks to test the model (fewer than 2 residual degrees of freedom).
+    """
+    x = np.asarray(values_mgal, dtype=float)
+    t = np.asarray(times_s, dtype=float)
+    if x.ndim != 2 or x.shape[0] < 2 or x.shape != t.shape:
+        raise ValueError(f"values and times must be (K ≥ 2, n) of one shape, got {x.shape} and {t.shape}")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(t))):
+        raise ValueError("values and times must be finite")
+    if degree not in (0, 1, 2):
+        raise ValueError(f"degree must be 0, 1 or 2, got {degree!r}")
+    if int(block) < 1:
+        raise ValueError(f"block must be ≥ 1 position, got {block!r}")
+    K = x.shape[0]
+    flights = [0] * K if flight_of_pass is None else list(flight_of_pass)
+    if len(flights) != K:
+        raise ValueError(f"{len(flights)} flights for {K} passes")
+    names = list(dict.fromkeys(flights))
+    fidx = np.array([names.index(f) for f in flights], dtype=int)
+    t_ref = np.array([t[fidx == f].mean() for f in range(len(names))])
+    r = _block_means(x - x.mean(axis=0), int(block))
+    nb = r.shape[1]
+    cols = []
+    for i in range(K - 1):   # offsets, the last pass's the negative sum of the others
+        c = np.zeros((K, nb))
+        c[i], c[K - 1] = 1.0, -1.0
+        cols.append(c)
+    for f in range(len(names)):
+        for j in range(1, degree + 1):
+            basis = np.where((fidx == f)[:, None], ((t - t_ref[f]) / 3600.0) ** j, 0.0)
+            b = _block_means(basis - basis.mean(axis=0), int(block))
+            if np.any(b != 0):
+                cols.append(b)
+            else:   # a flight whose passes' times cannot show a drift (one pass of it, all at once)
+                cols.append(None)
+    used = [c for c in cols if c is not None]
+    n_par = len(used)
+    n_obs = (K - 1) * nb    # each block's K differences sum to zero
+    if n_obs - n_par < 2:
+        raise ValueError(f"{nb} blocks of {block} positions over {K} passes leave {n_obs - n_par} degrees of "
+                         f"freedom for {n_par} parameters (need ≥ 2)")
+    A = np.column_stack([c.ravel() for c in used])
+    y = r.ravel()
+    coef, *_ = np.linalg.lstsq(A, y, rcond=None)
+    resid = y - A @ coef
+    ssr0, ssr1 = float(y @ y), float(resid @ resid)
+    if ssr1 > 0:
+        F = ((ssr0 - ssr1) / n_par) / (ssr1 / (n_obs - n_par))
+        p = float(f_dist.sf(F, n_par, n_obs - n_par))
+    else:
+        p = 0.0 if ssr0 > 0 else 1.0
+    offsets = np.append(coef[:K - 1], -np.sum(coef[:K - 1]))
+    drift = np.zeros((len(names), degree))
+    k = K - 1
+    for f in range(len(names)):
+        for j in range(degree):
+            if cols[K - 1 + f * degree + j] is not None:
+                drift[f, j] = coef[k]
+                k += 1
+    levels = RepeatLevels(offsets, drift, t_ref, fidx, p, float(np.sqrt(ssr0 / y.size)),
+                          float(np.sqrt(ssr1 / y.size)), int(nb), int(n_par))
+    # the differences cannot see a level common to every pass: keep the passes' mean level
+    mean = float(np.mean([levels.correction(i, t[i]) for i in range(K)]))
+    return levels._replace(offsets_mgal=offsets - mean)

@@ -1,0 +1,95 @@
+"""Offsets and drifts of repeat passes fitted to their differences (app.core.repeat_leveling),
+against simulated passes with known offsets, drifts and errors."""
+
+import numpy as np
+import pytest
+
+from app.core.repeat_leveling import fit_repeat_levels
+
+
+def _passes(rng, K=4, n=400, gap_s=900.0, step_s=1.6, flights=None):
+    """K passes of one track (n common positions) flown in alternating directions, ``gap_s``
+    apart; returns (times (K, n) s, anomaly (n,) mGal)."""
+    s = np.arange(n) * step_s
+    t = np.array([1000.0 + k * gap_s + (s if k % 2 == 0 else s[::-1]) for k in range(K)])
+    g = np.cumsum(rng.normal(0, 0.5, n))
+    return t, g
+
+
+def test_noise_free_offsets_and_drift_are_recovered_and_the_mean_level_kept():
+    rng = np.random.default_rng(0)
+    t, g = _passes(rng)
+    off = np.array([0.5, -1.0, 2.0, 0.3])          # mGal
+    rate = 1.5                                     # mGal/h
+    drift = rate * (t - 2500.0) / 3600.0
+    x = g + off[:, None] + drift
+    fit = fit_repeat_levels(x, t, degree=1, block=20)
+    corr = np.array([fit.correction(k, t[k]) for k in range(4)])
+    assert fit.drift_mgal[0, 0] == pytest.approx(rate, abs=1e-9)
+    # what is left is the anomaly plus one level common to every pass
+    left = x - corr
+    assert np.ptp(left - g) == pytest.approx(0.0, abs=1e-9)
+    # ... and that level is the passes' mean level before (the corrections average to zero)
+    assert corr.mean() == pytest.approx(0.0, abs=1e-12)
+    assert (left - g).mean() == pytest.approx((x - g).mean(), abs=1e-9)
+    assert fit.p_value == 0.0 and fit.rms_after_mgal == pytest.approx(0.0, abs=1e-9)
+
+
+def test_two_flights_get_their_own_drift():
+    rng = np.random.default_rng(1)
+    t, g = _passes(rng, K=6)
+    flights = ["A", "A", "A", "B", "B", "B"]
+    t[3:] += 20000.0                                # flight B flown later
+    rates = {"A": 2.0, "B": -3.0}
+    t_mean = {f: t[[i for i, ff in enumerate(flights) if ff == f]].mean() for f in rates}
+    drift = np.array([rates[f] * (tk - t_mean[f]) / 3600.0 for f, tk in zip(flights, t)])
+    x = g + drift + np.array([0, 0, 0, 4.0, 4.0, 4.0])[:, None]   # flight B also 4 mGal off
+    fit = fit_repeat_levels(x, t, flights, degree=1, block=20)
+    assert fit.drift_mgal[:, 0] == pytest.approx([2.0, -3.0], abs=1e-9)
+    left = x - np.array([fit.correction(k, t[k]) for k in range(6)])
+    assert np.ptp(left - g) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_f_test_false_alarms_at_its_level_without_offsets():
+    """Block errors independent and no offsets or drift: p uniform, so p < α about α of the time."""
+    rng = np.random.default_rng(2)
+    t, g = _passes(rng, n=200)
+    ps = []
+    for _ in range(600):
+        x = g + rng.normal(0, 0.4, (4, 20)).repeat(10, axis=1)   # one error per block of 10 positions
+        ps.append(fit_repeat_levels(x, t, degree=1, block=10).p_value)
+    ps = np.array(ps)
+    assert 0.025 < np.mean(ps < 0.05) < 0.08
+    assert np.mean(ps < 0.01) < 0.025
+
+
+def test_offsets_above_the_noise_are_found_within_their_error():
+    rng = np.random.default_rng(3)
+    t, g = _passes(rng)
+    off = np.array([-1.0, 0.8, 0.0, 0.2])
+    errs = []
+    for _ in range(50):
+        x = g + off[:, None] + rng.normal(0, 0.3, (4, 40)).repeat(10, axis=1)
+        fit = fit_repeat_levels(x, t, degree=0, block=10)
+        assert fit.p_value < 1e-6
+        errs.append(fit.offsets_mgal - (off - off.mean()))
+    # each offset from 40 blocks of σ 0.3 against the mean of 4 passes: σ ≈ 0.3·sqrt(3/4)/sqrt(40)
+    assert np.std(errs) == pytest.approx(0.3 * np.sqrt(0.75 / 40), rel=0.25)
+    assert abs(np.mean(errs)) < 0.02
+
+
+def test_bad_input_is_refused():
+    t = np.tile(np.arange(100.0), (3, 1))
+    x = np.zeros((3, 100))
+    with pytest.raises(ValueError, match="one shape"):
+        fit_repeat_levels(x[:, :50], t)
+    with pytest.raises(ValueError, match="K ≥ 2"):
+        fit_repeat_levels(x[:1], t[:1])
+    with pytest.raises(ValueError, match="degree"):
+        fit_repeat_levels(x, t, degree=3)
+    with pytest.raises(ValueError, match="finite"):
+        fit_repeat_levels(np.where(t > 50, np.nan, x), t)
+    with pytest.raises(ValueError, match="degrees of freedom"):
+        fit_repeat_levels(x, t, degree=1, block=50)
+    with pytest.raises(ValueError, match="flights"):
+        fit_repeat_levels(x, t, ["A", "B"])

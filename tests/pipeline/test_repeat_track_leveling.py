@@ -1,0 +1,85 @@
+"""Stage 10 on a test line (no crossovers): the repeat passes leveled against each other
+(simulation with known truth, no simulator: passes of one track with known offsets, drift and
+along-track correlated errors)."""
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy.ndimage import gaussian_filter1d
+
+from app.config import ProcessingParams
+from app.pipeline.stages.leveling import level_lines_table
+
+
+def _test_line(rng, offsets_mgal, rate_mgal_h, heights_m=(2000.0,) * 4, noise_mgal=0.4):
+    """Four 40 km passes of one E-W track at 60 m/s, 1 Hz, alternating directions, 20 min apart,
+    one flight; ``dg_unleveled_mgal`` = truth + each pass's offset + the flight's linear drift
+    + an error correlated over ~1 km."""
+    s = np.arange(0.0, 40.0, 0.06)
+    truth = 10.0 * np.sin(s / 4.0) + 3.0 * np.cos(s / 1.3)
+    rows = []
+    for k, (off, h) in enumerate(zip(offsets_mgal, heights_m)):
+        e = s if k % 2 == 0 else s[::-1]
+        g = truth if k % 2 == 0 else truth[::-1]
+        t = 1000.0 + 1200.0 * k + np.arange(s.size)
+        err = gaussian_filter1d(rng.normal(0.0, 1.0, s.size), 15.0)
+        err *= noise_mgal / err.std()
+        rows.append(pd.DataFrame({"line": f"R1-{k + 1}", "flight": "F01", "kind": "repeat", "track": "R1", "time": t,
+                                  "easting_km": e, "northing_km": 0.02 * rng.normal(size=s.size), "h": h,
+                                  "dg_true_mgal": g, "dg_unleveled_mgal": g + off + err}))
+    table = pd.concat(rows, ignore_index=True)
+    table["dg_unleveled_mgal"] += rate_mgal_h * (table["time"] - table["time"].mean()) / 3600.0
+    table["dg_mgal"] = table["dg_unleveled_mgal"]
+    table["dg_std_mgal"] = noise_mgal
+    return table
+
+
+def _pass_offsets(table, col):
+    e = table[col] - table["dg_true_mgal"]
+    return e.groupby(table["line"]).mean().to_numpy()
+
+
+def test_offsets_and_drift_of_the_passes_are_removed_keeping_their_mean_level():
+    p = ProcessingParams()
+    for seed in range(3):
+        table = _test_line(np.random.default_rng(seed), [1.5, -2.0, 0.5, 3.0], 2.0)
+        warnings: list = []
+        cx, rep = level_lines_table(table, p, warnings)
+        assert len(cx) == 0 and rep["status"] == "not leveled: no crossovers"
+        tr = rep["repeat_tracks"]["R1"]
+        assert tr["status"] == "leveled" and tr["p_value"] < p.leveling_significance
+        before, after = _pass_offsets(table, "dg_unleveled_mgal"), _pass_offsets(table, "dg_mgal")
+        assert np.ptp(before) > 5.0
+        assert np.ptp(after) < 0.3                       # the passes agree in level now
+        assert after.mean() == pytest.approx(before.mean(), abs=0.05)   # ... at their mean level
+        # each pass's own error, less its mean: the drift inside the pass is gone too
+        inside = [np.std(g["dg_mgal"] - g["dg_true_mgal"]) for _, g in table.groupby("line")]
+        assert max(inside) < 0.6
+        assert any("passes were leveled against each other" in w for w in warnings)
+        assert set(tr["mean_correction_mgal"]) == {"R1-1", "R1-2", "R1-3", "R1-4"}
+
+
+def test_passes_without_offsets_are_left_alone():
+    p = ProcessingParams()
+    left = 0
+    for seed in range(10):
+        table = _test_line(np.random.default_rng(100 + seed), [0.0] * 4, 0.0)
+        _, rep = level_lines_table(table, p, [])
+        if rep["repeat_tracks"]["R1"]["status"] != "leveled":
+            left += 1
+            assert np.array_equal(table["dg_mgal"], table["dg_unleveled_mgal"])
+    assert left >= 9
+
+
+def test_passes_at_different_heights_are_not_leveled():
+    table = _test_line(np.random.default_rng(5), [1.5, -2.0, 0.5, 3.0], 2.0, heights_m=(1000.0, 1000.0, 2000.0, 2000.0))
+    _, rep = level_lines_table(table, ProcessingParams(), [])
+    assert rep["repeat_tracks"]["R1"]["status"].startswith("not leveled: the passes were flown 1000 m apart")
+    assert np.array_equal(table["dg_mgal"], table["dg_unleveled_mgal"])
+
+
+def test_switched_off():
+    table = _test_line(np.random.default_rng(6), [1.5, -2.0, 0.5, 3.0], 2.0)
+    _, rep = level_lines_table(table, ProcessingParams(leveling_repeat_tracks=False), [])
+    assert "repeat_tracks" not in rep
+    assert np.array_equal(table["dg_mgal"], table["dg_unleveled_mgal"])
