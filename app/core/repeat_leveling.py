@@ -15,8 +15,8 @@ the anomaly cannot mimic.  Only the differences are seen: the corrections averag
 the common points (the passes' mean level is kept, whatever fixed it — a base tie or nothing).
 
 The differences' errors are correlated along the track (each pass is a smoothed estimate),
-so the regression is fitted to their means over blocks of ``block`` common positions, which
-are close to independent when a block is longer than the error's correlation length, and an
+so the regression is fitted to their means over blocks of about ``block`` common positions
+(every position in one block), which are close to independent when a block is longer than the error's correlation length, and an
 F-test says whether the model explains more than those errors (``(K − 1)`` independent
 differences per block: each block's ``K`` differences sum to zero).
 
@@ -80,9 +80,11 @@ class RepeatLevels(NamedTuple):
 
 
 def _block_means(a: np.ndarray, block: int) -> np.ndarray:
-    """Means over consecutive blocks of ``block`` columns of ``a`` (K, n) → (K, n // block)."""
-    nb = a.shape[1] // block
-    return a[:, :nb * block].reshape(a.shape[0], nb, block).mean(axis=2)
+    """Means over ``n // block`` consecutive blocks of ``block`` or ``block + 1`` columns of ``a``
+    (K, n) covering every column → (K, n // block)."""
+    nb = max(1, a.shape[1] // block)
+    edges = np.linspace(0, a.shape[1], nb + 1).round().astype(int)
+    return np.add.reduceat(a, edges[:-1], axis=1) / np.diff(edges)
 
 
 def fit_repeat_levels(values_mgal, times_s, flight_of_pass=None, degree: int = 1,
@@ -101,7 +103,8 @@ def fit_repeat_levels(values_mgal, times_s, flight_of_pass=None, degree: int = 1
     degree : int
         Degree of the drift polynomial in time (0: offsets only, 1 or 2).
     block : int
-        Common positions per block (the differences are fitted as block means).
+        Common positions per block (the differences are fitted as block means; ``n // block``
+        blocks of ``block`` or ``block + 1`` positions cover all n).
 
     Returns
     -------

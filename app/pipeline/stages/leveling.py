@@ -202,8 +202,8 @@ def _repeat_passes(table: pd.DataFrame) -> dict:
 def _pass_levels(passes: list, p):
     """Fit and test the passes' offsets and drifts (:func:`app.core.repeat_leveling.fit_repeat_levels`)
     on ``dg_unleveled_mgal`` at their common points, blocks of ``leveling_repeat_block_s`` at the
-    passes' median ground speed: the drift of ``leveling_degree``, where refused one offset per
-    pass (``leveling_offset_fallback``).  Returns (fit, block_km, reason): reason None = accepted."""
+    passes' median ground speed: the drift of ``leveling_degree``, where refused (F-test p above
+    ``leveling_repeat_significance``) one offset per pass (``leveling_offset_fallback``).  Returns (fit, block_km, reason): reason None = accepted."""
     geo = [(g["easting_km"].to_numpy(float), g["northing_km"].to_numpy(float)) for g in passes]
     dg = [g["dg_unleveled_mgal"].to_numpy(float) for g in passes]
     tm = [np.where(np.isfinite(d), g["time"].to_numpy(float), np.nan) for g, d in zip(passes, dg)]
@@ -222,13 +222,14 @@ def _pass_levels(passes: list, p):
         raise ValueError("the passes' ground speed is unknown")
     block = max(1, int(round(block_km / step_km)))
     flights = [str(g["flight"].iloc[0]) for g in passes]
+    alpha = p.leveling_repeat_significance
     fit = fit_repeat_levels(vals, times, flights, degree=p.leveling_degree, block=block)
-    if fit.p_value > p.leveling_significance and p.leveling_degree > 0 and p.leveling_offset_fallback:
+    if fit.p_value > alpha and p.leveling_degree > 0 and p.leveling_offset_fallback:
         offsets = fit_repeat_levels(vals, times, flights, degree=0, block=block)
-        if offsets.p_value <= p.leveling_significance:
+        if offsets.p_value <= alpha:
             fit = offsets
-    reason = None if fit.p_value <= p.leveling_significance else (
-        f"the passes' offsets and drift are not significant (F-test p = {fit.p_value:.3g} > {p.leveling_significance})")
+    reason = None if fit.p_value <= alpha else (
+        f"the passes' offsets and drift are not significant (F-test p = {fit.p_value:.3g} > {alpha})")
     return fit, block * step_km, reason
 
 
@@ -239,7 +240,8 @@ def level_repeat_tracks(table: pd.DataFrame, p, warnings: list) -> dict:
     The passes' differences from their mean at common points show each pass's offset (a tare,
     its flight's reading offset) and each flight's drift in time of ``leveling_degree``
     (:func:`app.core.repeat_leveling.fit_repeat_levels`), applied when the F-test on their
-    block means has p ≤ ``leveling_significance``; the passes' mean level is kept (without a
+    block means has p ≤ ``leveling_repeat_significance`` (default 1: always, the p reported);
+    the passes' mean level is kept (without a
     base tie it stays the gravimeter's reading offset).  Left alone: tracks whose passes lie
     more than ``REPEAT_MAX_SPREAD_KM`` apart across the track, or whose median heights differ
     by more than ``leveling_max_height_difference_m`` (the anomaly differs between them) unless
