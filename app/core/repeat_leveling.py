@@ -51,7 +51,7 @@ class RepeatLevels(NamedTuple):
         F-test of the fitted model against no correction on the block means.
     rms_before_mgal, rms_after_mgal : float
         RMS of the block means of the passes' differences from their mean, before and after
-        the correction.
+        the correction (weighted as fitted).
     n_blocks : int
         Blocks per pass.
     n_parameters : int
@@ -88,7 +88,7 @@ def _block_means(a: np.ndarray, block: int) -> np.ndarray:
 
 
 def fit_repeat_levels(values_mgal, times_s, flight_of_pass=None, degree: int = 1,
-                      block: int = 30) -> RepeatLevels:
+                      block: int = 30, std_mgal=None) -> RepeatLevels:
     """Fit each pass's offset and each flight's drift to the passes' differences.
 
     Parameters
@@ -105,6 +105,10 @@ def fit_repeat_levels(values_mgal, times_s, flight_of_pass=None, degree: int = 1
     block : int
         Common positions per block (the differences are fitted as block means; ``n // block``
         blocks of ``block`` or ``block + 1`` positions cover all n).
+    std_mgal : array_like, shape (K, n), optional
+        The passes' posterior std at the common positions (mGal): each block is weighted by
+        the inverse of the passes' mean variance there, so the lines' ends and holes, where
+        each pass's error is larger and its own, weigh less.  Default: equal weights.
 
     Returns
     -------
@@ -135,6 +139,14 @@ def fit_repeat_levels(values_mgal, times_s, flight_of_pass=None, degree: int = 1
     t_ref = np.array([t[fidx == f].mean() for f in range(len(names))])
     r = _block_means(x - x.mean(axis=0), int(block))
     nb = r.shape[1]
+    if std_mgal is None:
+        w = np.ones(nb)
+    else:
+        sd = np.asarray(std_mgal, dtype=float)
+        if sd.shape != x.shape or not np.all(np.isfinite(sd)) or np.any(sd <= 0):
+            raise ValueError(f"std_mgal must be positive and finite of shape {x.shape}")
+        w = 1.0 / _block_means(sd ** 2, int(block)).mean(axis=0)
+        w = w / w.mean()
     cols = []
     for i in range(K - 1):   # offsets, the last pass's the negative sum of the others
         c = np.zeros((K, nb))
@@ -154,8 +166,9 @@ def fit_repeat_levels(values_mgal, times_s, flight_of_pass=None, degree: int = 1
     if n_obs - n_par < 2:
         raise ValueError(f"{nb} blocks of {block} positions over {K} passes leave {n_obs - n_par} degrees of "
                          f"freedom for {n_par} parameters (need ≥ 2)")
-    A = np.column_stack([c.ravel() for c in used])
-    y = r.ravel()
+    sw = np.sqrt(np.broadcast_to(w, (K, nb))).ravel()   # weighted least squares by block
+    A = np.column_stack([c.ravel() for c in used]) * sw[:, None]
+    y = r.ravel() * sw
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
     resid = y - A @ coef
     ssr0, ssr1 = float(y @ y), float(resid @ resid)

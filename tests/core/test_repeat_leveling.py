@@ -93,3 +93,22 @@ def test_bad_input_is_refused():
         fit_repeat_levels(x, t, degree=1, block=50)
     with pytest.raises(ValueError, match="flights"):
         fit_repeat_levels(x, t, ["A", "B"])
+
+
+def test_blocks_weighted_by_the_passes_variance():
+    """A pass whose ends are noisy (a turn, a run-in): weighted by the inverse variance the
+    offsets come from the quiet middle, unweighted the ends' errors pull them."""
+    rng = np.random.default_rng(4)
+    t, g = _passes(rng)
+    off = np.array([0.6, -0.6, 0.3, -0.3])
+    sd = np.full((4, 400), 0.1)
+    sd[:, :60] = sd[:, -60:] = 3.0
+    errs_w, errs_u = [], []
+    for _ in range(40):
+        x = g + off[:, None] + rng.normal(0, 1.0, (4, 400)) * sd
+        for errs, std in ((errs_w, sd), (errs_u, None)):
+            fit = fit_repeat_levels(x, t, degree=0, block=10, std_mgal=std)
+            errs.append(fit.offsets_mgal - (off - off.mean()))
+    assert np.sqrt(np.mean(np.square(errs_w))) < 0.3 * np.sqrt(np.mean(np.square(errs_u)))
+    with pytest.raises(ValueError, match="std_mgal"):
+        fit_repeat_levels(x, t, degree=0, block=10, std_mgal=np.zeros_like(x))

@@ -202,14 +202,20 @@ def _repeat_passes(table: pd.DataFrame) -> dict:
 def _pass_levels(passes: list, p):
     """Fit and test the passes' offsets and drifts (:func:`app.core.repeat_leveling.fit_repeat_levels`)
     on ``dg_unleveled_mgal`` at their common points, blocks of ``leveling_repeat_block_s`` at the
-    passes' median ground speed: the drift of ``leveling_degree``, where refused (F-test p above
+    passes' median ground speed weighted by the inverse of the passes' variance (``dg_std_mgal``): the drift of ``leveling_degree``, where refused (F-test p above
     ``leveling_repeat_significance``) one offset per pass (``leveling_offset_fallback``).  Returns (fit, block_km, reason): reason None = accepted."""
     geo = [(g["easting_km"].to_numpy(float), g["northing_km"].to_numpy(float)) for g in passes]
     dg = [g["dg_unleveled_mgal"].to_numpy(float) for g in passes]
     tm = [np.where(np.isfinite(d), g["time"].to_numpy(float), np.nan) for g, d in zip(passes, dg)]
     step_km = 0.1
-    vals = np.asarray(repeat_line_accuracy([(e, n, d) for (e, n), d in zip(geo, dg)], step_km=step_km).values_mgal)
-    times = np.asarray(repeat_line_accuracy([(e, n, t) for (e, n), t in zip(geo, tm)], step_km=step_km).values_mgal)
+    sd = [np.where(np.isfinite(d), g["dg_std_mgal"].to_numpy(float), np.nan) for g, d in zip(passes, dg)]
+
+    def common(cols):
+        return np.asarray(repeat_line_accuracy([(e, n, c) for (e, n), c in zip(geo, cols)], step_km=step_km).values_mgal)
+
+    vals, times, std = common(dg), common(tm), common(sd)
+    if std.shape != vals.shape or not np.all(np.isfinite(std) & (std > 0)):
+        std = None   # a std missing where the estimate is not: equal weights
     speeds = []
     for (e, n), g in zip(geo, passes):
         dt = np.diff(g["time"].to_numpy(float))
@@ -223,9 +229,9 @@ def _pass_levels(passes: list, p):
     block = max(1, int(round(block_km / step_km)))
     flights = [str(g["flight"].iloc[0]) for g in passes]
     alpha = p.leveling_repeat_significance
-    fit = fit_repeat_levels(vals, times, flights, degree=p.leveling_degree, block=block)
+    fit = fit_repeat_levels(vals, times, flights, degree=p.leveling_degree, block=block, std_mgal=std)
     if fit.p_value > alpha and p.leveling_degree > 0 and p.leveling_offset_fallback:
-        offsets = fit_repeat_levels(vals, times, flights, degree=0, block=block)
+        offsets = fit_repeat_levels(vals, times, flights, degree=0, block=block, std_mgal=std)
         if offsets.p_value <= alpha:
             fit = offsets
     reason = None if fit.p_value <= alpha else (
