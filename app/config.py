@@ -783,10 +783,11 @@ class ProcessingParams(_Strict):
                                          "passes' mean level kept")
     leveling_repeat_significance: float = Field(1.0, gt=0, le=1, description="Apply the repeat-track leveling only "
                                                 "when the F-test of the passes' offsets and drift against no "
-                                                "correction has p at most this (1 = always; the p is reported). "
-                                                "Leveled always, 80 test lines with truth came out no worse by 2 % "
-                                                "and 0.05 mGal closer on average, tied or not (docs/MEASUREMENTS.md, "
-                                                "session 50): a pass's mean error is replaced by the passes' mean")
+                                                "correction has p at most this (1 = always; the p is reported): "
+                                                "the fit is a least-squares projection of the passes' differences, so "
+                                                "their total error cannot grow; held out on 32 test lines with truth "
+                                                "their internal accuracy fell 2-4 % and their error did not grow "
+                                                "(docs/MEASUREMENTS.md, session 50)")
     leveling_repeat_block_s: float = Field(50.0, gt=0, le=3600, description="Length (s of flight) of the blocks whose "
                                            "mean differences the repeat-track leveling fits: the estimates' errors are "
                                            "correlated over about the smoother's span, so shorter blocks would count "
