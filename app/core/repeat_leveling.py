@@ -56,6 +56,9 @@ class RepeatLevels(NamedTuple):
         Blocks per pass.
     n_parameters : int
         Offsets (K − 1) plus drift coefficients.
+    t_span_s : ndarray, shape (K, 2)
+        Each pass's first and last time at the common points (s): its drift is held at its
+        value there beyond them (not extrapolated).
     """
 
     offsets_mgal: np.ndarray
@@ -67,10 +70,12 @@ class RepeatLevels(NamedTuple):
     rms_after_mgal: float
     n_blocks: int
     n_parameters: int
+    t_span_s: np.ndarray
 
     def correction(self, k: int, time_s) -> np.ndarray:
-        """The correction (mGal, to subtract) of pass ``k`` at times ``time_s`` (s), any shape."""
-        t = np.asarray(time_s, dtype=float)
+        """The correction (mGal, to subtract) of pass ``k`` at times ``time_s`` (s), any shape;
+        outside the times of its common points the drift keeps its value at the nearer end."""
+        t = np.clip(np.asarray(time_s, dtype=float), *self.t_span_s[k])
         f = int(self.flight_of_pass[k])
         hours = (t - self.t_ref_s[f]) / 3600.0
         out = np.full(t.shape, float(self.offsets_mgal[k]))
@@ -186,7 +191,8 @@ def fit_repeat_levels(values_mgal, times_s, flight_of_pass=None, degree: int = 1
                 drift[f, j] = coef[k]
                 k += 1
     levels = RepeatLevels(offsets, drift, t_ref, fidx, p, float(np.sqrt(ssr0 / y.size)),
-                          float(np.sqrt(ssr1 / y.size)), int(nb), int(n_par))
+                          float(np.sqrt(ssr1 / y.size)), int(nb), int(n_par),
+                          np.column_stack([t.min(axis=1), t.max(axis=1)]))
     # the differences cannot see a level common to every pass: keep the passes' mean level
     mean = float(np.mean([levels.correction(i, t[i]) for i in range(K)]))
     return levels._replace(offsets_mgal=offsets - mean)

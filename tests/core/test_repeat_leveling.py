@@ -112,3 +112,15 @@ def test_blocks_weighted_by_the_passes_variance():
     assert np.sqrt(np.mean(np.square(errs_w))) < 0.3 * np.sqrt(np.mean(np.square(errs_u)))
     with pytest.raises(ValueError, match="std_mgal"):
         fit_repeat_levels(x, t, degree=0, block=10, std_mgal=np.zeros_like(x))
+
+
+def test_the_drift_is_not_extrapolated_beyond_a_pass_s_common_points():
+    rng = np.random.default_rng(5)
+    t, g = _passes(rng)
+    x = g + 2.0 * (t - t.mean()) / 3600.0
+    fit = fit_repeat_levels(x, t, degree=1, block=20)
+    lo, hi = t[0].min(), t[0].max()
+    inside = fit.correction(0, np.array([lo, hi]))
+    # an hour past the pass's end its correction is still that at the end
+    assert fit.correction(0, np.array([lo - 3600.0, hi + 3600.0])) == pytest.approx(inside, abs=1e-12)
+    assert abs(inside[1] - inside[0]) == pytest.approx(2.0 * (hi - lo) / 3600.0, rel=1e-9)
