@@ -103,3 +103,16 @@ def test_switched_off():
     _, rep = level_lines_table(table, ProcessingParams(leveling_repeat_tracks=False), [])
     assert "repeat_tracks" not in rep
     assert np.array_equal(table["dg_mgal"], table["dg_unleveled_mgal"])
+
+
+def test_a_pass_without_heights_or_with_a_hole_is_still_leveled():
+    table = _test_line(np.random.default_rng(8), [1.5, -2.0, 0.5, 3.0], 2.0)
+    table.loc[table["line"] == "R1-2", "h"] = np.nan             # heights lost on one pass
+    hole = (table["line"] == "R1-3") & (table["easting_km"].between(10.0, 12.0))
+    table.loc[hole, ["dg_unleveled_mgal", "dg_mgal"]] = np.nan    # a gap in one pass's estimate
+    _, rep = level_lines_table(table, ProcessingParams(), [])
+    assert rep["repeat_tracks"]["R1"]["status"] == "leveled"
+    ok = table["dg_mgal"].notna()
+    after = (table["dg_mgal"] - table["dg_true_mgal"])[ok].groupby(table["line"][ok]).mean()
+    assert np.ptp(after) < 0.3
+    assert table.loc[hole, "dg_mgal"].isna().all()

@@ -201,9 +201,12 @@ def _repeat_passes(table: pd.DataFrame) -> dict:
 
 def _pass_levels(passes: list, p):
     """Fit and test the passes' offsets and drifts (:func:`app.core.repeat_leveling.fit_repeat_levels`)
-    on ``dg_unleveled_mgal`` at their common points, blocks of ``leveling_repeat_block_s`` at the
-    passes' median ground speed weighted by the inverse of the passes' variance (``dg_std_mgal``): the drift of ``leveling_degree``, where refused (F-test p above
-    ``leveling_repeat_significance``) one offset per pass (``leveling_offset_fallback``).  Returns (fit, block_km, reason): reason None = accepted."""
+    on ``dg_unleveled_mgal`` at their common points: blocks of ``leveling_repeat_block_s`` at the
+    passes' median ground speed, weighted by the inverse of the passes' variance
+    (``dg_std_mgal``); the drift of ``leveling_degree``, where refused (F-test p above
+    ``leveling_repeat_significance``) one offset per pass (``leveling_offset_fallback``).
+    Returns (fit, block_km, reason): reason None = accepted.  Raises ValueError when the passes
+    have no common stretch, no ground speed or too few blocks."""
     geo = [(g["easting_km"].to_numpy(float), g["northing_km"].to_numpy(float)) for g in passes]
     dg = [g["dg_unleveled_mgal"].to_numpy(float) for g in passes]
     tm = [np.where(np.isfinite(d), g["time"].to_numpy(float), np.nan) for g, d in zip(passes, dg)]
@@ -247,8 +250,8 @@ def level_repeat_tracks(table: pd.DataFrame, p, warnings: list) -> dict:
     its flight's reading offset) and each flight's drift in time of ``leveling_degree``
     (:func:`app.core.repeat_leveling.fit_repeat_levels`), applied when the F-test on their
     block means has p ≤ ``leveling_repeat_significance`` (default 1: always, the p reported);
-    the passes' mean level is kept (without a
-    base tie it stays the gravimeter's reading offset).  Left alone: tracks whose passes lie
+    the passes' mean level is kept (without a base tie it stays the gravimeter's reading
+    offset).  Left alone: tracks whose passes lie
     more than ``REPEAT_MAX_SPREAD_KM`` apart across the track, or whose median heights differ
     by more than ``leveling_max_height_difference_m`` (the anomaly differs between them) unless
     the values were continued to a datum.  Returns the report's ``crossovers.repeat_tracks``:
@@ -261,7 +264,8 @@ def level_repeat_tracks(table: pd.DataFrame, p, warnings: list) -> dict:
         out[track] = entry
         spread = across_track_spread_km([g["easting_km"].to_numpy(float) for g in passes],
                                         [g["northing_km"].to_numpy(float) for g in passes])
-        heights = [float(np.nanmedian(g["h"])) for g in passes] if "h" in table else []
+        heights = [float(np.median(h[np.isfinite(h)])) for h in (g["h"].to_numpy(float) for g in passes)
+                   if np.isfinite(h).any()] if "h" in table else []
         if spread > REPEAT_MAX_SPREAD_KM:
             entry["status"] = f"not leveled: the passes lie {spread:.2f} km apart across the track"
             continue
