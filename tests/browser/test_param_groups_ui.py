@@ -57,8 +57,11 @@ def test_every_parameter_in_exactly_one_group_of_the_form(fake_server, browser_p
     page.errors.clear()
     # a valid advanced value is sent with the job
     page.fill("#params-form input[name=leveling_cv_significance]", "0.2")
-    page.click("#run-job")
-    page.wait_for_selector("#job-status", timeout=10000)
+    # the job list is read once the job was created (#job-status may still show the earlier job)
+    with page.expect_response(lambda r: r.request.method == "POST" and r.url.endswith(f"/api/surveys/{sid}/jobs"),
+                              timeout=10000) as posted:
+        page.click("#run-job")
+    assert posted.value.ok
     with httpx.Client(base_url=fake_server.url) as c:
         jobs = c.get(f"/api/surveys/{sid}/jobs").json()
     assert max(jobs, key=lambda j: j["id"])["params"] == {"leveling_cv_significance": 0.2}
