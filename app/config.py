@@ -788,6 +788,12 @@ class ProcessingParams(_Strict):
                                                 "their total error cannot grow; held out on 32 test lines with truth "
                                                 "their internal accuracy fell 2-4 % and their error did not grow "
                                                 "(docs/MEASUREMENTS.md, session 50)")
+    leveling_repeat_drift_significance: float = Field(0.05, gt=0, le=1, description="The repeat-track leveling "
+                                                      "fits each flight's drift (leveling_degree) besides the passes' "
+                                                      "offsets only when it explains their differences beyond the "
+                                                      "offsets (partial F-test p below this): passes flown one way "
+                                                      "see a drift mostly as offsets, and a drift fitted to their "
+                                                      "errors there runs away")
     leveling_repeat_block_s: float = Field(50.0, gt=0, le=3600, description="Length (s of flight) of the blocks whose "
                                            "mean differences the repeat-track leveling fits: the estimates' errors are "
                                            "correlated over about the smoother's span, so shorter blocks would count "
@@ -891,7 +897,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("leveling_degree", "leveling_per_flight", "leveling_significance"),
      ("leveling_cross_validate", "leveling_cv_significance", "leveling_cv_significance_untied",
       "leveling_offset_fallback", "leveling_max_height_difference_m", "leveling_include_repeat",
-      "leveling_repeat_tracks", "leveling_repeat_significance", "leveling_repeat_block_s")),
+      "leveling_repeat_tracks", "leveling_repeat_significance", "leveling_repeat_drift_significance",
+      "leveling_repeat_block_s")),
     ("gridding", "Gridding and the grid std",
      ("grid_spacing_km", "gridding", "grid_mask_km"),
      ("grid_line_error_fraction", "grid_std_line_floor", "grid_std_cross_validate", "grid_error_corr_km")),

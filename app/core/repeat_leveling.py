@@ -42,7 +42,9 @@ class RepeatLevels(NamedTuple):
         passes' common points (their mean level is kept).
     drift_mgal : ndarray, shape (F, degree)
         Each flight's drift coefficients of ``((t − t_ref) / 3600)^k``, k = 1 … degree
-        (mGal per hour^k); shape (F, 0) for degree 0.
+        (mGal per hour^k); shape (F, 0) for degree 0.  A coefficient the passes cannot tell
+        from their offsets (all flown one way at one speed: ``IDENTIFIABLE_SHARE``) is 0 and
+        not counted in ``n_parameters``.
     t_ref_s : ndarray, shape (F,)
         Each flight's reference time (s): the mean time of its passes' common points.
     flight_of_pass : ndarray, shape (K,)
@@ -59,6 +61,9 @@ class RepeatLevels(NamedTuple):
     t_span_s : ndarray, shape (K, 2)
         Each pass's first and last time at the common points (s): its drift is held at its
         value there beyond them (not extrapolated).
+    max_difference_mgal : float
+        The largest difference of a pass from the passes' mean at a common point (mGal): what
+        a correction could at most have to take out.
     """
 
     offsets_mgal: np.ndarray
@@ -71,6 +76,7 @@ class RepeatLevels(NamedTuple):
     n_blocks: int
     n_parameters: int
     t_span_s: np.ndarray
+    max_difference_mgal: float
 
     def correction(self, k: int, time_s) -> np.ndarray:
         """The correction (mGal, to subtract) of pass ``k`` at times ``time_s`` (s), any shape;
@@ -90,6 +96,27 @@ def _block_means(a: np.ndarray, block: int) -> np.ndarray:
     nb = max(1, a.shape[1] // block)
     edges = np.linspace(0, a.shape[1], nb + 1).round().astype(int)
     return np.add.reduceat(a, edges[:-1], axis=1) / np.diff(edges)
+
+
+#: a drift column must keep at least this share of its (weighted) norm once the columns before it
+#: (the offsets, lower-degree drifts) are projected out: passes flown the same way at the same
+#: speed see a drift in time only as offsets between them, and a near-copy of the offsets'
+#: columns makes the fit trade huge offsets against a huge drift (a layout's 4 same-way passes:
+#: offsets of 10⁷ mGal, their sum right at the common points' blocks and 10⁶ mGal off elsewhere)
+IDENTIFIABLE_SHARE = 0.05
+
+
+def _identifiable(col: np.ndarray, before: list, sw: np.ndarray) -> bool:
+    """Whether ``col`` (K, nb) keeps ``IDENTIFIABLE_SHARE`` of its weighted norm outside the span
+    of the columns ``before`` (weights ``sw``, the square roots of the rows' weights)."""
+    v = col.ravel() * sw
+    norm = np.linalg.norm(v)
+    if not norm > 0:
+        return False
+    if before:
+        B = np.column_stack([c.ravel() for c in before]) * sw[:, None]
+        v = v - B @ np.linalg.lstsq(B, v, rcond=None)[0]
+    return bool(np.linalg.norm(v) >= IDENTIFIABLE_SHARE * norm)
 
 
 def fit_repeat_levels(values_mgal, times_s, flight_of_pass=None, degree: int = 1,
@@ -157,21 +184,19 @@ def fit_repeat_levels(values_mgal, times_s, flight_of_pass=None, degree: int = 1
         c = np.zeros((K, nb))
         c[i], c[K - 1] = 1.0, -1.0
         cols.append(c)
+    w_rows = np.sqrt(np.broadcast_to(w, (K, nb))).ravel()
     for f in range(len(names)):
         for j in range(1, degree + 1):
             basis = np.where((fidx == f)[:, None], ((t - t_ref[f]) / 3600.0) ** j, 0.0)
             b = _block_means(basis - basis.mean(axis=0), int(block))
-            if np.any(b != 0):
-                cols.append(b)
-            else:   # a flight whose passes' times cannot show a drift (one pass of it, all at once)
-                cols.append(None)
+            cols.append(b if _identifiable(b, [c for c in cols if c is not None], w_rows) else None)
     used = [c for c in cols if c is not None]
     n_par = len(used)
     n_obs = (K - 1) * nb    # each block's K differences sum to zero
     if n_obs - n_par < 2:
         raise ValueError(f"{nb} blocks of {block} positions over {K} passes leave {n_obs - n_par} degrees of "
                          f"freedom for {n_par} parameters (need ≥ 2)")
-    sw = np.sqrt(np.broadcast_to(w, (K, nb))).ravel()   # weighted least squares by block
+    sw = w_rows   # weighted least squares by block
     A = np.column_stack([c.ravel() for c in used]) * sw[:, None]
     y = r.ravel() * sw
     coef, *_ = np.linalg.lstsq(A, y, rcond=None)
@@ -192,7 +217,8 @@ def fit_repeat_levels(values_mgal, times_s, flight_of_pass=None, degree: int = 1
                 k += 1
     levels = RepeatLevels(offsets, drift, t_ref, fidx, p, float(np.sqrt(ssr0 / y.size)),
                           float(np.sqrt(ssr1 / y.size)), int(nb), int(n_par),
-                          np.column_stack([t.min(axis=1), t.max(axis=1)]))
+                          np.column_stack([t.min(axis=1), t.max(axis=1)]),
+                          float(np.max(np.abs(x - x.mean(axis=0)))))
     # the differences cannot see a level common to every pass: keep the passes' mean level
     mean = float(np.mean([levels.correction(i, t[i]) for i in range(K)]))
     return levels._replace(offsets_mgal=offsets - mean)

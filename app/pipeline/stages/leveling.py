@@ -203,10 +203,13 @@ def _pass_levels(passes: list, p):
     """Fit and test the passes' offsets and drifts (:func:`app.core.repeat_leveling.fit_repeat_levels`)
     on ``dg_unleveled_mgal`` at their common points: blocks of ``leveling_repeat_block_s`` at the
     passes' median ground speed, weighted by the inverse of the passes' variance
-    (``dg_std_mgal``); the drift of ``leveling_degree``, where refused (F-test p above
-    ``leveling_repeat_significance``) one offset per pass (``leveling_offset_fallback``).
-    Returns (fit, block_km, reason): reason None = accepted.  Raises ValueError when the passes
-    have no common stretch, no ground speed or too few blocks."""
+    (``dg_std_mgal``): one offset per pass, with each flight's drift of ``leveling_degree``
+    where it explains the differences beyond the offsets (partial F-test p below
+    ``leveling_repeat_drift_significance``); the whole tested against no correction at
+    ``leveling_repeat_significance`` (a drift refused there, the offsets alone,
+    ``leveling_offset_fallback``).  Returns (fit, block_km, reason, the drift's p or None):
+    reason None = accepted.  Raises ValueError when the passes have no common stretch, no
+    ground speed or too few blocks."""
     geo = [(g["easting_km"].to_numpy(float), g["northing_km"].to_numpy(float)) for g in passes]
     dg = [g["dg_unleveled_mgal"].to_numpy(float) for g in passes]
     tm = [np.where(np.isfinite(d), g["time"].to_numpy(float), np.nan) for g, d in zip(passes, dg)]
@@ -232,14 +235,39 @@ def _pass_levels(passes: list, p):
     block = max(1, int(round(block_km / step_km)))
     flights = [str(g["flight"].iloc[0]) for g in passes]
     alpha = p.leveling_repeat_significance
-    fit = fit_repeat_levels(vals, times, flights, degree=p.leveling_degree, block=block, std_mgal=std)
-    if fit.p_value > alpha and p.leveling_degree > 0 and p.leveling_offset_fallback:
-        offsets = fit_repeat_levels(vals, times, flights, degree=0, block=block, std_mgal=std)
-        if offsets.p_value <= alpha:
+    offsets = fit_repeat_levels(vals, times, flights, degree=0, block=block, std_mgal=std)
+    fit, drift_p = offsets, None
+    try:
+        drifted = (fit_repeat_levels(vals, times, flights, degree=p.leveling_degree, block=block, std_mgal=std)
+                   if p.leveling_degree > 0 else None)
+    except ValueError:   # too few blocks for the drift's parameters: the offsets alone
+        drifted = None
+    if drifted is not None:
+        drift_p = _drift_p_value(offsets, drifted, vals.shape[0])
+        # the drift only where the passes show it beyond their offsets: a drift they can hardly
+        # tell from their offsets (passes flown one way) would be fitted to their errors
+        if drift_p is not None and drift_p < p.leveling_repeat_drift_significance:
+            fit = drifted
+        if fit.p_value > alpha and fit is drifted and p.leveling_offset_fallback and offsets.p_value <= alpha:
             fit = offsets
     reason = None if fit.p_value <= alpha else (
         f"the passes' offsets and drift are not significant (F-test p = {fit.p_value:.3g} > {alpha})")
-    return fit, block * step_km, reason
+    return fit, block * step_km, reason, drift_p
+
+
+def _drift_p_value(offsets, drifted, n_passes: int) -> float | None:
+    """Partial F-test of the drift terms beyond the passes' offsets (both fits on the same
+    weighted block means: their residual sums of squares are their RMS² × the K × blocks
+    values); None when no drift term could be fitted (not identifiable)."""
+    k = drifted.n_parameters - offsets.n_parameters
+    n = drifted.n_blocks * n_passes
+    dof = drifted.n_blocks * (n_passes - 1) - drifted.n_parameters
+    if k <= 0 or dof <= 0:
+        return None
+    ssr0, ssr1 = offsets.rms_after_mgal ** 2 * n, drifted.rms_after_mgal ** 2 * n
+    if not ssr1 > 0:
+        return 0.0
+    return float(f_dist.sf(((ssr0 - ssr1) / k) / (ssr1 / dof), k, dof))
 
 
 def level_repeat_tracks(table: pd.DataFrame, p, warnings: list) -> dict:
@@ -274,11 +302,11 @@ def level_repeat_tracks(table: pd.DataFrame, p, warnings: list) -> dict:
                                "(the anomaly differs between them)")
             continue
         try:
-            fit, block_km, reason = _pass_levels(passes, p)
+            fit, block_km, reason, drift_p = _pass_levels(passes, p)
         except ValueError as exc:
             entry["status"] = f"not leveled: {exc}"
             continue
-        entry.update(degree=int(fit.drift_mgal.shape[1]), p_value=fit.p_value, block_km=block_km,
+        entry.update(degree=int(fit.drift_mgal.shape[1]), p_value=fit.p_value, drift_p_value=drift_p, block_km=block_km,
                      n_blocks=fit.n_blocks, n_parameters=fit.n_parameters,
                      rms_before_mgal=fit.rms_before_mgal, rms_after_mgal=fit.rms_after_mgal,
                      offsets_mgal=dict(zip(names, map(float, fit.offsets_mgal))),
@@ -287,9 +315,17 @@ def level_repeat_tracks(table: pd.DataFrame, p, warnings: list) -> dict:
         if reason is not None:
             entry["status"] = f"not leveled: {reason}"
             continue
+        corrs = [fit.correction(k, g["time"].to_numpy(float)) for k, g in enumerate(passes)]
+        largest = max(float(np.nanmax(np.abs(c))) for c in corrs)
+        if largest > 3.0 * fit.max_difference_mgal + 0.1:
+            # a correction can only take out what the passes' differences show
+            entry["status"] = (f"not leveled: its corrections (up to {largest:.3g} mGal) exceed what the passes' "
+                               f"differences show (up to {fit.max_difference_mgal:.3g} mGal)")
+            warnings.append(f"repeat track {track}: its passes were not leveled against each other — "
+                            + entry["status"][len("not leveled: "):])
+            continue
         means = {}
-        for k, g in enumerate(passes):
-            corr = fit.correction(k, g["time"].to_numpy(float))
+        for k, (g, corr) in enumerate(zip(passes, corrs)):
             table.loc[g.index, "dg_mgal"] = g["dg_unleveled_mgal"].to_numpy(float) - corr
             means[names[k]] = float(np.mean(corr))
         entry.update(status="leveled", mean_correction_mgal=means)
