@@ -781,13 +781,19 @@ class ProcessingParams(_Strict):
                                          "drift (leveling_degree) fitted to the passes' differences at common points, "
                                          "applied when their F-test has p ≤ leveling_repeat_significance; the "
                                          "passes' mean level kept")
-    leveling_repeat_significance: float = Field(1.0, gt=0, le=1, description="Apply the repeat-track leveling only "
-                                                "when the F-test of the passes' offsets and drift against no "
-                                                "correction has p at most this (1 = always; the p is reported): "
-                                                "the fit is a least-squares projection of the passes' differences, so "
-                                                "their total error cannot grow; held out on 32 test lines with truth "
-                                                "their internal accuracy fell 2-4 % and their error did not grow "
-                                                "(docs/MEASUREMENTS.md, session 50)")
+    leveling_repeat_significance: float = Field(0.05, gt=0, le=1, description="Apply the repeat-track leveling to "
+                                                "passes whose flights are tied to an absolute base reading only when "
+                                                "the F-test of their offsets and drift against no correction has p "
+                                                "at most this: the ties took out each flight's offset and drift, and "
+                                                "leveling the passes' own errors against each other costs as often "
+                                                "as it gains (119 tied test lines with truth, docs/MEASUREMENTS.md, "
+                                                "session 50)")
+    leveling_repeat_significance_untied: float = Field(1.0, gt=0, le=1, description="The same where a flight of "
+                                                       "the passes has no absolute base tie: it keeps its reading "
+                                                       "offset and drift, so its passes differ in level for certain "
+                                                       "(1 = always; the p is reported): the fit is a least-squares "
+                                                       "projection of their differences, so their total error "
+                                                       "cannot grow")
     leveling_repeat_drift_significance: float = Field(0.05, gt=0, le=1, description="The repeat-track leveling "
                                                       "fits each flight's drift (leveling_degree) besides the passes' "
                                                       "offsets only when it explains their differences beyond the "
@@ -897,7 +903,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("leveling_degree", "leveling_per_flight", "leveling_significance"),
      ("leveling_cross_validate", "leveling_cv_significance", "leveling_cv_significance_untied",
       "leveling_offset_fallback", "leveling_max_height_difference_m", "leveling_include_repeat",
-      "leveling_repeat_tracks", "leveling_repeat_significance", "leveling_repeat_drift_significance",
+      "leveling_repeat_tracks", "leveling_repeat_significance", "leveling_repeat_significance_untied",
+      "leveling_repeat_drift_significance",
       "leveling_repeat_block_s")),
     ("gridding", "Gridding and the grid std",
      ("grid_spacing_km", "gridding", "grid_mask_km"),

@@ -11,10 +11,10 @@ from app.config import ProcessingParams
 from app.pipeline.stages.leveling import level_lines_table
 
 
-def _test_line(rng, offsets_mgal, rate_mgal_h, heights_m=(2000.0,) * 4, noise_mgal=0.4):
+def _test_line(rng, offsets_mgal, rate_mgal_h, heights_m=(2000.0,) * 4, noise_mgal=0.4, corr_samples=15.0):
     """Four 40 km passes of one E-W track at 60 m/s, 1 Hz, alternating directions, 20 min apart,
     one flight; ``dg_unleveled_mgal`` = truth + each pass's offset + the flight's linear drift
-    + an error correlated over ~1 km."""
+    + an error correlated over ~1 km (a Gaussian kernel of ``corr_samples`` epochs of 60 m)."""
     s = np.arange(0.0, 40.0, 0.06)
     truth = 10.0 * np.sin(s / 4.0) + 3.0 * np.cos(s / 1.3)
     rows = []
@@ -22,7 +22,7 @@ def _test_line(rng, offsets_mgal, rate_mgal_h, heights_m=(2000.0,) * 4, noise_mg
         e = s if k % 2 == 0 else s[::-1]
         g = truth if k % 2 == 0 else truth[::-1]
         t = 1000.0 + 1200.0 * k + np.arange(s.size)
-        err = gaussian_filter1d(rng.normal(0.0, 1.0, s.size), 15.0)
+        err = gaussian_filter1d(rng.normal(0.0, 1.0, s.size), corr_samples)
         err *= noise_mgal / err.std()
         rows.append(pd.DataFrame({"line": f"R1-{k + 1}", "flight": "F01", "kind": "repeat", "track": "R1", "time": t,
                                   "easting_km": e, "northing_km": 0.02 * rng.normal(size=s.size), "h": h,
@@ -44,7 +44,7 @@ def test_offsets_and_drift_of_the_passes_are_removed_keeping_their_mean_level():
     for seed in range(3):
         table = _test_line(np.random.default_rng(seed), [1.5, -2.0, 0.5, 3.0], 2.0)
         warnings: list = []
-        cx, rep = level_lines_table(table, p, warnings)
+        cx, rep = level_lines_table(table, p, warnings, tied=False)
         assert len(cx) == 0 and rep["status"] == "not leveled: no crossovers"
         tr = rep["repeat_tracks"]["R1"]
         assert tr["status"] == "leveled" and tr["p_value"] < 0.01
@@ -66,7 +66,7 @@ def test_passes_without_offsets_lose_nothing():
     passes' total error cannot grow (one pass's may); inside the passes it stays put."""
     for seed in range(10):
         table = _test_line(np.random.default_rng(100 + seed), [0.0] * 4, 0.0)
-        _, rep = level_lines_table(table, ProcessingParams(), [])
+        _, rep = level_lines_table(table, ProcessingParams(), [], tied=False)
         assert rep["repeat_tracks"]["R1"]["status"] == "leveled"
         err = {col: table[col] - table["dg_true_mgal"] for col in ("dg_unleveled_mgal", "dg_mgal")}
         total = {col: np.sqrt(np.mean(e ** 2)) for col, e in err.items()}
@@ -75,32 +75,36 @@ def test_passes_without_offsets_lose_nothing():
         assert inside["dg_mgal"] <= inside["dg_unleveled_mgal"] * 1.05
 
 
-def test_a_stricter_test_leaves_passes_without_offsets_alone():
-    p = ProcessingParams(leveling_repeat_significance=0.01)
+def test_tied_passes_without_offsets_are_left_alone():
+    """Flights tied to an absolute base reading: leveled only where the F-test finds offsets or a
+    drift (p < 0.05 by default); where untied, always (above).  The errors here are correlated
+    over well under a block (50 s, 3 km), as the F-test assumes."""
+    p = ProcessingParams()
     left = 0
-    for seed in range(10):
-        table = _test_line(np.random.default_rng(100 + seed), [0.0] * 4, 0.0)
-        _, rep = level_lines_table(table, p, [])
+    for seed in range(30):
+        table = _test_line(np.random.default_rng(100 + seed), [0.0] * 4, 0.0, corr_samples=4.0)
+        _, rep = level_lines_table(table, p, [], tied=True)
+        assert rep["repeat_tracks"]["R1"]["absolute_base_tie"] is True
         if rep["repeat_tracks"]["R1"]["status"] != "leveled":
             left += 1
             assert np.array_equal(table["dg_mgal"], table["dg_unleveled_mgal"])
-    assert left >= 9
+    assert left >= 26
     # ... and still levels passes that differ
     table = _test_line(np.random.default_rng(7), [1.5, -2.0, 0.5, 3.0], 2.0)
-    _, rep = level_lines_table(table, p, [])
+    _, rep = level_lines_table(table, p, [], tied=True)
     assert rep["repeat_tracks"]["R1"]["status"] == "leveled"
 
 
 def test_passes_at_different_heights_are_not_leveled():
     table = _test_line(np.random.default_rng(5), [1.5, -2.0, 0.5, 3.0], 2.0, heights_m=(1000.0, 1000.0, 2000.0, 2000.0))
-    _, rep = level_lines_table(table, ProcessingParams(), [])
+    _, rep = level_lines_table(table, ProcessingParams(), [], tied=False)
     assert rep["repeat_tracks"]["R1"]["status"].startswith("not leveled: the passes were flown 1000 m apart")
     assert np.array_equal(table["dg_mgal"], table["dg_unleveled_mgal"])
 
 
 def test_switched_off():
     table = _test_line(np.random.default_rng(6), [1.5, -2.0, 0.5, 3.0], 2.0)
-    _, rep = level_lines_table(table, ProcessingParams(leveling_repeat_tracks=False), [])
+    _, rep = level_lines_table(table, ProcessingParams(leveling_repeat_tracks=False), [], tied=False)
     assert "repeat_tracks" not in rep
     assert np.array_equal(table["dg_mgal"], table["dg_unleveled_mgal"])
 
@@ -110,7 +114,7 @@ def test_a_pass_without_heights_or_with_a_hole_is_still_leveled():
     table.loc[table["line"] == "R1-2", "h"] = np.nan             # heights lost on one pass
     hole = (table["line"] == "R1-3") & (table["easting_km"].between(10.0, 12.0))
     table.loc[hole, ["dg_unleveled_mgal", "dg_mgal"]] = np.nan    # a gap in one pass's estimate
-    _, rep = level_lines_table(table, ProcessingParams(), [])
+    _, rep = level_lines_table(table, ProcessingParams(), [], tied=False)
     assert rep["repeat_tracks"]["R1"]["status"] == "leveled"
     ok = table["dg_mgal"].notna()
     after = (table["dg_mgal"] - table["dg_true_mgal"])[ok].groupby(table["line"][ok]).mean()
@@ -129,7 +133,7 @@ def test_passes_flown_one_way_are_leveled_by_their_offsets():
     off = table.groupby("line")["dg_unleveled_mgal"].transform("mean") - table.groupby("line")["dg_true_mgal"].transform("mean")
     table["dg_unleveled_mgal"] = table["dg_true_mgal"] + off
     table["dg_mgal"] = table["dg_unleveled_mgal"]
-    _, rep = level_lines_table(table, ProcessingParams(), [])
+    _, rep = level_lines_table(table, ProcessingParams(), [], tied=False)
     tr = rep["repeat_tracks"]["R1"]
     assert tr["status"] == "leveled" and tr["degree"] == 0
     corr = table["dg_unleveled_mgal"] - table["dg_mgal"]

@@ -138,7 +138,7 @@ def level_lines_table(table: pd.DataFrame, p, warnings: list, tied: bool = True,
         warnings.append("no crossovers between lines: leveling skipped")
         rep = {"status": "not leveled: no crossovers"}
         if p.leveling_repeat_tracks:
-            rep["repeat_tracks"] = level_repeat_tracks(table, p, warnings)
+            rep["repeat_tracks"] = level_repeat_tracks(table, p, warnings, tied, tied_flights)
         return pd.DataFrame(columns=cols), rep
     heights = crossover_heights(table, cx, p.leveling_max_height_difference_m, warnings)
     ranges = {str(l): (float(g["time"].min()), float(g["time"].max()))
@@ -199,7 +199,7 @@ def _repeat_passes(table: pd.DataFrame) -> dict:
     return out
 
 
-def _pass_levels(passes: list, p):
+def _pass_levels(passes: list, p, alpha: float):
     """Fit and test the passes' offsets and drifts (:func:`app.core.repeat_leveling.fit_repeat_levels`)
     on ``dg_unleveled_mgal`` at their common points: blocks of ``leveling_repeat_block_s`` at the
     passes' median ground speed, weighted by the inverse of the passes' variance
@@ -234,7 +234,6 @@ def _pass_levels(passes: list, p):
         raise ValueError("the passes' ground speed is unknown")
     block = max(1, int(round(block_km / step_km)))
     flights = [str(g["flight"].iloc[0]) for g in passes]
-    alpha = p.leveling_repeat_significance
     offsets = fit_repeat_levels(vals, times, flights, degree=0, block=block, std_mgal=std)
     fit, drift_p = offsets, None
     try:
@@ -270,7 +269,7 @@ def _drift_p_value(offsets, drifted, n_passes: int) -> float | None:
     return float(f_dist.sf(((ssr0 - ssr1) / k) / (ssr1 / dof), k, dof))
 
 
-def level_repeat_tracks(table: pd.DataFrame, p, warnings: list) -> dict:
+def level_repeat_tracks(table: pd.DataFrame, p, warnings: list, tied: bool = False, tied_flights=None) -> dict:
     """A survey without crossovers: level each repeat track's passes against each other (in
     place, ``dg_mgal`` = ``dg_unleveled_mgal`` − the pass's correction where accepted).
 
@@ -301,8 +300,12 @@ def level_repeat_tracks(table: pd.DataFrame, p, warnings: list) -> dict:
             entry["status"] = (f"not leveled: the passes were flown {max(heights) - min(heights):.0f} m apart in height "
                                "(the anomaly differs between them)")
             continue
+        flights = {str(g["flight"].iloc[0]) for g in passes}
+        track_tied = tied or (tied_flights is not None and flights <= {str(f) for f in tied_flights})
+        alpha = p.leveling_repeat_significance if track_tied else p.leveling_repeat_significance_untied
+        entry["absolute_base_tie"] = bool(track_tied)
         try:
-            fit, block_km, reason, drift_p = _pass_levels(passes, p)
+            fit, block_km, reason, drift_p = _pass_levels(passes, p, alpha)
         except ValueError as exc:
             entry["status"] = f"not leveled: {exc}"
             continue
