@@ -16,9 +16,10 @@ the common points (the passes' mean level is kept, whatever fixed it — a base 
 
 The differences' errors are correlated along the track (each pass is a smoothed estimate),
 so the regression is fitted to their means over blocks of about ``block`` common positions
-(every position in one block), which are close to independent when a block is longer than the error's correlation length, and an
-F-test says whether the model explains more than those errors (``(K − 1)`` independent
-differences per block: each block's ``K`` differences sum to zero).
+(every position in one block), which are close to independent when a block is longer than
+the error's correlation length, and an F-test says whether the model explains more than those
+errors (``(K − 1)`` independent differences per block: each block's ``K`` differences sum to
+zero); :func:`drift_p_value` says whether a drift explains more than the offsets alone.
 
 Units: anomalies, offsets and drifts mGal; times s (drift polynomials in hours about each
 flight's mean time).
@@ -222,3 +223,38 @@ def fit_repeat_levels(values_mgal, times_s, flight_of_pass=None, degree: int = 1
     # the differences cannot see a level common to every pass: keep the passes' mean level
     mean = float(np.mean([levels.correction(i, t[i]) for i in range(K)]))
     return levels._replace(offsets_mgal=offsets - mean)
+
+
+def drift_p_value(offsets: RepeatLevels, drifted: RepeatLevels) -> float | None:
+    """Partial F-test of the drift terms beyond the passes' offsets.
+
+    Parameters
+    ----------
+    offsets, drifted : RepeatLevels
+        :func:`fit_repeat_levels` of the same values, times, weights and blocks with
+        ``degree = 0`` and with the drift.
+
+    Returns
+    -------
+    float or None
+        One-sided p of the residual sum of squares the drift terms remove, against the
+        drifted fit's residual variance; None when no drift term could be fitted (none
+        identifiable, or no degrees of freedom left).
+
+    Raises
+    ------
+    ValueError
+        When the two fits are not of the same passes and blocks.
+    """
+    K = offsets.offsets_mgal.size
+    if drifted.offsets_mgal.size != K or drifted.n_blocks != offsets.n_blocks:
+        raise ValueError("the two fits must be of the same passes and blocks")
+    k = drifted.n_parameters - offsets.n_parameters
+    dof = drifted.n_blocks * (K - 1) - drifted.n_parameters
+    if k <= 0 or dof <= 0:
+        return None
+    n = drifted.n_blocks * K     # both RMS are over the K × blocks weighted block means
+    ssr0, ssr1 = offsets.rms_after_mgal ** 2 * n, drifted.rms_after_mgal ** 2 * n
+    if not ssr1 > 0:
+        return 0.0
+    return float(f_dist.sf(((ssr0 - ssr1) / k) / (ssr1 / dof), k, dof))

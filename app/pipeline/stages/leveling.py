@@ -24,7 +24,7 @@ from app.core.leveling import (
     keep_mean_level,
     level_lines,
 )
-from app.core.repeat_leveling import fit_repeat_levels
+from app.core.repeat_leveling import drift_p_value, fit_repeat_levels
 
 #: Per-epoch lower bound of ``dg_std_mgal`` that stage 9 sets on lines that do not resolve the
 #: anomaly (:func:`app.pipeline.stages.choice.check_lines`); :func:`level_survey` applies it
@@ -242,7 +242,7 @@ def _pass_levels(passes: list, p, alpha: float):
     except ValueError:   # too few blocks for the drift's parameters: the offsets alone
         drifted = None
     if drifted is not None:
-        drift_p = _drift_p_value(offsets, drifted, vals.shape[0])
+        drift_p = drift_p_value(offsets, drifted)
         # the drift only where the passes show it beyond their offsets: a drift they can hardly
         # tell from their offsets (passes flown one way) would be fitted to their errors
         if drift_p is not None and drift_p < p.leveling_repeat_drift_significance:
@@ -254,36 +254,24 @@ def _pass_levels(passes: list, p, alpha: float):
     return fit, block * step_km, reason, drift_p
 
 
-def _drift_p_value(offsets, drifted, n_passes: int) -> float | None:
-    """Partial F-test of the drift terms beyond the passes' offsets (both fits on the same
-    weighted block means: their residual sums of squares are their RMS² × the K × blocks
-    values); None when no drift term could be fitted (not identifiable)."""
-    k = drifted.n_parameters - offsets.n_parameters
-    n = drifted.n_blocks * n_passes
-    dof = drifted.n_blocks * (n_passes - 1) - drifted.n_parameters
-    if k <= 0 or dof <= 0:
-        return None
-    ssr0, ssr1 = offsets.rms_after_mgal ** 2 * n, drifted.rms_after_mgal ** 2 * n
-    if not ssr1 > 0:
-        return 0.0
-    return float(f_dist.sf(((ssr0 - ssr1) / k) / (ssr1 / dof), k, dof))
-
-
 def level_repeat_tracks(table: pd.DataFrame, p, warnings: list, tied: bool = False, tied_flights=None) -> dict:
     """A survey without crossovers: level each repeat track's passes against each other (in
     place, ``dg_mgal`` = ``dg_unleveled_mgal`` − the pass's correction where accepted).
 
     The passes' differences from their mean at common points show each pass's offset (a tare,
-    its flight's reading offset) and each flight's drift in time of ``leveling_degree``
-    (:func:`app.core.repeat_leveling.fit_repeat_levels`), applied when the F-test on their
-    block means has p ≤ ``leveling_repeat_significance`` (default 1: always, the p reported);
-    the passes' mean level is kept (without a base tie it stays the gravimeter's reading
-    offset).  Left alone: tracks whose passes lie
-    more than ``REPEAT_MAX_SPREAD_KM`` apart across the track, or whose median heights differ
-    by more than ``leveling_max_height_difference_m`` (the anomaly differs between them) unless
-    the values were continued to a datum.  Returns the report's ``crossovers.repeat_tracks``:
-    per track the passes, status, F-test, the fitted offsets and drifts, each pass's mean
-    correction (what was subtracted on average) and the block length."""
+    its flight's reading offset) and, where they can show it, each flight's drift in time
+    (:func:`_pass_levels`).  Applied where the F-test on their block means has p ≤
+    ``leveling_repeat_significance_untied`` (default 1: always, the p reported) when a flight
+    of the passes has no absolute base tie (``tied``, ``tied_flights`` as in
+    :func:`level_lines_table`), ≤ ``leveling_repeat_significance`` (0.05) when all are tied;
+    corrections above three times the passes' largest difference are refused.  The passes'
+    mean level is kept (without a base tie it stays the gravimeter's reading offset).  Left
+    alone: tracks whose passes lie more than ``REPEAT_MAX_SPREAD_KM`` apart across the track,
+    or whose median heights differ by more than ``leveling_max_height_difference_m`` (the
+    anomaly differs between them) unless the values were continued to a datum.  Returns the
+    report's ``crossovers.repeat_tracks``: per track the passes, status, whether tied, the
+    F-tests, the fitted offsets and drifts, each pass's mean correction (what was subtracted on
+    average) and the block length."""
     out = {}
     for track, passes in _repeat_passes(table).items():
         names = [str(g["line"].iloc[0]) for g in passes]
