@@ -323,6 +323,12 @@ class ProcessingParams(_Strict):
                                                     "its motion cancelled at its own sample boundaries "
                                                     "(app.core.gravimeter.motion_compensated_means), kept when z is "
                                                     "quieter above the anomaly band; None never")
+    slow_gravimeter_short_drop: float = Field(0.2, ge=0, lt=1, description="Where the lines hold less than 10 FIR "
+                                              "cut-off periods of stretches 3 periods long (short lines), the "
+                                              "motion-compensated z is still used when, on the lines' stretches of "
+                                              "at least 1.5 periods with half a period left out at each end, it is "
+                                              "quieter above the anomaly band by at least this share (its band RMS "
+                                              "below 1 − this times the plain means') over at least 5 periods")
     height_matched_means: bool = Field(True, description="Where vu is derived from the GNSS heights, compare them with "
                                        "the gravimeter's double integral put through the same spline "
                                        "(app.core.gravimeter.height_matched_means): the aircraft's motion cancels "
@@ -858,7 +864,7 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("max_gap_s", "despike_threshold", "apply_time_offset", "calibrate"),
      ("gnss_rate_hz", "rate_tolerance", "geoid_height_m", "gravimeter_gap_margin_s", "height_step_threshold", "despike_max_fraction",
       "max_nan_run", "estimate_time_offset", "max_time_offset_s", "time_offset_min_z", "time_offset_min_improvement",
-      "slow_gravimeter_min_ratio", "height_matched_means", "band_delay_check", "band_delay_min_t", "band_delay_flights_p", "gnss_fill_max_error_mgal", "lag_check_s",
+      "slow_gravimeter_min_ratio", "slow_gravimeter_short_drop", "height_matched_means", "band_delay_check", "band_delay_min_t", "band_delay_flights_p", "gnss_fill_max_error_mgal", "lag_check_s",
       "lag_check_min_change_s", "lag_from_time_offsets", "lag_band_fit", "lag_band_fit_z", "lag_band_confirm_z",
       "lag_check_min_improvement", "lag_one_scale", "lag_one_scale_min_improvement")),
     ("noise", "Noise model: the error of z and the local GNSS noise level",

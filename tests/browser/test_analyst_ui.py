@@ -430,3 +430,14 @@ def test_apply_h_rho_starts_a_filter_job(fake_server, browser_page, tmp_path, sh
             assert time.monotonic() < t_end
             time.sleep(0.1)
         assert c.get(f"/api/jobs/{jid}").json()["status"] == "succeeded"
+
+
+def test_short_lines_motion_compensation_shows_its_figures(tmp_path, monkeypatch, browser_page):
+    # lines too short for the usual comparison of the plain and the motion-cancelled means: the
+    # report shows the short-line comparison's figures (50 s edges) that decided
+    monkeypatch.setenv("AEROGRAV_FAKE_SHORT_LINES", "1")
+    with fake_pipeline_server(tmp_path, monkeypatch, 0.01) as srv:
+        page = browser_page
+        _open_processed(page, srv.url, tmp_path, "report", "#report-time-offsets tbody tr")
+        cell = page.locator("#report-time-offsets tbody tr").first.locator("td").last.inner_text()
+        assert cell == "yes (z's RMS at 0.01–0.02 Hz on the short lines, 50 s edges: 31.8 plain, 12 cancelled, mGal)", cell

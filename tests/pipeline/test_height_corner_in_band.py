@@ -28,7 +28,10 @@ def test_height_corner_inside_the_fitted_band_is_moved_below_the_data(tmp_path):
 
     survey = simulate_survey("omolon-mini", tmp_path / "survey", seed=410, **LAYOUT_410)
     out = tmp_path / "out"
-    nm = process_survey(survey, out)["noise_model"]
+    # the plain interval means, whose error above 0.06 Hz the corner was fitted to: since session 51
+    # the short lines' comparison cancels the motion here instead (no corner then; 4.28 against
+    # FIR's 6.05 mGal, the plain means' estimate 4.63)
+    nm = process_survey(survey, out, {"slow_gravimeter_min_ratio": None})["noise_model"]
     f_low = nm["max_corner_hz"]                   # set when corners were moved: the lowest fitted frequency
     assert nm["hidden_corners_hz"] and f_low is not None
     corners = [(1.0 - c["phi"]) / (2.0 * np.pi * nm["dt_s"]) for c in nm["components"] if c["phi"] > 0]

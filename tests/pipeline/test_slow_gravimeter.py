@@ -21,17 +21,18 @@ from app.pipeline.stages import measurement as ms
 def _survey(tmp_path_factory, name, **kw):
     from app.simulate import simulate_survey
 
+    kw = {"main_length_km": 60.0, **kw}
     return simulate_survey("tiny", tmp_path_factory.mktemp(name) / "survey", seed=5,
                            gravimeter_model="AIRGrav", gravimeter_rate_hz=1.0, gravimeter_sampling="mean",
                            tau_true_s=0.0, tau_declared_s=0.0, time_offset_s=0.0, gravimeter_clock="aligned",
-                           gnss_rate_hz=10.0, main_length_km=60.0, turbulence_spectrum="peaked",
+                           gnss_rate_hz=10.0, turbulence_spectrum="peaked",
                            turbulence_slopes=(3.0, 8.0), turbulence_rms_ms2=(0.3, 0.5), **kw)
 
 
-def _errors_below(path):
-    """RMS (mGal) of the FIR 100 s low-pass of z − truth (the FIR baseline's error, 100 s in from
-    the line ends) on the lines, for the plain and the compensated means, and the stage's choice
-    per flight."""
+def _errors_below(path, period_s: float = 100.0):
+    """RMS (mGal) of the FIR ``period_s`` low-pass of z − truth (the FIR baseline's error, a period
+    in from the line ends) on the lines, for the plain and the compensated means, and the stage's
+    choice per flight."""
     s = read_survey(path)
     truth = pd.read_parquet(path / "truth" / "lines.parquet")
     out = {"plain": [], "compensated": [], "applied": []}
@@ -51,11 +52,11 @@ def _errors_below(path):
             z = ms.anomaly_measurement_mgal(fbar, t, vu, m.gamma_mgal, m.eotvos_mgal)[idx]
             e = pd.Series(z - tr["dg_true_mgal"].to_numpy()).groupby(tr["line"].to_numpy())
             dt = float(np.median(np.diff(t)))
-            k = int(round(100.0 / dt))
+            k = int(round(period_s / dt))
             for _, x in e:
                 if x.size < 3 * k:
                     continue
-                lo = fir_lowpass_mgal(x.to_numpy(), dt, 100.0)[k:-k]
+                lo = fir_lowpass_mgal(x.to_numpy(), dt, period_s)[k:-k]
                 out[key].append(lo[np.isfinite(lo)] - np.nanmean(lo))
     return {k: (float(np.sqrt(np.mean(np.concatenate(v) ** 2))) if k != "applied" else v) for k, v in out.items()}
 
@@ -79,3 +80,22 @@ def test_compensation_refused_where_it_folds_the_gnss_error_in(tmp_path_factory,
     r = _errors_below(_survey(tmp_path_factory, "gnss", turbulence_peak_hz=0.4, **gnss))
     assert r["compensated"] > r["plain"], r
     assert not any(r["applied"]), r
+
+
+@pytest.mark.parametrize("gnss,better", [(dict(sigma_vu_cms=0.05, turbulence_peak_hz=0.6), "compensated"),
+                                         (dict(gnss_velocity=False, sigma_h_m=0.007, h_colored_m=0.025,
+                                               h_colored_tau_s=60.0, turbulence_peak_hz=0.4), "plain")],
+                         ids=["velocity", "heights"])
+def test_short_lines_still_choose_by_the_data(tmp_path_factory, gnss, better):
+    # four 25 km lines (250 s): no stretch of 300 s for the usual comparison's 100 s edges, so it
+    # used to keep the plain means whatever they cost; the short-line comparison (50 s edges, over
+    # >= 500 s of lines) takes the compensated means only where they are clearly quieter
+    path = _survey(tmp_path_factory, "short", **{**gnss, "main_length_km": 25.0})
+    r = _errors_below(path, period_s=30.0)    # the error against the truth below 30 s periods
+    s = read_survey(path)
+    rec = ms.measure(s).flights["F01"].time_offset["motion_compensation"]
+    assert rec["n_epochs"] == 0, rec          # the usual comparison had nothing to go on
+    assert rec["survey_short_lines"]["used"] == (better == "compensated"), rec
+    worse = "plain" if better == "compensated" else "compensated"
+    assert r[better] < r[worse], r
+    assert all(r["applied"]) == (better == "compensated"), r

@@ -20,6 +20,20 @@ import pandas as pd
 N_STATES = 2
 
 
+def _motion_compensation(i: int) -> dict:
+    """Flight ``i``'s ``time_offsets.motion_compensation``: a 1 Hz gravimeter beside 10 Hz GNSS, the
+    first flight's motion cancelled.  With ``AEROGRAV_FAKE_SHORT_LINES`` set, the lines were too
+    short for the usual comparison (no figures) and the short-line one decided."""
+    rec = {"applied": i == 0, "gravimeter_step_s": 1.0, "gnss_step_s": 0.1, "band_hz": [0.01, 0.02],
+           "band_rms_plain_mgal": 16.8, "band_rms_compensated_mgal": 11.9 if i == 0 else 17.9,
+           "n_epochs": 4000, "reason": "…"}
+    if os.environ.get("AEROGRAV_FAKE_SHORT_LINES"):
+        rec.update({"band_rms_plain_mgal": None, "band_rms_compensated_mgal": None, "n_epochs": 0,
+                    "short_lines": {"edge_s": 50.0, "band_rms_plain_mgal": 31.8,
+                                    "band_rms_compensated_mgal": 12.0 if i == 0 else 35.0, "n_epochs": 7840}})
+    return rec
+
+
 def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: str = "EPSG:32657") -> dict:
     """A report.json shaped like the real pipeline's (app.pipeline.process._report and what
     process_survey adds), with the decisions an analyst must see: no absolute base tie (unless
@@ -46,10 +60,7 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                              "gravimeter_stamp_jitter_ms": 0.0, "gnss_stamp_jitter_ms": 1.9 if i == 0 else 0.74,
                              "gnss_stamps_dejittered": i == 0, "gnss_stamp_jitter_lag1": -0.03 if i == 0 else 0.97,
                              # a 1 Hz gravimeter beside 10 Hz GNSS: the first flight's motion cancelled
-                             "motion_compensation": {"applied": i == 0, "gravimeter_step_s": 1.0, "gnss_step_s": 0.1,
-                                                     "band_hz": [0.01, 0.02], "band_rms_plain_mgal": 16.8,
-                                                     "band_rms_compensated_mgal": 11.9 if i == 0 else 17.9,
-                                                     "n_epochs": 4000, "reason": "…"}}
+                             "motion_compensation": _motion_compensation(i)}
                          for i, f in enumerate(flights)},
         "gnss_filled_epochs": {f: (2 if i == 0 else 0) for i, f in enumerate(flights)},
         "spike_repair": {f: {"threshold": 6.0, "flagged": 3, "epochs": int((df["flight"] == f).sum()),

@@ -207,8 +207,12 @@ function bandFitCell(v) {
 function motionCompensation(mc) {
   if (!mc) return "— (gravimeter not slower than the GNSS)";
   const band = Array.isArray(mc.band_hz) ? ` at ${fmt(mc.band_hz[0], 2)}–${fmt(mc.band_hz[1], 2)} Hz` : "";
-  const rms = Number.isFinite(mc.band_rms_plain_mgal) && Number.isFinite(mc.band_rms_compensated_mgal)
-    ? ` (z's RMS${band}: ${fmt(mc.band_rms_plain_mgal, 3)} plain, ${fmt(mc.band_rms_compensated_mgal, 3)} cancelled, mGal)` : "";
+  const has = (x) => x && Number.isFinite(x.band_rms_plain_mgal) && Number.isFinite(x.band_rms_compensated_mgal);
+  // short lines: the figures on stretches with shorter edges (the usual ones need 300 s stretches)
+  const f = has(mc) ? mc : (has(mc.short_lines) ? mc.short_lines : null);
+  const where = f && f !== mc ? ` on the short lines, ${fmt(f.edge_s, 3)} s edges` : "";
+  const rms = f
+    ? ` (z's RMS${band}${where}: ${fmt(f.band_rms_plain_mgal, 3)} plain, ${fmt(f.band_rms_compensated_mgal, 3)} cancelled, mGal)` : "";
   return (mc.applied ? "yes" : "no") + rms + (mc.applied || rms ? "" : ` — ${mc.reason || "not compared"}`);
 }
 
