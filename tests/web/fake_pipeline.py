@@ -30,7 +30,9 @@ def _motion_compensation(i: int) -> dict:
     if os.environ.get("AEROGRAV_FAKE_SHORT_LINES"):
         rec.update({"band_rms_plain_mgal": None, "band_rms_compensated_mgal": None, "n_epochs": 0,
                     "short_lines": {"edge_s": 50.0, "band_rms_plain_mgal": 31.8,
-                                    "band_rms_compensated_mgal": 12.0 if i == 0 else 35.0, "n_epochs": 7840}})
+                                    "band_rms_compensated_mgal": 12.0 if i == 0 else 35.0, "n_epochs": 7840},
+                    "survey_short_lines": {"band_rms_plain_mgal": 31.8, "band_rms_compensated_mgal": 12.0,
+                                           "used": True}})
     return rec
 
 

@@ -208,8 +208,10 @@ function motionCompensation(mc) {
   if (!mc) return "— (gravimeter not slower than the GNSS)";
   const band = Array.isArray(mc.band_hz) ? ` at ${fmt(mc.band_hz[0], 2)}–${fmt(mc.band_hz[1], 2)} Hz` : "";
   const has = (x) => x && Number.isFinite(x.band_rms_plain_mgal) && Number.isFinite(x.band_rms_compensated_mgal);
-  // short lines: the figures on stretches with shorter edges (the usual ones need 300 s stretches)
-  const f = has(mc) ? mc : (has(mc.short_lines) ? mc.short_lines : null);
+  // short lines (too little line time for the usual comparison): the figures on stretches with
+  // shorter edges decided, so they are the ones shown
+  const short = has(mc.short_lines) && (mc.survey_short_lines || !has(mc));
+  const f = short ? mc.short_lines : (has(mc) ? mc : null);
   const where = f && f !== mc ? ` on the short lines, ${fmt(f.edge_s, 3)} s edges` : "";
   const rms = f
     ? ` (z's RMS${band}${where}: ${fmt(f.band_rms_plain_mgal, 3)} plain, ${fmt(f.band_rms_compensated_mgal, 3)} cancelled, mGal)` : "";
