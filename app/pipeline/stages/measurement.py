@@ -256,15 +256,21 @@ def slow_gravimeter_z(series: gm.IntegratedSeries, gnss: tuple, response: tuple,
     usable = judged & np.isfinite(z) & np.isfinite(z_mc)
     (r0, n), (r1, _) = (band_rms_mgal(x, dt, band, usable=usable) for x in (z, z_mc))
     rec.update({"band_rms_plain_mgal": r0, "band_rms_compensated_mgal": r1, "n_epochs": int(n)})
-    # short lines (under 3 FIR periods each leave nothing at 1-period edges): the same figures on
-    # stretches of at least 1.5 periods with half a period left out at each end
-    edge = SHORT_LINE_EDGE_PERIODS * p.fir_cutoff_period_s
-    (s0, ns), (s1, _) = (band_rms_mgal(x, dt, band, usable=usable, edge_s=edge) for x in (z, z_mc))
-    rec["short_lines"] = {"edge_s": edge, "band_rms_plain_mgal": s0, "band_rms_compensated_mgal": s1,
-                          "n_epochs": int(ns)}
+    if n * dt < USUAL_MIN_PERIODS * p.fir_cutoff_period_s:
+        # short lines (under 3 FIR periods each leave nothing at 1-period edges): the same figures
+        # on stretches of at least 1.5 periods with half a period left out at each end — only
+        # where this flight alone is too short for the usual comparison (when the survey pools
+        # too little, every flight is; a flight with enough makes the pool enough)
+        edge = SHORT_LINE_EDGE_PERIODS * p.fir_cutoff_period_s
+        (s0, ns), (s1, _) = (band_rms_mgal(x, dt, band, usable=usable, edge_s=edge) for x in (z, z_mc))
+        rec["short_lines"] = {"edge_s": edge, "band_rms_plain_mgal": s0, "band_rms_compensated_mgal": s1,
+                              "n_epochs": int(ns)}
     return z_mc
 
 
+#: the usual comparison of :func:`choose_motion_compensation` needs this many FIR cut-off periods
+#: of lines (pooled over the flights, 100 s left out at each end of every stretch)
+USUAL_MIN_PERIODS = 10.0
 #: the short-line comparison of :func:`slow_gravimeter_z`: the edge left out of each stretch (in
 #: FIR cut-off periods; the usual comparison leaves one period, ``band_rms_mgal``'s 100 s) and the
 #: least line time it needs (periods)
@@ -329,7 +335,7 @@ def choose_motion_compensation(flights: dict, p) -> None:
     band = recs[0][1]["band_hz"]
     r0, r1, n = _pooled_band_rms(recs, None)
     short = None
-    if not n or n * dt < 10.0 * p.fir_cutoff_period_s:
+    if not n or n * dt < USUAL_MIN_PERIODS * p.fir_cutoff_period_s:
         why_short, s0, s1 = _short_lines_choice(recs, dt, band, p)
         short = {"band_rms_plain_mgal": s0, "band_rms_compensated_mgal": s1, "used": not why_short}
         if not why_short:
@@ -338,7 +344,8 @@ def choose_motion_compensation(flights: dict, p) -> None:
             why = f"no line long enough to compare the two at 100 s edges; {why_short}"
         else:
             why = (f"plain interval means kept: {n * dt:.0f} s of lines to compare the two on, fewer than "
-                   f"{10.0 * p.fir_cutoff_period_s:.0f} s (10 FIR cut-off periods); {why_short}")
+                   f"{USUAL_MIN_PERIODS * p.fir_cutoff_period_s:.0f} s ({USUAL_MIN_PERIODS:g} FIR cut-off periods); "
+                   f"{why_short}")
     elif r1 < 0.97 * r0:
         why = ""
     else:
