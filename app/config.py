@@ -318,6 +318,13 @@ class ProcessingParams(_Strict):
                                      "this many standard errors")
     time_offset_min_improvement: float = Field(0.01, ge=0, lt=1, description="… and removes at least this share "
                                                "of the band-passed acceleration residual")
+    match_response: bool = Field(True, description="Smooth the GNSS acceleration by the zero-phase Gaussian "
+                                 "exp(−c·ω²) fitted to the gravimeter's (a meter's undeclared decimation filter: "
+                                 "two 0.5 s boxcars on a 2 Hz platform), when significant and improving the fit")
+    response_min_z: float = Field(3.0, ge=0, le=1000, description="Apply the fitted response width only when it "
+                                  "exceeds this many standard errors")
+    response_min_improvement: float = Field(0.05, ge=0, lt=1, description="… and removes at least this share of the "
+                                            "band-passed acceleration residual")
     slow_gravimeter_min_ratio: float | None = Field(1.5, gt=1, le=100, description="A gravimeter whose sampling "
                                                     "interval is at least this many GNSS steps is also tried with "
                                                     "its motion cancelled at its own sample boundaries "
@@ -864,6 +871,7 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("max_gap_s", "despike_threshold", "apply_time_offset", "calibrate"),
      ("gnss_rate_hz", "rate_tolerance", "geoid_height_m", "gravimeter_gap_margin_s", "height_step_threshold", "despike_max_fraction",
       "max_nan_run", "estimate_time_offset", "max_time_offset_s", "time_offset_min_z", "time_offset_min_improvement",
+      "match_response", "response_min_z", "response_min_improvement",
       "slow_gravimeter_min_ratio", "slow_gravimeter_short_drop", "height_matched_means", "band_delay_check", "band_delay_min_t", "band_delay_flights_p", "gnss_fill_max_error_mgal", "lag_check_s",
       "lag_check_min_change_s", "lag_from_time_offsets", "lag_band_fit", "lag_band_fit_z", "lag_band_confirm_z",
       "lag_check_min_improvement", "lag_one_scale", "lag_one_scale_min_improvement")),

@@ -227,7 +227,8 @@ def run_identify(survey, tr: Tracker, measured: Measured | None = None) -> Ident
     flights = {n: FlightSeries(n, f.t_s, f.z_mgal, f.time_offset_s, f.time_offset_corr, f.time_offset_applied,
                                f.time_offset, f.despike, f.gnss_filled) for n, f in meas.flights.items()}
     mrep = {"base_ties": meas.base_ties, "lag_check": meas.lag_check, "calibration": meas.calibration,
-            "band_delay": meas.band_delay, "repeat_tracks_inferred": sl.inferred_tracks,
+            "band_delay": meas.band_delay, "response_width": meas.response_width,
+            "repeat_tracks_inferred": sl.inferred_tracks,
             "model_order_candidates": orders, **({"model_order_likelihood": extra["likelihood"]} if extra else {})}
     return Identified(cfg.model_dump(mode="json"), sl.crs, meas.dt_s, sl.lines, flights, fir, noise, idents, n_cx,
                       mrep, warnings, dict(tr.timings), str(survey.root))

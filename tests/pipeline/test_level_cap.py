@@ -42,7 +42,14 @@ def test_a_smooth_level_lifted_above_the_stationary_one_is_capped(tmp_path):
 
     survey = tmp_path / "survey"
     simulate_survey("omolon-mini", survey, seed=1413, **OVERRIDES)
-    idf = run_identify(read_survey(survey), Tracker(None))
+    # the lift happens on z as measured before session 53: with the meter's two 1 s boxcars matched
+    # (c = 0.051 s², 40 % of the acceleration residual) the full-rate likelihood no longer lifts the
+    # smooth level here (and the estimate is 13.9 instead of 14.1 mGal, FIR 18.5), so the cap is
+    # exercised on the unmatched z
+    s = read_survey(survey)
+    s.config = s.config.model_copy(update={"processing": s.config.processing.model_copy(
+        update={"match_response": False})})
+    idf = run_identify(s, Tracker(None))
     capped = run_filter(idf, tmp_path / "capped", Tracker(None))
     lift = capped["level_refinement"]["smooth_lift_capped"]
     # the lift is large (7.6× the EM's level with numpy 2.4 / scipy 1.17, 9× with numpy 2.3: the

@@ -25,9 +25,11 @@ from scipy.optimize import minimize_scalar
 from app.config import SurveyConfig
 from app.core import epochs, geodesy
 from app.core import gravimeter as gm
+from app.core import response as resp
 from app.core.baselines import fir_kernel
 from app.core.calibration import CalibrationSpectra, calibrate
 from app.core.measurement import (
+    MGAL_PER_MS2,
     anomaly_measurement_mgal,
     band_delay_fit,
     delay_correction_mgal,
@@ -91,7 +93,8 @@ def each_flight(fn, items) -> list:
 
 
 def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
-                   scale: float | None = None, line_windows=None, compensation: bool = True) -> FlightMeasurement:
+                   scale: float | None = None, line_windows=None, compensation: bool = True,
+                   match_response: bool = True, response_c_s2: float | None = None) -> FlightMeasurement:
     """Corrections and the anomaly measurement ``z_k`` (SPEC §1) for one whole flight.
 
     Parameters
@@ -107,6 +110,13 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
         Also form the motion-compensated z of a slow gravimeter for :func:`choose_motion_compensation`
         (only :func:`measure` uses it; the lag and calibration checks, which compare plain z
         with plain z, skip that work).
+    match_response : bool
+        Smooth the GNSS acceleration by the gravimeter's fitted response width
+        (:func:`response_width`, when ``processing.match_response``); the lag and calibration
+        checks, which read the gravimeter's response from z themselves, pass False.
+    response_c_s2 : float, optional
+        The response width to apply (s², 0 for none) whatever this flight's own fit decides: the
+        survey's decision (:func:`choose_response_width`); the fit is still reported.
     """
     p = cfg.processing
     tau = cfg.gravimeter.tau_s if tau_s is None else tau_s
@@ -172,12 +182,26 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     applied = bool(offset_info.get("applied", False))
     fbar = gm.gnss_side_means(series, t, tau, k, offset if applied else 0.0, runs)
     z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
+    matched = None          # what matching the meter's response adds to z (mGal), when it is matched
+    if match_response and p.match_response:
+        width = response_width(fbar, t, vu, series.step_s, p)
+        c = (width["c_s2"] if width["applied"] else 0.0) if response_c_s2 is None else float(response_c_s2)
+        width["c_applied_s2"] = c
+        offset_info["response_width"] = width
+        if c > 0.0:
+            matched = matched_acceleration_change_mgal(t, vu, c, p.max_gap_s)
+            z = z + matched
+            own = (f"this flight's fit {width['c_s2']:.4f} ± {width['se_s2']:.1g} s² at {width['band_hz'][0]:g}–"
+                   f"{width['band_hz'][1]:.2g} Hz removes {100 * width['residual_reduction']:.0f} % of the residual "
+                   "there" if width.get("estimated") else f"the survey's; this flight not fitted: {width['reason']}")
+            notes.append(f"the gravimeter reads the aircraft's acceleration smoother than the GNSS does (a decimation "
+                         f"filter?): the GNSS acceleration smoothed to match, exp(−c·ω²) with c = {c:.4f} s² ({own})")
     dz_dtau = 1e5 * (gm.gnss_side_means(series, t, tau + 1.0, k, offset if applied else 0.0, runs) - fbar)
     mask_gaps(z, t, gr["time"].to_numpy(float) + (offset if applied else 0.0), p.gravimeter_gap_margin_s, notes)
     # a flight without lines is judged on its airborne epochs
     judged = judged_epochs(t, ve, vn, line_windows if line_windows is not None and len(line_windows) else None)
     z_mc = (slow_gravimeter_z(series, (t, vu, gamma, eot, judged), (tau, k, offset if applied else 0.0), z, p,
-                              offset_info) if compensation else None)
+                              offset_info, matched) if compensation else None)
     vu_from_h = bool(getattr(flight, "vu_derived_from_h", False))
     misfit = (height_misfit(series, (t, h, gamma, eot), (tau, k, offset if applied else 0.0))
               if vu_from_h and p.height_step_threshold is not None else None)
@@ -218,7 +242,7 @@ def checked_horizontal_velocities(t, lat, lon, h, ve, vn, notes: list) -> tuple[
 
 
 def slow_gravimeter_z(series: gm.IntegratedSeries, gnss: tuple, response: tuple, z: np.ndarray, p,
-                      info: dict) -> np.ndarray | None:
+                      info: dict, matched_mgal: np.ndarray | None = None) -> np.ndarray | None:
     """z of a gravimeter sampled slower than the GNSS with the aircraft's motion cancelled at its
     sample boundaries (:func:`app.core.gravimeter.motion_compensated_means`; None for a gravimeter
     that is not slower, by ``p.slow_gravimeter_min_ratio`` GNSS steps), and the evidence for
@@ -236,7 +260,9 @@ def slow_gravimeter_z(series: gm.IntegratedSeries, gnss: tuple, response: tuple,
     (:func:`app.core.noise_level.band_rms_mgal`; the anomaly is the same in both and small there
     beside either noise).  ``gnss`` = (t_s, vu_ms, gamma_mgal, eotvos_mgal, judged), ``judged``
     the epochs compared on (the line windows: a turn's manoeuvres would rule the comparison),
-    ``response`` = (tau_s, scale, time_offset_s)."""
+    ``response`` = (tau_s, scale, time_offset_s); ``matched_mgal``: what matching the meter's
+    response added to the plain z (:func:`matched_acceleration_change_mgal`), added to the
+    compensated z too (the same meter, the same GNSS acceleration)."""
     t, vu, gamma, eot, judged = gnss
     dt = float(np.median(np.diff(t))) if t.size > 1 else float("nan")
     ratio = p.slow_gravimeter_min_ratio
@@ -252,6 +278,8 @@ def slow_gravimeter_z(series: gm.IntegratedSeries, gnss: tuple, response: tuple,
     tau, k, offset = response
     z_mc = anomaly_measurement_mgal(gm.motion_compensated_means(series, t, vu, tau, k, time_offset_s=offset),
                                     t, vu, gamma, eot)
+    if matched_mgal is not None:
+        z_mc = z_mc + matched_mgal
     z_mc[~np.isfinite(z)] = np.nan              # the plain record's gap mask
     usable = judged & np.isfinite(z) & np.isfinite(z_mc)
     (r0, n), (r1, _) = (band_rms_mgal(x, dt, band, usable=usable) for x in (z, z_mc))
@@ -603,6 +631,85 @@ FEET_GAIN_TOLERANCE = 0.08
 PLAUSIBLE_GAIN = (0.7, 1.4)
 
 
+def response_width(fbar_ms2, t, vu, gravimeter_step_s: float, p) -> dict:
+    """The gravimeter's smoothing relative to the GNSS acceleration (:func:`app.core.response.fit_response_width`,
+    in the time offset's band) and this flight's verdict on matching it, with its evidence (the
+    report's time_offsets entry ``response_width``; :func:`choose_response_width` decides for the
+    survey).
+
+    Applied when the width is significant (``response_min_z`` standard errors) and removes at
+    least ``response_min_improvement`` of the band-passed residual: a platform meter's point
+    samples behind its decimation filter (2 Hz, two 0.5 s boxcars: c ≈ 0.014 s², 65–80 % of the
+    residual at 0.01–0.8 Hz).  Interval means on the GNSS's own clock match already (c = 0)."""
+    t = np.asarray(t, float)
+    dt = float(np.median(np.diff(t))) if t.size > 1 else float("nan")
+    band = (0.01, acceleration_band_top_hz(dt, gravimeter_step_s))
+    try:
+        fit = resp.fit_response_width(fbar_ms2, gnss_acceleration_ms2(t, vu), dt, band)
+    except ValueError as exc:
+        return {"estimated": False, "applied": False, "reason": str(exc)}
+    info = {"estimated": True, "c_s2": fit.c_s2, "se_s2": fit.se_s2, "band_hz": [float(b) for b in band],
+            "residual_reduction": fit.relative_improvement, "cost_zero": fit.cost_zero, "cost_min": fit.cost_min}
+    why = []
+    if not fit.c_s2 > p.response_min_z * fit.se_s2:
+        why.append(f"not significant (c ≤ {p.response_min_z:g} × standard error {fit.se_s2:.2g} s²)")
+    if not fit.relative_improvement >= p.response_min_improvement:
+        why.append(f"removes only {100 * fit.relative_improvement:.1f} % of the residual "
+                   f"(< {100 * p.response_min_improvement:g} %)")
+    info.update(applied=not why, reason="; ".join(why) if why else "significant and improves the fit")
+    return info
+
+
+def choose_response_width(flights: dict, p) -> tuple[dict | None, list]:
+    """One decision for the survey on matching the gravimeter's response (:func:`response_width`):
+    the meter is the same on every flight, and a mixture of matched and unmatched z would be one
+    noise model fitted to two shapes.  The flights' widths are pooled by their inverse variances
+    and their residuals by their sums; the survey matches when the pooled width is significant
+    and removes ``response_min_improvement`` of the pooled residual.  Returns the decision's
+    evidence (None when no flight was fitted) and the flights whose own verdict differs (a flight
+    too short to fit included), to be measured again with the survey's width (0 s² when it does
+    not match)."""
+    fits = {n: m.time_offset.get("response_width") for n, m in flights.items()}
+    fits = {n: f for n, f in fits.items() if f and f.get("estimated")}
+    if not fits:
+        return None, []
+    w = {n: 1.0 / f["se_s2"] ** 2 for n, f in fits.items() if np.isfinite(f["se_s2"]) and f["se_s2"] > 0}
+    if w:
+        c = float(sum(w[n] * fits[n]["c_s2"] for n in w) / sum(w.values()))
+        se = float(1.0 / np.sqrt(sum(w.values())))
+    else:
+        c, se = 0.0, float("inf")
+    c0 = sum(f["cost_zero"] for f in fits.values())
+    reduction = float(sum(f["cost_zero"] - f["cost_min"] for f in fits.values()) / c0) if c0 > 0 else 0.0
+    applied = bool(c > p.response_min_z * se and reduction >= p.response_min_improvement)
+    rec = {"c_s2": c, "se_s2": se, "residual_reduction": reduction, "applied": applied, "flights": len(fits),
+           "reason": (f"pooled over {len(fits)} flight(s): c = {c:.4f} ± {se:.1g} s², removing "
+                      f"{100 * reduction:.1f} % of the residual"
+                      + ("" if applied else f" — not matched (needs > {p.response_min_z:g} standard errors and "
+                                            f"≥ {100 * p.response_min_improvement:g} %)"))}
+    # every flight measured with a verdict, fitted or not (a record too short to fit has the same meter)
+    again = [n for n, m in flights.items() if m.time_offset.get("response_width") is not None
+             and bool(m.time_offset["response_width"].get("c_applied_s2", 0.0) > 0.0) != applied]
+    return rec, again
+
+
+def matched_acceleration_change_mgal(t, vu, c_s2: float, max_gap_s: float) -> np.ndarray:
+    """What z gains (mGal, per epoch) when its GNSS acceleration is smoothed by the response width
+    ``c_s2`` (s²): ``a − G_c·a``, the Gaussian applied per contiguous stretch of the record (no
+    filter reaches across a gap); 0 where the acceleration is missing (z is missing there anyway)."""
+    t = np.asarray(t, float)
+    a = gnss_acceleration_ms2(t, vu)
+    out = np.zeros_like(a)
+    for i0, i1 in gnss_runs(t, max_gap_s):
+        if i1 - i0 < 3:
+            continue
+        seg = a[i0:i1]
+        dt = float(np.median(np.diff(t[i0:i1])))
+        d = seg - resp.smooth_response(seg, dt, c_s2)
+        out[i0:i1] = np.where(np.isfinite(d), d, 0.0)
+    return out * MGAL_PER_MS2
+
+
 def check_acceleration_gain(flight, info: dict, notes: list) -> None:
     """The gravimeter and the GNSS see the same aircraft acceleration, m/s² for m/s²: the gain of
     the time-offset fit (:class:`app.core.gravimeter.TimeOffsetFit`) is 1 within ~12 % on clean
@@ -912,7 +1019,7 @@ def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600
     dict
         ``tau_s``, ``k``, their standard errors (from D_XX) and the segment used.
     """
-    m = measure_flight(flight, cfg, compensation=False) if measured is None else measured
+    m = measure_flight(flight, cfg, compensation=False, match_response=False) if measured is None else measured
     t = m.t_s
     dt = float(np.median(np.diff(t)))
     moving = airborne(m)
@@ -974,6 +1081,8 @@ class Measurement:
         Median GNSS step (s).
     band_delay : dict or None
         :func:`check_band_delay`'s fit and decision (None when off).
+    response_width : dict or None
+        :func:`choose_response_width`'s pooled fit and decision (None when no flight was fitted).
     """
 
     flights: dict
@@ -983,6 +1092,7 @@ class Measurement:
     warnings: list
     dt_s: float
     band_delay: dict | None = None
+    response_width: dict | None = None
 
 
 def check_lag(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, dict | None]:
@@ -1002,7 +1112,7 @@ def check_lag(survey, cfg: SurveyConfig, warnings: list) -> tuple[float | None, 
     declared = {}        # each checked flight measured once with survey.toml's τ, for every check below
     def measured_and_fitted(name):
         try:
-            m = measure_flight(survey.flights[name], cfg, compensation=False)
+            m = measure_flight(survey.flights[name], cfg, compensation=False, match_response=False)
         except (ValueError, np.linalg.LinAlgError):
             return None, None
         try:
@@ -1139,7 +1249,8 @@ def lag_band_search(survey, cfg: SurveyConfig, tau_check_s: float, tau_declared_
         if tau not in cache:
             def power(flight):
                 try:
-                    m = measure_flight(flight, cfg, tau_s=float(tau), compensation=False)
+                    m = measure_flight(flight, cfg, tau_s=float(tau), compensation=False,
+                                                       match_response=False)
                 except (ValueError, np.linalg.LinAlgError):
                     return None
                 return band_power(m, band, airborne(m) & np.isfinite(m.z_mgal))
@@ -1276,7 +1387,8 @@ def band_lag(survey, cfg: SurveyConfig, names: list, declared: dict,
             info["reason"] = f"the band fit leaves the lag's range (τ = {tau:.3f} s)"
             return None, info
         try:
-            measured = each_flight(lambda n, t=tau: measure_flight(survey.flights[n], cfg, tau_s=t, compensation=False),
+            measured = each_flight(lambda n, t=tau: measure_flight(survey.flights[n], cfg, tau_s=t, compensation=False,
+                                                                           match_response=False),
                                    names)
         except (ValueError, np.linalg.LinAlgError) as exc:
             info["reason"] = f"a flight could not be measured at τ = {tau:.3f} s: {exc}"
@@ -1456,8 +1568,11 @@ def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float, declared: lis
     ss = {"declared": 0.0, "estimated": 0.0}
     n_tot = 0
     for i, flight in enumerate(flights):
-        m0 = measure_flight(flight, cfg, compensation=False) if declared is None else declared[i]  # measured already
-        m1 = measure_flight(flight, cfg, tau_s=tau_s, compensation=False) if estimated is None else estimated[i]
+        # measured already, or now (plain z either way)
+        m0 = (measure_flight(flight, cfg, compensation=False, match_response=False) if declared is None
+              else declared[i])
+        m1 = (measure_flight(flight, cfg, tau_s=tau_s, compensation=False, match_response=False)
+              if estimated is None else estimated[i])
         # the same epochs for both (a gap's or a spike's mask moves with the time offset)
         usable = airborne(m0) & np.isfinite(m0.z_mgal) & np.isfinite(m1.z_mgal)
         (e0, n), (e1, _) = (band_power(m, band, usable) for m in (m0, m1))
@@ -1497,6 +1612,15 @@ def measure(survey, progress=None) -> Measurement:
         flights[name] = m
         if progress is not None:
             progress((i + 1) / len(names))
+    response, again = choose_response_width(flights, p)
+    if again:     # the flights whose own verdict is not the survey's, measured with the survey's width
+        c = response["c_s2"] if response["applied"] else 0.0
+        redone = line_map()(lambda name: measure_flight(survey.flights[name], cfg, tau_s=tau_s, scale=scale,
+                                                        line_windows=line_windows(getattr(survey, "lines", None),
+                                                                                  name), response_c_s2=c),
+                            again)
+        flights.update(zip(again, redone))
+        response["measured_again"] = list(again)
     choose_motion_compensation(flights, p)
     band_delay = check_band_delay(flights, getattr(survey, "lines", None), p, warnings)
     for name in names:
@@ -1509,7 +1633,7 @@ def measure(survey, progress=None) -> Measurement:
                         "error (scale × g, easily 100+ mGal); differences along and between lines are "
                         "reliable, absolute values are not")
     dt_s = float(np.median(np.concatenate([np.diff(m.t_s) for m in flights.values()])))
-    return Measurement(flights, base_ties, lag_check, calibration, warnings, dt_s, band_delay)
+    return Measurement(flights, base_ties, lag_check, calibration, warnings, dt_s, band_delay, response)
 
 
 def check_band_delay(flights: dict, lines, p, warnings: list) -> dict | None:
