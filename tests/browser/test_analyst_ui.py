@@ -174,7 +174,11 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
         "Common level of the 3 flights: their offsets at 12 crossovers spread by 4.33 mGal, so their mean — the level "
         "leveling keeps — is uncertain by 2.5 mGal; included in δg's std and the grid std")
     assert page.locator("#report-common-level-offsets tbody tr").count() == 3
-    for key in ("base_ties", "time_offsets", "lag_check", "band_delay", "spike_repair", "crossovers", "noise_model", "model_order",
+    rw = page.locator("#report-response-width tbody tr").first.locator("td")
+    assert [rw.nth(i).inner_text() for i in range(4)] == ["0.0136", "6.0e-5", "72.8 %", "yes"]
+    rwf = page.locator("#report-response-width-flights tbody tr")
+    assert rwf.count() == offsets.count() and rwf.first.locator("td").nth(1).inner_text() == "0.0136"
+    for key in ("base_ties", "time_offsets", "response_width", "lag_check", "band_delay", "spike_repair", "crossovers", "noise_model", "model_order",
                 "model_choice", "future_section", "counts"):
         assert page.locator(f"#report-sec-{key}").count() == 1, key
     assert "stood down" not in page.inner_text("#report-sec-spike_repair") and "repaired" in page.inner_text("#report-sec-spike_repair")

@@ -62,8 +62,17 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                              "gravimeter_stamp_jitter_ms": 0.0, "gnss_stamp_jitter_ms": 1.9 if i == 0 else 0.74,
                              "gnss_stamps_dejittered": i == 0, "gnss_stamp_jitter_lag1": -0.03 if i == 0 else 0.97,
                              # a 1 Hz gravimeter beside 10 Hz GNSS: the first flight's motion cancelled
-                             "motion_compensation": _motion_compensation(i)}
+                             "motion_compensation": _motion_compensation(i),
+                             # a 2 Hz platform's decimation filter read from the data (seed-20 figures)
+                             "response_width": {"estimated": True, "c_s2": 0.0136 + 0.0001 * i, "se_s2": 0.00011,
+                                                "band_hz": [0.01, 0.8], "residual_reduction": 0.651,
+                                                "applied": True, "reason": "significant and improves the fit",
+                                                "c_applied_s2": 0.0136 + 0.0001 * i}}
                          for i, f in enumerate(flights)},
+        "response_width": {"c_s2": 0.01357, "se_s2": 6e-05, "residual_reduction": 0.728, "applied": True,
+                           "flights": len(flights),
+                           "reason": f"pooled over {len(flights)} flight(s): c = 0.0136 ± 6e-05 s², removing 72.8 % "
+                                     "of the residual"},
         "gnss_filled_epochs": {f: (2 if i == 0 else 0) for i, f in enumerate(flights)},
         "spike_repair": {f: {"threshold": 6.0, "flagged": 3, "epochs": int((df["flight"] == f).sum()),
                              "applied": True, "fraction": 0.00019,

@@ -232,6 +232,22 @@ const RENDER = {
     o.gnss_stamps_dejittered === undefined ? "—" : (o.gnss_stamps_dejittered ? "yes"
       : (o.gnss_stamp_jitter_lag1 > 0.5 ? `no (correlated, lag-1 ${fmt(o.gnss_stamp_jitter_lag1, 2)}: a receiver clock)` : "no")),
     motionCompensation(o.motion_compensation)], { id: "report-time-offsets" })],
+  // the gravimeter's smoothing relative to the GNSS acceleration (stage 1): fitted per flight, decided for the survey
+  response_width: (v, r) => {
+    const out = [table(["Width c (s²)", "SE (s²)", "Residual removed", "Applied", "Reason"],
+      [[fmt(v.c_s2, 4), fmt(v.se_s2, 2), pct(v.residual_reduction), yes(v.applied), v.reason || "—"]],
+      { id: "report-response-width" })];
+    const per = Object.entries(((r && r.report) || {}).time_offsets || {}).filter(([, o]) => o && o.response_width);
+    if (per.length) {
+      out.push(table(["Flight", "Own c (s²)", "SE (s²)", "Band (Hz)", "Residual removed", "Own verdict", "c applied (s²)"],
+        per.map(([f, o]) => {
+          const w = o.response_width;
+          return [f, fmt(w.c_s2, 4), fmt(w.se_s2, 2), Array.isArray(w.band_hz) ? w.band_hz.map((x) => fmt(x, 2)).join("–") : "—",
+            pct(w.residual_reduction), w.reason || "—", fmt(w.c_applied_s2, 4)];
+        }), { id: "report-response-width-flights" }));
+    }
+    return out;
+  },
   gnss_filled_epochs: (v) => [perFlight(v, ["Missing GNSS epochs put back on the clock"], (n) => [String(n)], { id: "report-gnss-filled" })],
   lag_check: (v) => [table(["Declared τ (s)", "Estimated τ per flight (s)", "Fitted in the band", "Applied", "Reason"],
     [[fmt(v.declared_tau_s, 4), (v.estimated_tau_s || []).map((x) => fmt(x, 4)).join(", "), bandFitCell(v), yes(v.applied),
@@ -381,6 +397,7 @@ const RENDER = {
 const TITLES = {
   base_ties: "Base ties", time_offsets: "Gravimeter–GNSS time offsets and time stamps", gnss_filled_epochs: "Missing GNSS epochs", lag_check: "Lag check (τ in flight)",
   band_delay: "Residual gravimeter delay at the anomaly's edge",
+  response_width: "Gravimeter response matched (GNSS acceleration smoothed to the meter's)",
   spike_repair: "GNSS spike repair (velocity spikes; height spikes and steps where vu comes from the heights)", crossovers: "Leveling at crossovers", repeat_lines: "Repeat-line internal accuracy",
   noise_model: "Noise model", model_order: "Model order", model_choice: "Model choice and why", identification: "Identification (EM)",
   counts: "Counts", timings_s: "Stage timings", grid: "Grid", level_refinement: "Level refinement (anomaly levels and σ)",
@@ -394,8 +411,8 @@ const SKIP = new Set(["warnings", "survey", "crs", "threads"]);
 // the sections in the order an analyst reads them: accuracy, the estimate's choices, the noise and the
 // identification, what the measurement decided, then the rest; sections the page does not know follow
 const ORDER = ["crossovers", "repeat_lines", "adaptive_minus_fir", "model_choice", "noise_model", "noise_episodes", "model_order", "model_order_candidates",
-  "identification", "spike_repair", "base_ties", "time_offsets", "lag_check", "band_delay", "gnss_filled_epochs", "calibration",
-  "level_refinement", "products", "grid", "repeat_tracks_inferred", "counts", "timings_s"];
+  "identification", "spike_repair", "base_ties", "time_offsets", "response_width", "lag_check", "band_delay", "gnss_filled_epochs",
+  "calibration", "level_refinement", "products", "grid", "repeat_tracks_inferred", "counts", "timings_s"];
 
 // model choice: the decision, then each check with its evidence, then the per-line table
 function modelChoice(v) {
