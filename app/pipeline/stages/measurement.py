@@ -182,20 +182,11 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     applied = bool(offset_info.get("applied", False))
     fbar = gm.gnss_side_means(series, t, tau, k, offset if applied else 0.0, runs)
     z = anomaly_measurement_mgal(fbar, t, vu, gamma, eot)
-    matched = None          # what matching the meter's response adds to z (mGal), when it is matched
-    if match_response and p.match_response:
-        width = response_width(fbar, t, vu, series.step_s, p)
-        c = (width["c_s2"] if width["applied"] else 0.0) if response_c_s2 is None else float(response_c_s2)
-        width["c_applied_s2"] = c
-        offset_info["response_width"] = width
-        if c > 0.0:
-            matched = matched_acceleration_change_mgal(t, vu, c, p.max_gap_s)
-            z = z + matched
-            own = (f"this flight's fit {width['c_s2']:.4f} ± {width['se_s2']:.1g} s² at {width['band_hz'][0]:g}–"
-                   f"{width['band_hz'][1]:.2g} Hz removes {100 * width['residual_reduction']:.0f} % of the residual "
-                   "there" if width.get("estimated") else f"the survey's; this flight not fitted: {width['reason']}")
-            notes.append(f"the gravimeter reads the aircraft's acceleration smoother than the GNSS does (a decimation "
-                         f"filter?): the GNSS acceleration smoothed to match, exp(−c·ω²) with c = {c:.4f} s² ({own})")
+    # what matching the meter's response adds to z (mGal; None when it is not matched)
+    matched = (match_meter_response(fbar, t, vu, series.step_s, p, response_c_s2, offset_info, notes)
+               if match_response and p.match_response else None)
+    if matched is not None:
+        z = z + matched
     dz_dtau = 1e5 * (gm.gnss_side_means(series, t, tau + 1.0, k, offset if applied else 0.0, runs) - fbar)
     mask_gaps(z, t, gr["time"].to_numpy(float) + (offset if applied else 0.0), p.gravimeter_gap_margin_s, notes)
     # a flight without lines is judged on its airborne epochs
@@ -691,6 +682,26 @@ def choose_response_width(flights: dict, p) -> tuple[dict | None, list]:
     again = [n for n, m in flights.items() if m.time_offset.get("response_width") is not None
              and bool(m.time_offset["response_width"].get("c_applied_s2", 0.0) > 0.0) != applied]
     return rec, again
+
+
+def match_meter_response(fbar_ms2, t, vu, gravimeter_step_s: float, p, response_c_s2: float | None,
+                         info: dict, notes: list) -> np.ndarray | None:
+    """This flight's response width fitted (:func:`response_width`, into ``info['response_width']``
+    with the width applied) and, when this flight's verdict — or the survey's ``response_c_s2``
+    (s²) — matches it, what smoothing z's GNSS acceleration by it adds to z (mGal,
+    :func:`matched_acceleration_change_mgal`); None when nothing is matched."""
+    width = response_width(fbar_ms2, t, vu, gravimeter_step_s, p)
+    c = (width["c_s2"] if width["applied"] else 0.0) if response_c_s2 is None else float(response_c_s2)
+    width["c_applied_s2"] = c
+    info["response_width"] = width
+    if not c > 0.0:
+        return None
+    own = (f"this flight's fit {width['c_s2']:.4f} ± {width['se_s2']:.1g} s² at {width['band_hz'][0]:g}–"
+           f"{width['band_hz'][1]:.2g} Hz removes {100 * width['residual_reduction']:.0f} % of the residual there"
+           if width.get("estimated") else f"the survey's; this flight not fitted: {width['reason']}")
+    notes.append(f"the gravimeter reads the aircraft's acceleration smoother than the GNSS does (a decimation "
+                 f"filter?): the GNSS acceleration smoothed to match, exp(−c·ω²) with c = {c:.4f} s² ({own})")
+    return matched_acceleration_change_mgal(t, vu, c, p.max_gap_s)
 
 
 def matched_acceleration_change_mgal(t, vu, c_s2: float, max_gap_s: float) -> np.ndarray:
