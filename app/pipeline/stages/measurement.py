@@ -699,8 +699,9 @@ def match_meter_response(fbar_ms2, t, vu, gravimeter_step_s: float, p, response_
     own = (f"this flight's fit {width['c_s2']:.4f} ± {width['se_s2']:.1g} s² at {width['band_hz'][0]:g}–"
            f"{width['band_hz'][1]:.2g} Hz removes {100 * width['residual_reduction']:.0f} % of the residual there"
            if width.get("estimated") else f"the survey's; this flight not fitted: {width['reason']}")
-    notes.append(f"the gravimeter reads the aircraft's acceleration smoother than the GNSS does (a decimation "
-                 f"filter?): the GNSS acceleration smoothed to match, exp(−c·ω²) with c = {c:.4f} s² ({own})")
+    notes.append(f"the gravimeter reads the aircraft's acceleration smoother than the GNSS does (a decimation or "
+                 f"anti-alias filter survey.toml does not declare): the GNSS acceleration smoothed to match, "
+                 f"exp(−c·ω²) with c = {c:.4f} s² ({own})")
     return matched_acceleration_change_mgal(t, vu, c, p.max_gap_s)
 
 
@@ -1260,8 +1261,7 @@ def lag_band_search(survey, cfg: SurveyConfig, tau_check_s: float, tau_declared_
         if tau not in cache:
             def power(flight):
                 try:
-                    m = measure_flight(flight, cfg, tau_s=float(tau), compensation=False,
-                                                       match_response=False)
+                    m = measure_flight(flight, cfg, tau_s=float(tau), compensation=False, match_response=False)
                 except (ValueError, np.linalg.LinAlgError):
                     return None
                 return band_power(m, band, airborne(m) & np.isfinite(m.z_mgal))
@@ -1399,7 +1399,7 @@ def band_lag(survey, cfg: SurveyConfig, names: list, declared: dict,
             return None, info
         try:
             measured = each_flight(lambda n, t=tau: measure_flight(survey.flights[n], cfg, tau_s=t, compensation=False,
-                                                                           match_response=False),
+                                                                   match_response=False),
                                    names)
         except (ValueError, np.linalg.LinAlgError) as exc:
             info["reason"] = f"a flight could not be measured at τ = {tau:.3f} s: {exc}"
