@@ -18,7 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["gaussian_response", "smooth_response", "ResponseWidthFit", "fit_response_width"]
+from app.core.gravimeter import fill_nan
+
+__all__ = ["gaussian_response", "smooth_response", "matching_change", "ResponseWidthFit", "fit_response_width"]
 
 
 def gaussian_response(f_hz, c_s2: float) -> np.ndarray:
@@ -46,7 +48,10 @@ def smooth_response(x, dt_s: float, c_s2: float) -> np.ndarray:
     """``x`` (uniformly sampled every ``dt_s`` s, shape (n,)) through the zero-phase Gaussian
     :func:`gaussian_response` of width ``c_s2`` (s²), by FFT with the record mirrored at its ends.
     Non-finite samples are bridged linearly for the filter and stay non-finite in the result;
-    ``c_s2 = 0`` returns a copy."""
+    ``c_s2 = 0`` returns a copy.  Exact in the frequency domain, not
+    :func:`app.core.baselines.gaussian_lowpass`'s sampled kernel: the widths here are a fraction
+    of a sample to two samples (0.4 of a 2 Hz step), where a sampled kernel's transfer function is
+    not the ``exp(−c·ω²)`` the width was fitted for."""
     x = np.asarray(x, dtype=float)
     if x.ndim != 1:
         raise ValueError("smooth_response needs a 1-D series")
@@ -57,16 +62,32 @@ def smooth_response(x, dt_s: float, c_s2: float) -> np.ndarray:
     bad = ~np.isfinite(x)
     if c_s2 == 0.0 or x.size < 3 or bad.all():
         return x.copy()
-    y = x.copy()
-    if bad.any():
-        idx = np.arange(x.size)
-        y[bad] = np.interp(idx[bad], idx[~bad], x[~bad])
+    y = fill_nan(x)
     # the Gaussian's impulse response has σ = √(2c) s: 8σ of mirror leaves nothing to wrap around
     pad = int(np.ceil(8.0 * np.sqrt(2.0 * c_s2) / dt_s)) + 1
     spec, pad = _padded_spectrum(y, pad)
     n = y.size + 2 * pad
     out = np.fft.irfft(spec * gaussian_response(np.fft.rfftfreq(n, dt_s), c_s2), n)[pad:pad + y.size]
     out[bad] = np.nan
+    return out
+
+
+def matching_change(acc, t_s, c_s2: float, runs) -> np.ndarray:
+    """``acc − G_c·acc`` (the units of ``acc``, shape (n,)): what replacing a record's acceleration
+    by its :func:`smooth_response` of width ``c_s2`` (s²) takes away, the filter applied per
+    contiguous stretch ``runs`` (index ranges ``[i0, i1)``, each on its own median step ``t_s``
+    in s; none reaches across a gap); 0 where ``acc`` is missing and on stretches under 3 samples."""
+    acc = np.asarray(acc, dtype=float)
+    t = np.asarray(t_s, dtype=float)
+    if acc.shape != t.shape or acc.ndim != 1:
+        raise ValueError("acc and t_s must be 1-D arrays of the same length")
+    out = np.zeros_like(acc)
+    for i0, i1 in runs:
+        if i1 - i0 < 3:
+            continue
+        seg = acc[i0:i1]
+        d = seg - smooth_response(seg, float(np.median(np.diff(t[i0:i1]))), c_s2)
+        out[i0:i1] = np.where(np.isfinite(d), d, 0.0)
     return out
 
 
@@ -119,7 +140,7 @@ def fit_response_width(g_ms2, acc_ms2, dt_s: float, band_hz: tuple[float, float]
     band_hz : (float, float)
         Pass band of the comparison (Hz); its top is held below 0.45 of the sample rate.
     max_c_s2 : float
-        Upper end of the search (s²).
+        Upper end of the search (s²), held to ``4/ω_top²`` (``exp(c·ω²) ≤ e⁴`` at the band's top).
 
     Returns
     -------
@@ -142,13 +163,8 @@ def fit_response_width(g_ms2, acc_ms2, dt_s: float, band_hz: tuple[float, float]
     if not 0.0 < lo < hi:
         raise ValueError(f"empty comparison band {band_hz!r} at a {fs:g} Hz sample rate")
     sos = butter(4, [lo, hi], btype="band", fs=fs, output="sos")
-    idx = np.arange(g.size)
-
-    def bridged(x):
-        return np.interp(idx, idx[ok], x[ok])
-
-    gb = sosfiltfilt(sos, bridged(g))
-    ab = sosfiltfilt(sos, bridged(a))
+    gb = sosfiltfilt(sos, fill_nan(np.where(ok, g, np.nan)))     # both bridged where either is missing
+    ab = sosfiltfilt(sos, fill_nan(np.where(ok, a, np.nan)))
     f = np.fft.rfftfreq(g.size, dt_s)
     # the band's bins only (outside it the band-pass left little of either, and undoing the
     # response there would amplify that little by exp(c·ω²)); interior bins count twice

@@ -97,3 +97,20 @@ def test_fit_refuses_too_short_or_mismatched_records():
         resp.fit_response_width(np.zeros(100), np.zeros(100), DT, (0.01, 1.0))
     with pytest.raises(ValueError, match="same length"):
         resp.fit_response_width(np.zeros(300), np.zeros(301), DT, (0.01, 1.0))
+
+
+def test_matching_change_stays_inside_each_stretch():
+    # two stretches with a gap: each is filtered alone (a step at the gap would otherwise leak
+    # across it), a stretch of 2 samples and the missing samples take no change
+    t = np.concatenate([np.arange(300) * DT, 100.0 + np.arange(300) * DT, [200.0, 200.1]])
+    acc = np.concatenate([np.sin(2 * np.pi * 0.7 * t[:300]), 5.0 + np.cos(2 * np.pi * 0.3 * t[300:600]), [9.0, 9.0]])
+    acc[10] = np.nan
+    runs = [(0, 300), (300, 600), (600, 602)]
+    out = resp.matching_change(acc, t, 0.02, runs)
+    first = acc[:300] - resp.smooth_response(acc[:300], DT, 0.02)
+    np.testing.assert_allclose(out[:300], np.where(np.isfinite(first), first, 0.0), atol=1e-9)
+    np.testing.assert_allclose(out[300:600], acc[300:600] - resp.smooth_response(acc[300:600], DT, 0.02), atol=1e-9)
+    assert out[10] == 0.0 and np.all(out[600:] == 0.0)
+    # away from the ends a sinusoid loses 1 − exp(−c·ω²) of itself
+    mid = slice(100, 200)
+    np.testing.assert_allclose(out[mid], (1 - np.exp(-0.02 * (2 * np.pi * 0.7) ** 2)) * acc[mid], atol=2e-3)

@@ -707,19 +707,10 @@ def match_meter_response(fbar_ms2, t, vu, gravimeter_step_s: float, p, response_
 
 def matched_acceleration_change_mgal(t, vu, c_s2: float, max_gap_s: float) -> np.ndarray:
     """What z gains (mGal, per epoch) when its GNSS acceleration is smoothed by the response width
-    ``c_s2`` (s²): ``a − G_c·a``, the Gaussian applied per contiguous stretch of the record (no
-    filter reaches across a gap); 0 where the acceleration is missing (z is missing there anyway)."""
+    ``c_s2`` (s²): :func:`app.core.response.matching_change` of the acceleration over the record's
+    contiguous stretches (:func:`app.io.survey.gnss_runs`; no filter reaches across a gap)."""
     t = np.asarray(t, float)
-    a = gnss_acceleration_ms2(t, vu)
-    out = np.zeros_like(a)
-    for i0, i1 in gnss_runs(t, max_gap_s):
-        if i1 - i0 < 3:
-            continue
-        seg = a[i0:i1]
-        dt = float(np.median(np.diff(t[i0:i1])))
-        d = seg - resp.smooth_response(seg, dt, c_s2)
-        out[i0:i1] = np.where(np.isfinite(d), d, 0.0)
-    return out * MGAL_PER_MS2
+    return resp.matching_change(gnss_acceleration_ms2(t, vu), t, c_s2, gnss_runs(t, max_gap_s)) * MGAL_PER_MS2
 
 
 def check_acceleration_gain(flight, info: dict, notes: list) -> None:
