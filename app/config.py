@@ -492,6 +492,14 @@ class ProcessingParams(_Strict):
                                              "EM's is never lifted above the one-level (stationary) model's "
                                              "full-rate level: the smooth part of a survey is no rougher than the "
                                              "whole (a lift beyond it under-smoothed the plains 1.5-2x)")
+    rough_level_factor: float = Field(2.0, ge=1, le=100, description="With m >= 2 and two or more anomaly "
+                                      "levels the roughest is filtered at no less than this factor times its "
+                                      "full-rate likelihood level (the EM's, when higher, is kept): the likelihood "
+                                      "fits the level where the data say most, below the smoother's cutoff, and a "
+                                      "real anomaly's spectrum falls slower than the m = 2 prior's toward the "
+                                      "cutoff, so the mountains came out over-smoothed (the truth-tuned oracle's "
+                                      "mountain level was 1.1-24x, median 3x, the likelihood's on two independent "
+                                      "simulators). 1: the levels as lifted")
     q_from_posteriors: bool = Field(True, description="Q(t) for filtering: the Q levels' geometric mean weighted "
                                     "by the smoothed map's probabilities, interpolated between decimated points "
                                     "(False: the held state's level, jumping at the hold boundaries)")
@@ -893,7 +901,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
     ("identification", "Identification: EM learning of the levels and transitions",
      ("n_q", "n_r", "em_max_iter", "em_tol"),
      ("min_points_adaptive", "include_tie_lines", "level_support_min_share", "level_support_map_share",
-      "level_support_backoff", "refine_levels", "refine_lift_only", "refine_lift_max_stationary", "refine_max_epochs")),
+      "level_support_backoff", "refine_levels", "refine_lift_only", "refine_lift_max_stationary", "refine_max_epochs",
+      "rough_level_factor")),
     ("recognition", "Recognition map: NL-means smoothing and cross-line evidence",
      ("nlmeans_h_per_km", "nlmeans_rho_km", "nlmeans_mode"),
      ("recognition_pool_h_per_km", "recognition_pool_rho_km")),

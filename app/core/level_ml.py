@@ -215,6 +215,44 @@ def cap_lifted_smooth_level(Q_used_mgal2, Q_em_mgal2, Q_stationary_mgal2: float)
     return q, True
 
 
+
+def raise_rough_level(Q_lifted_mgal2, Q_full_rate_ml_mgal2, factor: float):
+    """The roughest of two or more anomaly levels at least ``factor`` times its full-rate
+    likelihood level (METHOD stage 8, "The rough level at least twice the likelihood's").
+
+    The likelihood fits a level where the data say most, below the smoother's cutoff; the RMS
+    error needs the anomaly's power at the cutoff, and where the anomaly's spectrum falls slower
+    there than the m = 2 prior's ω⁻⁴ the likelihood's level over-smooths it (an
+    Ornstein–Uhlenbeck anomaly wants 4.5–90× it).  A lifted level already above the bound (an EM
+    level learned from the roughest few points) is kept.
+
+    Parameters
+    ----------
+    Q_lifted_mgal2 : array_like, shape (n_q,)
+        The levels after the lift-only refinement and the smooth level's cap (ascending).
+    Q_full_rate_ml_mgal2 : array_like, shape (n_q,)
+        The full-rate likelihood's own levels.
+    factor : float
+        The bound's factor (≥ 1; 1 leaves the levels as they are).
+
+    Returns
+    -------
+    (ndarray, bool)
+        The levels to use and whether the roughest one was raised.  With one level nothing is
+        rougher than the rest, and nothing changes.
+    """
+    q = np.array(Q_lifted_mgal2, dtype=float).reshape(-1)
+    ml = np.asarray(Q_full_rate_ml_mgal2, dtype=float).reshape(-1)
+    if q.shape != ml.shape:
+        raise ValueError(f"Q_lifted_mgal2 has shape {q.shape}, Q_full_rate_ml_mgal2 {ml.shape}")
+    if not factor >= 1.0:
+        raise ValueError(f"factor must be >= 1, got {factor}")
+    bound = float(factor) * float(ml[-1])
+    if q.size < 2 or not np.isfinite(bound) or q[-1] >= bound:
+        return q, False
+    q[-1] = bound
+    return q, True
+
 @dataclass
 class OrderChoice:
     """Result of :func:`select_order`: the chosen m and, per candidate, the

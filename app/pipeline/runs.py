@@ -317,7 +317,7 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     m_best, order_rep = choose_order(cands, p)
     if len(cands) > 1:
         # every order's levels (a later filter job's warm starts); the baseline only for the order used
-        order_rep["Q_mgal2_by_order"] = {str(m): [float(q) for q in c.filtered.Q_levels] for m, c in cands.items()}
+        order_rep["Q_mgal2_by_order"] = {str(m): [float(q) for q in c.filtered.fitted_levels()] for m, c in cands.items()}
         cands[m_best].filtered.add_stationary(idf.dt_s, m_best, p.smoother, idf.noise.model, p)
     blend = order_rep.get("blend")
     # the other order's estimate, kept for the blend (stage 9 step 1)

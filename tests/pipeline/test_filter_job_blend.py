@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import pytest
 
 SAMPLE = Path(__file__).resolve().parents[2] / "sample_surveys" / "omolon-mini"
 
@@ -16,7 +17,16 @@ def test_filter_job_after_a_blended_run_reproduces_it(tmp_path):
     first = process_survey(SAMPLE, tmp_path / "process", keep_identification=True)
     blend = first["model_choice"]["order"].get("blend")
     assert blend is not None and 0.0 < blend["weight"] < 1.0   # the sample's crossovers blend (w ≈ 0.19)
+    # the roughest level is filtered at no less than twice the full-rate likelihood's
+    # (rough_level_factor); the report keeps the levels before that, which a filter job starts
+    # from (raised there again, not twice over)
+    rough = first["level_refinement"]["rough_level"]
+    assert rough["used_mgal2"] == pytest.approx(max(rough["lifted_mgal2"], 2 * rough["full_rate_ml_mgal2"]))
+    assert first["level_refinement"]["Q_mgal2"][-1] == pytest.approx(rough["lifted_mgal2"])
+    q_col = pd.read_parquet(tmp_path / "process" / "lines.parquet")["Q_mgal2"].to_numpy()
+    assert q_col.max() <= rough["used_mgal2"] * (1 + 1e-9)
     again = filter_from(tmp_path / "process", tmp_path / "filter")
+    assert again["level_refinement"]["rough_level"]["used_mgal2"] == pytest.approx(rough["used_mgal2"], rel=0.05)
     # the warm-started refinements end near the cold ones: the same blend to a few thousandths
     assert abs(again["model_choice"]["order"]["blend"]["weight"] - blend["weight"]) < 0.02
     a = pd.read_parquet(tmp_path / "process" / "lines.parquet")

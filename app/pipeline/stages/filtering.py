@@ -22,7 +22,7 @@ from app.core.accuracy import (
     repeat_pass_std_scales,
 )
 from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
-from app.core.level_ml import cap_lifted_smooth_level, refine_levels
+from app.core.level_ml import cap_lifted_smooth_level, raise_rough_level, refine_levels
 from app.core.model_check import blend_estimates, leave_one_out_msd_mgal2, leave_one_out_msd_test
 from app.core.smoother import kalman_smooth, level_spread_std_mgal, mixture_std_mgal
 from app.pipeline.parallel import line_map
@@ -248,6 +248,17 @@ class Filtered:
     smooth_lift_cap: dict | None = None
     noisy_passes: dict | None = None
     repeat_level: dict | None = None
+    rough_level: dict | None = None
+
+    def fitted_levels(self) -> np.ndarray:
+        """The levels as the refinement left them (mGal²): :attr:`Q_levels` without the
+        repeat level check's factor and with the roughest level before ``rough_level_factor``
+        raised it (a filter job's warm start, the report's ``Q_mgal2``)."""
+        q = np.asarray(self.Q_levels, float) / float((self.repeat_level or {}).get("factor", 1.0))
+        if self.rough_level is not None:
+            q = q.copy()
+            q[-1] = float(self.rough_level["lifted_mgal2"])
+        return q
 
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
@@ -258,8 +269,9 @@ class Filtered:
                      "repeat_level_check": self.repeat_level}
                     if self.std_level_reason or self.noisy_passes or self.repeat_level else None)
         # the refinement's levels (a filter job's warm start: it repeats the check on them); the
-        # repeat level check's factor, where it changed them, is in its own section
-        q_refined = np.asarray(self.Q_levels, float) / float((self.repeat_level or {}).get("factor", 1.0))
+        # repeat level check's factor and the rough level's factor, where they changed them, are in
+        # their own sections
+        q_refined = self.fitted_levels()
         return {"Q_mgal2": q_refined.tolist(), "Q_full_rate_ml_mgal2": np.asarray(f.Q_mgal2).tolist(),
                 "lift_only": bool(p.refine_lift_only), "R_local_scale": self.r_scale, "noise_model": p.noise_model,
                 "loglik_gain": f.loglik - f.loglik_start, "n_epochs": f.n_epochs, "n_evaluations": f.n_evaluations,
@@ -267,7 +279,7 @@ class Filtered:
                 "std_level_factor": self.std_level_factor,
                 "std_level_reason": self.std_level_reason, "std_repeat_tracks": self.std_repeat_tracks,
                 "noisy_passes_rescaled": self.noisy_passes, "repeat_level_check": self.repeat_level,
-                "smooth_lift_capped": self.smooth_lift_cap}
+                "smooth_lift_capped": self.smooth_lift_cap, "rough_level": self.rough_level}
 
     def estimate_q(self, pr: PreparedLine, q_from_posteriors: bool) -> np.ndarray:
         """Q(t) over the extended line as the estimate uses it: the one level, or
@@ -884,6 +896,19 @@ def _pass_noise_ratio(values_mgal: np.ndarray, posterior_var_mgal2: np.ndarray, 
     return repeat_pass_noise_ratio(values_mgal, _posterior_at(values_mgal, posterior_var_mgal2, mean_var_mgal2))
 
 
+def rough_level(Q_levels, Q_full_rate_ml, factor: float) -> tuple[np.ndarray, dict | None]:
+    """The levels the smoother uses (mGal²), the roughest raised by
+    :func:`app.core.level_ml.raise_rough_level` (``rough_level_factor``), and the report's
+    ``level_refinement.rough_level`` (None with one level, without a refinement —
+    ``Q_full_rate_ml`` None — or with a factor of 1: the levels are kept)."""
+    q = np.asarray(Q_levels, float)
+    if q.size < 2 or factor == 1.0 or Q_full_rate_ml is None:
+        return q, None
+    used, raised = raise_rough_level(q, Q_full_rate_ml, factor)
+    return used, {"factor": float(factor), "full_rate_ml_mgal2": float(np.asarray(Q_full_rate_ml, float)[-1]),
+                  "lifted_mgal2": float(q[-1]), "used_mgal2": float(used[-1]), "raised": bool(raised)}
+
+
 def stationary_level(prepared: list, Q_levels, r_stationary: float, dt_s: float, m: int, noise, p=None) -> float:
     """The one anomaly level Q of the stationary model, by the full-rate likelihood of the lines
     at the survey's typical noise level (the seed-000 baseline took the smooth state's level,
@@ -946,6 +971,9 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
         if capped:
             lift_cap = {"lifted_mgal2": lifted, "stationary_mgal2": float(q_stationary),
                         "em_mgal2": float(em.Q[0]), "used_mgal2": float(Qs[0])}
+    # m = 2's prior falls as ω⁻⁴, faster than a real anomaly toward the cutoff; m = 1's (ω⁻²) does not
+    Qs, rough = rough_level(Qs, None if level_fit is None else level_fit.Q_mgal2,
+                            p.rough_level_factor if ident.m >= 2 else 1.0)
     def smooth(pr: PreparedLine):
         q = q_series(pr, Qs, n_r, p.q_from_posteriors)
         r = Rs[pr.s_ext % n_r] if pr.r_ext is None else r_scale * pr.r_ext
@@ -975,6 +1003,7 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
     if q_stationary is not None and np.isfinite(q_stationary) and q_stationary > 0:
         out.Q_stationary = float(q_stationary)
     out.smooth_lift_cap = lift_cap
+    out.rough_level = rough
     if stationary:
         out.add_stationary(dt_s, ident.m, p.smoother, noise, p)
     return out
