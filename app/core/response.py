@@ -17,6 +17,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import minimize_scalar
+from scipy.signal import butter, sosfiltfilt
 
 from app.core.gravimeter import fill_nan
 
@@ -146,9 +148,6 @@ def fit_response_width(g_ms2, acc_ms2, dt_s: float, band_hz: tuple[float, float]
     -------
     ResponseWidthFit
     """
-    from scipy.optimize import minimize_scalar
-    from scipy.signal import butter, sosfiltfilt
-
     g = np.asarray(g_ms2, dtype=float)
     a = np.asarray(acc_ms2, dtype=float)
     if g.shape != a.shape or g.ndim != 1:
