@@ -215,7 +215,6 @@ def cap_lifted_smooth_level(Q_used_mgal2, Q_em_mgal2, Q_stationary_mgal2: float)
     return q, True
 
 
-
 def raise_rough_level(Q_lifted_mgal2, Q_full_rate_ml_mgal2, factor: float):
     """The roughest of two or more anomaly levels at least ``factor`` times its full-rate
     likelihood level (METHOD stage 8, "The rough level at least twice the likelihood's").
@@ -252,6 +251,7 @@ def raise_rough_level(Q_lifted_mgal2, Q_full_rate_ml_mgal2, factor: float):
         return q, False
     q[-1] = bound
     return q, True
+
 
 @dataclass
 class OrderChoice:

@@ -5,12 +5,14 @@ the data say most, below the smoother's cutoff, so an anomaly whose spectrum fal
 the prior's ω⁻⁴ (here an Ornstein–Uhlenbeck process: flat, then ω⁻²) is smoothed with a level
 below the one its RMS needs, and twice the likelihood's level is closer to the truth.  Then the
 pipeline's rule: the roughest level at least twice the full-rate likelihood's (the EM's kept where
-higher), the levels before it kept for the report and a filter job's warm start (checked on the sample survey in ``test_filter_job_blend.py``)."""
+higher), the levels before it kept for the report and a filter job's warm start (checked on the
+sample survey in ``test_filter_job_blend.py``)."""
 
 import numpy as np
 import pytest
 from scipy.optimize import minimize_scalar
 
+from app.core.level_ml import raise_rough_level
 from app.core.smoother import kalman_loglik, kalman_smooth
 from app.pipeline.stages.filtering import rough_level
 
@@ -73,8 +75,6 @@ def test_rough_level_raises_the_roughest_to_twice_the_likelihood():
 
 
 def test_raise_rough_level_checks_its_inputs():
-    from app.core.level_ml import raise_rough_level
-
     with pytest.raises(ValueError, match="shape"):
         raise_rough_level([1e-6, 4e-5], [3e-5], 2.0)
     with pytest.raises(ValueError, match="factor"):

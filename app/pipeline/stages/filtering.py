@@ -974,6 +974,7 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
     # m = 2's prior falls as ω⁻⁴, faster than a real anomaly toward the cutoff; m = 1's (ω⁻²) does not
     Qs, rough = rough_level(Qs, None if level_fit is None else level_fit.Q_mgal2,
                             p.rough_level_factor if ident.m >= 2 else 1.0)
+
     def smooth(pr: PreparedLine):
         q = q_series(pr, Qs, n_r, p.q_from_posteriors)
         r = Rs[pr.s_ext % n_r] if pr.r_ext is None else r_scale * pr.r_ext
