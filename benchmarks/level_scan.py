@@ -119,7 +119,8 @@ def scan(survey: Path, out: Path, with_oracle: bool = False) -> dict:
     res["oracle"] = {**orc, "ratio": orc["rms"] / fir}
     levels = (report.get("level_refinement") or {}).get("Q_mgal2") or []
     q_orc = orc["Q_mgal2"]
-    if orc["m"] != m or len(levels) != 2 or len(q_orc) != 2 or lines[0]["terrain"] is None:
+    if (orc["m"] != m or len(levels) != 2 or not levels[1] > levels[0] or len(q_orc) != 2
+            or lines[0]["terrain"] is None):
         res["split"] = None   # the oracle's levels are for another order, or one level: nothing to split
         return res
     smooth_c, rough_c = sorted(q_orc, key=q_orc.get)
