@@ -109,18 +109,24 @@ def _demeaned_rms(core: pd.DataFrame, col: str) -> float:
     return float(np.sqrt(np.mean(e ** 2)))
 
 
+def noise_from_report(report: dict):
+    """The noise model ``report.json`` describes (``noise_model``: its family, step and components)."""
+    from app.core.noise_model import NoiseComponent, NoiseModel
+
+    nm = report["noise_model"]
+    return NoiseModel(tuple(NoiseComponent(c["order"], c["phi"], c["weight_mgal2"]) for c in nm["components"]),
+                      nm["dt_s"], nm["family"])
+
+
 def oracle(survey: Path, out: Path, merged: pd.DataFrame) -> dict:
     """Truth-tuned per-terrain smoother (module docstring)."""
     from scipy.optimize import minimize_scalar
 
-    from app.core.noise_model import NoiseComponent, NoiseModel
     from app.core.smoother import kalman_smooth
 
     rep = json.loads((out / "report.json").read_text())
-    nm = rep["noise_model"]
-    noise = NoiseModel(tuple(NoiseComponent(c["order"], c["phi"], c["weight_mgal2"]) for c in nm["components"]),
-                       nm["dt_s"], nm["family"])
-    dt = nm["dt_s"]
+    noise = noise_from_report(rep)
+    dt = rep["noise_model"]["dt_s"]
     classes = sorted(merged["terrain"].dropna().unique())
     lines = []
     for _line, g in merged.groupby("line", sort=False):

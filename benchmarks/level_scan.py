@@ -40,21 +40,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_regimes import _core, _demeaned_rms, oracle  # noqa: E402
+from bench_regimes import _core, _demeaned_rms, noise_from_report, oracle  # noqa: E402
 
-from app.core.noise_model import NoiseComponent, NoiseModel  # noqa: E402
 from app.core.smoother import kalman_loglik, kalman_smooth  # noqa: E402
 from app.pipeline.evaluate import merge_truth  # noqa: E402
 from app.pipeline.process import process_survey  # noqa: E402
 
 #: Scale factors of Q(t) scanned: 2^k, k = −4…4.
 ALPHAS = tuple(2.0 ** k for k in range(-4, 5))
-
-
-def _noise(report: dict) -> NoiseModel:
-    nm = report["noise_model"]
-    return NoiseModel(tuple(NoiseComponent(c["order"], c["phi"], c["weight_mgal2"]) for c in nm["components"]),
-                      nm["dt_s"], nm["family"])
 
 
 def _lines(merged: pd.DataFrame, core_index) -> list[dict]:
@@ -98,7 +91,7 @@ def _p_rough(q: np.ndarray, levels) -> np.ndarray:
 def scan(survey: Path, out: Path, with_oracle: bool = False) -> dict:
     """The scale scan and, with ``with_oracle``, the levels/map split (module docstring)."""
     report = json.loads((out / "report.json").read_text())
-    noise = _noise(report)
+    noise = noise_from_report(report)
     dt = float(report["noise_model"]["dt_s"])
     m = int(report["model_choice"]["m"])
     merged = merge_truth(pd.read_parquet(out / "lines.parquet"), pd.read_parquet(survey / "truth" / "lines.parquet"))
