@@ -492,6 +492,14 @@ class ProcessingParams(_Strict):
                                              "EM's is never lifted above the one-level (stationary) model's "
                                              "full-rate level: the smooth part of a survey is no rougher than the "
                                              "whole (a lift beyond it under-smoothed the plains 1.5-2x)")
+    anomaly_level_scale: float = Field(1.0, ge=0.01, le=100, description="The analyst's smoothing strength: every "
+                                       "anomaly level Q the smoother uses is multiplied by this after the levels are "
+                                       "fitted (> 1 smooths less, < 1 more; 1: the levels as fitted).  The "
+                                       "RMS-optimal scale of the fitted levels runs from 1/16 to 8 from survey to "
+                                       "survey and nothing in the data has been found to tell which way "
+                                       "(MEASUREMENTS.md, session 56): set it from independent evidence (ground "
+                                       "data, an earlier survey, repeat lines); the model checks of stage 9 still "
+                                       "guard the result")
     rough_level_factor: float = Field(2.0, ge=1, le=100, description="With m >= 2 and two or more anomaly "
                                       "levels the roughest is filtered at no less than this factor times its "
                                       "full-rate likelihood level (the EM's, when higher, is kept): the likelihood "
@@ -907,7 +915,7 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("nlmeans_h_per_km", "nlmeans_rho_km", "nlmeans_mode"),
      ("recognition_pool_h_per_km", "recognition_pool_rho_km")),
     ("filtering", "Filtering and the posterior std",
-     ("smoother", "fir_cutoff_period_s"),
+     ("smoother", "fir_cutoff_period_s", "anomaly_level_scale"),
      ("fir_gap_max_error_mgal", "q_from_posteriors", "std_level_factor", "std_repeat_min_samples",
       "std_repeat_significance", "std_state_mixture", "std_unresolved_bound", "std_common_level", "std_crossover_check",
       "std_crossover_min_n", "std_crossover_min_n_widen", "std_crossover_min_factor", "std_crossover_shared_fraction",

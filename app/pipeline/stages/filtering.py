@@ -249,12 +249,15 @@ class Filtered:
     noisy_passes: dict | None = None
     repeat_level: dict | None = None
     rough_level: dict | None = None
+    level_scale: float = 1.0
 
     def fitted_levels(self) -> np.ndarray:
         """The levels as the refinement left them (mGal²): :attr:`Q_levels` without the
-        repeat level check's factor and with the roughest level before ``rough_level_factor``
-        raised it (a filter job's warm start, the report's ``Q_mgal2``)."""
-        q = np.asarray(self.Q_levels, float) / float((self.repeat_level or {}).get("factor", 1.0))
+        repeat level check's factor and the analyst's ``anomaly_level_scale``, and with the
+        roughest level before ``rough_level_factor`` raised it (a filter job's warm start, the
+        report's ``Q_mgal2``)."""
+        q = np.asarray(self.Q_levels, float) / (float((self.repeat_level or {}).get("factor", 1.0))
+                                                * float(self.level_scale))
         if self.rough_level is not None:
             q = q.copy()
             q[-1] = float(self.rough_level["lifted_mgal2"])
@@ -263,11 +266,13 @@ class Filtered:
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
         f = self.level_fit
+        scale = {"anomaly_level_scale": float(self.level_scale)}
         if f is None:   # no refinement (refine_levels off): still say how the std was widened
             return ({"std_level_factor": self.std_level_factor, "std_level_reason": self.std_level_reason,
                      "std_repeat_tracks": self.std_repeat_tracks, "noisy_passes_rescaled": self.noisy_passes,
-                     "repeat_level_check": self.repeat_level}
-                    if self.std_level_reason or self.noisy_passes or self.repeat_level else None)
+                     "repeat_level_check": self.repeat_level, **scale}
+                    if self.std_level_reason or self.noisy_passes or self.repeat_level or self.level_scale != 1.0
+                    else None)
         # the refinement's levels (a filter job's warm start: it repeats the check on them); the
         # repeat level check's factor and the rough level's factor, where they changed them, are in
         # their own sections
@@ -279,7 +284,7 @@ class Filtered:
                 "std_level_factor": self.std_level_factor,
                 "std_level_reason": self.std_level_reason, "std_repeat_tracks": self.std_repeat_tracks,
                 "noisy_passes_rescaled": self.noisy_passes, "repeat_level_check": self.repeat_level,
-                "smooth_lift_capped": self.smooth_lift_cap, "rough_level": self.rough_level}
+                "smooth_lift_capped": self.smooth_lift_cap, "rough_level": self.rough_level, **scale}
 
     def estimate_q(self, pr: PreparedLine, q_from_posteriors: bool) -> np.ndarray:
         """Q(t) over the extended line as the estimate uses it: the one level, or
@@ -974,6 +979,8 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
     # m = 2's prior falls as ω⁻⁴, faster than a real anomaly toward the cutoff; m = 1's (ω⁻²) does not
     Qs, rough = rough_level(Qs, None if level_fit is None else level_fit.Q_mgal2,
                             p.rough_level_factor if ident.m >= 2 else 1.0)
+    # the analyst's smoothing strength (config anomaly_level_scale): the levels as fitted, times it
+    Qs = np.asarray(Qs, float) * float(p.anomaly_level_scale)
 
     def smooth(pr: PreparedLine):
         q = q_series(pr, Qs, n_r, p.q_from_posteriors)
@@ -1005,6 +1012,7 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
         out.Q_stationary = float(q_stationary)
     out.smooth_lift_cap = lift_cap
     out.rough_level = rough
+    out.level_scale = float(p.anomaly_level_scale)
     if stationary:
         out.add_stationary(dt_s, ident.m, p.smoother, noise, p)
     return out
