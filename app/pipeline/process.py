@@ -180,13 +180,22 @@ def identify_survey(survey_dir, out_dir, overrides: dict | None = None, progress
     return report
 
 
+#: The settings a filter job was given, kept beside the identification it copies (a JSON object of
+#: ``ProcessingParams`` fields): the next filter job from that result starts from them.
+FILTER_SETTINGS = "filter_settings.json"
+
+
 def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress: Progress | None = None,
                 survey_dir=None) -> dict:
     """The ``filter`` job: start from the identification stored in ``identified_dir``
     (:func:`identify_survey` or ``process`` in the web application) and run NL-means (h, ρ
     from ``overrides`` ``nlmeans_h_per_km``/``nlmeans_rho_km``) → filtering → model choice →
     leveling → gridding → the files of SPEC §5.  The EM is not recomputed.  Filter-stage
-    settings in ``overrides`` apply; settings of earlier stages are kept as identified."""
+    settings in ``overrides`` apply over those the filter job that made ``identified_dir``
+    was given (:data:`FILTER_SETTINGS`, kept beside the identification: a filter job given only
+    h and ρ keeps an earlier one's smoothing strength or FIR period); settings of earlier stages
+    are kept as identified.  The report's ``filter_settings`` says which came from where."""
+    import json
     import shutil
 
     from app.config import SurveyConfig
@@ -201,13 +210,21 @@ def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress
     idf = load_identified(identified_dir)
     if survey_dir is not None:
         idf.survey_dir = str(survey_dir)   # the job's input (a DEM uploaded since is used)
-    if overrides:
-        cfg = idf.config
-        cfg["processing"] = {**cfg.get("processing", {}), **overrides}
-        idf.config = SurveyConfig.model_validate(cfg).model_dump(mode="json")
     src = Path(identified_dir) / IDENTIFIED_DIR
+    earlier = src / FILTER_SETTINGS
+    carried = json.loads(earlier.read_text()) if earlier.is_file() else {}
+    settings = {**carried, **(overrides or {})}
+    if settings:
+        cfg = idf.config
+        cfg["processing"] = {**cfg.get("processing", {}), **settings}
+        idf.config = SurveyConfig.model_validate(cfg).model_dump(mode="json")
     if src.resolve() != (out / IDENTIFIED_DIR).resolve():  # the next filter starts from here too
         shutil.copytree(src, out / IDENTIFIED_DIR, copy_function=_link_or_copy, dirs_exist_ok=True)
+    # this job's settings for the next filter job: a new file put in place (the copied one may be
+    # a hard link to the earlier result's, which must stay as it is)
+    tmp = out / IDENTIFIED_DIR / (FILTER_SETTINGS + ".partial")
+    tmp.write_text(json.dumps(settings, sort_keys=True))
+    os.replace(tmp, out / IDENTIFIED_DIR / FILTER_SETTINGS)
     identification_timings = dict(idf.timings)
     idf.timings = {}
     # The anomaly order: m = 1, where the run this one starts from found it significantly better
@@ -241,6 +258,9 @@ def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress
     report = run_filter(idf, out, tr, orders=orders, q_start=q_start, q_stationary=q_stationary)
     if orders:
         report["model_choice"]["order"] = {"criterion": "as chosen by the run this filter starts from", "m": orders[0]}
+    report["filter_settings"] = {"carried": carried, "given": dict(overrides or {}),
+                                 "note": "settings given to the filter job that made the result this one "
+                                         "starts from, under this job's own (given)"}
     report["reused_identification"] = {"from": str(identified_dir), "timings_s": identification_timings,
                                        "note": "EM not recomputed: the stored identification was filtered with "
                                                f"h = {idf.cfg.processing.nlmeans_h_per_km:g} /km, "

@@ -4,6 +4,8 @@ job's warm start), and the estimate is the Kalman smoother's under the scaled Q(
 passes more of z the larger the level (its gain S/(S + N) grows with the anomaly's power at
 every frequency)."""
 
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -77,7 +79,8 @@ def test_bad_scale_is_refused_naming_the_field(tiny_survey, tmp_path):
 def test_a_filter_job_takes_the_scale_from_its_parameters(tiny_survey, tmp_path):
     """The web application's filter job (from the stored identification) applies the scale given
     to it and starts from the levels as fitted, not from a scaled run's; a setting it is not
-    given is the identification's, as for every filter-stage setting (``filter_from``)."""
+    given is the one the filter job before it was given, else the identification's
+    (``filter_from``), and the earlier result's stored settings are left as they were."""
     from app.pipeline.process import run_job
 
     first = tmp_path / "process"
@@ -89,9 +92,15 @@ def test_a_filter_job_takes_the_scale_from_its_parameters(tiny_survey, tmp_path)
     np.testing.assert_allclose(rep["level_refinement"]["Q_mgal2"], base["level_refinement"]["Q_mgal2"], rtol=1e-6)
     a, b = pd.read_parquet(first / "lines.parquet"), pd.read_parquet(second / "lines.parquet")
     np.testing.assert_allclose(b["Q_mgal2"].to_numpy(), 0.125 * a["Q_mgal2"].to_numpy(), rtol=1e-6)
-    # a filter job given only h and ρ (the recognition view's) keeps the identification's scale
+    # a filter job given only h and ρ (the recognition view's) keeps the earlier filter job's scale
     third = tmp_path / "again"
-    rep3 = run_job(tiny_survey, third, {"nlmeans_h_per_km": 0.5, "nlmeans_rho_km": 10.0}, kind="filter",
+    rep3 = run_job(tiny_survey, third, {"nlmeans_h_per_km": 0.6, "nlmeans_rho_km": 10.0}, kind="filter",
                    previous_dir=second)
-    assert rep3["level_refinement"]["anomaly_level_scale"] == 2.0
+    assert rep3["level_refinement"]["anomaly_level_scale"] == 0.25
+    assert rep3["filter_settings"]["carried"] == {"anomaly_level_scale": 0.25}
     np.testing.assert_allclose(rep3["level_refinement"]["Q_mgal2"], base["level_refinement"]["Q_mgal2"], rtol=1e-6)
+    # ... and the result it started from still holds its own settings
+    stored = json.loads((second / "identified" / "filter_settings.json").read_text())
+    assert stored == {"anomaly_level_scale": 0.25}
+    again = json.loads((third / "identified" / "filter_settings.json").read_text())
+    assert again == {"anomaly_level_scale": 0.25, "nlmeans_h_per_km": 0.6, "nlmeans_rho_km": 10.0}
