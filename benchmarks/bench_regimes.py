@@ -110,12 +110,10 @@ def _demeaned_rms(core: pd.DataFrame, col: str) -> float:
 
 
 def noise_from_report(report: dict):
-    """The noise model ``report.json`` describes (``noise_model``: its family, step and components)."""
-    from app.core.noise_model import NoiseComponent, NoiseModel
+    """The noise model ``report.json`` describes (:meth:`app.core.noise_model.NoiseModel.from_description`)."""
+    from app.core.noise_model import NoiseModel
 
-    nm = report["noise_model"]
-    return NoiseModel(tuple(NoiseComponent(c["order"], c["phi"], c["weight_mgal2"]) for c in nm["components"]),
-                      nm["dt_s"], nm["family"])
+    return NoiseModel.from_description(report["noise_model"])
 
 
 def oracle(survey: Path, out: Path, merged: pd.DataFrame) -> dict:

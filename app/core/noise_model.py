@@ -210,6 +210,13 @@ class NoiseModel:
                 "components": [{"order": c.order, "phi": c.phi, "weight_mgal2": c.weight, "label": c.label}
                                for c in self.components], **self.info}
 
+    @classmethod
+    def from_description(cls, d: dict) -> NoiseModel:
+        """The model a :meth:`describe` dictionary (a report's ``noise_model``) stands for: its
+        family, step and components (the fit's other entries are not needed to use it)."""
+        return cls(tuple(NoiseComponent(int(c["order"]), float(c["phi"]), float(c["weight_mgal2"]))
+                         for c in d["components"]), float(d["dt_s"]), str(d.get("family", "white velocity")))
+
 
 def white_velocity(dt_s: float, R_cm2s2: float = 1.0) -> NoiseModel:
     """The paper's model: white vertical-velocity noise of variance R, differenced once."""

@@ -236,8 +236,6 @@ def filter_from(identified_dir, out_dir, overrides: dict | None = None, progress
     orders = q_start = q_stationary = None
     prev_report = Path(identified_dir) / "report.json"
     if prev_report.exists():
-        import json
-
         prev = json.loads(prev_report.read_text())
         prev_m = prev.get("model_choice", {}).get("m")
         order = prev.get("model_choice", {}).get("order") or {}

@@ -691,3 +691,18 @@ def test_no_roll_off_where_the_data_do_not_ask_for_one():
     fit = fit_noise_model(_anomaly_plus(np.random.default_rng(5), [NoiseComponent(1, 0.95, 1e6)]), 0.5)
     assert fit.rolloff_s == 0.0
     assert all(c["rolloff_s"] == 0.0 for c in fit.candidates)
+
+
+def test_a_reported_model_is_read_back_as_the_same_model():
+    """``NoiseModel.from_description`` of a report's ``noise_model`` (after the JSON round trip
+    report.json makes) has the model's spectrum and state-space block."""
+    import json
+
+    m = NoiseModel((NoiseComponent(1, 0.0, 3.0e5), NoiseComponent(2, 0.97, 12.5)), 0.1, "velocity + height",
+                   info={"bic": 1.0})
+    back = NoiseModel.from_description(json.loads(json.dumps(m.describe())))
+    f = np.linspace(0.001, 4.9, 200)
+    np.testing.assert_array_equal(back.psd(f), m.psd(f))
+    for a, b in zip(back.block(), m.block()):
+        np.testing.assert_array_equal(a, b)
+    assert (back.family, back.dt_s) == (m.family, m.dt_s)

@@ -10,8 +10,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from app.core.noise_model import NoiseComponent, NoiseModel
+from app.core.noise_model import NoiseModel
 from app.core.smoother import kalman_smooth
+from app.io.errors import InputError
 
 SCALE = 8.0
 
@@ -43,8 +44,7 @@ def test_levels_are_the_fitted_ones_times_the_scale(tiny_processed, scaled):
 def test_the_estimate_is_the_smoother_under_the_scaled_level_and_passes_more(tiny_processed, scaled):
     (base_out, base_rep, _), (out, rep) = tiny_processed, scaled
     nm = rep["noise_model"]
-    noise = NoiseModel(tuple(NoiseComponent(c["order"], c["phi"], c["weight_mgal2"]) for c in nm["components"]),
-                       nm["dt_s"], nm["family"])
+    noise = NoiseModel.from_description(nm)
     a, b = pd.read_parquet(base_out / "lines.parquet"), pd.read_parquet(out / "lines.parquet")
     both = _adaptive_lines(rep) & _adaptive_lines(base_rep)
     assert len(both) >= 4
@@ -71,7 +71,7 @@ def test_the_estimate_is_the_smoother_under_the_scaled_level_and_passes_more(tin
 def test_bad_scale_is_refused_naming_the_field(tiny_survey, tmp_path):
     from app.pipeline.process import process_survey
 
-    with pytest.raises(Exception, match="anomaly_level_scale"):
+    with pytest.raises(InputError, match="anomaly_level_scale"):
         process_survey(tiny_survey, tmp_path / "out", {"anomaly_level_scale": 0.0})
     assert not (tmp_path / "out" / "lines.parquet").exists()
 
