@@ -434,7 +434,7 @@ def cross_validated_leveling(crossovers: pd.DataFrame, line_time_ranges: dict, d
 
 
 def drift_free_differences(crossovers: pd.DataFrame, diffs_mgal, line_time_ranges: dict, degree: int = 1,
-                           groups: dict | None = None) -> np.ndarray:
+                           groups: dict | None = None, with_dof: bool = False):
     """Crossover differences with all that a drift of the leveling model explains removed.
 
     The least-squares residuals of :func:`level_lines`'s model — one polynomial of ``degree``
@@ -454,9 +454,13 @@ def drift_free_differences(crossovers: pd.DataFrame, diffs_mgal, line_time_range
     line_time_ranges, degree, groups
         As for :func:`level_lines`.
 
+    with_dof : bool
+        Also return the residuals' degrees of freedom: the rows used less the rank of the
+        drift model on them.
+
     Returns
     -------
-    ndarray
+    ndarray, or (ndarray, int) with ``with_dof``
         The residuals, the shape of ``diffs_mgal``; NaN on rows where a column is not finite.
     """
     d = np.asarray(diffs_mgal, dtype=float)
@@ -469,7 +473,8 @@ def drift_free_differences(crossovers: pd.DataFrame, diffs_mgal, line_time_range
     keep = np.all(np.isfinite(d2), axis=1) & np.isfinite(ta) & np.isfinite(tb)
     out = np.full(d2.shape, np.nan)
     if keep.sum() < 2:
-        return out[:, 0] if one else out
+        res = out[:, 0] if one else out
+        return (res, 0) if with_dof else res
     la = crossovers["line_a"].astype(str).to_numpy()[keep]
     lb = crossovers["line_b"].astype(str).to_numpy()[keep]
     obs = _Observations(la, lb, ta[keep], tb[keep], d2[keep, 0], np.ones(int(keep.sum())), keep, d2[:, 0])
@@ -477,8 +482,10 @@ def drift_free_differences(crossovers: pd.DataFrame, diffs_mgal, line_time_range
     involved = sorted(set(units.unit_a) | set(units.unit_b))
     A = _design_matrix(units, obs, _column_layout(units, involved, degree, None))   # min-norm: the common constant
     y = d2[keep]
-    out[keep] = y - A @ np.linalg.lstsq(A, y, rcond=None)[0]
-    return out[:, 0] if one else out
+    coef, _, rank, _ = np.linalg.lstsq(A, y, rcond=None)
+    out[keep] = y - A @ coef
+    res = out[:, 0] if one else out
+    return (res, int(keep.sum()) - int(rank)) if with_dof else res
 
 
 def _rms(x):

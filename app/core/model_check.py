@@ -21,6 +21,10 @@ why (``app.pipeline`` model choice).
   Two tests: a paired t-test on the squared differences (the mean square) and a
   Wilcoxon signed-rank test on their magnitudes (:func:`paired_rank_p`), which one wild
   crossover cannot mask.
+* :func:`crossover_excess` — do the crossovers show more error than the lines' posterior std
+  says?  The std is the noise model's word on the noise it leaves; an excess is noise in the
+  anomaly band the model does not know.  :func:`crossover_level_scale` — then, of a scan of
+  lower anomaly levels, the one whose crossovers agree best, if significantly better.
 * :func:`crossover_blend_weight` — the weight of the blend of two estimates whose
   crossover differences have the least mean square: by the same reading of the
   crossovers, the blend with the least error two crossing lines do not share;
@@ -851,3 +855,113 @@ def paired_decrease_p(before, after, n_eff: int | None = None) -> float:
     if sd == 0:
         return 0.5
     return float(stats.t.sf(float(np.mean(d)) / (sd / np.sqrt(n)), n - 1))
+
+
+@dataclass(frozen=True)
+class CrossoverExcess:
+    """Result of :func:`crossover_excess`.
+
+    Attributes
+    ----------
+    n : int
+        Crossovers used (finite difference and predicted variance).
+    dof : float
+        Degrees of freedom of the differences (n less the drift parameters removed).
+    rms_ratio : float
+        ``sqrt((Σ d² / dof) / mean(σ_a² + σ_b²))``: 1 when the crossovers show the error the
+        std predicts (NaN without usable crossovers).
+    p_value : float
+        One-sided p of "the crossovers show more error than predicted": ``χ²_dof`` survival of
+        ``Σ d² / mean(σ_a² + σ_b²)``.
+    """
+
+    n: int
+    dof: float
+    rms_ratio: float
+    p_value: float
+
+
+def crossover_excess(diff_mgal, pred_var_mgal2, dof: float | None = None) -> CrossoverExcess:
+    """Do the crossover differences exceed what the lines' posterior std predicts?
+
+    Two crossing lines' errors are nearly independent, so a difference has variance up to
+    ``σ_a² + σ_b²`` (less the part of the error the lines share: the test is conservative).
+    Under that variance ``Σ d² / mean(σ_a² + σ_b²)`` is about ``χ²`` with ``dof`` degrees of
+    freedom (the differences' count less the parameters of a drift removed from them,
+    :func:`app.core.leveling.drift_free_differences`).
+
+    Parameters
+    ----------
+    diff_mgal : array_like, shape (n,)
+        Crossover differences (mGal), a drift removed or not.
+    pred_var_mgal2 : array_like, shape (n,)
+        ``σ_a² + σ_b²`` at each crossover (mGal²).
+    dof : float, optional
+        Degrees of freedom (default: the usable differences' count).
+
+    Returns
+    -------
+    CrossoverExcess
+    """
+    d = np.asarray(diff_mgal, dtype=float)
+    v = np.asarray(pred_var_mgal2, dtype=float)
+    if d.shape != v.shape or d.ndim != 1:
+        raise ValueError(f"diff_mgal and pred_var_mgal2 must be 1-D of one shape, got {d.shape} and {v.shape}")
+    ok = np.isfinite(d) & np.isfinite(v) & (v > 0)
+    n = int(ok.sum())
+    k = float(n if dof is None else min(float(dof), n))
+    if n == 0 or not k > 0:
+        return CrossoverExcess(n, k, float("nan"), float("nan"))
+    t = float(np.sum(d[ok] ** 2) / np.mean(v[ok]))
+    return CrossoverExcess(n, k, float(np.sqrt(t / k)), float(stats.chi2.sf(t, k)))
+
+
+@dataclass(frozen=True)
+class CrossoverLevelScale:
+    """Result of :func:`crossover_level_scale`.
+
+    Attributes
+    ----------
+    scale : float
+        The scale whose differences have the least mean square (1: none lower).
+    p_value : float
+        One-sided p of "its crossovers agree better than at scale 1" (paired t-test on the
+        squared differences, :func:`paired_decrease_p`; NaN when the best is 1).
+    rms_mgal : dict
+        ``{scale: RMS of its differences}`` over the crossovers every scale has (mGal).
+    """
+
+    scale: float
+    p_value: float
+    rms_mgal: dict
+
+
+def crossover_level_scale(diffs_by_scale: dict) -> CrossoverLevelScale:
+    """Of estimates at several anomaly-level scales, the one whose crossover differences have
+    the least mean square, and whether it agrees significantly better than scale 1.
+
+    Parameters
+    ----------
+    diffs_by_scale : dict
+        ``{scale: differences (mGal, shape (n,))}`` at the same n crossovers; must hold 1.0.
+
+    Returns
+    -------
+    CrossoverLevelScale
+    """
+    if 1.0 not in diffs_by_scale:
+        raise ValueError("diffs_by_scale must hold the estimate at scale 1")
+    scales = sorted(diffs_by_scale)
+    D = np.column_stack([np.asarray(diffs_by_scale[s], dtype=float) for s in scales])
+    if D.ndim != 2:
+        raise ValueError("every scale's differences must be 1-D of one length")
+    D = D[np.all(np.isfinite(D), axis=1)]
+    if D.shape[0] < 2:
+        return CrossoverLevelScale(1.0, float("nan"), {})
+    ms = np.mean(D ** 2, axis=0)
+    rms = {float(s): float(np.sqrt(m)) for s, m in zip(scales, ms)}
+    best = scales[int(np.argmin(ms))]
+    if best == 1.0:
+        return CrossoverLevelScale(1.0, float("nan"), rms)
+    p = paired_decrease_p(D[:, scales.index(1.0)] ** 2, D[:, scales.index(best)] ** 2)
+    return CrossoverLevelScale(float(best), p, rms)

@@ -460,3 +460,23 @@ def test_drift_free_differences_are_the_residuals_of_the_drift_model():
     assert np.isnan(got[0]).all() and np.isfinite(got[1:]).all()
     with pytest.raises(ValueError, match="shape"):
         drift_free_differences(x, d[:-1], ranges, 1, flight)
+
+
+def test_drift_free_differences_degrees_of_freedom():
+    """The residuals' degrees of freedom are the rows less the rank of the drift model — built
+    here by hand: two flights with offset and slope, less the common constant the crossovers
+    cannot see (rank 3).  Over many draws of unit white differences the residuals' sum of
+    squares averages that number (E Σ r² = n − rank for a projection)."""
+    from app.core.leveling import drift_free_differences
+
+    lines, _, ranges = _survey(drift_deg=0, noise=0.0, seed=11)
+    flight, _ = _two_flights(lines, ranges)
+    x = find_crossovers(lines)
+    rng = np.random.default_rng(5)
+    d = rng.normal(0.0, 1.0, (len(x), 4000))
+    got, dof = drift_free_differences(x, d, ranges, degree=1, groups=flight, with_dof=True)
+    assert dof == len(x) - 3
+    assert np.mean(np.sum(got ** 2, axis=0)) == pytest.approx(dof, rel=0.03)
+    # a degree-0 drift (one offset per flight): rank 1
+    _, dof0 = drift_free_differences(x, d[:, 0], ranges, degree=0, groups=flight, with_dof=True)
+    assert dof0 == len(x) - 1

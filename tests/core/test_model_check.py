@@ -576,3 +576,62 @@ def test_shrunk_repeat_blend_weight_against_simulated_truth():
     g, a, b, ref = _test_line_draw(rng, k=2)
     s = shrunk_repeat_blend_weight(a, b, ref)
     assert s.weight == s.raw and np.isnan(s.se)
+
+
+def test_crossover_excess_holds_its_level_and_sees_an_understated_std():
+    """Differences drawn with the variance the std predicts (unequal from crossover to
+    crossover): p < 0.05 on about 5 % of draws, the RMS ratio near 1.  Drawn with 1.5× that
+    std at 30 crossovers: the excess is found on most draws.  Fewer degrees of freedom (a
+    drift removed) are taken as given."""
+    from app.core.model_check import crossover_excess
+
+    rng = np.random.default_rng(21)
+    n, draws = 30, 4000
+    pv = rng.uniform(1.0, 3.0, n)             # σ_a² + σ_b² at each crossover (mGal²)
+    p_null, p_alt, ratios = [], [], []
+    for _ in range(draws):
+        z = rng.normal(size=n)
+        ex = crossover_excess(np.sqrt(pv.mean()) * z, pv)
+        p_null.append(ex.p_value)
+        ratios.append(ex.rms_ratio)
+        p_alt.append(crossover_excess(1.5 * np.sqrt(pv.mean()) * z, pv).p_value)
+    assert np.mean(np.array(p_null) < 0.05) == pytest.approx(0.05, abs=0.012)
+    assert np.median(ratios) == pytest.approx(1.0, abs=0.03)
+    assert np.mean(np.array(p_alt) < 0.05) > 0.9
+    # the statistic is χ² with the given dof: Σd²/mean(pv)
+    d = rng.normal(size=n)
+    ex = crossover_excess(d, pv, dof=25)
+    t = np.sum(d ** 2) / pv.mean()
+    assert ex.dof == 25 and ex.p_value == pytest.approx(stats.chi2.sf(t, 25))
+    assert ex.rms_ratio == pytest.approx(np.sqrt(t / 25))
+    # NaN rows are left out; nothing usable gives NaN
+    d[3] = np.nan
+    assert crossover_excess(d, pv).n == n - 1
+    assert np.isnan(crossover_excess(np.full(3, np.nan), np.ones(3)).p_value)
+    with pytest.raises(ValueError, match="one shape"):
+        crossover_excess(d, pv[:-1])
+
+
+def test_crossover_level_scale_takes_the_least_mean_square_when_significant():
+    """Three estimates at the same crossovers: scale 0.25's differences half the size of scale
+    1's (taken, p small), scale 0.0625's rougher again; with every scale alike the best is
+    taken only by chance (p large on most draws)."""
+    from app.core.model_check import crossover_level_scale
+
+    rng = np.random.default_rng(4)
+    n = 40
+    base = rng.normal(size=n)
+    diffs = {1.0: 2.0 * base + 0.3 * rng.normal(size=n), 0.25: base, 0.0625: 1.5 * base + 0.3 * rng.normal(size=n)}
+    res = crossover_level_scale(diffs)
+    assert res.scale == 0.25 and res.p_value < 0.01
+    assert res.rms_mgal[0.25] == pytest.approx(np.sqrt(np.mean(base ** 2)))
+    ps = []
+    for _ in range(400):
+        alike = {s: rng.normal(size=n) for s in (1.0, 0.5, 0.25)}
+        r = crossover_level_scale(alike)
+        ps.append(1.0 if r.scale == 1.0 else r.p_value)
+    assert np.mean(np.array(ps) < 0.05) < 0.12          # a best picked from three: some selection, no more
+    # scale 1 best: kept, no test
+    assert crossover_level_scale({1.0: base, 0.5: 2 * base}).scale == 1.0
+    with pytest.raises(ValueError, match="scale 1"):
+        crossover_level_scale({0.5: base})
