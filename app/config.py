@@ -500,6 +500,22 @@ class ProcessingParams(_Strict):
                                        "(MEASUREMENTS.md, session 56): set it from independent evidence (ground "
                                        "data, an earlier survey, repeat lines); the model checks of stage 9 still "
                                        "guard the result")
+    crossover_level_check: bool = Field(True, description="When the crossovers (drift removed) show significantly "
+                                        "more error than the estimate's posterior std predicts, the noise in the "
+                                        "anomaly band is more than the noise model knows and the likelihood read it "
+                                        "as anomaly: the lines are smoothed again with every anomaly level x 2^-k and, "
+                                        "when the scale s whose crossovers agree best agrees significantly better, the "
+                                        "levels are multiplied by sqrt(s) (half-way: the crossovers cannot see the "
+                                        "error two crossing lines share); report level_refinement.crossover_level_check")
+    crossover_level_p: float = Field(0.05, gt=0, lt=1, description="Significance of both steps of "
+                                     "crossover_level_check: the excess over the std, then the lower level's gain")
+    crossover_level_min_crossovers: int = Field(8, ge=3, description="Fewest crossovers for crossover_level_check")
+    crossover_level_all_orders: bool = Field(False, description="crossover_level_check scans every anomaly order "
+                                             "when any order's crossovers show the excess (False: only the orders "
+                                             "whose own crossovers show it; on 18 generated surveys every order "
+                                             "gained more on average but lost on 4, its own on 1)")
+    crossover_level_min_scale: float = Field(2.0 ** -8, gt=0, lt=1, description="Lowest scale crossover_level_check "
+                                             "scans (a power of 2)")
     rough_level_factor: float = Field(2.0, ge=1, le=100, description="With m >= 2 and two or more anomaly "
                                       "levels the roughest is filtered at no less than this factor times its "
                                       "full-rate likelihood level (the EM's, when higher, is kept): the likelihood "
@@ -910,7 +926,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("n_q", "n_r", "em_max_iter", "em_tol"),
      ("min_points_adaptive", "include_tie_lines", "level_support_min_share", "level_support_map_share",
       "level_support_backoff", "refine_levels", "refine_lift_only", "refine_lift_max_stationary", "refine_max_epochs",
-      "rough_level_factor")),
+      "rough_level_factor", "crossover_level_check", "crossover_level_p", "crossover_level_min_crossovers",
+      "crossover_level_all_orders", "crossover_level_min_scale")),
     ("recognition", "Recognition map: NL-means smoothing and cross-line evidence",
      ("nlmeans_h_per_km", "nlmeans_rho_km", "nlmeans_mode"),
      ("recognition_pool_h_per_km", "recognition_pool_rho_km")),

@@ -30,6 +30,7 @@ from app.pipeline.stages.filtering import (
 )
 from app.pipeline.stages.gridding import grid_survey
 from app.pipeline.stages.identification import Identification, back_off_levels, identify, level_support
+from app.pipeline.stages.level_check import check_levels_at_crossovers
 from app.pipeline.stages.leveling import add_common_level_std, level_survey, reading_error_std_mgal
 from app.pipeline.stages.lines import SurveyLines, survey_lines
 from app.pipeline.stages.measurement import Measurement, measure
@@ -44,7 +45,8 @@ Progress = Callable[[str, float, dict | None], None]
 #: Stage weights for the overall progress fraction of a ``process`` run (identify: 0–0.75, filter:
 #: 0.75–1); a run of part of the stages (:data:`PLANS`) spreads its own stages' weights over 0–1.
 STAGE_WEIGHTS = {"ingest": 0.05, "measurement": 0.15, "noise": 0.07, "fir": 0.02, "regularization": 0.04,
-                 "learning": 0.34, "recognition": 0.08, "nlmeans": 0.02, "filtering": 0.13, "choice": 0.02,
+                 "learning": 0.34, "recognition": 0.08, "nlmeans": 0.02, "filtering": 0.12, "level_check": 0.01,
+                 "choice": 0.02,
                  "leveling": 0.02, "gridding": 0.04, "writing": 0.02}
 STAGE_ORDER = list(STAGE_WEIGHTS)
 #: The stages each kind of run goes through, known before it starts.
@@ -313,6 +315,9 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
                              q_start=(q_start or {}).get(m), q_stationary=(q_stationary or {}).get(m))
         cands[m] = Candidate(ident, smap, filt)
     tr.runs(None)
+    if p.crossover_level_check:   # the crossovers showing more error than the std: levels reading noise
+        tr.start("level_check")
+        check_levels_at_crossovers({m: c.filtered for m, c in cands.items()}, idf.dt_s, idf.noise.model, p, warnings)
     tr.start("choice")
     m_best, order_rep = choose_order(cands, p)
     if len(cands) > 1:

@@ -44,7 +44,7 @@ def test_process_progress_never_decreases_and_the_second_em_run_moves_it(tmp_pat
     names = [s.split(" (")[0] for s, _ in seq]
     order = list(dict.fromkeys(names))
     assert order == ["ingest", "measurement", "noise", "fir", "regularization", "learning", "recognition",
-                     "nlmeans", "filtering", "choice", "leveling", "gridding", "writing", "done"]
+                     "nlmeans", "filtering", "level_check", "choice", "leveling", "gridding", "writing", "done"]
 
     # an identify job ends near the end of its own bar, a filter job starts near the start of its own
     ident = _record(identify_survey, survey, tmp_path / "ident")

@@ -36,7 +36,9 @@
    error against FIR's 27).  On a pass of a repeat track the sister passes measure FIR's
    noise without a model (:func:`repeat_fir_noise_mgal2`); where that is significantly above
    the model's and the check fails against it, the verdict read noise as anomaly and the
-   adaptive estimate stays (:func:`_repeats_veto`).  Where FIR shows no anomaly beyond its noise the check cannot run;
+   adaptive estimate stays (:func:`_repeats_veto`).  Where stage 8's crossover level check
+   lowered the levels (noise in the anomaly band the model does not know), FIR's noise as FIR's
+   own crossovers measure it plays that part on every line (:func:`fir_crossover_noise`).  Where FIR shows no anomaly beyond its noise the check cannot run;
    a line whose estimate also varies by less than its own posterior std is reported as not
    resolving the anomaly (``resolved``), and when that holds for at least half of the lines a
    warning says so — the estimate is then close to a smooth trend, right or flattened.  Such
@@ -98,6 +100,7 @@ from app.core.model_check import (
     blend_estimates,
     crossover_blend_weight,
     crossover_comparison,
+    crossover_excess,
     crossover_rms_mgal,
     disagreement_ratio,
     fir_noise_bandwidth_hz,
@@ -283,14 +286,49 @@ def repeat_fir_noise_mgal2(table: pd.DataFrame) -> dict[str, float]:
     return out
 
 
-def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> dict:
-    """Step 2 (in place): flattened lines take the stationary or the FIR estimate."""
+def fir_crossover_noise(table: pd.DataFrame, noise, dt_s: float, p) -> dict:
+    """FIR's error as its crossovers measure it, against the noise model's FIR noise.
+
+    The drift-free crossover differences of ``dg_fir_mgal``
+    (:func:`app.core.leveling.drift_free_differences`) against the sum of the two lines' FIR
+    noise variances the noise model predicts (:func:`app.core.model_check.crossover_excess`).
+    ``factor`` is the ratio squared when the excess is significant (p < ``crossover_level_p``),
+    else 1: the factor by which the model under-states FIR's noise (FIR's own smoothing error at
+    the crossings adds to it, so it is an upper bound)."""
+    cx = _crossover_table(table, "dg_fir_mgal", p.leveling_include_repeat)
+    if len(cx) < p.crossover_level_min_crossovers:
+        return {"n_crossovers": int(len(cx)), "factor": 1.0}
+    level = {str(ln): fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s, p.fir_cutoff_period_s)
+             for ln, g in table.groupby("line", sort=False)}
+    pv = np.array([level.get(str(a), np.nan) + level.get(str(b), np.nan) for a, b in zip(cx["line_a"], cx["line_b"])])
+    ranges = {str(ln): (float(g["time"].min()), float(g["time"].max())) for ln, g in table.groupby("line", sort=False)}
+    groups = flight_of_line(table) if p.leveling_per_flight and "flight" in table else None
+    try:
+        free, dof = drift_free_differences(cx, (cx["dg_a"] - cx["dg_b"]).to_numpy(float), ranges, p.leveling_degree,
+                                           groups, with_dof=True)
+    except ValueError:
+        return {"n_crossovers": int(len(cx)), "factor": 1.0}
+    ex = crossover_excess(free, pv, dof)
+    sig = bool(ex.rms_ratio > 1.0 and ex.p_value < p.crossover_level_p)
+    return {"n_crossovers": int(len(cx)), "rms_ratio": ex.rms_ratio, "p_excess": ex.p_value,
+            "factor": float(ex.rms_ratio ** 2) if sig else 1.0}
+
+
+def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list, fir_noise_factor: float = 1.0) -> dict:
+    """Step 2 (in place): flattened lines take the stationary or the FIR estimate.  With
+    ``fir_noise_factor`` > 1 (FIR's noise as its crossovers measure it over the model's,
+    :func:`fir_crossover_noise`; used where the crossover level check lowered the levels) a
+    verdict that no longer holds against FIR's noise so measured is overturned, as a repeat
+    track's passes overturn it (:func:`_repeats_veto`)."""
     out = {}
     bandwidth_hz = fir_noise_bandwidth_hz(noise, dt_s, p.fir_cutoff_period_s)
     repeat_noise = repeat_fir_noise_mgal2(table)
     for line, g in table.groupby("line", sort=False):
         level = float(np.nanmean(g["R_cm2s2"]))
         fir_var = fir_noise_variance_mgal2(noise, level, dt_s, p.fir_cutoff_period_s)
+        measured, source = repeat_noise.get(str(line)), "its repeat passes"
+        if fir_noise_factor > 1.0 and not (measured is not None and measured >= fir_var * fir_noise_factor):
+            measured, source = fir_var * fir_noise_factor, "the survey's crossovers"
         # independent samples of FIR's noise along the line: a short line's FIR can carry
         # twice the predicted noise variance by chance, which would read as a flattened anomaly
         nu = 2.0 * bandwidth_hz * len(g) * dt_s
@@ -305,7 +343,7 @@ def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> d
         if not rec["resolved"] and p.std_unresolved_bound:
             _bound_std(table, g, rec)
         if (fl.detectable and fl.ratio_bound < p.flatten_min_ratio
-                and not _repeats_veto(g, fir_var, repeat_noise.get(str(line)), nu, p, rec, warnings)):
+                and not _repeats_veto(g, fir_var, measured, nu, p, rec, warnings, source)):
             st = flattening_ratio(g["dg_stationary_mgal"], g["dg_fir_mgal"], fir_var, independent_samples=nu)
             # the stationary estimate must not be flattened either, nor pass noise: an error
             # beyond the anomaly's own spread (a noise episode the stationary level ignores)
@@ -333,7 +371,7 @@ def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list) -> d
 
 
 def _repeats_veto(g: pd.DataFrame, fir_var: float, measured: float | None, nu: float, p, rec: dict,
-                  warnings: list) -> bool:
+                  warnings: list, source: str = "its repeat passes") -> bool:
     """Whether a repeat pass's sister passes overturn its flattening verdict (in place: ``rec``
     and ``warnings`` say so).
 
@@ -352,10 +390,11 @@ def _repeats_veto(g: pd.DataFrame, fir_var: float, measured: float | None, nu: f
     fl = flattening_ratio(g["dg_unleveled_mgal"], g["dg_fir_mgal"], measured, independent_samples=nu)
     if fl.detectable and fl.ratio_bound < p.flatten_min_ratio:
         return False
-    rec["flattening_vetoed"] = {"fir_noise_std_repeats_mgal": float(np.sqrt(measured)),
+    key = "fir_noise_std_repeats_mgal" if source == "its repeat passes" else "fir_noise_std_crossovers_mgal"
+    rec["flattening_vetoed"] = {key: float(np.sqrt(measured)),
                                 "flattening_ratio_bound": fl.ratio_bound, "detectable": fl.detectable}
-    warnings.append(f"line {g['line'].iloc[0]}: the adaptive estimate looked flattened against FIR, but its repeat "
-                    f"passes measure FIR's noise on it at {np.sqrt(measured):.1f} mGal (the noise model: "
+    warnings.append(f"line {g['line'].iloc[0]}: the adaptive estimate looked flattened against FIR, but "
+                    f"{source} measure FIR's noise on it at {np.sqrt(measured):.1f} mGal (the noise model: "
                     f"{np.sqrt(fir_var):.1f}): what FIR shows beyond the model's noise is noise, the adaptive "
                     "estimate kept")
     return True
@@ -794,7 +833,12 @@ def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=
     # shallow: with pandas' copy-on-write (pandas >= 3) the writes below copy only the columns
     # they change, and the candidates are not read after the choice (a deep copy took ~1 s on omolon)
     table = candidates[m].filtered.table.copy(deep=False)
-    lines = check_lines(table, noise, dt_s, p, warnings) if p.flatten_check else {}
+    fir_x = None
+    if (getattr(candidates[m].filtered, "crossover_check", None) or {}).get("applied"):
+        # the levels were lowered for noise the model does not know: FIR's noise is more than it says too
+        fir_x = fir_crossover_noise(table, noise, dt_s, p)
+    lines = (check_lines(table, noise, dt_s, p, warnings, (fir_x or {}).get("factor", 1.0))
+             if p.flatten_check else {})
     noisy = (noisy_check(table, lines, noise, dt_s, p, warnings, fir_at) if p.flatten_check
              else {"applied": False, "reason": "off"})
     if noisy["applied"]:
@@ -833,4 +877,6 @@ def choose_model(candidates: dict, noise, dt_s: float, p, warnings: list, order=
            "lines": lines, "noisy_check": noisy, "fir_guard": guard, "repeat_blend": repeats,
            "unresolved_check": unresolved,
            "stationary_check": stationary_check(table, p, warnings)}
+    if fir_x is not None:
+        rep["fir_crossover_noise"] = fir_x
     return ModelChoice(m, table, rep)

@@ -250,14 +250,17 @@ class Filtered:
     repeat_level: dict | None = None
     rough_level: dict | None = None
     level_scale: float = 1.0
+    crossover_check: dict | None = None
+    crossover_factor: float = 1.0
 
     def fitted_levels(self) -> np.ndarray:
         """The levels as the refinement left them (mGal²): :attr:`Q_levels` without the
-        repeat level check's factor and the analyst's ``anomaly_level_scale``, and with the
+        repeat level check's factor, the crossover level check's and the analyst's
+        ``anomaly_level_scale``, and with the
         roughest level before ``rough_level_factor`` raised it (a filter job's warm start, the
         report's ``Q_mgal2``)."""
         q = np.asarray(self.Q_levels, float) / (float((self.repeat_level or {}).get("factor", 1.0))
-                                                * float(self.level_scale))
+                                                * float(self.level_scale) * float(self.crossover_factor))
         if self.rough_level is not None:
             q = q.copy()
             q[-1] = float(self.rough_level["lifted_mgal2"])
@@ -266,12 +269,13 @@ class Filtered:
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
         f = self.level_fit
-        scale = {"anomaly_level_scale": float(self.level_scale)}
+        scale = {"anomaly_level_scale": float(self.level_scale), "crossover_level_check": self.crossover_check}
         if f is None:   # no refinement (refine_levels off): still say how the std was widened
             return ({"std_level_factor": self.std_level_factor, "std_level_reason": self.std_level_reason,
                      "std_repeat_tracks": self.std_repeat_tracks, "noisy_passes_rescaled": self.noisy_passes,
                      "repeat_level_check": self.repeat_level, **scale}
-                    if self.std_level_reason or self.noisy_passes or self.repeat_level or self.level_scale != 1.0
+                    if (self.std_level_reason or self.noisy_passes or self.repeat_level or self.level_scale != 1.0
+                        or self.crossover_factor != 1.0)
                     else None)
         # the refinement's levels (a filter job's warm start: it repeats the check on them); the
         # repeat level check's factor and the rough level's factor, where they changed them, are in
@@ -652,6 +656,18 @@ class Filtered:
             return filter_line(pr.z_ext, factor * self.estimate_q(pr, q_from_posteriors), self.r_lines[i], dt_s, m,
                                method, noise)[0][pr.inner]
         return list(line_map()(smooth, ids))
+
+    def smoothed_at(self, factor: float, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool) -> list:
+        """Every line smoothed at ``factor`` × its Q(t) with its R(t): one array per line over the
+        line's own epochs (mGal), in the table's line order."""
+        return self._smoothed_at(list(range(len(self.prepared))), factor, dt_s, m, method, noise, q_from_posteriors)
+
+    def scale_levels(self, factor: float, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool) -> None:
+        """Every anomaly level × ``factor`` (the crossover level check's, :attr:`crossover_factor`)
+        and every line smoothed again at it (in place)."""
+        self.Q_levels = np.asarray(self.Q_levels, float) * float(factor)
+        self.crossover_factor *= float(factor)
+        self._smooth_again(dt_s, m, method, noise, q_from_posteriors)
 
     def _smooth_again(self, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool) -> None:
         """Every line smoothed again at its Q(t) (:meth:`estimate_q`): ``dg_mgal``,
