@@ -315,9 +315,9 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
                              q_start=(q_start or {}).get(m), q_stationary=(q_stationary or {}).get(m))
         cands[m] = Candidate(ident, smap, filt)
     tr.runs(None)
-    if p.crossover_level_check:   # the crossovers showing more error than the std: levels reading noise
-        tr.start("level_check")
-        check_levels_at_crossovers({m: c.filtered for m, c in cands.items()}, idf.dt_s, idf.noise.model, p, warnings)
+    # the crossovers against the std (reported); with crossover_level_check, levels lowered where they show more
+    tr.start("level_check")
+    check_levels_at_crossovers({m: c.filtered for m, c in cands.items()}, idf.dt_s, idf.noise.model, p, warnings)
     tr.start("choice")
     m_best, order_rep = choose_order(cands, p)
     if len(cands) > 1:

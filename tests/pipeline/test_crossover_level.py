@@ -1,8 +1,9 @@
-"""The anomaly levels checked at the crossovers (stage 8, ``crossover_level_check``;
-``app.pipeline.stages.level_check``): where the crossovers show more error than the posterior
-std predicts, the levels read noise the model does not know as anomaly and are lowered to the
-scale whose crossovers agree best.  Checked against the truth of a survey from the independent
-generator (``benchmarks/foreign_sim.py``), and for staying out of the way where the model fits."""
+"""The anomaly levels checked at the crossovers (stage 8, ``crossover_level_check``, an option off
+by default; ``app.pipeline.stages.level_check``): where the crossovers show more error than the
+posterior std predicts, the levels read noise the model does not know as anomaly and are lowered
+half-way to the scale whose crossovers agree best.  Checked against the truth of a survey from the
+independent generator (``benchmarks/foreign_sim.py``), and for staying out of the way where the
+model fits; the excess test is reported with the option off."""
 
 import numpy as np
 import pandas as pd
@@ -39,14 +40,15 @@ def aliased(tmp_path_factory):
     """Generated survey 2418: a point-sampled 2 Hz platform meter on 1 Hz Doppler velocities under
     0.31 m/s² of turbulence — the meter's aliased motion, white in acceleration, sits in the
     anomaly band where no noise family of the fit puts it; 12 × 59 km lines, 2 ties, 24
-    crossovers.  Processed with the check and without it."""
+    crossovers.  Processed with the check and without it (the default)."""
     from app.pipeline.process import process_survey
 
     fs = _foreign_sim()
     base = tmp_path_factory.mktemp("aliased")
     survey = fs.simulate(fs.draw_config(2418), base / "s")
     on, off = base / "on", base / "off"
-    return survey, (on, process_survey(survey, on)), (off, process_survey(survey, off, {"crossover_level_check": False}))
+    return (survey, (on, process_survey(survey, on, {"crossover_level_check": True})),
+            (off, process_survey(survey, off)))
 
 
 def test_the_check_lowers_levels_that_read_noise_and_the_error_falls(aliased):
@@ -55,7 +57,8 @@ def test_the_check_lowers_levels_that_read_noise_and_the_error_falls(aliased):
     assert ck["applied"] and ck["excess_in_orders"], ck
     # half-way (in log) to the crossovers' best scale
     assert ck["factor"] == pytest.approx(np.sqrt(ck["best_scale"])) and ck["factor"] <= 1 / 8
-    assert rep_off["level_refinement"]["crossover_level_check"] is None
+    off_ck = rep_off["level_refinement"]["crossover_level_check"]   # the excess reported, nothing applied
+    assert off_ck["excess"] and not off_ck["applied"] and "scan_rms_mgal" not in off_ck
     # the Q(t) the smoother used is the scaled one; the report's levels stay the levels as fitted
     lines = pd.read_parquet(on / "lines.parquet")
     m = int(rep["model_choice"]["m"])
@@ -76,14 +79,15 @@ def test_the_check_lowers_levels_that_read_noise_and_the_error_falls(aliased):
 
 def test_no_excess_leaves_the_estimate_alone(tiny_survey, tiny_processed, tmp_path):
     """The tiny simulated survey (its noise the model's own): no excess at its crossovers, nothing
-    scanned, and the estimate is bit-identical to the one without the check."""
+    scanned with the check on, and the estimate is bit-identical to the default's."""
     from app.pipeline.process import process_survey
 
     out, rep, _ = tiny_processed
     ck = rep["level_refinement"]["crossover_level_check"]
     assert ck is not None and not ck["applied"] and "scan_rms_mgal" not in ck, ck
-    assert ck["n_crossovers"] >= 8 and ck["rms_ratio"] < 1.5
-    process_survey(tiny_survey, tmp_path / "off", {"crossover_level_check": False})
+    assert ck["n_crossovers"] >= 8 and ck["rms_ratio"] < 1.5 and not ck["excess"]
+    rep_on = process_survey(tiny_survey, tmp_path / "off", {"crossover_level_check": True})
+    assert not rep_on["level_refinement"]["crossover_level_check"]["applied"]
     a, b = pd.read_parquet(out / "lines.parquet"), pd.read_parquet(tmp_path / "off" / "lines.parquet")
     np.testing.assert_array_equal(a["dg_mgal"].to_numpy(), b["dg_mgal"].to_numpy())
     np.testing.assert_array_equal(a["dg_std_mgal"].to_numpy(), b["dg_std_mgal"].to_numpy())

@@ -129,7 +129,8 @@ def _scan(filtered, c: _Crossings, free: np.ndarray, smooth, p) -> dict:
 def check_levels_at_crossovers(filtered_by_m: dict, dt_s: float, noise, p, warnings: list) -> None:
     """The check of the module docstring on every order's :class:`~app.pipeline.stages.filtering.Filtered`
     (in place: levels scaled and lines smoothed again where it applies; each order's report in
-    ``crossover_check``, a warning per order scaled)."""
+    ``crossover_check``, a warning per order scaled).  With ``crossover_level_check`` off (the
+    default) only the excess test runs, and is reported."""
     items = [(m, f) for m, f in sorted(filtered_by_m.items()) if f.prepared and f.r_lines is not None]
     c = _crossings(items[0][1], p) if items else None
     if c is None:
@@ -141,6 +142,9 @@ def check_levels_at_crossovers(filtered_by_m: dict, dt_s: float, noise, p, warni
     for m, f in items:
         rep, free = tests[m]
         rep = {"n_crossovers": int(len(c.cx)), **rep}
+        if not p.crossover_level_check:
+            f.crossover_check = {**rep, "applied": False, "reason": "crossover_level_check off (the default): reported only"}
+            continue
         if not found or free is None or (m not in found and not p.crossover_level_all_orders):
             f.crossover_check = {**rep, "applied": False, "reason": rep.get("reason") or (
                 f"the crossovers show {rep['rms_ratio']:.2f}x the error the posterior std predicts "
