@@ -18,3 +18,16 @@ def tiny_processed(tiny_survey, tmp_path_factory):
     events = []
     report = process_survey(tiny_survey, out, progress=lambda s, f, i: events.append((s, f, i)))
     return out, report, events
+
+
+@pytest.fixture(scope="session")
+def foreign_sim():
+    """``benchmarks/foreign_sim.py``: the survey generator written without ``app.simulate``."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / "benchmarks" / "foreign_sim.py"
+    spec = importlib.util.spec_from_file_location("foreign_sim", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

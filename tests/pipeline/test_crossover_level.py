@@ -12,17 +12,6 @@ import pytest
 from app.pipeline.evaluate import merge_truth
 
 
-def _foreign_sim():
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[2] / "benchmarks" / "foreign_sim.py"
-    spec = importlib.util.spec_from_file_location("foreign_sim", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
 def _rms_vs_truth(survey, out, col: str) -> float:
     """RMS of ``col`` against the truth over each line's core (10 km in from each end), each
     line's mean error removed (the survey has no base tie)."""
@@ -36,14 +25,14 @@ def _rms_vs_truth(survey, out, col: str) -> float:
 
 
 @pytest.fixture(scope="module")
-def aliased(tmp_path_factory):
+def aliased(tmp_path_factory, foreign_sim):
     """Generated survey 2418: a point-sampled 2 Hz platform meter on 1 Hz Doppler velocities under
     0.31 m/s² of turbulence — the meter's aliased motion, white in acceleration, sits in the
     anomaly band where no noise family of the fit puts it; 12 × 59 km lines, 2 ties, 24
     crossovers.  Processed with the check and without it (the default)."""
     from app.pipeline.process import process_survey
 
-    fs = _foreign_sim()
+    fs = foreign_sim
     base = tmp_path_factory.mktemp("aliased")
     survey = fs.simulate(fs.draw_config(2418), base / "s")
     on, off = base / "on", base / "off"
@@ -73,6 +62,9 @@ def test_the_check_lowers_levels_that_read_noise_and_the_error_falls(aliased):
     # step 2 judged flattening against FIR's noise as the crossovers measure it, not the model's
     fx = rep["model_choice"]["fir_crossover_noise"]
     assert fx["factor"] > 1.5 and fx["p_excess"] < 0.05
+    # ... which the truth confirms: FIR's error is well above the noise the model puts in it
+    model_fir_noise = np.sqrt(np.mean([v["fir_noise_std_mgal"] ** 2 for v in rep["model_choice"]["lines"].values()]))
+    assert fir > 1.5 * model_fir_noise, (fir, model_fir_noise)
     assert all(v["estimate"] == "adaptive" for v in rep["model_choice"]["lines"].values())
     assert any("anomaly levels x" in w and "crossovers" in w for w in rep["warnings"])
 

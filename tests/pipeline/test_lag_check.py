@@ -187,19 +187,7 @@ def test_band_fit_confirms_a_small_wideband_lag_only_when_they_agree():
     assert not _band_confirms(None, 1.568, p) and not _band_confirms(band(1.59, float("nan"), 0.01), 1.568, p)
 
 
-def _foreign_sim():
-    """``benchmarks/foreign_sim.py``: the generator written without ``app.simulate``."""
-    import importlib.util
-    from pathlib import Path
-
-    path = Path(__file__).resolve().parents[2] / "benchmarks" / "foreign_sim.py"
-    spec = importlib.util.spec_from_file_location("foreign_sim", path)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
-
-
-def test_flights_lags_compared_on_one_scale(tmp_path):
+def test_flights_lags_compared_on_one_scale(tmp_path, foreign_sim):
     """Generated survey 237 (independent generator): a 1 Hz interval-mean platform meter on 10 Hz
     GNSS heights, 3 flights, a 0.261 s lag that survey.toml does not declare.  Measured at τ = 0,
     two flights' time offsets took the lag for a shift of the stamps (≈ −0.25 s, applied) and
@@ -208,7 +196,7 @@ def test_flights_lags_compared_on_one_scale(tmp_path):
     they agree within 0.02 s, and their median lies within 0.01 s of the truth.  Without this
     reading the band fit pools the three and stops half-way (0.225 s; the estimate was 1.36×
     FIR's error, 0.56× with this τ)."""
-    fs = _foreign_sim()
+    fs = foreign_sim
     cfg = fs.draw_config(237)
     truth = cfg["tau_true_s"] + cfg["residual_lag_s"]
     survey_dir = fs.simulate(cfg, tmp_path / "s")

@@ -164,20 +164,23 @@ def crossover_differences(table: pd.DataFrame, col: str, include_repeat: bool) -
     return (cx["dg_a"] - cx["dg_b"]).to_numpy(float)
 
 
-def _drift_free(table: pd.DataFrame, cx: pd.DataFrame, diffs: list[np.ndarray], p) -> list[np.ndarray] | None:
+def _drift_free(table: pd.DataFrame, cx: pd.DataFrame, diffs: list[np.ndarray], p, with_dof: bool = False):
     """``diffs`` (each order's differences at the crossovers ``cx`` of ``table``'s lines, in
     the same order) with what a drift of the leveling model explains removed
     (:func:`app.core.leveling.drift_free_differences`: ``leveling_degree``, one polynomial per
-    flight with ``leveling_per_flight``); None when that cannot be done."""
+    flight with ``leveling_per_flight``); None when that cannot be done.  With ``with_dof``,
+    ``(differences, degrees of freedom)``."""
     if len(cx) == 0 or any(d.size != len(cx) for d in diffs):
         return None
     ranges = {str(ln): (float(g["time"].min()), float(g["time"].max())) for ln, g in table.groupby("line", sort=False)}
     groups = flight_of_line(table) if p.leveling_per_flight and "flight" in table else None
     try:
-        out = drift_free_differences(cx, np.column_stack(diffs), ranges, p.leveling_degree, groups)
+        out, dof = drift_free_differences(cx, np.column_stack(diffs), ranges, p.leveling_degree, groups,
+                                          with_dof=True)
     except ValueError:
         return None
-    return [out[:, k] for k in range(out.shape[1])]
+    cols = [out[:, k] for k in range(out.shape[1])]
+    return (cols, dof) if with_dof else cols
 
 
 def count_crossovers(lines: list, include_repeat: bool) -> int:
@@ -301,14 +304,10 @@ def fir_crossover_noise(table: pd.DataFrame, noise, dt_s: float, p) -> dict:
     level = {str(ln): fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s, p.fir_cutoff_period_s)
              for ln, g in table.groupby("line", sort=False)}
     pv = np.array([level.get(str(a), np.nan) + level.get(str(b), np.nan) for a, b in zip(cx["line_a"], cx["line_b"])])
-    ranges = {str(ln): (float(g["time"].min()), float(g["time"].max())) for ln, g in table.groupby("line", sort=False)}
-    groups = flight_of_line(table) if p.leveling_per_flight and "flight" in table else None
-    try:
-        free, dof = drift_free_differences(cx, (cx["dg_a"] - cx["dg_b"]).to_numpy(float), ranges, p.leveling_degree,
-                                           groups, with_dof=True)
-    except ValueError:
+    free = _drift_free(table, cx, [(cx["dg_a"] - cx["dg_b"]).to_numpy(float)], p, with_dof=True)
+    if free is None:
         return {"n_crossovers": int(len(cx)), "factor": 1.0}
-    ex = crossover_excess(free, pv, dof)
+    ex = crossover_excess(free[0][0], pv, free[1])
     sig = bool(ex.rms_ratio > 1.0 and ex.p_value < p.crossover_level_p)
     return {"n_crossovers": int(len(cx)), "rms_ratio": ex.rms_ratio, "p_excess": ex.p_value,
             "factor": float(ex.rms_ratio ** 2) if sig else 1.0}

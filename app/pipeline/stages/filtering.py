@@ -275,7 +275,7 @@ class Filtered:
                      "std_repeat_tracks": self.std_repeat_tracks, "noisy_passes_rescaled": self.noisy_passes,
                      "repeat_level_check": self.repeat_level, **scale}
                     if (self.std_level_reason or self.noisy_passes or self.repeat_level or self.level_scale != 1.0
-                        or self.crossover_factor != 1.0)
+                        or self.crossover_check is not None)
                     else None)
         # the refinement's levels (a filter job's warm start: it repeats the check on them); the
         # repeat level check's factor and the rough level's factor, where they changed them, are in
