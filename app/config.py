@@ -500,6 +500,24 @@ class ProcessingParams(_Strict):
                                        "(MEASUREMENTS.md, session 56): set it from independent evidence (ground "
                                        "data, an earlier survey, repeat lines); the model checks of stage 9 still "
                                        "guard the result")
+    crossover_noise_floor: bool = Field(False, description="When the crossovers (drift removed) show significantly "
+                                        "more error than an order's posterior std predicts (p < crossover_level_p, "
+                                        "at least crossover_level_min_crossovers) and the estimate keeps the anomaly "
+                                        "FIR 100 s shows (crossover_noise_floor_min_flattening), a white noise floor "
+                                        "(white in z, scaled by R(t)) is added to that order's noise model: the least "
+                                        "at which the excess is no longer significant, found by bisection; the lines "
+                                        "are smoothed again with it (more smoothing where the floor exceeds the "
+                                        "fitted noise, a wider std); report level_refinement.crossover_noise_floor.  "
+                                        "Off by default: it gained 5-13 % on an independent generator's point-sampled "
+                                        "platform meters (aliased motion) but on held-out draws of both generators it "
+                                        "lost on 7 of the 9 surveys where it applied, by up to 5 % (MEASUREMENTS.md, "
+                                        "session 58)")
+    crossover_noise_floor_min_flattening: float = Field(0.9, ge=0, description="crossover_noise_floor needs the "
+                                                        "estimate to keep at least this much of the anomaly FIR 100 s "
+                                                        "shows beyond its noise (the median flattening ratio over the "
+                                                        "lines where FIR shows it, at least 3): an excess at the "
+                                                        "crossovers of an estimate already smoother than FIR's anomaly "
+                                                        "is not noise read as anomaly (MEASUREMENTS.md, session 58)")
     crossover_level_check: bool = Field(False, description="When the crossovers (drift removed) show significantly "
                                         "more error than the estimate's posterior std predicts, the noise in the "
                                         "anomaly band is more than the noise model knows and the likelihood read it "
@@ -930,7 +948,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("n_q", "n_r", "em_max_iter", "em_tol"),
      ("min_points_adaptive", "include_tie_lines", "level_support_min_share", "level_support_map_share",
       "level_support_backoff", "refine_levels", "refine_lift_only", "refine_lift_max_stationary", "refine_max_epochs",
-      "rough_level_factor", "crossover_level_check", "crossover_level_p", "crossover_level_min_crossovers",
+      "rough_level_factor", "crossover_noise_floor",
+      "crossover_noise_floor_min_flattening", "crossover_level_check", "crossover_level_p", "crossover_level_min_crossovers",
       "crossover_level_all_orders", "crossover_level_min_scale")),
     ("recognition", "Recognition map: NL-means smoothing and cross-line evidence",
      ("nlmeans_h_per_km", "nlmeans_rho_km", "nlmeans_mode"),

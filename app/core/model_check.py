@@ -24,7 +24,9 @@ why (``app.pipeline`` model choice).
 * :func:`crossover_excess` — do the crossovers show more error than the lines' posterior std
   says?  The std is the noise model's word on the noise it leaves; an excess is noise in the
   anomaly band the model does not know.  :func:`crossover_level_scale` — then, of a scan of
-  lower anomaly levels, the one whose crossovers agree best, if significantly better.
+  lower anomaly levels, the one whose crossovers agree best, if significantly better;
+  :func:`crossover_noise_floor` — or the least white noise floor added to the noise model at
+  which they agree with the std.
 * :func:`crossover_blend_weight` — the weight of the blend of two estimates whose
   crossover differences have the least mean square: by the same reading of the
   crossovers, the blend with the least error two crossing lines do not share;
@@ -914,6 +916,81 @@ def crossover_excess(diff_mgal, pred_var_mgal2, dof: float | None = None) -> Cro
         return CrossoverExcess(n, k, float("nan"), float("nan"))
     t = float(np.sum(d[ok] ** 2) / np.mean(v[ok]))
     return CrossoverExcess(n, k, float(np.sqrt(t / k)), float(stats.chi2.sf(t, k)))
+
+
+@dataclass(frozen=True)
+class NoiseFloorFit:
+    """Result of :func:`crossover_noise_floor`.
+
+    Attributes
+    ----------
+    log2_weight : float
+        log₂ of the floor's weight in the caller's unit: the least at which the crossovers show
+        no more error than the std predicts (the search's upper bracket end).
+    ratio : float
+        The crossovers' RMS ratio there (≤ 1 when ``converged``).
+    evaluations : dict
+        ``{log2_weight: ratio}`` of every step of the search.
+    converged : bool
+        False when even ``log2_max`` left an excess (the floor is then ``log2_max``'s).
+    """
+
+    log2_weight: float
+    ratio: float
+    evaluations: dict
+    converged: bool
+
+
+def crossover_noise_floor(ratio_at, log2_start: float = -10.0, log2_max: float = 10.0, step: float = 2.0,
+                          refine: int = 4) -> NoiseFloorFit:
+    """The least white noise floor at which the crossovers agree with the posterior std.
+
+    ``ratio_at(k)`` is the crossovers' RMS ratio (:attr:`CrossoverExcess.rms_ratio`) of the
+    estimate smoothed with a floor of weight 2ᵏ (in the caller's unit) added to the noise
+    model, over a threshold: 1 for the method-of-moments floor, or the ratio's critical value
+    at a test level for the least floor at which the excess is no longer significant.  A floor
+    both smooths more and widens the std, so the ratio falls as it rises; the root of
+    ``ratio_at = 1`` is bracketed from ``log2_start`` up in steps of ``step`` and narrowed by
+    ``refine`` bisections, and the bracket's upper end (``ratio_at ≤ 1``) is returned: the
+    least floor the crossovers demand.
+
+    Parameters
+    ----------
+    ratio_at : callable
+        ``float → float`` (NaN is taken as "no excess").
+    log2_start, log2_max, step : float
+        The bracket's search in log₂ of the weight.
+    refine : int
+        Bisections of the bracket (its width ends at ``step / 2**refine``).
+
+    Returns
+    -------
+    NoiseFloorFit
+    """
+    if not (step > 0 and log2_max >= log2_start and refine >= 0):
+        raise ValueError(f"need step > 0, log2_max >= log2_start, refine >= 0; got {step}, {log2_start}, "
+                         f"{log2_max}, {refine}")
+    ev = {}
+
+    def at(k: float) -> float:
+        r = float(ratio_at(float(k)))
+        ev[float(k)] = r
+        return r
+
+    lo, k = None, float(log2_start)
+    while not at(k) <= 1.0 and not np.isnan(ev[k]):
+        if k >= log2_max:
+            return NoiseFloorFit(k, ev[k], ev, False)
+        lo, k = k, min(k + step, float(log2_max))
+    hi = k
+    if lo is not None:
+        for _ in range(refine):
+            mid = 0.5 * (lo + hi)
+            if at(mid) <= 1.0 or np.isnan(ev[mid]):
+                hi = mid
+            else:
+                lo = mid
+    return NoiseFloorFit(hi, ev[hi], ev, True)
 
 
 @dataclass(frozen=True)

@@ -224,6 +224,39 @@ def white_velocity(dt_s: float, R_cm2s2: float = 1.0) -> NoiseModel:
     return NoiseModel((NoiseComponent(1, 0.0, w),), float(dt_s), "white velocity")
 
 
+def with_white_floor(model: NoiseModel, weight_mgal2: float) -> NoiseModel:
+    """``model`` with a white-z component added: a noise floor of ``weight_mgal2`` per sample.
+
+    A point-sampled platform meter's aliased motion is white in z down into the anomaly band,
+    where the steeper GNSS and motion components a line's spectrum is fitted to hide it; the
+    crossovers see it (:func:`app.core.model_check.crossover_noise_floor`).
+
+    Parameters
+    ----------
+    model : NoiseModel
+        The fitted shape.
+    weight_mgal2 : float
+        Variance of the floor per sample and unit level R (mGal²); a white-z component of
+        ``model`` (order 0, φ = 0) is raised by it instead of a second one being added.
+
+    Returns
+    -------
+    NoiseModel
+        Same step and family (``info['white_floor_mgal2']`` says the floor).
+    """
+    w = float(weight_mgal2)
+    if not (np.isfinite(w) and w >= 0.0):
+        raise ValueError(f"weight_mgal2 must be finite and >= 0, got {weight_mgal2!r}")
+    comps = list(model.components)
+    for i, c in enumerate(comps):
+        if c.order == 0 and c.phi == 0.0:
+            comps[i] = replace(c, weight=c.weight + w)
+            break
+    else:
+        comps.append(NoiseComponent(0, 0.0, w))
+    return replace(model, components=tuple(comps), info={**model.info, "white_floor_mgal2": w})
+
+
 def _component_psd_per_sample(nu, c: NoiseComponent) -> np.ndarray:
     """PSD per cycle/sample (variance = ∫_{−1/2}^{1/2}) of one component at R = 1."""
     e = np.exp(-2j * np.pi * np.asarray(nu, dtype=float))

@@ -276,7 +276,8 @@ def _test_line_level(filtered, idf, m: int, p, warnings: list) -> None:
     says when it was scaled."""
     factors = (1.0 / p.repeat_level_factor, 1.0) + ((p.repeat_level_factor,) if p.repeat_level_raise else ())
     filtered.repeat_level_check(
-        idf.dt_s, m, p.smoother, idf.noise.model, p.q_from_posteriors, factors, p.repeat_level_significance,
+        idf.dt_s, m, p.smoother, filtered.noise_for(idf.noise.model), p.q_from_posteriors, factors,
+        p.repeat_level_significance,
         p.repeat_blend_reference_period_s, p.repeat_blend_reference_periods, p.repeat_blend_min_passes,
         p.repeat_level_block_s,
         reference_q_factor=(p.repeat_blend_reference_q_factor if p.repeat_level_reference == "smoother" else None),
@@ -327,12 +328,15 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     blend = order_rep.get("blend")
     # the other order's estimate, kept for the blend (stage 9 step 1)
     blend_est = cands[blend["m"]].filtered.table["dg_unleveled_mgal"].to_numpy().copy() if blend else None
+    # the chosen order's noise model as its lines were smoothed (with the crossover noise floor where
+    # stage 8 added one): every later smoothing and noise prediction of that order uses it
+    noise = cands[m_best].filtered.noise_for(idf.noise.model)
     for m in [k for k in cands if k != m_best]:
         # the other order's filtered lines are not read after the order is chosen: freed before
         # the std, leveling and gridding, a copy of every epoch's columns less at the peak
         del cands[m]
     if p.rescale_noisy_passes:  # repeat passes noisier than the model: smoothed with their own level
-        cands[m_best].filtered.rescale_noisy_passes(idf.dt_s, m_best, p.smoother, idf.noise.model,
+        cands[m_best].filtered.rescale_noisy_passes(idf.dt_s, m_best, p.smoother, noise,
                                                     p.q_from_posteriors, p.std_repeat_min_samples or 0.0,
                                                     p.fir_cutoff_period_s, p.std_repeat_significance)
         warnings.extend(rescaled_pass_warnings(cands[m_best].filtered.noisy_passes))
@@ -342,13 +346,13 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     if (p.repeat_blend and p.repeat_blend_reference == "smoother"
             and count_crossovers(idf.lines, p.leveling_include_repeat) < p.fir_guard_min_crossovers):
         # a test line's blend with FIR (stage 9) judged against the other passes smoothed lightly
-        cands[m_best].filtered.repeat_reference(idf.dt_s, m_best, p.smoother, idf.noise.model, p.q_from_posteriors,
+        cands[m_best].filtered.repeat_reference(idf.dt_s, m_best, p.smoother, noise, p.q_from_posteriors,
                                                 p.repeat_blend_reference_q_factor, p.repeat_blend_min_passes)
     if p.std_state_mixture:  # and the std of the mixture of levels
-        cands[m_best].filtered.mixture_std(idf.dt_s, m_best, p.smoother, idf.noise.model)
+        cands[m_best].filtered.mixture_std(idf.dt_s, m_best, p.smoother, noise)
     # levels from too few points (one level, or two from < 2 x min_points_adaptive): the std
     # also carries the levels' uncertainty
-    cands[m_best].filtered.level_spread_std(idf.dt_s, m_best, p.smoother, idf.noise.model, p.std_level_factor,
+    cands[m_best].filtered.level_spread_std(idf.dt_s, m_best, p.smoother, noise, p.std_level_factor,
                                             n_points=cands[m_best].ident.n_points,
                                             min_points=p.min_points_adaptive, q_from_posteriors=p.q_from_posteriors,
                                             repeat_min_samples=p.std_repeat_min_samples or None,
@@ -357,7 +361,7 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     warnings.extend(pass_noise_warnings(cands[m_best].filtered.std_repeat_tracks))
     if blend:   # after m_best's own std: the blend's spread adds to it
         cands[m_best].filtered.blend_order(blend_est, blend["weight"])
-    choice = choose_model(cands, idf.noise.model, idf.dt_s, p, warnings, order=(m_best, order_rep),
+    choice = choose_model(cands, noise, idf.dt_s, p, warnings, order=(m_best, order_rep),
                           # renormalised across holes and the records' ends: a long kernel reaches them
                           # from most lines, and a one-sided mean is still the heavy smoothing wanted
                           fir_at=lambda period: fir_line_column(idf.lines, idf.flights, period))

@@ -635,3 +635,24 @@ def test_crossover_level_scale_takes_the_least_mean_square_when_significant():
     assert crossover_level_scale({1.0: base, 0.5: 2 * base}).scale == 1.0
     with pytest.raises(ValueError, match="scale 1"):
         crossover_level_scale({0.5: base})
+
+
+def test_the_noise_floor_is_the_root_of_the_crossovers_ratio():
+    """ratio(k) = √(A / (B + 2ᵏ)) falls through 1 at 2ᵏ = A − B (closed form): the search returns
+    the bracket's upper end, within its final width above the root, at a ratio ≤ 1."""
+    from app.core.model_check import crossover_noise_floor
+
+    A, B = 40.0, 3.0
+    fit = crossover_noise_floor(lambda k: np.sqrt(A / (B + 2.0 ** k)), log2_start=-10.0, log2_max=10.0, step=2.0,
+                                refine=4)
+    root = np.log2(A - B)
+    assert fit.converged and fit.ratio <= 1.0
+    assert root <= fit.log2_weight <= root + 2.0 / 2 ** 4 + 1e-12
+    assert len(fit.evaluations) == int(np.ceil((root + 10.0) / 2.0)) + 1 + 4
+    # no excess at the start: the start; an excess no floor removes: the largest, not converged
+    assert crossover_noise_floor(lambda k: 0.9).log2_weight == -10.0
+    stuck = crossover_noise_floor(lambda k: 2.0, log2_max=4.0)
+    assert not stuck.converged and stuck.log2_weight == 4.0 and stuck.ratio == 2.0
+    assert crossover_noise_floor(lambda k: np.nan).converged
+    with pytest.raises(ValueError):
+        crossover_noise_floor(lambda k: 1.0, step=0.0)

@@ -15,6 +15,7 @@ from app.core.noise_model import (
     fit_noise_model,
     multitaper_psd,
     white_velocity,
+    with_white_floor,
 )
 from app.core.smoother import coloured_model, kalman_loglik, kalman_smooth
 
@@ -706,3 +707,53 @@ def test_a_reported_model_is_read_back_as_the_same_model():
     for a, b in zip(back.block(), m.block()):
         np.testing.assert_array_equal(a, b)
     assert (back.family, back.dt_s) == (m.family, m.dt_s)
+
+
+def test_a_white_floor_adds_its_weight_to_the_psd_at_every_frequency():
+    """A white-z floor of w per sample has the two-sided PSD w·Δt (closed form); an existing
+    white-z component is raised instead of a second one added."""
+    dt, w = 0.5, 37.0
+    f = np.linspace(0.001, 0.99, 40)
+    base = NoiseModel((NoiseComponent(1, 0.8, 3.0), NoiseComponent(2, 0.0, 1.0)), dt, "mix")
+    floor = with_white_floor(base, w)
+    np.testing.assert_allclose(floor.psd(f), base.psd(f) + w * dt, rtol=1e-12)
+    assert floor.family == "mix" and floor.info["white_floor_mgal2"] == w and floor.n_states == base.n_states + 1
+    again = with_white_floor(floor, 3.0)
+    assert len(again.components) == len(floor.components) and again.components[-1].weight == pytest.approx(w + 3.0)
+    with pytest.raises(ValueError, match="weight_mgal2"):
+        with_white_floor(base, -1.0)
+
+
+def test_the_smoother_with_a_floor_is_pykalman_with_that_measurement_noise():
+    """A white-z component at level R is measurement noise of variance R·w: the smoother with
+    the floor in its state matches pykalman with the base model and that observation noise."""
+    pykalman = pytest.importorskip("pykalman")
+    rng = np.random.default_rng(11)
+    dt, T, m, Q, R, w = 1.0, 300, 2, 0.05, 1.3, 4.0
+    base = NoiseModel((NoiseComponent(1, 0.6, 0.5),), dt, "gm")
+    nm = with_white_floor(base, w)
+    dg = np.cumsum(np.cumsum(rng.normal(0, np.sqrt(Q), T))) + 10.0
+    z = dg + _simulate_component(rng, T, base.components[0], R) + rng.normal(0, np.sqrt(R * w), T)
+    n, nb = m + nm.n_states, m + base.n_states
+    x0 = np.zeros(n)
+    x0[:m] = np.nanmean(z[:20])
+    P0 = np.eye(n) * 100.0
+    P0[m:, m:] = nm.stationary_covariance(R)
+    res = kalman_smooth(z, Q, R, dt, m=m, noise=nm, x0=x0, P0=P0)
+    F, W, h = base.block()
+    A = np.zeros((nb, nb))
+    A[0, :2] = [2.0, -1.0]
+    A[1, 0] = 1.0
+    A[m:, m:] = F
+    Wm = np.zeros((nb, nb))
+    Wm[0, 0] = Q
+    Wm[m:, m:] = R * W
+    C = np.zeros((1, nb))
+    C[0, 0] = 1.0
+    C[0, m:] = h
+    kf = pykalman.KalmanFilter(transition_matrices=A, observation_matrices=C, transition_covariance=Wm,
+                               observation_covariance=np.full((1, 1), R * w), initial_state_mean=x0[:nb],
+                               initial_state_covariance=P0[:nb, :nb])
+    means, covs = kf.smooth(z)
+    np.testing.assert_allclose(res.dg_mgal, means[:, 0], rtol=0, atol=1e-7 * np.abs(means[:, 0]).max())
+    np.testing.assert_allclose(res.dg_std_mgal ** 2, covs[:, 0, 0], rtol=1e-6)

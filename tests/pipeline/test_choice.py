@@ -10,7 +10,14 @@ from app.config import ProcessingParams
 from app.core.baselines import fir_lowpass_mgal
 from app.core.model_check import fir_noise_bandwidth_hz
 from app.core.noise_model import white_velocity
-from app.pipeline.stages.choice import check_lines, choose_model, noisy_check, stationary_check, unresolved_check
+from app.pipeline.stages.choice import (
+    check_lines,
+    choose_model,
+    noisy_check,
+    resolved_anomaly,
+    stationary_check,
+    unresolved_check,
+)
 from app.pipeline.stages.leveling import STD_FLOOR, level_survey
 
 DT_S = 0.1           # 10 Hz GNSS
@@ -905,3 +912,22 @@ def test_repeat_blend_against_the_passes_smoothed_lightly():
     for old in (table.drop(columns="dg_repeat_reference_mgal"), table.assign(dg_repeat_reference_mgal=np.nan)):
         rb = choose_model({2: _candidate(old)}, noise, DT_S, ProcessingParams(), [], order=(2, {})).report["repeat_blend"]
         assert rb["reference"] == "50 s low-pass of z" and rb["passes"] == 4 and "weight_fir" in rb
+
+
+def test_resolved_anomaly_is_the_share_of_fir_s_anomaly_the_estimate_keeps():
+    """The crossover noise floor's guard (stage 8): an estimate that is the anomaly times a keeps
+    a² of what the true anomaly keeps of the variance FIR 100 s shows beyond its noise on every
+    line (the fixture's FIR sees the anomaly on all five; the truth itself keeps more than FIR
+    shows, whose low-pass takes part of the 12 km component); with FIR's predicted noise
+    swamping the anomaly no line shows it."""
+    table, noise = _table(np.random.default_rng(7), 0.0)
+    mean = table.groupby("line")["dg_true_mgal"].transform("mean")
+    kept = {}
+    for a in (1.0, 0.5):
+        table["dg_unleveled_mgal"] = mean + a * (table["dg_true_mgal"] - mean)
+        kept[a] = resolved_anomaly(table, noise, DT_S, ProcessingParams())
+        assert kept[a]["n_lines"] == 5 and kept[a]["n_detectable"] == 5
+    assert 1.0 < kept[1.0]["median_flattening_ratio"] < 2.0
+    assert kept[0.5]["median_flattening_ratio"] == pytest.approx(0.25 * kept[1.0]["median_flattening_ratio"], rel=1e-9)
+    swamped = resolved_anomaly(table.assign(R_cm2s2=1e4), noise, DT_S, ProcessingParams())
+    assert swamped["n_detectable"] == 0 and np.isnan(swamped["median_flattening_ratio"])

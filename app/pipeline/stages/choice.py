@@ -313,6 +313,33 @@ def fir_crossover_noise(table: pd.DataFrame, noise, dt_s: float, p) -> dict:
             "factor": float(ex.rms_ratio ** 2) if sig else 1.0}
 
 
+def _line_flattening(g: pd.DataFrame, noise, dt_s: float, p, bandwidth_hz: float):
+    """One line's flattening check (:func:`app.core.model_check.flattening_ratio` of
+    ``dg_unleveled_mgal`` against ``dg_fir_mgal``): FIR's noise variance the model predicts at
+    the line's mean R (mGal²), its independent samples along the line, and the result."""
+    fir_var = fir_noise_variance_mgal2(noise, float(np.nanmean(g["R_cm2s2"])), dt_s, p.fir_cutoff_period_s)
+    # independent samples of FIR's noise along the line: a short line's FIR can carry
+    # twice the predicted noise variance by chance, which would read as a flattened anomaly
+    nu = 2.0 * bandwidth_hz * len(g) * dt_s
+    return fir_var, nu, flattening_ratio(g["dg_unleveled_mgal"], g["dg_fir_mgal"], fir_var, independent_samples=nu)
+
+
+def resolved_anomaly(table: pd.DataFrame, noise, dt_s: float, p) -> dict:
+    """How much of the anomaly FIR 100 s shows beyond its noise the estimate keeps, over the lines
+    where FIR shows it (``detectable``): ``n_lines``, ``n_detectable`` and the median of their
+    flattening ratios (the estimate's along-line variance over FIR's beyond its noise; NaN
+    without such a line)."""
+    bandwidth_hz = fir_noise_bandwidth_hz(noise, dt_s, p.fir_cutoff_period_s)
+    ratios, n = [], 0
+    for _, g in table.groupby("line", sort=False):
+        n += 1
+        fl = _line_flattening(g, noise, dt_s, p, bandwidth_hz)[2]
+        if fl.detectable and np.isfinite(fl.ratio):
+            ratios.append(float(fl.ratio))
+    return {"n_lines": n, "n_detectable": len(ratios),
+            "median_flattening_ratio": float(np.median(ratios)) if ratios else float("nan")}
+
+
 def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list, fir_noise_factor: float = 1.0) -> dict:
     """Step 2 (in place): flattened lines take the stationary or the FIR estimate.  With
     ``fir_noise_factor`` > 1 (FIR's noise as its crossovers measure it over the model's,
@@ -323,15 +350,10 @@ def check_lines(table: pd.DataFrame, noise, dt_s: float, p, warnings: list, fir_
     bandwidth_hz = fir_noise_bandwidth_hz(noise, dt_s, p.fir_cutoff_period_s)
     repeat_noise = repeat_fir_noise_mgal2(table)
     for line, g in table.groupby("line", sort=False):
-        level = float(np.nanmean(g["R_cm2s2"]))
-        fir_var = fir_noise_variance_mgal2(noise, level, dt_s, p.fir_cutoff_period_s)
+        fir_var, nu, fl = _line_flattening(g, noise, dt_s, p, bandwidth_hz)
         measured, source = repeat_noise.get(str(line)), "its repeat passes"
         if fir_noise_factor > 1.0 and not (measured is not None and measured >= fir_var * fir_noise_factor):
             measured, source = fir_var * fir_noise_factor, "the survey's crossovers"
-        # independent samples of FIR's noise along the line: a short line's FIR can carry
-        # twice the predicted noise variance by chance, which would read as a flattened anomaly
-        nu = 2.0 * bandwidth_hz * len(g) * dt_s
-        fl = flattening_ratio(g["dg_unleveled_mgal"], g["dg_fir_mgal"], fir_var, independent_samples=nu)
         est_std = float(np.nanstd(g["dg_unleveled_mgal"]))
         post_std = float(np.sqrt(np.nanmean(np.square(g["dg_std_mgal"]))))
         rec = {"estimate": "adaptive", "flattening_ratio": fl.ratio, "flattening_ratio_bound": fl.ratio_bound,

@@ -24,6 +24,7 @@ from app.core.accuracy import (
 from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
 from app.core.level_ml import cap_lifted_smooth_level, raise_rough_level, refine_levels
 from app.core.model_check import blend_estimates, leave_one_out_msd_mgal2, leave_one_out_msd_test
+from app.core.noise_model import white_velocity, with_white_floor
 from app.core.smoother import kalman_smooth, level_spread_std_mgal, mixture_std_mgal
 from app.pipeline.parallel import line_map
 from app.pipeline.stages.lines import LineData
@@ -252,6 +253,15 @@ class Filtered:
     level_scale: float = 1.0
     crossover_check: dict | None = None
     crossover_factor: float = 1.0
+    noise_floor: dict | None = None
+
+    def noise_for(self, base):
+        """The noise model these lines were smoothed with: ``base`` (the survey's fitted model),
+        with the crossover noise floor (:attr:`noise_floor`, stage 8's check) where it applied."""
+        if not (self.noise_floor or {}).get("applied"):
+            return base
+        return with_white_floor(base if base is not None else white_velocity(float(self.noise_floor["dt_s"])),
+                                float(self.noise_floor["weight_mgal2"]))
 
     def fitted_levels(self) -> np.ndarray:
         """The levels as the refinement left them (mGal²): :attr:`Q_levels` without the
@@ -269,13 +279,14 @@ class Filtered:
     def report(self, p) -> dict | None:
         """The report's ``level_refinement`` section."""
         f = self.level_fit
-        scale = {"anomaly_level_scale": float(self.level_scale), "crossover_level_check": self.crossover_check}
+        scale = {"anomaly_level_scale": float(self.level_scale), "crossover_level_check": self.crossover_check,
+                 "crossover_noise_floor": self.noise_floor}
         if f is None:   # no refinement (refine_levels off): still say how the std was widened
             return ({"std_level_factor": self.std_level_factor, "std_level_reason": self.std_level_reason,
                      "std_repeat_tracks": self.std_repeat_tracks, "noisy_passes_rescaled": self.noisy_passes,
                      "repeat_level_check": self.repeat_level, **scale}
                     if (self.std_level_reason or self.noisy_passes or self.repeat_level or self.level_scale != 1.0
-                        or self.crossover_check is not None)
+                        or self.crossover_check is not None or self.noise_floor is not None)
                     else None)
         # the refinement's levels (a filter job's warm start: it repeats the check on them); the
         # repeat level check's factor and the rough level's factor, where they changed them, are in
@@ -661,6 +672,22 @@ class Filtered:
         """Every line smoothed at ``factor`` × its Q(t) with its R(t): one array per line over the
         line's own epochs (mGal), in the table's line order."""
         return self._smoothed_at(list(range(len(self.prepared))), factor, dt_s, m, method, noise, q_from_posteriors)
+
+    def smoothed_with(self, noise, dt_s: float, m: int, method: str, q_from_posteriors: bool) -> list:
+        """Every line smoothed at its Q(t) and R(t) under the noise model ``noise``: one
+        ``(dg_mgal, dg_std_mgal)`` pair per line over the line's own epochs, in the table's line order."""
+        def smooth(i: int):
+            pr = self.prepared[i]
+            x, s = filter_line(pr.z_ext, self.estimate_q(pr, q_from_posteriors), self.r_lines[i], dt_s, m, method,
+                               noise)
+            return x[pr.inner], s[pr.inner]
+        return list(line_map()(smooth, range(len(self.prepared))))
+
+    def add_noise_floor(self, floor: dict, noise, dt_s: float, m: int, method: str, q_from_posteriors: bool) -> None:
+        """The crossover noise floor applied (in place): :attr:`noise_floor` set to ``floor`` (its
+        report) and every line smoothed again under ``noise`` (the model with the floor)."""
+        self.noise_floor = floor
+        self._smooth_again(dt_s, m, method, noise, q_from_posteriors)
 
     def scale_levels(self, factor: float, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool) -> None:
         """Every anomaly level × ``factor`` (the crossover level check's, :attr:`crossover_factor`)
