@@ -188,11 +188,48 @@ def _scan(filtered, c: _Crossings, free: np.ndarray, smooth, p) -> dict:
                        f"{factor:.3g}, half-way (their best over-smooths: they cannot see the error the lines share)")}
 
 
+def _no_excess(rep: dict, p) -> str:
+    """Why an order's excess test (:func:`_excess`, report ``rep``) leaves it alone."""
+    return rep.get("reason") or (f"the crossovers show {rep['rms_ratio']:.2f}x the error the posterior std predicts "
+                                 f"(p = {rep['p_excess']:.2g}): no excess at p < {p.crossover_level_p:g}")
+
+
+def _add_noise_floor(f, c: _Crossings, rep: dict, noise, dt_s: float, m: int, p, warnings: list) -> None:
+    """Order m's noise floor (module docstring), in place: :attr:`Filtered.noise_floor` set to
+    its report, and where it is added the order's lines smoothed again with it and a warning.
+    ``rep``: the order's excess test (:func:`_excess`)."""
+    if not rep.get("excess"):
+        f.noise_floor = {"applied": False, "reason": _no_excess(rep, p)}
+        return
+    kept = resolved_anomaly(f.table, noise if noise is not None else white_velocity(dt_s), dt_s, p)
+    if not (kept["n_detectable"] >= FLOOR_MIN_DETECTABLE
+            and kept["median_flattening_ratio"] >= p.crossover_noise_floor_min_flattening):
+        why = (f"FIR 100 s shows the anomaly beyond its noise on only {kept['n_detectable']} of "
+               f"{kept['n_lines']} lines (fewer than {FLOOR_MIN_DETECTABLE}): nothing shows the estimate "
+               "passing noise as anomaly" if kept["n_detectable"] < FLOOR_MIN_DETECTABLE else
+               f"the estimate keeps {kept['median_flattening_ratio']:.2f} of the anomaly FIR 100 s shows "
+               f"beyond its noise (median over {kept['n_detectable']} lines, below "
+               f"{p.crossover_noise_floor_min_flattening:g}): already smoother than that, it is not passing "
+               "noise as anomaly")
+        f.noise_floor = {"applied": False, "rms_ratio_before": rep["rms_ratio"], "p_excess_before": rep["p_excess"],
+                         "anomaly_kept": kept,
+                         "reason": (f"the crossovers show {rep['rms_ratio']:.2f}x the error the posterior std "
+                                    f"predicts (p = {rep['p_excess']:.2g}), but {why}: no floor")}
+        return
+    floor, with_floor = _noise_floor(f, c, rep, noise, dt_s, m, p)
+    floor["anomaly_kept"] = kept
+    f.add_noise_floor(floor, with_floor, dt_s, m, p.smoother, p.q_from_posteriors)
+    warnings.append(f"noise floor (m = {m}): {floor['reason']}; the lines smoothed again with it: noise in the "
+                    "anomaly band a line's spectrum cannot see (a point-sampled meter's aliased motion)")
+
+
 def check_levels_at_crossovers(filtered_by_m: dict, dt_s: float, noise, p, warnings: list) -> None:
-    """The check of the module docstring on every order's :class:`~app.pipeline.stages.filtering.Filtered`
-    (in place: levels scaled and lines smoothed again where it applies; each order's report in
-    ``crossover_check``, a warning per order scaled).  With ``crossover_level_check`` off (the
-    default) only the excess test runs, and is reported."""
+    """The excess test of the module docstring on every order's
+    :class:`~app.pipeline.stages.filtering.Filtered`, and the options that act on it (in place):
+    with ``crossover_noise_floor`` the floor (each order's report in ``noise_floor``), then with
+    ``crossover_level_check`` the levels check on the lines as they stand (levels scaled and lines
+    smoothed again where it applies; each order's report in ``crossover_check``); a warning per
+    order changed.  With both off (the default) only the excess test runs, and is reported."""
     items = [(m, f) for m, f in sorted(filtered_by_m.items()) if f.prepared and f.r_lines is not None]
     c = _crossings(items[0][1], p) if items else None
     if c is None:
@@ -205,32 +242,7 @@ def check_levels_at_crossovers(filtered_by_m: dict, dt_s: float, noise, p, warni
     found = [m for m, (rep, _) in tests.items() if rep.get("excess")]
     if p.crossover_noise_floor:
         for m, f in items:
-            rep = tests[m][0]
-            if not rep.get("excess"):
-                f.noise_floor = {"applied": False, "reason": rep.get("reason") or (
-                    f"the crossovers show {rep['rms_ratio']:.2f}x the error the posterior std predicts "
-                    f"(p = {rep['p_excess']:.2g}): no excess at p < {p.crossover_level_p:g}")}
-                continue
-            kept = resolved_anomaly(f.table, noise, dt_s, p)
-            if not (kept["n_detectable"] >= FLOOR_MIN_DETECTABLE
-                    and kept["median_flattening_ratio"] >= p.crossover_noise_floor_min_flattening):
-                why = (f"FIR 100 s shows the anomaly beyond its noise on only {kept['n_detectable']} of "
-                       f"{kept['n_lines']} lines (fewer than {FLOOR_MIN_DETECTABLE}): nothing shows the estimate "
-                       "passing noise as anomaly" if kept["n_detectable"] < FLOOR_MIN_DETECTABLE else
-                       f"the estimate keeps {kept['median_flattening_ratio']:.2f} of the anomaly FIR 100 s shows "
-                       f"beyond its noise (median over {kept['n_detectable']} lines, below "
-                       f"{p.crossover_noise_floor_min_flattening:g}): already smoother than that, it is not passing "
-                       "noise as anomaly")
-                f.noise_floor = {"applied": False, "rms_ratio_before": rep["rms_ratio"],
-                                 "p_excess_before": rep["p_excess"], "anomaly_kept": kept,
-                                 "reason": (f"the crossovers show {rep['rms_ratio']:.2f}x the error the posterior "
-                                            f"std predicts (p = {rep['p_excess']:.2g}), but {why}: no floor")}
-                continue
-            floor, with_floor = _noise_floor(f, c, rep, noise, dt_s, m, p)
-            floor["anomaly_kept"] = kept
-            f.add_noise_floor(floor, with_floor, dt_s, m, p.smoother, p.q_from_posteriors)
-            warnings.append(f"noise floor (m = {m}): {floor['reason']}; the lines smoothed again with it: noise in "
-                            "the anomaly band a line's spectrum cannot see (a point-sampled meter's aliased motion)")
+            _add_noise_floor(f, c, tests[m][0], noise, dt_s, m, p, warnings)
         # the level check below tests the lines as smoothed now
         tests = {m: _excess(f, c, p) for m, f in items}
         found = [m for m, (rep, _) in tests.items() if rep.get("excess")]
@@ -241,9 +253,7 @@ def check_levels_at_crossovers(filtered_by_m: dict, dt_s: float, noise, p, warni
             f.crossover_check = {**rep, "applied": False, "reason": "crossover_level_check off (the default): reported only"}
             continue
         if not found or free is None or (m not in found and not p.crossover_level_all_orders):
-            f.crossover_check = {**rep, "applied": False, "reason": rep.get("reason") or (
-                f"the crossovers show {rep['rms_ratio']:.2f}x the error the posterior std predicts "
-                f"(p = {rep['p_excess']:.2g}): no excess at p < {p.crossover_level_p:g}")}
+            f.crossover_check = {**rep, "applied": False, "reason": _no_excess(rep, p)}
             continue
         rep["excess_in_orders"] = found
         rep.update(_scan(f, c, free, lambda s, f=f, m=m: f.smoothed_at(s, dt_s, m, p.smoother, f.noise_for(noise),
