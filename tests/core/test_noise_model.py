@@ -175,6 +175,26 @@ def test_bare_white_height_gets_the_random_walk_part_the_spectra_show():
     assert 0.5 * true < fit.model.psd(f)[0] < 2.0 * true
 
 
+def _pykalman_model(pykalman, nm: NoiseModel, m: int, Q: float, R: float, obs_var: float, x0, P0):
+    """pykalman's filter for the anomaly of order m = 2 (δg_k, δg_{k−1}) beside the noise block of
+    ``nm`` at level R, with white observation noise of variance ``obs_var`` (mGal²)."""
+    F, W, h = nm.block()
+    n = m + nm.n_states
+    A = np.zeros((n, n))
+    A[0, :2] = [2.0, -1.0]
+    A[1, 0] = 1.0
+    A[m:, m:] = F
+    Wm = np.zeros((n, n))
+    Wm[0, 0] = Q
+    Wm[m:, m:] = R * W
+    C = np.zeros((1, n))
+    C[0, 0] = 1.0
+    C[0, m:] = h
+    return pykalman.KalmanFilter(transition_matrices=A, observation_matrices=C, transition_covariance=Wm,
+                                 observation_covariance=np.full((1, 1), float(obs_var)), initial_state_mean=x0,
+                                 initial_state_covariance=P0)
+
+
 def test_coloured_smoother_matches_pykalman():
     """Same state-space model, same prior: pykalman's smoother and likelihood."""
     pykalman = pytest.importorskip("pykalman")
@@ -192,21 +212,7 @@ def test_coloured_smoother_matches_pykalman():
     P0[m:, m:] = nm.stationary_covariance(R)
     res_bf = kalman_smooth(z, Q, R, dt, m=m, noise=nm, x0=x0, P0=P0)
     res_rts = kalman_smooth(z, Q, R, dt, m=m, noise=nm, x0=x0, P0=P0, method="rts")
-    # pykalman in the model basis (δg_k, δg_{k−1}, noise block)
-    F, W, h = nm.block()
-    A = np.zeros((n, n))
-    A[0, :2] = [2.0, -1.0]
-    A[1, 0] = 1.0
-    A[m:, m:] = F
-    Wm = np.zeros((n, n))
-    Wm[0, 0] = Q
-    Wm[m:, m:] = R * W
-    C = np.zeros((1, n))
-    C[0, 0] = 1.0
-    C[0, m:] = h
-    kf = pykalman.KalmanFilter(transition_matrices=A, observation_matrices=C, transition_covariance=Wm,
-                               observation_covariance=np.zeros((1, 1)), initial_state_mean=x0,
-                               initial_state_covariance=P0)
+    kf = _pykalman_model(pykalman, nm, m, Q, R, 0.0, x0, P0)
     zm = np.ma.masked_invalid(z)
     means, covs = kf.smooth(zm)
     for res in (res_bf, res_rts):
@@ -740,20 +746,7 @@ def test_the_smoother_with_a_floor_is_pykalman_with_that_measurement_noise():
     P0 = np.eye(n) * 100.0
     P0[m:, m:] = nm.stationary_covariance(R)
     res = kalman_smooth(z, Q, R, dt, m=m, noise=nm, x0=x0, P0=P0)
-    F, W, h = base.block()
-    A = np.zeros((nb, nb))
-    A[0, :2] = [2.0, -1.0]
-    A[1, 0] = 1.0
-    A[m:, m:] = F
-    Wm = np.zeros((nb, nb))
-    Wm[0, 0] = Q
-    Wm[m:, m:] = R * W
-    C = np.zeros((1, nb))
-    C[0, 0] = 1.0
-    C[0, m:] = h
-    kf = pykalman.KalmanFilter(transition_matrices=A, observation_matrices=C, transition_covariance=Wm,
-                               observation_covariance=np.full((1, 1), R * w), initial_state_mean=x0[:nb],
-                               initial_state_covariance=P0[:nb, :nb])
+    kf = _pykalman_model(pykalman, base, m, Q, R, R * w, x0[:nb], P0[:nb, :nb])
     means, covs = kf.smooth(z)
     np.testing.assert_allclose(res.dg_mgal, means[:, 0], rtol=0, atol=1e-7 * np.abs(means[:, 0]).max())
     np.testing.assert_allclose(res.dg_std_mgal ** 2, covs[:, 0, 0], rtol=1e-6)

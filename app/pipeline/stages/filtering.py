@@ -662,10 +662,17 @@ class Filtered:
                      q_from_posteriors: bool) -> list:
         """The prepared lines ``ids`` smoothed at ``factor`` × their Q(t) (:meth:`estimate_q`) with
         their R(t): one array per line over the line's own epochs (mGal), in the order of ``ids``."""
-        def smooth(i: int) -> np.ndarray:
+        return [x for x, _ in self._smooth_lines(ids, factor, dt_s, m, method, noise, q_from_posteriors)]
+
+    def _smooth_lines(self, ids: list, factor: float, dt_s: float, m: int, method: str, noise,
+                      q_from_posteriors: bool) -> list:
+        """The prepared lines ``ids`` smoothed at ``factor`` × Q(t) with their R(t) under ``noise``:
+        one ``(dg_mgal, dg_std_mgal)`` pair per line over the line's own epochs, in the order of ``ids``."""
+        def smooth(i: int):
             pr = self.prepared[i]
-            return filter_line(pr.z_ext, factor * self.estimate_q(pr, q_from_posteriors), self.r_lines[i], dt_s, m,
-                               method, noise)[0][pr.inner]
+            x, sd = filter_line(pr.z_ext, factor * self.estimate_q(pr, q_from_posteriors), self.r_lines[i], dt_s,
+                                m, method, noise)
+            return x[pr.inner], sd[pr.inner]
         return list(line_map()(smooth, ids))
 
     def smoothed_at(self, factor: float, dt_s: float, m: int, method: str, noise, q_from_posteriors: bool) -> list:
@@ -676,12 +683,7 @@ class Filtered:
     def smoothed_with(self, noise, dt_s: float, m: int, method: str, q_from_posteriors: bool) -> list:
         """Every line smoothed at its Q(t) and R(t) under the noise model ``noise``: one
         ``(dg_mgal, dg_std_mgal)`` pair per line over the line's own epochs, in the table's line order."""
-        def smooth(i: int):
-            pr = self.prepared[i]
-            x, s = filter_line(pr.z_ext, self.estimate_q(pr, q_from_posteriors), self.r_lines[i], dt_s, m, method,
-                               noise)
-            return x[pr.inner], s[pr.inner]
-        return list(line_map()(smooth, range(len(self.prepared))))
+        return self._smooth_lines(list(range(len(self.prepared))), 1.0, dt_s, m, method, noise, q_from_posteriors)
 
     def add_noise_floor(self, floor: dict, noise, dt_s: float, m: int, method: str, q_from_posteriors: bool) -> None:
         """The crossover noise floor applied (in place): :attr:`noise_floor` set to ``floor`` (its
