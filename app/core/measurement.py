@@ -169,6 +169,39 @@ def anomaly_measurement_mgal(fbar_ms2, t_s, vu_ms, gamma_mgal, eotvos_mgal) -> n
     return (f - acc) * MGAL_PER_MS2 - g + e
 
 
+def running_median_within_runs(x, valid, size: int) -> np.ndarray:
+    """Centred running median of ``x`` over ``size`` samples, taken within each run of
+    consecutive ``valid`` samples only (reflected at the run's ends); NaN outside the runs.
+
+    A robust scale must not count what is not data: the spike detectors' scale once ran over
+    a gap's interpolated samples (zero residual) or a window's zero fill, and near every gap
+    it collapsed, so the first and last epochs of each run were flagged (generated clean
+    surveys: every flag of the small layouts within 13 epochs of a run's end).
+
+    Parameters
+    ----------
+    x : ndarray, shape (n,)
+    valid : ndarray of bool, shape (n,)
+    size : int
+        Window length (samples, made odd).
+
+    Returns
+    -------
+    ndarray, shape (n,)
+    """
+    from scipy.ndimage import median_filter
+
+    x = np.asarray(x, dtype=float)
+    valid = np.asarray(valid, dtype=bool)
+    if x.shape != valid.shape or x.ndim != 1:
+        raise ValueError("x and valid must be one-dimensional and of the same shape")
+    out = np.full(x.shape, np.nan)
+    d = np.diff(np.concatenate([[0], valid.astype(np.int8), [0]]))
+    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+        out[a:b] = median_filter(x[a:b], size=max(1, int(size)) | 1, mode="reflect")
+    return out
+
+
 def spike_mask(z_mgal, dt_s: float, threshold: float = 6.0, neighbour_s: float = 0.5,
                scale_s: tuple[float, float] = (5.0, 30.0)) -> np.ndarray:
     """Epochs of z hit by isolated outliers (GNSS velocity or height spikes, cycle slips,
@@ -205,7 +238,7 @@ def spike_mask(z_mgal, dt_s: float, threshold: float = 6.0, neighbour_s: float =
     -------
     ndarray of bool, shape (n,)
     """
-    from scipy.ndimage import median_filter, uniform_filter1d
+    from scipy.ndimage import uniform_filter1d
 
     z = np.asarray(z_mgal, dtype=float)
     if z.ndim != 1:
@@ -221,9 +254,9 @@ def spike_mask(z_mgal, dt_s: float, threshold: float = 6.0, neighbour_s: float =
     w = 2 * h + 1
     local = (uniform_filter1d(zi, w, mode="reflect") * w - zi) / (w - 1)
     ar = np.abs(zi - local)
-    scale = 1.4826 * np.maximum(*(median_filter(ar, size=max(2 * w + 1, int(round(s / dt_s)) | 1), mode="reflect")
+    scale = 1.4826 * np.maximum(*(running_median_within_runs(ar, ok, max(2 * w + 1, int(round(s / dt_s)) | 1))
                                   for s in scale_s))
-    scale = np.maximum(scale, 1e-12 + 1e-9 * np.median(scale))
+    scale = np.where(ok, np.maximum(scale, 1e-12 + 1e-9 * np.nanmedian(scale)), np.inf)
     big = ar > threshold * scale
     half = ar > 0.5 * threshold * scale
     partner = np.zeros_like(big)
@@ -440,7 +473,7 @@ def height_outlier_mask(z_mgal, t_s, threshold: float = 6.0, half_width: int = 1
     -------
     ndarray of bool, shape (n,)
     """
-    from scipy.ndimage import maximum_filter1d, median_filter
+    from scipy.ndimage import maximum_filter1d
 
     z = np.asarray(z_mgal, dtype=float)
     t = np.asarray(t_s, dtype=float)
@@ -476,9 +509,10 @@ def height_outlier_mask(z_mgal, t_s, threshold: float = 6.0, half_width: int = 1
         for o, wk in zip(off, w):
             size += wk * shifted(zi, int(o), 0.0)
         a = np.where(full, np.abs(size), 0.0)
-        scale = 1.4826 * np.maximum(*(median_filter(a, size=max(3, int(round(s / dt))) | 1, mode="reflect")
+        scale = 1.4826 * np.maximum(*(running_median_within_runs(a, full, max(3, int(round(s / dt))) | 1)
                                       for s in scale_s))
-        big = a > threshold * np.maximum(scale, 1e-12 + 1e-9 * float(np.median(scale)))
+        scale = np.where(full, np.maximum(scale, 1e-12 + 1e-9 * float(np.nanmedian(scale))), np.inf)
+        big = a > threshold * scale
         mask |= big & (a >= maximum_filter1d(a, 2 * search + 1)) & full
     return mask
 
