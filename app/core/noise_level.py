@@ -102,9 +102,46 @@ def white_band_gain(dt_s: float, band_hz: tuple[float, float], order: int = 4) -
     return float(2.0 * np.trapezoid(s, f))
 
 
+#: Periods of the band's lower edge at either end of a run left out of its mean square (the
+#: band-pass's transient there; `band_noise_variance_cm2s2`).
+EDGE_CYCLES = 0.5
+
+
+def run_bounds(ok, t_s=None, max_step_factor: float = 1.5) -> list[tuple[int, int]]:
+    """``(start, stop)`` of the runs of consecutive ``ok`` epochs, also broken where the time
+    step exceeds ``max_step_factor`` × the median step (``t_s`` given: epochs absent from the
+    record, a turn or a ferry not recorded).
+
+    Parameters
+    ----------
+    ok : ndarray of bool, shape (n,)
+    t_s : ndarray, shape (n,), optional
+        Epoch times (s), increasing.
+
+    Returns
+    -------
+    list of (int, int)
+    """
+    ok = np.asarray(ok, dtype=bool)
+    if ok.ndim != 1:
+        raise ValueError("ok must be one-dimensional")
+    brk = np.zeros(ok.size, bool)               # a run may not continue into epoch i
+    if t_s is not None and ok.size > 1:
+        t = np.asarray(t_s, dtype=float)
+        if t.shape != ok.shape:
+            raise ValueError(f"t_s has shape {t.shape}, ok {ok.shape}")
+        step = np.diff(t)
+        brk[1:] = step > max_step_factor * np.median(step)
+    cont = np.zeros(ok.size, bool)               # epoch i continues the run of epoch i − 1
+    cont[1:] = ok[1:] & ok[:-1] & ~brk[1:]
+    starts = np.flatnonzero(ok & ~cont)
+    ends = np.flatnonzero(ok & ~np.r_[cont[1:], False]) + 1
+    return list(zip(starts.tolist(), ends.tolist()))
+
+
 def band_noise_variance_cm2s2(z_mgal, dt_s: float, band_hz: tuple[float, float] = (0.1, 0.5),
                               window_s: float = 60.0, floor_cm2s2: float = 1e-4,
-                              regressor_mgal=None, lags: int = 5) -> np.ndarray:
+                              regressor_mgal=None, lags: int = 5, t_s=None) -> np.ndarray:
     """Local R(t) in (cm/s)² from z's content just above the anomaly's band.
 
     The high-frequency estimate of :func:`local_noise_variance_cm2s2` sees the GNSS noise
@@ -126,8 +163,12 @@ def band_noise_variance_cm2s2(z_mgal, dt_s: float, band_hz: tuple[float, float] 
     Parameters
     ----------
     z_mgal : ndarray, shape (n,)
-        The measurement (mGal); NaN is interpolated over for the filter and ignored
-        in the average.
+        The measurement (mGal); NaN ignored.  Each run of finite epochs (:func:`run_bounds`)
+        is band-passed on its own: interpolated across a gap, a record whose noise is
+        10⁴ mGal puts a ramp from one noise value to the next into the band, and R(t) came
+        out 7× (a 0.5 s hole at 10 Hz) to 150× (30 s) too large within 15 s of it.  A run
+        shorter than ``2 / band_hz[0]`` has no level of its own (its neighbours' within the
+        window, else the record's median) unless no run is that long.
     dt_s : float
         GNSS step (s).
     band_hz : (float, float)
@@ -140,37 +181,64 @@ def band_noise_variance_cm2s2(z_mgal, dt_s: float, band_hz: tuple[float, float] 
         The gravimeter's specific force at the same epochs (mGal; NaN allowed).
     lags : int
         Lags each side of the fit (epochs).
+    t_s : ndarray, shape (n,), optional
+        Epoch times (s): a jump of the clock also ends a run.
 
     Returns
     -------
     ndarray, shape (n,)
     """
-    from scipy.signal import butter, sosfiltfilt
+    from scipy.signal import butter
 
     z = _check_series(z_mgal, dt_s, 64)
     f1, f2 = float(band_hz[0]), float(band_hz[1])
     if not 0 < f1 < f2 < 0.5 / dt_s:
         raise ValueError(f"band_hz must satisfy 0 < f1 < f2 < Nyquist ({0.5 / dt_s} Hz), got {band_hz}")
-    n = z.size
     ok = np.isfinite(z)
     if not ok.any():
         raise ValueError("no finite measurements to estimate the noise level from")
-    zi = np.interp(np.arange(n), np.flatnonzero(ok), z[ok]) if not ok.all() else z
     sos = butter(4, (f1, f2), btype="bandpass", fs=1.0 / dt_s, output="sos")
-    padlen = min(n - 1, int(round(4.0 / (f1 * dt_s))))
-    y = sosfiltfilt(sos, zi - np.mean(zi), padtype="even", padlen=padlen)
+    padlen = int(round(4.0 / (f1 * dt_s)))
+    runs = run_bounds(ok, t_s)
+    runs = [(a, b) for a, b in runs if (b - a) * dt_s >= 2.0 / f1] or runs   # none so long: every run
+    y = _band_pass_runs(z, runs, sos, padlen)
     if regressor_mgal is not None:
-        y = y - _band_regression(y, ok, regressor_mgal, sos, padlen, lags)
-    var = _windowed_mean_square(y, ok, max(3, int(round(window_s / dt_s))))
+        y = y - _band_regression(y, np.isfinite(y), regressor_mgal, sos, padlen, lags, runs)
+    inner = np.isfinite(y)
+    edge = int(round(EDGE_CYCLES / (f1 * dt_s)))
+    for a, b in runs:                            # the filter's transient at a run's ends
+        inner[a:min(b, a + edge)] = inner[max(a, b - edge):b] = False
+    use = inner if inner.any() else np.isfinite(y)
+    w = max(3, int(round(window_s / dt_s)))
+    var = np.full(z.size, np.nan)
+    for a, b in run_bounds(np.ones(z.size, bool), t_s):   # averaged across holes, not clock jumps
+        if use[a:b].any():
+            var[a:b] = _windowed_mean_square(y[a:b], use[a:b], w)
+    var = np.where(np.isfinite(var), var, np.nanmedian(var))
     return np.maximum(var / white_band_gain(dt_s, (f1, f2)), floor_cm2s2)
 
 
-def _band_regression(y, ok, regressor_mgal, sos, padlen: int, lags: int) -> np.ndarray:
-    """The part of the band-passed ``y`` linear in the band-passed regressor at lags ±L
-    (least squares over the epochs where ``ok`` and the regressor are finite); zeros when
-    too few epochs."""
+def _band_pass_runs(x: np.ndarray, runs, sos, padlen: int) -> np.ndarray:
+    """``sos`` (zero phase, even padding) applied to each run of ``x`` on its own, its mean
+    removed (NaN inside a run interpolated over); NaN outside the runs."""
     from scipy.signal import sosfiltfilt
 
+    y = np.full(x.size, np.nan)
+    for a, b in runs:
+        u = x[a:b]
+        fin = np.isfinite(u)
+        if fin.sum() < 2:
+            continue
+        if not fin.all():
+            u = np.interp(np.arange(u.size), np.flatnonzero(fin), u[fin])
+        y[a:b] = sosfiltfilt(sos, u - np.mean(u), padtype="even", padlen=min(u.size - 1, padlen))
+    return y
+
+
+def _band_regression(y, ok, regressor_mgal, sos, padlen: int, lags: int, runs) -> np.ndarray:
+    """The part of the band-passed ``y`` linear in the regressor band-passed over the same
+    ``runs`` at lags ±L (least squares over the epochs where ``ok``, the regressor and every
+    lag are finite); zeros when too few epochs."""
     x = np.asarray(regressor_mgal, dtype=float)
     if x.shape != y.shape:
         raise ValueError(f"regressor_mgal has shape {x.shape}, z_mgal {y.shape}")
@@ -178,16 +246,16 @@ def _band_regression(y, ok, regressor_mgal, sos, padlen: int, lags: int) -> np.n
     n, L = y.size, int(lags)
     if fin.sum() < 10 * (2 * L + 1) or n <= 2 * L + 2:
         return np.zeros(n)
-    xi = np.interp(np.arange(n), np.flatnonzero(fin), x[fin]) if not fin.all() else x
-    xb = sosfiltfilt(sos, xi - np.mean(xi), padtype="even", padlen=padlen)
+    xb = _band_pass_runs(x, runs, sos, padlen)
     k = np.arange(L, n - L)
     X = np.column_stack([xb[k + lag] for lag in range(-L, L + 1)])
-    use = ok[k] & fin[k]
+    use = ok[k] & fin[k] & np.all(np.isfinite(X), axis=1)
     if use.sum() < 10 * X.shape[1]:
         return np.zeros(n)
     c, *_ = np.linalg.lstsq(X[use], y[k][use], rcond=None)
     out = np.zeros(n)
-    out[k] = X @ c
+    whole = np.all(np.isfinite(X), axis=1)
+    out[k[whole]] = X[whole] @ c
     return out
 
 

@@ -43,6 +43,42 @@ def test_band_level_of_white_noise_with_an_episode():
     assert np.max(est[:300]) < 2.5 * 1.69 and np.max(est[-300:]) < 2.5 * 1.69
 
 
+@pytest.mark.parametrize("gap_s", [0.5, 2.0, 30.0])
+def test_band_level_is_not_raised_next_to_a_gap(gap_s):
+    """White velocity noise of known level (1.69 (cm/s)²) with a hole in z every 500 s: each
+    run is band-passed on its own, so within 15 s of a hole R(t) stays near the level.
+    Interpolated across the hole, the ramp from one noise value of z (±10⁴ mGal) to the next
+    lay in the band: 7× (0.5 s) to 150× (30 s) the level there."""
+    rng = np.random.default_rng(7)
+    n = 60_000
+    z = _z_noise(rng.standard_normal(n + 1) * 1.3)
+    g = max(1, int(round(gap_s / DT)))
+    starts = np.arange(3000, n - 3000, 5000)
+    for s in starts:
+        z[s:s + g] = np.nan
+    est = band_noise_variance_cm2s2(z, DT)
+    dist = np.min(np.abs(np.arange(n)[:, None] - np.r_[starts, starts + g][None, :]), axis=1) * DT
+    near = np.isfinite(z) & (dist < 15.0)
+    assert np.median(est[near]) == pytest.approx(1.69, rel=0.25)
+    assert np.quantile(est[near], 0.9) < 2.0 * 1.69
+    assert np.median(est[np.isfinite(z) & (dist > 60.0)]) == pytest.approx(1.69, rel=0.08)
+
+
+def test_band_level_runs_end_where_the_clock_jumps():
+    """A quiet static record (the apron, 0.1 cm/s) and then, ten minutes later on the clock
+    but next in the file, a loud flight (3 cm/s): given the times, the apron's level is its
+    own; without them the band-pass runs across the jump and the flight's noise leaks in."""
+    rng = np.random.default_rng(9)
+    quiet = _z_noise(rng.standard_normal(1201) * 0.1)       # 120 s
+    loud = _z_noise(rng.standard_normal(6001) * 3.0)        # 600 s
+    z = np.r_[quiet, loud]
+    t = np.r_[np.arange(1200) * DT, 720.0 + np.arange(6000) * DT]
+    apron = slice(0, 1200)
+    own = band_noise_variance_cm2s2(z, DT, t_s=t)[apron]
+    assert np.median(own) == pytest.approx(0.01, rel=0.3) and np.max(own) < 2 * 0.01
+    assert np.max(band_noise_variance_cm2s2(z, DT)[apron]) > 100 * 0.01
+
+
 def test_band_level_of_position_derived_velocity_noise():
     # velocities differenced from white positions (std σ_p): power ∝ sin²(πfΔt), i.e.
     # far less at low frequency; the band estimate must be the analytic band average,

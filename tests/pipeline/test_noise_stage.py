@@ -177,7 +177,7 @@ def _short_lines(seconds: float, seed: int = 5):
     n_line = int(round(seconds / DT_S))
     z = np.diff(SIGMA_V_MS * rng.standard_normal(N_LINES * n_line + 1)) / DT_S * 1e5
     t = np.arange(z.size) * DT_S
-    flights = {"F1": SimpleNamespace(z_mgal=z, heights_only=False)}
+    flights = {"F1": SimpleNamespace(z_mgal=z, heights_only=False, t_s=t)}
     lines = []
     for k in range(N_LINES):
         sl = slice(k * n_line, (k + 1) * n_line)

@@ -126,7 +126,7 @@ def bridge_for(fm: FlightMeasurement, dt_s: float, band_hz) -> tuple[np.ndarray,
         return pred, 0
     res = (fm.z_mgal - pred)[ok]
     sigma_res_ms2 = 1.4826 * float(np.median(np.abs(res - np.median(res)))) * 1e-5
-    level = band_noise_variance_cm2s2(fm.z_mgal, dt_s, band_hz)
+    level = band_noise_variance_cm2s2(fm.z_mgal, dt_s, band_hz, t_s=fm.t_s)
     r_m2s2 = float(np.nanmedian(level)) * 1e-4 if np.any(np.isfinite(level)) else 0.0
     if not (sigma_res_ms2 > 0 and r_m2s2 > 0):
         return pred, 0
@@ -215,7 +215,8 @@ def noise_levels(flights: dict[str, FlightMeasurement], dt_s: float, p) -> dict[
     if p.noise_model == "band":
         band = level_band(p, dt_s)
         return {name: band_noise_variance_cm2s2(fm.z_mgal, dt_s, band,
-                                                regressor_mgal=fm.fbar_ms2 * MGAL_PER_MS2 if p.noise_level_unmix else None)
+                                                regressor_mgal=fm.fbar_ms2 * MGAL_PER_MS2 if p.noise_level_unmix else None,
+                                                t_s=fm.t_s)
                 for name, fm in flights.items()}
     return {}
 
