@@ -55,7 +55,7 @@ def _survey(seed, c, d, n_lines=40, length_km=100, spacing_km=2.0, sigma_km=10.0
                                      easting_km=np.arange(length_km, dtype=float),
                                      northing_km=np.full(length_km, w * spacing_km)))
     reg = SimpleNamespace(x=xs, ma=SimpleNamespace(c=c, d=d), lines=lines,
-                          idx=[np.arange(length_km)] * n_lines)
+                          idx=[np.arange(length_km)] * n_lines, design=SimpleNamespace(n=1))
     return reg, np.concatenate(truth)
 
 

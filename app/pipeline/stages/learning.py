@@ -12,12 +12,21 @@ import numpy as np
 from app.config import SurveyConfig
 from app.core.mjls_em import fit_em
 from app.core.recognition import stationary_distribution
-from app.pipeline.stages.regularization import Regularized
+from app.pipeline.stages.regularization import Regularized, split_stretches
 
 
 def _n_params(n_q: int, n_r: int, n_lines: int) -> int:
     n = n_q * n_r
     return n_q + n_r + n * (n - 1) + n_lines * (n - 1)
+
+
+def learning_sequences(reg: Regularized) -> list:
+    """The sequences the EM learns from: each stretch of a line without missing epochs on its
+    own (:func:`app.pipeline.stages.regularization.split_stretches`), those too short for the
+    EM's window (``p + 2`` points) left out — unless that leaves no sequence, when the lines'
+    stretches are taken joined as before (holes every few minutes on every line)."""
+    seqs = [x for x in split_stretches(reg)[0] if len(x) >= reg.ma.p + 2]
+    return seqs if seqs else list(reg.x)
 
 
 def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
@@ -36,7 +45,8 @@ def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
         and BIC, the chosen model)."""
     p = cfg.processing
     r_cands = [p.n_r] if p.n_r is not None else [1, 2]
-    n_points = int(sum(len(x) for x in reg.x))
+    seqs = learning_sequences(reg)
+    n_points = int(sum(len(x) for x in seqs))
     # N1 = 2 anomaly levels need enough decimated points to be told apart; a short survey
     # (a test line flown a few times: ~100 points) gets the stationary model (one level)
     q_cands = [p.n_q] if p.n_q is not None else [2 if n_points >= p.min_points_adaptive else 1]
@@ -49,9 +59,9 @@ def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
                 if callback is not None:
                     callback({**rec, "model": tag})
 
-            res = fit_em(reg.x, reg.ma.c, reg.ma.d, n_q=n_q, n_r=n_r, max_iter=p.em_max_iter,
+            res = fit_em(seqs, reg.ma.c, reg.ma.d, n_q=n_q, n_r=n_r, max_iter=p.em_max_iter,
                          tol=p.em_tol, callback=cb)
-            k = _n_params(n_q, n_r, len(reg.x))
+            k = _n_params(n_q, n_r, len(seqs))
             bic = -2.0 * float(res.loglik) + k * np.log(max(n_points, 2))
             results[(n_q, n_r)] = res
             table.append({"model": tag, "n_q": n_q, "n_r": n_r, "loglik": float(res.loglik),
@@ -60,6 +70,13 @@ def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
     em = results[(best["n_q"], best["n_r"])]
     selection = {"criterion": "BIC" if len(table) > 1 else "fixed", "candidates": table, "chosen": best["model"]}
     return em, selection
+
+
+def _sequence_owner(reg: Regularized) -> list[int]:
+    """For each sequence of :func:`learning_sequences`, the index of its line in ``reg``."""
+    pieces, owner = split_stretches(reg)
+    kept = [w for x, w in zip(pieces, owner) if len(x) >= reg.ma.p + 2]
+    return kept if kept else list(range(len(reg.x)))
 
 
 @dataclass
@@ -112,15 +129,20 @@ def learn_survey(reg: Regularized, cfg: SurveyConfig, warnings: list, callback=N
                       [x for x, k in zip(reg.x, learn_mask) if k],
                       [i for i, k in zip(reg.idx, learn_mask) if k], reg.skipped)
     em, selection = learn(sub, cfg, callback=on_iter)
-    # per-line initial probabilities: learned lines from EM (rows mapped back through
-    # em.line_index, since EM drops lines too short for its window), others the chain's
-    # stationary distribution
+    # per-line initial probabilities: learned lines from EM — the row of the line's first
+    # stretch the EM kept (rows mapped back through em.line_index, since EM drops sequences too
+    # short for its window) —, others the chain's stationary distribution
     stationary = stationary_distribution(np.asarray(em.transition))
     learned_pos = [i for i, k in enumerate(learn_mask) if k]
+    owner = _sequence_owner(sub)
     initial = [stationary] * len(reg.lines)
     line_index = getattr(em, "line_index", None)
     if line_index is None:
         line_index = list(range(len(em.initial)))
+    done = set()
     for row, w in enumerate(line_index):
-        initial[learned_pos[int(w)]] = np.asarray(em.initial[row])
+        line = owner[int(w)]
+        if line not in done:
+            initial[learned_pos[line]] = np.asarray(em.initial[row])
+            done.add(line)
     return Learned(em, selection, initial, learn_mask, rows)

@@ -17,8 +17,8 @@ import pandas as pd
 
 from app.config import SurveyConfig
 from app.core.nlmeans import RecognitionMap
-from app.core.recognition import recognize_lines, state_evidence
-from app.pipeline.stages.regularization import Regularized
+from app.core.recognition import recognize_lines, state_evidence, stationary_distribution
+from app.pipeline.stages.regularization import Regularized, join_stretches, split_stretches
 
 
 def pooled_evidence(reg: Regularized, em, h_per_km: float, rho_km: float) -> list | None:
@@ -33,7 +33,7 @@ def pooled_evidence(reg: Regularized, em, h_per_km: float, rho_km: float) -> lis
     if rho_km <= 0 or len(reg.x) < 2:
         return None
     n_q, n_r = len(em.Q), len(em.R)
-    ev = np.concatenate([state_evidence(x, reg.ma.c, reg.ma.d, em.Q, em.R) for x in reg.x])
+    ev = np.concatenate([state_evidence(x, reg.ma.c, reg.ma.d, em.Q, em.R) for x in split_stretches(reg)[0]])
     ev = ev.reshape(len(ev), n_q, n_r)
     top = ev.max(axis=2, keepdims=True)
     ev_q = (top + np.log(np.mean(np.exp(ev - top), axis=2, keepdims=True)))[:, :, 0]
@@ -57,9 +57,16 @@ def recognize(reg: Regularized, em, cfg: SurveyConfig | None = None) -> tuple[li
     if cfg is not None:
         p = cfg.processing
         extra = pooled_evidence(reg, em, p.recognition_pool_h_per_km, p.recognition_pool_rho_km)
-    paths, probs = recognize_lines(reg.x, reg.ma.c, reg.ma.d, em.Q, em.R, em.transition,
-                                   np.asarray(em.initial), extra_loglik=extra)
-    return [np.asarray(s, int) for s in paths], [np.asarray(p, float) for p in probs]
+    # each stretch without missing epochs on its own (split_stretches): the line's initial
+    # probabilities start its first, the chain's stationary distribution the others
+    seqs, owner = split_stretches(reg)
+    stationary = stationary_distribution(np.asarray(em.transition))
+    initial = np.asarray(em.initial, float)
+    starts = [initial[w] if k == 0 or owner[k - 1] != w else stationary for k, w in enumerate(owner)]
+    paths, probs = recognize_lines(seqs, reg.ma.c, reg.ma.d, em.Q, em.R, em.transition, np.asarray(starts),
+                                   extra_loglik=None if extra is None else split_stretches(reg, extra)[0])
+    paths = join_stretches([np.asarray(s, int) for s in paths], owner, len(reg.x))
+    return paths, join_stretches([np.asarray(p, float) for p in probs], owner, len(reg.x))
 
 
 def recognition_table(reg: Regularized, paths, probs) -> pd.DataFrame:
