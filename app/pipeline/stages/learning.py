@@ -20,13 +20,17 @@ def _n_params(n_q: int, n_r: int, n_lines: int) -> int:
     return n_q + n_r + n * (n - 1) + n_lines * (n - 1)
 
 
-def learning_sequences(reg: Regularized) -> list:
-    """The sequences the EM learns from: each stretch of a line without missing epochs on its
-    own (:func:`app.pipeline.stages.regularization.split_stretches`), those too short for the
-    EM's window (``p + 2`` points) left out — unless that leaves no sequence, when the lines'
-    stretches are taken joined as before (holes every few minutes on every line)."""
-    seqs = [x for x in split_stretches(reg)[0] if len(x) >= reg.ma.p + 2]
-    return seqs if seqs else list(reg.x)
+def learning_sequences(reg: Regularized) -> tuple[list, list[int]]:
+    """The sequences the EM learns from and the index in ``reg`` of each one's line: each
+    stretch of a line without missing epochs on its own
+    (:func:`app.pipeline.stages.regularization.split_stretches`), those too short for the EM's
+    window (``p + 2`` points) left out — unless that leaves none, when the lines' stretches are
+    taken joined as before (holes every few minutes on every line)."""
+    pieces, owner = split_stretches(reg)
+    kept = [(x, w) for x, w in zip(pieces, owner) if len(x) >= reg.ma.p + 2]
+    if not kept:
+        return list(reg.x), list(range(len(reg.x)))
+    return [x for x, _ in kept], [w for _, w in kept]
 
 
 def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
@@ -45,7 +49,7 @@ def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
         and BIC, the chosen model)."""
     p = cfg.processing
     r_cands = [p.n_r] if p.n_r is not None else [1, 2]
-    seqs = learning_sequences(reg)
+    seqs = learning_sequences(reg)[0]
     n_points = int(sum(len(x) for x in seqs))
     # N1 = 2 anomaly levels need enough decimated points to be told apart; a short survey
     # (a test line flown a few times: ~100 points) gets the stationary model (one level)
@@ -70,13 +74,6 @@ def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
     em = results[(best["n_q"], best["n_r"])]
     selection = {"criterion": "BIC" if len(table) > 1 else "fixed", "candidates": table, "chosen": best["model"]}
     return em, selection
-
-
-def _sequence_owner(reg: Regularized) -> list[int]:
-    """For each sequence of :func:`learning_sequences`, the index of its line in ``reg``."""
-    pieces, owner = split_stretches(reg)
-    kept = [w for x, w in zip(pieces, owner) if len(x) >= reg.ma.p + 2]
-    return kept if kept else list(range(len(reg.x)))
 
 
 @dataclass
@@ -134,7 +131,7 @@ def learn_survey(reg: Regularized, cfg: SurveyConfig, warnings: list, callback=N
     # short for its window) —, others the chain's stationary distribution
     stationary = stationary_distribution(np.asarray(em.transition))
     learned_pos = [i for i, k in enumerate(learn_mask) if k]
-    owner = _sequence_owner(sub)
+    owner = learning_sequences(sub)[1]
     initial = [stationary] * len(reg.lines)
     line_index = getattr(em, "line_index", None)
     if line_index is None:
