@@ -236,3 +236,35 @@ def positions_follow_stamps(t_s, lat_deg, lon_deg, min_speed_ms: float = 20.0,
     if not np.std(a) > 0:
         return 0.0, int(moving.sum())               # distances exactly even while the stamps scatter
     return float(np.corrcoef(a, b)[0, 1]), int(moving.sum())
+
+
+def run_bounds(ok, t_s=None, max_step_factor: float = 1.5) -> list[tuple[int, int]]:
+    """``(start, stop)`` of the runs of consecutive ``ok`` epochs, also broken where the time
+    step exceeds ``max_step_factor`` × the median step (``t_s`` given: epochs absent from the
+    record, a turn or a ferry not recorded).
+
+    Parameters
+    ----------
+    ok : ndarray of bool, shape (n,)
+    t_s : ndarray, shape (n,), optional
+        Epoch times (s), increasing.
+
+    Returns
+    -------
+    list of (int, int)
+    """
+    ok = np.asarray(ok, dtype=bool)
+    if ok.ndim != 1:
+        raise ValueError("ok must be one-dimensional")
+    brk = np.zeros(ok.size, bool)               # a run may not continue into epoch i
+    if t_s is not None and ok.size > 1:
+        t = np.asarray(t_s, dtype=float)
+        if t.shape != ok.shape:
+            raise ValueError(f"t_s has shape {t.shape}, ok {ok.shape}")
+        step = np.diff(t)
+        brk[1:] = step > max_step_factor * np.median(step)
+    cont = np.zeros(ok.size, bool)               # epoch i continues the run of epoch i − 1
+    cont[1:] = ok[1:] & ok[:-1] & ~brk[1:]
+    starts = np.flatnonzero(ok & ~cont)
+    ends = np.flatnonzero(ok & ~np.r_[cont[1:], False]) + 1
+    return list(zip(starts.tolist(), ends.tolist()))

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal, stats
 
+from app.core.epochs import run_bounds
 from app.core.geodesy import MGAL_PER_MS2, vertical_velocity_from_heights_ms
 from app.core.gravimeter import fill_nan
 
@@ -196,8 +197,7 @@ def running_median_within_runs(x, valid, size: int) -> np.ndarray:
     if x.shape != valid.shape or x.ndim != 1:
         raise ValueError("x and valid must be one-dimensional and of the same shape")
     out = np.full(x.shape, np.nan)
-    d = np.diff(np.concatenate([[0], valid.astype(np.int8), [0]]))
-    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+    for a, b in run_bounds(valid):
         out[a:b] = median_filter(x[a:b], size=max(1, int(size)) | 1, mode="reflect")
     return out
 

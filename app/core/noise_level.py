@@ -25,6 +25,8 @@ from typing import NamedTuple
 import numpy as np
 from scipy.ndimage import uniform_filter1d
 
+from app.core.epochs import run_bounds
+
 
 def _check_series(z_mgal, dt_s: float, min_epochs: int) -> np.ndarray:
     z = np.asarray(z_mgal, dtype=float)
@@ -105,38 +107,6 @@ def white_band_gain(dt_s: float, band_hz: tuple[float, float], order: int = 4) -
 #: Periods of the band's lower edge at either end of a run left out of its mean square (the
 #: band-pass's transient there; `band_noise_variance_cm2s2`).
 EDGE_CYCLES = 0.5
-
-
-def run_bounds(ok, t_s=None, max_step_factor: float = 1.5) -> list[tuple[int, int]]:
-    """``(start, stop)`` of the runs of consecutive ``ok`` epochs, also broken where the time
-    step exceeds ``max_step_factor`` × the median step (``t_s`` given: epochs absent from the
-    record, a turn or a ferry not recorded).
-
-    Parameters
-    ----------
-    ok : ndarray of bool, shape (n,)
-    t_s : ndarray, shape (n,), optional
-        Epoch times (s), increasing.
-
-    Returns
-    -------
-    list of (int, int)
-    """
-    ok = np.asarray(ok, dtype=bool)
-    if ok.ndim != 1:
-        raise ValueError("ok must be one-dimensional")
-    brk = np.zeros(ok.size, bool)               # a run may not continue into epoch i
-    if t_s is not None and ok.size > 1:
-        t = np.asarray(t_s, dtype=float)
-        if t.shape != ok.shape:
-            raise ValueError(f"t_s has shape {t.shape}, ok {ok.shape}")
-        step = np.diff(t)
-        brk[1:] = step > max_step_factor * np.median(step)
-    cont = np.zeros(ok.size, bool)               # epoch i continues the run of epoch i − 1
-    cont[1:] = ok[1:] & ok[:-1] & ~brk[1:]
-    starts = np.flatnonzero(ok & ~cont)
-    ends = np.flatnonzero(ok & ~np.r_[cont[1:], False]) + 1
-    return list(zip(starts.tolist(), ends.tolist()))
 
 
 def band_noise_variance_cm2s2(z_mgal, dt_s: float, band_hz: tuple[float, float] = (0.1, 0.5),

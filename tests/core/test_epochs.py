@@ -71,3 +71,27 @@ def test_fill_error_is_nil_for_a_smooth_record_and_grows_with_the_hole():
     with pytest.raises(ValueError):
         fill_error_mgal(t, h_turb, 0, k, derivative=True)
     assert np.isnan(fill_error_mgal(t[:20], h_turb[:20], 4, k, derivative=True))
+
+
+def test_run_bounds_against_a_loop():
+    """Runs of ok epochs, also cut where the clock jumps, against a plain loop over the epochs."""
+    from app.core.epochs import run_bounds
+
+    rng = np.random.default_rng(6)
+    for _ in range(50):
+        n = int(rng.integers(1, 60))
+        ok = rng.random(n) < 0.7
+        t = np.cumsum(np.where(rng.random(n) < 0.1, 5.0, 1.0))
+        want, start = [], None
+        for i in range(n):
+            jump = i > 0 and t[i] - t[i - 1] > 1.5
+            if start is not None and (not ok[i] or jump):
+                want.append((start, i))
+                start = None
+            if ok[i] and start is None:
+                start = i
+        if start is not None:
+            want.append((start, n))
+        assert run_bounds(ok, t) == want
+        assert run_bounds(ok) == [(a, b) for a, b in
+                                  zip(*[np.flatnonzero(np.diff(np.r_[0, ok.astype(int), 0]) == s) for s in (1, -1)])]

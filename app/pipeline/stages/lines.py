@@ -12,6 +12,7 @@ import pandas as pd
 from app.config import SurveyConfig
 from app.core import geodesy
 from app.core.accuracy import group_passes
+from app.core.epochs import run_bounds
 from app.core.leveling import LineTrack, find_crossovers
 from app.pipeline.stages.measurement import FlightMeasurement
 
@@ -67,9 +68,7 @@ def cut_lines(lines: pd.DataFrame, flights: dict[str, FlightMeasurement], crs: s
 
 def finite_segments(z) -> list[tuple[int, int]]:
     """(start, stop) index pairs of the runs of finite values of z."""
-    ok = np.isfinite(np.asarray(z, float))
-    d = np.diff(np.concatenate([[0], ok.astype(np.int8), [0]]))
-    return list(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist()))
+    return run_bounds(np.isfinite(np.asarray(z, float)))
 
 
 def check_grid_size(lines, p) -> None:
