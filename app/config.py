@@ -658,6 +658,14 @@ class ProcessingParams(_Strict):
                                                    "at most this (mGal, peak, RMS over 40 places): 1-6 missing epochs "
                                                    "of a 2 Hz record 0.1-3.6, 25+ of a 10 Hz one in turbulence 41-210. "
                                                    "None = any hole up to max_gap_s")
+    gravimeter_fill_max_error_mgal: float | None = Field(1.0, gt=0, description="A hole of missing gravimeter "
+                                                         "samples (a step of a whole number of clock steps, at most "
+                                                         "max_gap_s) is put back on the instrument's clock (spline) "
+                                                         "when, with as many samples taken out of the record "
+                                                         "elsewhere, the bridge moves FIR 100 s by at most this (mGal, "
+                                                         "peak, RMS over 40 places; the bound at which FIR is kept "
+                                                         "next to a hole, fir_gap_max_error_mgal). None = never: every "
+                                                         "missing sample a hole")
     fir_gap_max_error_mgal: float | None = Field(1.0, gt=0, description="FIR 100 s is left out (NaN) where missing "
                                                  "samples inside the record could move it by more than this (mGal; "
                                                  "robust std of z next to the hole × the kernel weight on it): one missing sample of "
@@ -926,7 +934,7 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("gnss_rate_hz", "rate_tolerance", "geoid_height_m", "gravimeter_gap_margin_s", "height_step_threshold", "despike_max_fraction",
       "max_nan_run", "estimate_time_offset", "max_time_offset_s", "time_offset_min_z", "time_offset_min_improvement",
       "match_response", "response_min_z", "response_min_improvement",
-      "slow_gravimeter_min_ratio", "slow_gravimeter_short_drop", "height_matched_means", "band_delay_check", "band_delay_min_t", "band_delay_flights_p", "gnss_fill_max_error_mgal", "lag_check_s",
+      "slow_gravimeter_min_ratio", "slow_gravimeter_short_drop", "height_matched_means", "band_delay_check", "band_delay_min_t", "band_delay_flights_p", "gnss_fill_max_error_mgal", "gravimeter_fill_max_error_mgal", "lag_check_s",
       "lag_check_min_change_s", "lag_from_time_offsets", "lag_band_fit", "lag_band_fit_z", "lag_band_confirm_z",
       "lag_check_min_improvement", "lag_one_scale", "lag_one_scale_min_improvement")),
     ("noise", "Noise model: the error of z and the local GNSS noise level",

@@ -122,7 +122,7 @@ def fill_at(t_s, y, t_new, inserted, runs=None) -> np.ndarray:
 
 
 def fill_error_mgal(t_s, y, n_missing: int, kernel, derivative: bool, n_trials: int = 40,
-                    half_window: int = 24) -> float:
+                    half_window: int = 24, *, acceleration: bool = False) -> float:
     """How far a spline fill of ``n_missing`` consecutive epochs moves a low-pass of the
     vertical acceleration, measured on the record itself (mGal, RMS over trials).
 
@@ -137,10 +137,13 @@ def fill_error_mgal(t_s, y, n_missing: int, kernel, derivative: bool, n_trials: 
     the aircraft's motion inside the hole: 2–6 s holes at 10 Hz in turbulence moved FIR 100 s by
     24–146 mGal, single missing epochs of a 2 Hz record by far less than 1 mGal.
 
+    With ``acceleration`` the record is an acceleration itself (m/s²: a gravimeter's samples)
+    and the fill's change of the acceleration is the spline's miss at the missing samples.
+
     Parameters
     ----------
     t_s, y : array_like, shape (n,)
-        The record (s; m for heights or m/s for a velocity).
+        The record (s; m for heights, m/s for a velocity, m/s² with ``acceleration``).
     n_missing : int
         Epochs missing in a row (≥ 1).
     kernel : ndarray
@@ -148,6 +151,8 @@ def fill_error_mgal(t_s, y, n_missing: int, kernel, derivative: bool, n_trials: 
     derivative : bool
         ``y`` is a height: the velocity is the spline's derivative.
     n_trials, half_window : int
+    acceleration : bool
+        ``y`` is the acceleration (``derivative`` is then ignored).
 
     Returns
     -------
@@ -178,8 +183,11 @@ def fill_error_mgal(t_s, y, n_missing: int, kernel, derivative: bool, n_trials: 
         tw, vw = t[i:i + span] - t[i], v[i:i + span]
         keep = np.ones(span, bool)
         keep[w:w + m] = False
-        full = CubicSpline(tw, vw, bc_type="not-a-knot")
         holed = CubicSpline(tw[keep], vw[keep], bc_type="not-a-knot")
+        if acceleration:                                     # the samples themselves, mGal
+            worst.append(float(np.max(np.abs(np.convolve((holed(tw) - vw) * 1e5, h)))))
+            continue
+        full = CubicSpline(tw, vw, bc_type="not-a-knot")
         if derivative:
             va, vb = holed(tw, 1), full(tw, 1)
         else:

@@ -141,6 +141,7 @@ class FlightSeries:
     time_offset: dict
     despike: dict
     gnss_filled: int = 0
+    gravimeter_filled: int = 0
 
 
 @dataclass
@@ -227,7 +228,8 @@ def run_identify(survey, tr: Tracker, measured: Measured | None = None) -> Ident
         warnings.extend(w for w in idents[m].warnings if w not in warnings)
     tr.runs(None)
     flights = {n: FlightSeries(n, f.t_s, f.z_mgal, f.time_offset_s, f.time_offset_corr, f.time_offset_applied,
-                               f.time_offset, f.despike, f.gnss_filled) for n, f in meas.flights.items()}
+                               f.time_offset, f.despike, f.gnss_filled, f.gravimeter_filled)
+               for n, f in meas.flights.items()}
     mrep = {"base_ties": meas.base_ties, "lag_check": meas.lag_check, "calibration": meas.calibration,
             "band_delay": meas.band_delay, "response_width": meas.response_width,
             "repeat_tracks_inferred": sl.inferred_tracks,

@@ -152,6 +152,7 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
         assert offsets.nth(1).locator("td").last.inner_text().startswith("no (z's RMS")
     assert "\t0.01–0.4\t" in offsets.nth(0).inner_text()        # the band the accelerations were compared in
     assert page.locator("#report-gnss-filled tbody tr").first.locator("td").last.inner_text() == "2"
+    assert page.locator("#report-gravimeter-filled tbody tr").first.locator("td").last.inner_text() == "7"
     fc = page.inner_text("#report-family-check")
     assert fc.startswith("Coloured velocity checked against the FIR differences: changed — 21 differences")
     vb = page.inner_text("#report-velocity-bound")

@@ -73,6 +73,25 @@ def test_fill_error_is_nil_for_a_smooth_record_and_grows_with_the_hole():
     assert np.isnan(fill_error_mgal(t[:20], h_turb[:20], 4, k, derivative=True))
 
 
+def test_fill_error_of_samples_themselves():
+    """A gravimeter's record (``acceleration``): an acceleration cubic in time is bridged
+    exactly; for a sine the not-a-knot spline's miss at a missing sample goes as (ωδ)⁴ and
+    the peak of a 100 s low-pass kernel as δ, so halving the rate multiplies the cost by
+    about 2⁵ — why an 18 Hz meter's dropped sample is bridged and a 2 Hz one's is not."""
+    from app.core.baselines import fir_kernel
+    from app.core.epochs import fill_error_mgal
+
+    def cost(dt, y_of_t, m=1):
+        t = 500.0 + dt * np.arange(int(600.0 / dt))
+        return fill_error_mgal(t, y_of_t(t - t[0]), m, fir_kernel(dt, 100.0), derivative=True, acceleration=True)
+
+    assert cost(1 / 18.24, lambda x: 9.8 + 1e-3 * x - 1e-5 * x ** 2 + 1e-8 * x ** 3) < 1e-9
+    sine = lambda x: 0.4 * np.sin(2 * np.pi * 0.25 * x)  # noqa: E731  (0.4 m/s², 4 s period)
+    fine, coarse = cost(0.05, sine), cost(0.1, sine)
+    assert 2 ** 4.5 < coarse / fine < 2 ** 5.5, coarse / fine
+    assert cost(0.1, sine, 2) > cost(0.1, sine, 1)
+
+
 def test_run_bounds_against_a_loop():
     """Runs of ok epochs, also cut where the clock jumps, against a plain loop over the epochs."""
     from app.core.epochs import run_bounds

@@ -61,6 +61,36 @@ def test_gravimeter_and_gnss_gaps_inside_lines(tmp_path):
     assert often < 1.3 * clean, (often, clean)
 
 
+def test_dropped_gravimeter_samples_are_put_back_where_the_record_predicts_them(tmp_path):
+    """A logger that drops one gravimeter sample a minute (GT-1A, 18.24 Hz): each dropped
+    sample left 4 s of z out (± the gap margin) and cut the lines into stretches too short
+    to identify: 1.30× the clean error here (2.51 against 1.93 mGal), 1.9× on seed 30's
+    heights-only 5 Hz regime.  The record predicts a sample of an 18 Hz meter closely, so
+    it is put back and the estimate is the clean one's (simulation with known truth)."""
+    import shutil
+
+    from app.pipeline.process import process_survey
+    from app.simulate import simulate_survey
+
+    survey = simulate_survey("omolon-mini", tmp_path / "s", seed=8, n_main=6, n_tie=2, n_repeat=0,
+                             n_flights=1, sigma_vu_cms=0.5)
+    process_survey(survey, tmp_path / "clean")
+    dropped = tmp_path / "d"
+    shutil.copytree(survey, dropped)
+    path = next((dropped / "flights" / "F01").glob("gravimeter.csv*"))
+    d = pd.read_csv(path)
+    rng = np.random.default_rng(1)
+    n_drop = int((d["time"].iloc[-1] - d["time"].iloc[0]) / 60.0)
+    keep = np.ones(len(d), bool)
+    keep[rng.choice(np.arange(20, len(d) - 20), n_drop, replace=False)] = False
+    d[keep].to_csv(path, index=False)
+    rep = process_survey(dropped, tmp_path / "dropped")
+    assert rep["gravimeter_filled_samples"]["F01"] == n_drop
+    assert not any("gravimeter record gap" in w for w in rep["warnings"])
+    clean, drop = _rms(tmp_path / "clean", survey), _rms(tmp_path / "dropped", survey)
+    assert drop < 1.05 * clean, (drop, clean)
+
+
 def test_fir_lost_near_holes_is_said_and_when_the_checks_go_blind():
     """White z (2 Hz, the test line's spread) on four 600 s lines: one missing sample per line
     leaves FIR out near it only (the per-flight warning); three 10 s holes per line leave it

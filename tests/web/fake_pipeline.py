@@ -74,6 +74,7 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                            "reason": f"pooled over {len(flights)} flight(s): c = 0.0136 ± 6e-05 s², removing 72.8 % "
                                      "of the residual"},
         "gnss_filled_epochs": {f: (2 if i == 0 else 0) for i, f in enumerate(flights)},
+        "gravimeter_filled_samples": {f: (7 if i == 0 else 0) for i, f in enumerate(flights)},
         "spike_repair": {f: {"threshold": 6.0, "flagged": 3, "epochs": int((df["flight"] == f).sum()),
                              "applied": True, "fraction": 0.00019,
                              # the last flight as a heights-only one: flags removed as height outliers

@@ -81,6 +81,7 @@ class FlightMeasurement:
     #: ∂z/∂τ (mGal/s): how z moves with the lag τ (the gravimeter's jerk on the GNSS intervals;
     #: z is linear in τ at a fixed time offset), for :func:`band_lag`
     dz_dtau_mgal_s: np.ndarray | None = None
+    gravimeter_filled: int = 0        # missing gravimeter samples put back (fill_gravimeter_samples)
 
 
 def each_flight(fn, items) -> list:
@@ -162,7 +163,10 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
                      f"{1e3 * largest_s:.1f} ms) about a uniform clock, more than stamp jitter: the samples were "
                      "integrated on their stamps as irregular sampling — if the instrument's clock is uniform, "
                      "that scatter times the aircraft's acceleration is in z")
-    series = gm.integrate_samples(uniform, gr["f_z"].to_numpy(float), dejitter=False)
+    t_grav, f_z, g_filled, g_info = fill_gravimeter_samples(uniform, gr["f_z"].to_numpy(float), p.max_gap_s,
+                                                             p.gravimeter_fill_max_error_mgal, p.fir_cutoff_period_s)
+    _fill_notes(int(g_filled.sum()), g_info, p, notes)
+    series = gm.integrate_samples(t_grav, f_z, dejitter=False)
     runs = height_runs(series, t, vu_from_h, p)
     if vu_from_h:
         notes.append("vu derived from the GNSS heights (the file has no vu column): derivative of the not-a-knot "
@@ -188,7 +192,7 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     if matched is not None:
         z = z + matched
     dz_dtau = 1e5 * (gm.gnss_side_means(series, t, tau + 1.0, k, offset if applied else 0.0, runs) - fbar)
-    mask_gaps(z, t, gr["time"].to_numpy(float) + (offset if applied else 0.0), p.gravimeter_gap_margin_s, notes)
+    mask_gaps(z, t, t_grav + (offset if applied else 0.0), p.gravimeter_gap_margin_s, notes)
     # a flight without lines is judged on its airborne epochs
     judged = judged_epochs(t, ve, vn, line_windows if line_windows is not None and len(line_windows) else None)
     z_mc = (slow_gravimeter_z(series, (t, vu, gamma, eot, judged), (tau, k, offset if applied else 0.0), z, p,
@@ -203,7 +207,22 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     z, despike = despike_z(z, t, p, notes, vu_from_h, filled, misfit)
     return FlightMeasurement(flight.name, t, lat, lon, h, vu, ve, vn, gamma, eot, fbar, z,
                              float(offset), float(offset_info.get("correlation", np.nan)), applied, notes,
-                             despike, offset_info, vu_from_h, n_filled, compensated, dz_dtau)
+                             despike, offset_info, vu_from_h, n_filled, compensated, dz_dtau,
+                             int(g_filled.sum()))
+
+
+def _fill_notes(n_filled: int, info: dict, p, notes: list) -> None:
+    """What :func:`fill_gravimeter_samples` did, in the flight's notes."""
+    if n_filled:
+        notes.append(f"{n_filled} missing gravimeter sample(s) put back on the instrument's clock (steps that are a "
+                     f"whole multiple of the median step, at most {p.max_gap_s:g} s long): the samples there from the "
+                     f"cubic spline through the record, which moves FIR {p.fir_cutoff_period_s:g} s by at most "
+                     f"{p.gravimeter_fill_max_error_mgal:g} mGal on this record (measured on it: {info['error_mgal']}; "
+                     "report gravimeter_filled_samples)")
+    if info.get("left"):
+        notes.append(f"{info['left']} hole(s) of missing gravimeter samples left as holes: a spline bridge over them "
+                     f"moves FIR {p.fir_cutoff_period_s:g} s by more than {p.gravimeter_fill_max_error_mgal:g} mGal on "
+                     f"this record (measured on it: {info['error_mgal']})")
 
 
 def checked_horizontal_velocities(t, lat, lon, h, ve, vn, notes: list) -> tuple[np.ndarray, np.ndarray]:
@@ -503,12 +522,7 @@ def fill_gnss_epochs(gn: pd.DataFrame, max_step_s: float, vu_from_h: bool, max_e
                                      vu_from_h, max_error_mgal, cutoff_period_s)
         if not ins.any():
             return gn, ins, info
-    # runs between the record gaps that stay gaps: a step that was filled is no break
-    filled_step = np.diff(np.flatnonzero(~ins)) > 1
-    dt = np.diff(t)
-    cut = np.flatnonzero((dt > 1.5 * float(np.median(dt))) & ~filled_step) + 1
-    edges = np.concatenate([[0], cut, [t.size]])
-    runs = [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+    runs = _runs_left(t, ins)
     out = {"time": t_new}
     for c in gn.columns:
         if c == "time" or (c == "vu" and vu_from_h):
@@ -530,14 +544,81 @@ def fill_gnss_epochs(gn: pd.DataFrame, max_step_s: float, vu_from_h: bool, max_e
     return pd.DataFrame(out, columns=list(gn.columns)), ins, info
 
 
-def _fillable(t, t_new, ins, y, derivative: bool, max_error_mgal: float, cutoff_period_s: float):
+def _runs_left(t, ins) -> list[tuple[int, int]]:
+    """Index ranges ``[a, b)`` of the record ``t`` between the gaps that stay gaps once the
+    epochs ``ins`` (of the filled clock) are put back: a step that was filled is no break."""
+    filled_step = np.diff(np.flatnonzero(~ins)) > 1
+    dt = np.diff(t)
+    cut = np.flatnonzero((dt > 1.5 * float(np.median(dt))) & ~filled_step) + 1
+    edges = np.concatenate([[0], cut, [t.size]])
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
+
+
+def fill_gravimeter_samples(t_s, f_ms2, max_step_s: float, max_error_mgal: float | None,
+                            cutoff_period_s: float = 100.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """The gravimeter's samples with the missing ones of its clock put back where the record
+    says a spline bridge is good enough.
+
+    A logger that drops a sample leaves one step of two (or a few) clock steps
+    (:func:`app.core.epochs.uniform_epochs`, at most ``max_step_s``).  Left as a hole, the
+    integral over it is unknown and z is left out around it (:func:`mask_gaps`: ± the gap
+    margin, 4 s of z per dropped sample), which splits the lines into stretches; one dropped
+    sample a minute left most lines of a survey too short to identify.  A record sampled
+    fast against the aircraft's motion (a GT-1A's 18 Hz) predicts a missing sample closely,
+    a 2 Hz platform's does not (its samples' lag-1 correlation is 0.46): the record decides,
+    as for the GNSS (:func:`app.core.epochs.fill_error_mgal` on the samples themselves — as
+    many samples taken out at 40 places, the cubic spline through the rest, the largest
+    change of the FIR ``cutoff_period_s`` low-pass, RMS over the places).  Holes whose bridge
+    moves it by at most ``max_error_mgal`` are filled from the spline through the record
+    (per run between the gaps that stay); the others stay holes.  ``max_error_mgal`` None: no
+    sample is put back.
+
+    Parameters
+    ----------
+    t_s : ndarray, shape (n,)
+        Sample times on the instrument's clock (s; stamp jitter removed), strictly increasing.
+    f_ms2 : ndarray, shape (n,)
+        The samples (m/s²).
+    max_step_s : float
+        Longest step filled (s).
+    max_error_mgal : float or None
+        Largest change of the FIR low-pass a fill may cost (mGal).
+    cutoff_period_s : float
+        The low-pass's cutoff period (s).
+
+    Returns
+    -------
+    t_new, f_new : ndarray, shape (N,)
+        The samples with the inserted ones among them.
+    inserted : ndarray of bool, shape (N,)
+    info : dict
+        ``error_mgal`` per number of samples missing in a row, ``left`` (holes left as holes);
+        empty when no sample is missing.
+    """
+    t = np.asarray(t_s, dtype=float)
+    f = np.asarray(f_ms2, dtype=float)
+    none = (t, f, np.zeros(t.size, bool))
+    if max_error_mgal is None:
+        return (*none, {})
+    t_new, ins = epochs.uniform_epochs(t, max_step_s)
+    if not ins.any():
+        return (*none, {})
+    t_new, ins, info = _fillable(t, t_new, ins, f, False, max_error_mgal, cutoff_period_s, acceleration=True)
+    if not ins.any():
+        return (*none, info)
+    return t_new, epochs.fill_at(t, f, t_new, ins, _runs_left(t, ins)), ins, info
+
+
+def _fillable(t, t_new, ins, y, derivative: bool, max_error_mgal: float, cutoff_period_s: float,
+              acceleration: bool = False):
     """Keep the inserted epochs of the holes whose length the record can bridge
-    (:func:`fill_gnss_epochs`)."""
+    (:func:`fill_gnss_epochs`, :func:`fill_gravimeter_samples`)."""
     dt = float(np.median(np.diff(t)))
     kernel = fir_kernel(dt, cutoff_period_s)
     idx = np.flatnonzero(ins)
     groups = np.split(idx, np.flatnonzero(np.diff(idx) > 1) + 1)   # the epochs of each hole
-    err = {m: epochs.fill_error_mgal(t, y, m, kernel, derivative) for m in sorted({g.size for g in groups})}
+    err = {m: epochs.fill_error_mgal(t, y, m, kernel, derivative, acceleration=acceleration)
+           for m in sorted({g.size for g in groups})}
     keep = np.ones(t_new.size, bool)
     left = 0
     for g in groups:

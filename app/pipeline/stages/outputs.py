@@ -75,6 +75,7 @@ def build_report(survey_name: str, crs: str, table: pd.DataFrame, flights: dict,
                              "applied": m.time_offset_applied, **m.time_offset} for n, m in flights.items()},
         "spike_repair": {n: m.despike for n, m in flights.items()},
         "gnss_filled_epochs": {n: int(m.gnss_filled) for n, m in flights.items()},
+        "gravimeter_filled_samples": {n: int(getattr(m, "gravimeter_filled", 0)) for n, m in flights.items()},
         "crossovers": leveled.report,
         # the EM's levels (a level it emptied is filtered with an earlier iteration's: level_support.backoff)
         "identification": {"Q_mgal2": np.asarray(em.Q if backoff is None else backoff["Q_em_mgal2"]).tolist(),

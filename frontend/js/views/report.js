@@ -249,6 +249,8 @@ const RENDER = {
     return out;
   },
   gnss_filled_epochs: (v) => [perFlight(v, ["Missing GNSS epochs put back on the clock"], (n) => [String(n)], { id: "report-gnss-filled" })],
+  gravimeter_filled_samples: (v) => [perFlight(v, ["Missing gravimeter samples put back on the clock"], (n) => [String(n)],
+    { id: "report-gravimeter-filled" })],
   lag_check: (v) => [table(["Declared τ (s)", "Estimated τ per flight (s)", "Fitted in the band", "Applied", "Reason"],
     [[fmt(v.declared_tau_s, 4), (v.estimated_tau_s || []).map((x) => fmt(x, 4)).join(", "), bandFitCell(v), yes(v.applied),
       v.reason || (v.offset_as_lag && v.offset_as_lag.reason) || (v.one_scale && v.one_scale.reason) || (v.band_fit && v.band_fit.reason) || "—"]],
@@ -395,7 +397,8 @@ const RENDER = {
 };
 
 const TITLES = {
-  base_ties: "Base ties", time_offsets: "Gravimeter–GNSS time offsets and time stamps", gnss_filled_epochs: "Missing GNSS epochs", lag_check: "Lag check (τ in flight)",
+  base_ties: "Base ties", time_offsets: "Gravimeter–GNSS time offsets and time stamps", gnss_filled_epochs: "Missing GNSS epochs",
+  gravimeter_filled_samples: "Missing gravimeter samples", lag_check: "Lag check (τ in flight)",
   band_delay: "Residual gravimeter delay at the anomaly's edge",
   response_width: "Gravimeter response matched (GNSS acceleration smoothed to the meter's)",
   spike_repair: "GNSS spike repair (velocity spikes; height spikes and steps where vu comes from the heights)", crossovers: "Leveling at crossovers", repeat_lines: "Repeat-line internal accuracy",
@@ -412,7 +415,7 @@ const SKIP = new Set(["warnings", "survey", "crs", "threads"]);
 // identification, what the measurement decided, then the rest; sections the page does not know follow
 const ORDER = ["crossovers", "repeat_lines", "adaptive_minus_fir", "model_choice", "noise_model", "noise_episodes", "model_order", "model_order_candidates",
   "identification", "spike_repair", "base_ties", "time_offsets", "response_width", "lag_check", "band_delay", "gnss_filled_epochs",
-  "calibration", "level_refinement", "products", "grid", "repeat_tracks_inferred", "counts", "timings_s"];
+  "gravimeter_filled_samples", "calibration", "level_refinement", "products", "grid", "repeat_tracks_inferred", "counts", "timings_s"];
 
 // model choice: the decision, then each check with its evidence, then the per-line table
 function modelChoice(v) {
