@@ -391,6 +391,7 @@ def read_dgs(path, *, time_offset_s: float | None = 0.0, rate_hz: float | None =
         res = res.loc[~np.isin(rows, hole_rows)].reset_index(drop=True)
         warnings.warn(f"{display}: {hole_rows.size} missing gravity value(s) left as holes of the record (rows "
                       f"{', '.join(str(int(r)) for r in hole_rows[:5])}{', …' if hole_rows.size > 5 else ''}), "
-                      "not interpolated", stacklevel=2)
+                      "not interpolated here (the measurement puts a sample back where the record predicts it: "
+                      "processing.gravimeter_fill_max_error_mgal)", stacklevel=2)
     res.attrs.update(reading_offset_mgal=offset, reading_offset_source=source, unsynced_records=n_unsynced)
     return res

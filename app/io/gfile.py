@@ -333,7 +333,9 @@ def read_gfile(path, *, time_offset_s: float = 0.0, scale_to_ms2: float = 1.0,
     res = pd.DataFrame(out)
     if hole.any():
         warnings.warn(f"{display}: {int(hole.sum())} missing {z_channel} Z sample(s) left as holes of the record "
-                      f"(first at row {int(res['source_row'].to_numpy()[hole][0])}), not interpolated", stacklevel=2)
+                      f"(first at row {int(res['source_row'].to_numpy()[hole][0])}), not interpolated here (the measurement puts "
+                      "a sample back where the record predicts it: processing.gravimeter_fill_max_error_mgal)",
+                      stacklevel=2)
         res = res.loc[~hole].reset_index(drop=True)
     n_sat = int(sat.sum())
     res.attrs["saturated_messages"] = n_sat

@@ -379,10 +379,12 @@ def _finish_series(df: pd.DataFrame, rows: np.ndarray, display: str, max_nan_run
     if gone.any():
         # A linear fill of f_z misses the aircraft's acceleration at that sample, which the GNSS
         # still sees: at 2 Hz one filled sample of a 0.5 m/s² turbulent record was 100+ mGal of
-        # error along its line.  A hole is bridged in z (f_z − ḧ), where the two cancel.
+        # error along its line.  The measurement stage puts a sample back only where the record
+        # shows a spline predicts it (an 18 Hz meter's; fill_gravimeter_samples).
         warnings.warn(f"{display}: {int(gone.sum())} missing value(s) of {', '.join(holes)} left as holes of the "
                       f"record (rows {', '.join(str(int(r)) for r in rows[gone][:5])}"
-                      f"{', …' if gone.sum() > 5 else ''}), not interpolated", stacklevel=2)
+                      f"{', …' if gone.sum() > 5 else ''}), not interpolated here (the measurement puts a sample back "
+                      "where the record predicts it: processing.gravimeter_fill_max_error_mgal)", stacklevel=2)
         df = df.loc[~gone].reset_index(drop=True)
         rows = np.asarray(rows)[~gone]
     check_time_increasing(df["time"].to_numpy(), rows, display)
