@@ -47,16 +47,17 @@ def _clock_fits(t: np.ndarray, window: int):
         raise ValueError("time stamps must be strictly increasing")
     breaks = np.flatnonzero(np.abs(dt - med) > 0.5 * med) + 1
     edges = np.concatenate([[0], breaks, [n]])
-    window = int(window) | 1
     for a, b in zip(edges[:-1], edges[1:]):
-        seg = t[a:b]
-        if seg.size < 7:
-            continue
-        w = min(window, seg.size if seg.size % 2 == 1 else seg.size - 1)
-        if w < 5:
-            continue
-        rel = seg - seg[0]   # relative to the segment start: full float precision
-        yield a, b, savgol_filter(rel, w, 1, mode="interp") + seg[0]
+        if b - a >= 7:
+            yield a, b, _line_fit(t[a:b], window)
+
+
+def _line_fit(seg: np.ndarray, window: int) -> np.ndarray:
+    """The local straight-line fit of a segment's stamps (Savitzky–Golay, degree 1, ``window``
+    samples or the segment, odd); ≥ 7 stamps."""
+    w = min(int(window) | 1, seg.size if seg.size % 2 == 1 else seg.size - 1)
+    rel = seg - seg[0]   # relative to the segment start: full float precision
+    return savgol_filter(rel, w, 1, mode="interp") + seg[0]
 
 
 def _robust_scale(x: np.ndarray) -> float:
@@ -168,18 +169,52 @@ def dejitter_times_s(t_s, max_jitter_s: float | None = None, window: int = 401) 
     out = t.copy()
     for a, b, fit in _clock_fits(t, window):
         dev = t[a:b] - fit
-        largest = np.max(np.abs(dev))
-        # rounding: within q/2 (and a millisecond rounding's slack: the clock and its fit are not
-        # exact), spread over that range as rounding spreads them (not two values ±q/2:
-        # alternating steps)
-        rounding = (half_q > 0 and largest <= half_q + ROUNDING_JITTER_S
-                    and np.mean(np.abs(dev) < 0.5 * half_q) >= 0.3)
-        if (_robust_scale(dev) <= max_jitter_s or rounding) and largest < 0.25 * med:
+        if _on_clock(dev, med, max_jitter_s, half_q):
             out[a:b] = fit
+            continue
+        glitches = _isolated_glitches(dev, half_q, max_jitter_s)
+        if glitches is not None and _on_clock(dev[~glitches], med, max_jitter_s, half_q):
+            seg = t[a:b].copy()
+            seg[glitches] = fit[glitches]      # the wrong stamps out of the clock's fit
+            out[a:b] = _line_fit(seg, window)
     # the fit must keep the stamps increasing
     if np.any(np.diff(out) <= 0):
         return t.copy()
     return out
+
+
+def _on_clock(dev: np.ndarray, med: float, max_jitter_s: float, half_q: float) -> bool:
+    """Whether a segment's deviations from its clock fit (s) are stamp jitter
+    (:func:`dejitter_times_s`): a robust scale within ``max_jitter_s``, or the rounding of the
+    stamps to a step 2·``half_q`` — within q/2 (and a millisecond rounding's slack: the clock
+    and its fit are not exact), spread over that range as rounding spreads them (not two
+    values ±q/2: alternating steps) — and none a quarter step ``med`` or more off."""
+    largest = np.max(np.abs(dev))
+    rounding = (half_q > 0 and largest <= half_q + ROUNDING_JITTER_S
+                and np.mean(np.abs(dev) < 0.5 * half_q) >= 0.3)
+    return bool((_robust_scale(dev) <= max_jitter_s or rounding) and largest < 0.25 * med)
+
+
+#: Most stamps of a segment that may be glitches (a share; at least one)
+MAX_GLITCH_SHARE = 1e-3
+
+
+def _isolated_glitches(dev: np.ndarray, half_q: float, max_jitter_s: float) -> np.ndarray | None:
+    """The stamps of a segment that a logger's hiccup put off the clock, or None.
+
+    A stamp far off the clock fit (beyond ``max_jitter_s`` and the rounding's reach, q/2 +
+    1.5 ms — six robust scales of the deviations for stamps rounded to no step) while its
+    neighbours are on it is a wrong stamp, not a sample taken off the instrument's clock: an
+    instrument that sampled irregularly shows it on many stamps.
+    Up to :data:`MAX_GLITCH_SHARE` of a segment's stamps, none adjacent to another; left on
+    their stamps they kept the whole segment there (three 20 ms glitches a flight in stamps
+    rounded to 10 ms: 3.76 mGal against 3.68 on seed 30's white regime)."""
+    bound = max(max_jitter_s, half_q + ROUNDING_JITTER_S if half_q > 0 else 6.0 * _robust_scale(dev))
+    far = np.abs(dev) > bound
+    n = int(far.sum())
+    if n == 0 or n > max(1, int(MAX_GLITCH_SHARE * dev.size)) or np.any(far[1:] & far[:-1]):
+        return None
+    return far
 
 
 def sample_boundaries_s(t_s) -> np.ndarray:

@@ -75,6 +75,23 @@ def test_dejitter_takes_logging_jitter_but_not_irregular_sampling():
     np.testing.assert_array_equal(gm.dejitter_times_s(stamped, max_jitter_s=1.5e-3), stamped)
 
 
+def test_dejitter_puts_isolated_stamp_glitches_back_on_the_clock():
+    """A logger's hiccup: five stamps 20 ms late among 40 000 of an 18.24 Hz record stamped to
+    1 ms or to 10 ms.  Each glitch is beyond a quarter step of the rounding's reach, which kept
+    the whole segment on its stamps (±5 ms of rounding at 10 ms); the glitches are wrong stamps
+    of a uniform clock, and the record goes back on the clock, glitches included."""
+    rng = np.random.default_rng(3)
+    n = 40000
+    true = 1000.0 + (np.arange(n) + 0.5) * T_GRAV
+    for decimals in (3, 2):
+        stamped = np.round(true, decimals)
+        idx = rng.choice(np.arange(500, n - 500), 5, replace=False)
+        stamped[idx] = np.round(stamped[idx] + 0.02, decimals)
+        fixed = gm.dejitter_times_s(stamped)
+        assert np.max(np.abs(fixed[300:-300] - true[300:-300])) < 2e-4, decimals
+        np.testing.assert_allclose(fixed[idx], true[idx], atol=2e-4)
+
+
 def test_dejitter_takes_stamps_rounded_to_a_coarse_step():
     """18.24 Hz stamps rounded to 0.01 s scatter uniformly by ±5 ms about the clock (a robust
     scale of 3.7 ms, above 5 % of the 54.8 ms step): every stamp is a multiple of 0.01 s and
