@@ -778,6 +778,9 @@ def check_range(df: pd.DataFrame, column: str, lo: float, hi: float, rows: np.nd
                 and abs(x) % 100.0 < 60.0:
             hint = (" — degrees and minutes run together (DDMM.mmmm, as NMEA writes them)? SPEC's lat and lon are "
                     "decimal degrees")
+        if column == "lat" and "lon" in df and abs(x) <= 180.0 and np.all(np.abs(df["lon"].to_numpy()) <= 90.0):
+            hint += (" — or lat and lon swapped (the lon column is within ±90° everywhere)? Swap the columns "
+                     "(in an XYZ file, survey.toml's [columns] names them)")
         raise InputError(display, int(rows[i]), column, f"{what} {x!r} is outside [{lo:g}, {hi:g}]{hint}")
 
 

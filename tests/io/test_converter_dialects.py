@@ -175,3 +175,18 @@ def test_ddmm_latitude_says_so():
     with pytest.raises(InputError, match="DDMM") as ei:
         check_range(df, "lat", -90.0, 90.0, np.array([2, 3]), "gnss.csv", "latitude")
     assert ei.value.row == 3 and "6530.19652 is outside" in str(ei.value)
+    assert "swapped" not in str(ei.value)     # no lon column to tell
+
+
+def test_swapped_lat_lon_says_so():
+    """A GNSS file east of 90° with lat and lon swapped: the latitude is out of range and
+    the longitude column within ±90° everywhere — the error says they may be swapped; a
+    latitude out of range with longitudes beyond ±90° does not."""
+    df = pd.DataFrame({"lat": [158.91, 158.92], "lon": [65.50, 65.51]})
+    with pytest.raises(InputError, match="swapped") as ei:
+        check_range(df, "lat", -90.0, 90.0, np.array([2, 3]), "gnss.csv", "latitude")
+    assert (ei.value.row, ei.value.column) == (2, "lat")
+    df = pd.DataFrame({"lat": [65.5, 158.92], "lon": [158.9, 158.91]})
+    with pytest.raises(InputError) as ei:
+        check_range(df, "lat", -90.0, 90.0, np.array([2, 3]), "gnss.csv", "latitude")
+    assert "swapped" not in str(ei.value) and ei.value.row == 3
