@@ -61,6 +61,45 @@ def test_gravimeter_and_gnss_gaps_inside_lines(tmp_path):
     assert often < 1.3 * clean, (often, clean)
 
 
+def test_fill_gravimeter_samples_against_the_signal():
+    """Samples of a known acceleration dropped from a uniform clock: at 18.24 Hz with 0.1–0.5 Hz
+    motion the spline puts them back within 1 mGal of the signal (and the returned clock is the
+    uniform one); at 2 Hz with 0.3–0.9 Hz motion the measured cost is far above 1 mGal and they
+    stay holes, as does a 1.5 s hole however the record is sampled."""
+    from app.pipeline.stages.measurement import fill_gravimeter_samples
+
+    rng = np.random.default_rng(5)
+
+    def record(rate_hz, f_lo, f_hi, dur_s=1800.0):
+        t = 100.0 + np.arange(int(dur_s * rate_hz)) / rate_hz
+        w = 2 * np.pi * rng.uniform(f_lo, f_hi, 20)
+        ph = rng.uniform(0, 2 * np.pi, 20)
+        return t, 9.81 + 0.1 * np.sin(np.outer(t, w) + ph).sum(axis=1)
+
+    t, f = record(18.24, 0.1, 0.5)
+    drop = np.sort(rng.choice(np.arange(50, t.size - 50, 97), 30, replace=False))
+    keep = np.ones(t.size, bool)
+    keep[drop] = False
+    t_new, f_new, ins, info = fill_gravimeter_samples(t[keep], f[keep], 2.0, 1.0)
+    np.testing.assert_allclose(t_new, t, atol=1e-9)
+    assert ins.sum() == drop.size and np.array_equal(np.flatnonzero(ins), drop)
+    assert np.max(np.abs(f_new[drop] - f[drop])) * 1e5 < 10.0      # each sample within 10 mGal
+    assert info["left"] == 0 and info["error_mgal"]["1"] < 1.0
+    # a 1.5 s hole at 18.24 Hz in the same motion: the bridge misses it
+    hole = np.ones(t.size, bool)
+    hole[1000:1027] = False
+    t2, _, ins2, info2 = fill_gravimeter_samples(t[hole], f[hole], 2.0, 1.0)
+    assert not ins2.any() and t2.size == hole.sum() and info2["left"] == 1
+    # 2 Hz against 0.3–0.9 Hz motion: one missing sample is not predictable
+    t, f = record(2.0, 0.3, 0.9)
+    keep = np.ones(t.size, bool)
+    keep[[500, 1500, 2500]] = False
+    t3, _, ins3, info3 = fill_gravimeter_samples(t[keep], f[keep], 2.0, 1.0)
+    assert not ins3.any() and info3["left"] == 3 and info3["error_mgal"]["1"] > 10.0
+    # None: nothing is put back
+    assert not fill_gravimeter_samples(t[keep], f[keep], 2.0, None)[2].any()
+
+
 def test_dropped_gravimeter_samples_are_put_back_where_the_record_predicts_them(tmp_path):
     """A logger that drops one gravimeter sample a minute (GT-1A, 18.24 Hz): each dropped
     sample left 4 s of z out (± the gap margin) and cut the lines into stretches too short
