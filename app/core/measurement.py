@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy import signal, stats
+from scipy.ndimage import maximum_filter1d, median_filter, uniform_filter1d
 
 from app.core.epochs import run_bounds
 from app.core.geodesy import MGAL_PER_MS2, vertical_velocity_from_heights_ms
@@ -190,8 +191,6 @@ def running_median_within_runs(x, valid, size: int) -> np.ndarray:
     -------
     ndarray, shape (n,)
     """
-    from scipy.ndimage import median_filter
-
     x = np.asarray(x, dtype=float)
     valid = np.asarray(valid, dtype=bool)
     if x.shape != valid.shape or x.ndim != 1:
@@ -238,8 +237,6 @@ def spike_mask(z_mgal, dt_s: float, threshold: float = 6.0, neighbour_s: float =
     -------
     ndarray of bool, shape (n,)
     """
-    from scipy.ndimage import uniform_filter1d
-
     z = np.asarray(z_mgal, dtype=float)
     if z.ndim != 1:
         raise ValueError("z_mgal must be one-dimensional")
@@ -473,8 +470,6 @@ def height_outlier_mask(z_mgal, t_s, threshold: float = 6.0, half_width: int = 1
     -------
     ndarray of bool, shape (n,)
     """
-    from scipy.ndimage import maximum_filter1d
-
     z = np.asarray(z_mgal, dtype=float)
     t = np.asarray(t_s, dtype=float)
     if z.ndim != 1 or t.shape != z.shape:
@@ -648,8 +643,6 @@ def height_step_mask(z_mgal, t_s, threshold: float = 8.0, window_s: float = 10.0
     -------
     ndarray of bool, shape (n,)
     """
-    from scipy.ndimage import maximum_filter1d, median_filter
-
     if not threshold > 0:
         raise ValueError("threshold must be positive")
     t = np.asarray(t_s, dtype=float)

@@ -33,7 +33,7 @@ def learning_sequences(reg: Regularized) -> tuple[list, list[int]]:
     return [x for x, _ in kept], [w for _, w in kept]
 
 
-def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
+def learn(reg: Regularized, cfg: SurveyConfig, callback=None, sequences: list | None = None):
     """EM learning of Θ = {Q_i, R_j, a_ij, π_i(w)} over all lines (SPEC §2 step 2).
 
     With ``processing.n_r = None`` the number of GNSS noise levels is chosen by
@@ -41,6 +41,7 @@ def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
     model without them explains them as anomaly intensity).  With ``processing.n_q = None``
     there are two anomaly levels when the lines give at least ``min_points_adaptive``
     decimated points, one otherwise (the stationary model: all a short survey supports).
+    The EM learns from ``sequences`` (:func:`learning_sequences` of ``reg`` when not given).
 
     Returns
     -------
@@ -49,7 +50,7 @@ def learn(reg: Regularized, cfg: SurveyConfig, callback=None):
         and BIC, the chosen model)."""
     p = cfg.processing
     r_cands = [p.n_r] if p.n_r is not None else [1, 2]
-    seqs = learning_sequences(reg)[0]
+    seqs = learning_sequences(reg)[0] if sequences is None else sequences
     n_points = int(sum(len(x) for x in seqs))
     # N1 = 2 anomaly levels need enough decimated points to be told apart; a short survey
     # (a test line flown a few times: ~100 points) gets the stationary model (one level)
@@ -125,13 +126,13 @@ def learn_survey(reg: Regularized, cfg: SurveyConfig, warnings: list, callback=N
     sub = Regularized(reg.design, reg.ma, [ln for ln, k in zip(reg.lines, learn_mask) if k],
                       [x for x, k in zip(reg.x, learn_mask) if k],
                       [i for i, k in zip(reg.idx, learn_mask) if k], reg.skipped)
-    em, selection = learn(sub, cfg, callback=on_iter)
+    seqs, owner = learning_sequences(sub)
+    em, selection = learn(sub, cfg, callback=on_iter, sequences=seqs)
     # per-line initial probabilities: learned lines from EM — the row of the line's first
     # stretch the EM kept (rows mapped back through em.line_index, since EM drops sequences too
     # short for its window) —, others the chain's stationary distribution
     stationary = stationary_distribution(np.asarray(em.transition))
     learned_pos = [i for i, k in enumerate(learn_mask) if k]
-    owner = learning_sequences(sub)[1]
     initial = [stationary] * len(reg.lines)
     line_index = getattr(em, "line_index", None)
     if line_index is None:

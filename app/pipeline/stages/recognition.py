@@ -21,19 +21,21 @@ from app.core.recognition import recognize_lines, state_evidence, stationary_dis
 from app.pipeline.stages.regularization import Regularized, join_stretches, split_stretches
 
 
-def pooled_evidence(reg: Regularized, em, h_per_km: float, rho_km: float) -> list | None:
+def pooled_evidence(reg: Regularized, em, h_per_km: float, rho_km: float, stretches: list | None = None) -> list | None:
     """Cross-line evidence for each line's recognition (the anomaly-intensity part only).
 
     Each decimated point's log-evidence for the Q levels (relative to the smoothest),
     summed with weights ``exp(−h·d)`` over the points of *other* lines within ``ρ``:
     the anomaly's statistics are a property of the place, so neighbouring lines carry
     evidence about it; the GNSS noise levels are not (episodes are in time), so the
-    R part is marginalised out before pooling.  Returns one (T_w, N) array per line,
-    or None when pooling is off (ρ = 0)."""
+    R part is marginalised out before pooling.  The evidence is taken per stretch between holes
+    (``stretches``: :func:`split_stretches`' pieces of ``reg.x``, computed when not given).
+    Returns one (T_w, N) array per line, or None when pooling is off (ρ = 0)."""
     if rho_km <= 0 or len(reg.x) < 2:
         return None
     n_q, n_r = len(em.Q), len(em.R)
-    ev = np.concatenate([state_evidence(x, reg.ma.c, reg.ma.d, em.Q, em.R) for x in split_stretches(reg)[0]])
+    stretches = split_stretches(reg)[0] if stretches is None else stretches
+    ev = np.concatenate([state_evidence(x, reg.ma.c, reg.ma.d, em.Q, em.R) for x in stretches])
     ev = ev.reshape(len(ev), n_q, n_r)
     top = ev.max(axis=2, keepdims=True)
     ev_q = (top + np.log(np.mean(np.exp(ev - top), axis=2, keepdims=True)))[:, :, 0]
@@ -54,12 +56,12 @@ def recognize(reg: Regularized, em, cfg: SurveyConfig | None = None) -> tuple[li
     With ``processing.recognition_pool_rho_km > 0`` the evidence of neighbouring lines
     about the anomaly intensity is added to each line's emissions (:func:`pooled_evidence`)."""
     extra = None
-    if cfg is not None:
-        p = cfg.processing
-        extra = pooled_evidence(reg, em, p.recognition_pool_h_per_km, p.recognition_pool_rho_km)
     # each stretch without missing epochs on its own (split_stretches): the line's initial
     # probabilities start its first, the chain's stationary distribution the others
     seqs, owner = split_stretches(reg)
+    if cfg is not None:
+        p = cfg.processing
+        extra = pooled_evidence(reg, em, p.recognition_pool_h_per_km, p.recognition_pool_rho_km, seqs)
     stationary = stationary_distribution(np.asarray(em.transition))
     initial = np.asarray(em.initial, float)
     starts = [initial[w] if k == 0 or owner[k - 1] != w else stationary for k, w in enumerate(owner)]
