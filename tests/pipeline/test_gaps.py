@@ -155,3 +155,29 @@ def test_fir_lost_near_holes_is_said_and_when_the_checks_go_blind():
         lost = sum(int(np.sum(np.isfinite(ln.z_mgal) & ~np.isfinite(fir["F01"][ln.sl]))) for ln in lines)
         assert lost > 0 and w[0].startswith(f"flight F01: FIR 100 s left out over {lost} line epochs")
         assert any("see too little of the survey" in x for x in w) == blind, (lost, w)
+
+
+def test_many_dropouts_are_summed_up_in_one_note():
+    """A gravimeter record with 40 one-sample dropouts: z is left missing over each (its interval
+    and the margin) and the flight's notes sum them up in one line that counts exactly the epochs
+    left missing; three dropouts are still named one by one."""
+    from app.pipeline.stages.measurement import MAX_DROPOUT_NOTES, mask_gaps
+
+    t = np.arange(0.0, 4000.0, 0.1)                       # 10 Hz GNSS epochs (s)
+    t_grav = np.arange(0.0, 4000.0, 0.5)                  # 2 Hz gravimeter clock
+    drop = np.arange(200, 8000, 195)[:40]                 # 40 single samples, ~98 s apart
+    for n_drop in (40, 3):
+        tg = np.delete(t_grav, drop[:n_drop])
+        z = np.zeros_like(t)
+        notes: list = []
+        mask_gaps(z, t, tg, 2.0, notes)
+        lost = int(np.isnan(z).sum())
+        # each dropout: its 1 s step and 2 s either side, ~50 epochs at 10 Hz
+        assert 45 * n_drop <= lost <= 51 * n_drop
+        if n_drop > MAX_DROPOUT_NOTES:
+            assert len(notes) == 1
+            assert notes[0].startswith(f"{n_drop} gravimeter record gaps (1.00–1.00 s long")
+            assert f"{lost} epochs of z left without measurement in all" in notes[0]
+        else:
+            assert len(notes) == n_drop
+            assert sum(int(n.split(": ")[1].split()[0]) for n in notes) == lost

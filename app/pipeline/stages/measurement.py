@@ -838,14 +838,33 @@ def mask_gaps(z, t, t_grav, margin_s: float, notes: list) -> None:
     z[np.concatenate([[False], dt > 1.5 * np.median(dt)])] = np.nan
     gstep = np.diff(t_grav)
     gh = float(np.median(gstep))
+    dropouts = []   # (start, end, epochs) of each gap of at most a minute: a dropout, not a pause
     for i in np.flatnonzero(gstep > 1.5 * gh):
         a = t_grav[i] - margin_s
         b = t_grav[i + 1] + margin_s
         hit = (t > a) & (np.concatenate([[t[0] - 1.0], t[:-1]]) < b)
         z[hit] = np.nan
-        if t_grav[i + 1] - t_grav[i] <= 60.0 and hit.any():  # a dropout, not a pause of the recording
-            notes.append(f"gravimeter record gap {t_grav[i]:.2f}–{t_grav[i + 1]:.2f} s: {int(hit.sum())} epochs "
-                         "of z left without measurement")
+        if t_grav[i + 1] - t_grav[i] <= 60.0 and hit.any():
+            dropouts.append((float(t_grav[i]), float(t_grav[i + 1]), int(hit.sum())))
+    notes.extend(_dropout_notes(dropouts))
+
+
+#: Dropouts of one flight's gravimeter record named one by one; more are summed up in one note.
+MAX_DROPOUT_NOTES = 5
+
+
+def _dropout_notes(dropouts: list) -> list[str]:
+    """The notes on the gravimeter record's dropouts (start, end in s; epochs of z lost): one
+    per dropout up to :data:`MAX_DROPOUT_NOTES`, else one that sums them up (a logger dropping
+    a sample a minute would otherwise fill the report with a line per hole)."""
+    if len(dropouts) <= MAX_DROPOUT_NOTES:
+        return [f"gravimeter record gap {a:.2f}–{b:.2f} s: {n} epochs of z left without measurement"
+                for a, b, n in dropouts]
+    spans = [b - a for a, b, _ in dropouts]
+    lost = sum(n for _, _, n in dropouts)
+    first = ", ".join(f"{a:.2f}–{b:.2f}" for a, b, _ in dropouts[:3])
+    return [f"{len(dropouts)} gravimeter record gaps ({min(spans):.2f}–{max(spans):.2f} s long; {first} s, …): "
+            f"{lost} epochs of z left without measurement in all"]
 
 
 #: Largest lag (s) an in-flight τ estimate may give and still be taken for one (GT-1A: 2 s;
