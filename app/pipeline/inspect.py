@@ -14,12 +14,14 @@ def _time_offsets(survey) -> dict[str, tuple[float, float]]:
     """Per flight: the estimated gravimeter–GNSS time offset (s) and its correlation (NaN, NaN when
     it cannot be estimated)."""
     from app.core import gravimeter as gm
+    from app.pipeline.stages.measurement import gravimeter_record
 
     cfg = survey.config
     lags = {}
     for name, fl in survey.flights.items():
         try:
-            series = gm.integrate_samples(fl.gravimeter["time"].to_numpy(float), fl.gravimeter["f_z"].to_numpy(float))
+            # the record as the measurement forms z from it (stamps on the clock, drops put back)
+            series = gravimeter_record(fl.gravimeter, cfg.processing, []).series
             off, corr = gm.estimate_time_offset_s(series, fl.gnss["time"].to_numpy(float),
                                                   fl.gnss["vu"].to_numpy(float), cfg.gravimeter.tau_s,
                                                   cfg.gravimeter.scale, cfg.processing.max_time_offset_s)

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
@@ -149,24 +150,8 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     gamma = geodesy.normal_gravity_mgal(lat, h, cfg.survey.normal_gravity)
     eot = geodesy.eotvos_mgal(lat, h, ve, vn)
 
-    gr = flight.gravimeter
-    stamps = gr["time"].to_numpy(float)
-    uniform = gm.dejitter_times_s(stamps)
-    jitter = float(np.max(np.abs(uniform - stamps))) if stamps.size else 0.0
-    scale_s, largest_s = gm.stamp_scatter_s(stamps)
-    if jitter > gm.ROUNDING_JITTER_S:  # beyond a millisecond rounding: say so
-        notes.append(f"gravimeter time stamps scatter up to {1e3 * jitter:.1f} ms about a uniform clock: the "
-                     "samples were integrated on the clock (the instrument's sampling is uniform; the stamps' "
-                     "scatter times the aircraft's acceleration would otherwise enter z)")
-    elif not jitter > 0 and scale_s > gm.ROUNDING_JITTER_S:
-        notes.append(f"gravimeter time stamps scatter by {1e3 * scale_s:.1f} ms (robust scale; up to "
-                     f"{1e3 * largest_s:.1f} ms) about a uniform clock, more than stamp jitter: the samples were "
-                     "integrated on their stamps as irregular sampling — if the instrument's clock is uniform, "
-                     "that scatter times the aircraft's acceleration is in z")
-    t_grav, f_z, g_filled, g_info = fill_gravimeter_samples(uniform, gr["f_z"].to_numpy(float), p.max_gap_s,
-                                                             p.gravimeter_fill_max_error_mgal, p.fir_cutoff_period_s)
-    _fill_notes(int(g_filled.sum()), g_info, p, notes)
-    series = gm.integrate_samples(t_grav, f_z, dejitter=False)
+    rec = gravimeter_record(flight.gravimeter, p, notes)
+    series, t_grav, g_filled = rec.series, rec.t_s, rec.filled
     runs = height_runs(series, t, vu_from_h, p)
     if vu_from_h:
         notes.append("vu derived from the GNSS heights (the file has no vu column): derivative of the not-a-knot "
@@ -176,9 +161,9 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     offset_info = time_offset(series, t, vu, tau, k, p, notes, runs)
     check_acceleration_gain(flight, offset_info, notes)
     # the report's time_offsets section: the stamps the samples were integrated on
-    offset_info["gravimeter_stamp_jitter_ms"] = 1e3 * largest_s
-    offset_info["gravimeter_stamp_scatter_ms"] = 1e3 * scale_s
-    offset_info["gravimeter_stamps_dejittered"] = bool(jitter > 0)
+    offset_info["gravimeter_stamp_jitter_ms"] = 1e3 * rec.largest_s
+    offset_info["gravimeter_stamp_scatter_ms"] = 1e3 * rec.scale_s
+    offset_info["gravimeter_stamps_dejittered"] = rec.dejittered
     offset_info.update(gnss_stamps)
     # how z's gravimeter side was formed: through the heights' spline (height_matched_means) or not
     offset_info["height_matched_means"] = runs is not None
@@ -209,6 +194,45 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
                              float(offset), float(offset_info.get("correlation", np.nan)), applied, notes,
                              despike, offset_info, vu_from_h, n_filled, compensated, dz_dtau,
                              int(g_filled.sum()))
+
+
+class GravimeterRecord(NamedTuple):
+    """A flight's gravimeter record as z is formed from it (:func:`gravimeter_record`)."""
+
+    series: object          # app.core.gravimeter.IntegratedSeries on the record's clock
+    t_s: np.ndarray         # sample times (s): the dejittered clock, put-back samples included
+    filled: np.ndarray      # bool per sample: put back (fill_gravimeter_samples)
+    fill_info: dict         # what the fill measured (error_mgal, left)
+    scale_s: float          # robust scatter of the stamps about the clock (s)
+    largest_s: float        # largest scatter (s)
+    dejittered: bool        # the samples were integrated on the clock, not their stamps
+
+
+def gravimeter_record(gr: pd.DataFrame, p, notes: list) -> GravimeterRecord:
+    """The gravimeter record ``gr`` (columns ``time`` s, ``f_z`` m/s²) as every z of the
+    flight is formed from it: the stamps put on the instrument's uniform clock
+    (:func:`app.core.gravimeter.dejitter_times_s`), dropped samples put back where the record
+    predicts them (:func:`fill_gravimeter_samples`), integrated
+    (:func:`app.core.gravimeter.integrate_samples`).  The measurement, the in-flight calibration
+    and the QC table's time offset all start from it.  What was done is appended to ``notes``."""
+    stamps = gr["time"].to_numpy(float)
+    uniform = gm.dejitter_times_s(stamps)
+    jitter = float(np.max(np.abs(uniform - stamps))) if stamps.size else 0.0
+    scale_s, largest_s = gm.stamp_scatter_s(stamps)
+    if jitter > gm.ROUNDING_JITTER_S:  # beyond a millisecond rounding: say so
+        notes.append(f"gravimeter time stamps scatter up to {1e3 * jitter:.1f} ms about a uniform clock: the "
+                     "samples were integrated on the clock (the instrument's sampling is uniform; the stamps' "
+                     "scatter times the aircraft's acceleration would otherwise enter z)")
+    elif not jitter > 0 and scale_s > gm.ROUNDING_JITTER_S:
+        notes.append(f"gravimeter time stamps scatter by {1e3 * scale_s:.1f} ms (robust scale; up to "
+                     f"{1e3 * largest_s:.1f} ms) about a uniform clock, more than stamp jitter: the samples were "
+                     "integrated on their stamps as irregular sampling — if the instrument's clock is uniform, "
+                     "that scatter times the aircraft's acceleration is in z")
+    t_grav, f_z, g_filled, g_info = fill_gravimeter_samples(uniform, gr["f_z"].to_numpy(float), p.max_gap_s,
+                                                             p.gravimeter_fill_max_error_mgal, p.fir_cutoff_period_s)
+    _fill_notes(int(g_filled.sum()), g_info, p, notes)
+    series = gm.integrate_samples(t_grav, f_z, dejitter=False)
+    return GravimeterRecord(series, t_grav, g_filled, g_info, scale_s, largest_s, bool(jitter > 0))
 
 
 def _fill_notes(n_filled: int, info: dict, p, notes: list) -> None:
@@ -1138,8 +1162,7 @@ def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600
     k = int(np.argmax(stops - starts))
     a, b = int(starts[k]), int(stops[k])
     b = min(b, a + int(max_duration_s / dt))
-    gr = flight.gravimeter
-    series = gm.integrate_samples(gr["time"].to_numpy(float), gr["f_z"].to_numpy(float))
+    series = gravimeter_record(flight.gravimeter, cfg.processing, []).series   # as z was formed from it
     off = m.time_offset_s if m.time_offset_applied else 0.0
     seg = slice(a - 1, b) if a > 0 else slice(a, b)
     tt = t[seg]
