@@ -318,6 +318,15 @@ class ProcessingParams(_Strict):
                                      "this many standard errors")
     time_offset_min_improvement: float = Field(0.01, ge=0, lt=1, description="… and removes at least this share "
                                                "of the band-passed acceleration residual")
+    clock_track: bool = Field(True, description="Track the gravimeter's clock against the GNSS's along each flight "
+                              "(the time offset on clock_window_s windows): a drift (a free-running logger, ppm) or a "
+                              "jump (a clock set forward in flight, a gap of the record) re-times the gravimeter's "
+                              "stamps (app.core.clock; report time_offsets.<flight>.clock)")
+    clock_window_s: float = Field(300.0, ge=60, le=3600, description="Length of the clock-tracking windows (s)")
+    clock_p: float = Field(1e-3, gt=0, lt=0.5, description="Significance of a clock drift or jump (partial F-test "
+                           "against the windows' own scatter)")
+    clock_min_change_s: float = Field(0.02, gt=0, le=10, description="Smallest clock change (s: a drift over the "
+                                      "flight, a jump) the tracking acts on")
     match_response: bool = Field(True, description="Smooth the GNSS acceleration by the zero-phase Gaussian "
                                  "exp(−c·ω²) fitted to the gravimeter's (a meter's undeclared decimation filter: "
                                  "two 0.5 s boxcars on a 2 Hz platform), when significant and improving the fit")
@@ -933,6 +942,7 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("max_gap_s", "despike_threshold", "apply_time_offset", "calibrate"),
      ("gnss_rate_hz", "rate_tolerance", "geoid_height_m", "gravimeter_gap_margin_s", "height_step_threshold", "despike_max_fraction",
       "max_nan_run", "estimate_time_offset", "max_time_offset_s", "time_offset_min_z", "time_offset_min_improvement",
+      "clock_track", "clock_window_s", "clock_p", "clock_min_change_s",
       "match_response", "response_min_z", "response_min_improvement",
       "slow_gravimeter_min_ratio", "slow_gravimeter_short_drop", "height_matched_means", "band_delay_check", "band_delay_min_t", "band_delay_flights_p", "gnss_fill_max_error_mgal", "gravimeter_fill_max_error_mgal", "lag_check_s",
       "lag_check_min_change_s", "lag_from_time_offsets", "lag_band_fit", "lag_band_fit_z", "lag_band_confirm_z",

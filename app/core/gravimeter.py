@@ -612,7 +612,8 @@ def estimate_time_offset_s(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: f
 
 def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 0.0,
                     scale: float = 1.0, max_offset_s: float = 2.0,
-                    band_hz: tuple[float, float] = (0.01, 1.0), height_runs=None) -> TimeOffsetFit:
+                    band_hz: tuple[float, float] = (0.01, 1.0), height_runs=None,
+                    center_s: float = 0.0) -> TimeOffsetFit:
     """Time offset between gravimeter and GNSS by cross-correlation of accelerations.
 
     The gravimeter's interval-mean specific force and the GNSS acceleration
@@ -635,6 +636,9 @@ def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 
     height_runs : sequence of (int, int), optional
         When ``vu_ms`` was derived from heights: the runs of its spline, and the gravimeter's
         side is :func:`height_matched_means` (the motion seen as the heights see it).
+    center_s : float
+        The search is ``center_s ± max_offset_s`` (s): a window of a flight searched about the
+        flight's own offset (:mod:`app.core.clock`).
 
     Returns
     -------
@@ -660,7 +664,7 @@ def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 
     acc[1:] = np.diff(v) / np.diff(t)
     # at most an eighth of the record either way, so the compared stretch keeps 3/4 of it
     max_offset_s = min(float(max_offset_s), 0.125 * (t[-1] - t[0]))
-    margin = int(np.ceil(max_offset_s / dt)) + 2
+    margin = int(np.ceil((max_offset_s + abs(float(center_s))) / dt)) + 2
     sl = slice(margin, t.size - margin)
     acc_bp = sosfiltfilt(sos, fill_nan(acc))[sl]
 
@@ -668,9 +672,9 @@ def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 
         f = gnss_side_means(series, t, tau_s, scale, offset, height_runs)
         return sosfiltfilt(sos, fill_nan(f))[sl]
 
-    g0 = grav_bp(0.0)
+    g0 = grav_bp(float(center_s))
     # shifting the gravimeter by +offset moves its features later: g(t − offset)
-    best = _coarse_lag(g0, acc_bp, int(np.ceil(max_offset_s / dt))) * dt
+    best = float(center_s) + _coarse_lag(g0, acc_bp, int(np.ceil(max_offset_s / dt))) * dt
 
     def cost(offset):
         r = grav_bp(offset) - acc_bp

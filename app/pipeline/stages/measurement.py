@@ -15,6 +15,7 @@ flight, the in-flight check of the declared lag, base ties to the parking-place 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
@@ -24,7 +25,7 @@ import pandas as pd
 from scipy.optimize import minimize_scalar
 
 from app.config import SurveyConfig
-from app.core import epochs, geodesy
+from app.core import clock, epochs, geodesy
 from app.core import gravimeter as gm
 from app.core import response as resp
 from app.core.baselines import fir_kernel
@@ -150,15 +151,30 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     gamma = geodesy.normal_gravity_mgal(lat, h, cfg.survey.normal_gravity)
     eot = geodesy.eotvos_mgal(lat, h, ve, vn)
 
-    rec = gravimeter_record(flight.gravimeter, p, notes)
+    rec_notes: list = []
+    rec = gravimeter_record(flight.gravimeter, p, rec_notes)
+    runs = height_runs(rec.series, t, vu_from_h, p)
+    offset_notes: list = []
+    offset_info = time_offset(rec.series, t, vu, tau, k, p, offset_notes, runs)
+    # the gravimeter's clock along the flight: a drift or a jump re-times its stamps
+    clock, retimed = gravimeter_clock(flight.gravimeter, rec, (t, vu, ve, vn), (tau, k), p, vu_from_h,
+                                      offset_info)
+    if retimed is not None:
+        rec_notes, offset_notes = [], []
+        rec = gravimeter_record(retimed, p, rec_notes)
+        runs = height_runs(rec.series, t, vu_from_h, p)
+        offset_info = time_offset(rec.series, t, vu, tau, k, p, offset_notes, runs)
+    notes.extend(rec_notes)
+    if clock is not None:
+        offset_info["clock"] = clock
+        notes.extend(clock.pop("notes", []))
     series, t_grav, g_filled = rec.series, rec.t_s, rec.filled
-    runs = height_runs(series, t, vu_from_h, p)
     if vu_from_h:
         notes.append("vu derived from the GNSS heights (the file has no vu column): derivative of the not-a-knot "
                      "cubic spline through h, per contiguous run"
                      + ("; the gravimeter's double integral put through the same spline, so the aircraft's motion "
                         "cancels however coarsely the heights sample it" if runs is not None else ""))
-    offset_info = time_offset(series, t, vu, tau, k, p, notes, runs)
+    notes.extend(offset_notes)
     check_acceleration_gain(flight, offset_info, notes)
     # the report's time_offsets section: the stamps the samples were integrated on
     offset_info["gravimeter_stamp_jitter_ms"] = 1e3 * rec.largest_s
@@ -716,6 +732,153 @@ def time_offset(series, t, vu, tau: float, k: float, p, notes: list, runs=None) 
                         if 16.5 <= abs(offset) <= 18.5 else "")
                      + "; lines.csv windows and the outputs are on the GNSS's time scale")
     return info
+
+
+#: The search (± s) of each clock-tracking window about the flight's own time offset.
+CLOCK_SEARCH_S = 2.0
+#: Fewest windows (with a correlation above :data:`CLOCK_MIN_CORRELATION`) the clock is tracked on.
+CLOCK_MIN_WINDOWS = 5
+#: Windows whose accelerations correlate less than this are left out (calm air: no timing in them).
+CLOCK_MIN_CORRELATION = 0.5
+
+
+def _clock_windows(t, moving, window_s: float) -> list[tuple[int, int]]:
+    """Index ranges ``[a, b)`` of the windows: each airborne run without GNSS gaps cut into equal
+    windows of at least ``window_s`` (s)."""
+    dt = float(np.median(np.diff(t)))
+    ok = moving & np.concatenate([[True], np.diff(t) < 1.5 * dt])
+    d = np.diff(np.concatenate([[0], ok.astype(int), [0]]))
+    out = []
+    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
+        n_w = int((t[b - 1] - t[a]) // window_s)
+        if n_w < 1:
+            continue
+        edges = np.linspace(a, b, n_w + 1).round().astype(int)
+        out += [(int(x), int(y)) for x, y in zip(edges[:-1], edges[1:]) if y - x >= 200]
+    return out
+
+
+def _record_gaps(t_s, min_extra_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """The gaps of a gravimeter record's clock ``t_s`` (s; dejittered, dropped samples put back)
+    longer than its median step by ``min_extra_s`` at least: the middle of each gap (s; a step
+    placed there is clear of the stamps' jitter) and the gap's excess over the step (s).  A clock set forward in flight leaves such a gap."""
+    t = np.asarray(t_s, dtype=float)
+    extra = np.diff(t) - float(np.median(np.diff(t)))
+    j = np.flatnonzero(extra >= min_extra_s)
+    return 0.5 * (t[j] + t[j + 1]), extra[j]
+
+
+def gravimeter_clock(gr: pd.DataFrame, rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_from_h: bool,
+                     offset_info: dict) -> tuple[dict | None, pd.DataFrame | None]:
+    """The gravimeter's clock tracked against the GNSS's along one flight (:mod:`app.core.clock`).
+
+    The time offset is fitted on windows of ``clock_window_s`` over the airborne runs
+    (:func:`app.core.gravimeter.fit_time_offset`, searched ±:data:`CLOCK_SEARCH_S` about the
+    flight's offset), windows whose accelerations correlate under :data:`CLOCK_MIN_CORRELATION`
+    left out; :func:`app.core.clock.fit_clock` keeps a drift or steps only where the windows'
+    own scatter says they are real (``clock_p``) and they move the clock by at least
+    ``clock_min_change_s``.  A step is applied only at the gap of the record it left (a clock
+    set forward; a clock set back makes the stamps go back, which the reader refuses).  The
+    stamps are re-timed (:func:`app.core.clock.retime_stamps_s`; the constant part stays with
+    the flight's time offset) only when that lowers the flight's band-passed acceleration
+    residual by ``time_offset_min_improvement`` at least.
+
+    Parameters
+    ----------
+    gr : DataFrame
+        The gravimeter record (``time`` s, ``f_z``).
+    rec : GravimeterRecord
+        :func:`gravimeter_record` of ``gr``.
+    gnss : tuple
+        ``(t, vu, ve, vn)`` at the GNSS epochs (s, m/s).
+    response : tuple
+        ``(τ, k)`` of the interval means.
+    offset_info : dict
+        :func:`time_offset`'s evidence for the whole flight.
+
+    Returns
+    -------
+    (dict or None, DataFrame or None)
+        The evidence (``windows``, ``drift_ppm``, ``steps``, ``applied``, ``reason``, ``notes``)
+        — None when tracking is off or the offset was not estimated — and the re-timed record
+        (None unless applied).
+    """
+    if not (p.clock_track and p.estimate_time_offset and offset_info.get("estimated")):
+        return None, None
+    t, vu, ve, vn = gnss
+    tau, k = response
+    center = float(offset_info.get("offset_s", 0.0))
+    band = (0.01, acceleration_band_top_hz(float(np.median(np.diff(t))), rec.series.step_s))
+    step_s = float(rec.series.step_s)
+    gap_at, gap_extra = _record_gaps(rec.t_s, max(p.clock_min_change_s, 0.5 * step_s))
+    rows = []
+    for a, b in _clock_windows(t, np.hypot(ve, vn) > 20.0, p.clock_window_s):
+        tw, vw = t[a:b], vu[a:b]
+        if np.any((gap_at + center > tw[0]) & (gap_at + center <= tw[-1])):
+            continue   # a step inside the window would blur its offset
+        try:
+            fit = gm.fit_time_offset(rec.series, tw, vw, tau, k, CLOCK_SEARCH_S, band,
+                                     height_runs(rec.series, tw, vu_from_h, p), center_s=center)
+        except ValueError:
+            continue
+        if np.isfinite(fit.correlation) and fit.correlation >= CLOCK_MIN_CORRELATION and 0 < fit.se_s < np.inf:
+            rows.append((0.5 * float(tw[0] + tw[-1]), fit.offset_s, fit.se_s, fit.correlation))
+    info: dict = {"window_s": float(p.clock_window_s), "windows": [
+        {"t_s": r[0], "offset_s": r[1], "se_s": r[2], "correlation": r[3]} for r in rows], "applied": False}
+    if len(rows) < CLOCK_MIN_WINDOWS:
+        info["reason"] = f"{len(rows)} windows with the accelerations correlated (< {CLOCK_MIN_WINDOWS}): not tracked"
+        return info, None
+    wt, wo, wse = (np.array([r[i] for r in rows]) for i in range(3))
+    tol = max(3.0 * float(np.median(wse)), 0.5 * step_s)
+    allowed = np.ones(gap_at.size, bool)
+    for _ in range(4):
+        model = clock.fit_clock(wt, wo, wse, gap_at[allowed] + center, p.clock_p, p.clock_min_change_s)
+        # a clock set forward by J leaves a gap of at least J: a larger step there is not the clock's
+        bad = [int(np.argmin(np.abs(gap_at + center - x))) for x, size in model.steps
+               if -size > gap_extra[int(np.argmin(np.abs(gap_at + center - x)))] + tol]
+        if not bad:
+            break
+        allowed[bad] = False
+    info.update(drift_ppm=1e6 * model.drift_s_per_s, drift_over_flight_s=model.drift_s_per_s * float(wt[-1] - wt[0]),
+                terms=model.terms, candidate_gaps=int(gap_at.size))
+    if not model.changes:
+        info["reason"] = "one offset fits every window"
+        return info, None
+    # the steps on the gravimeter's stamps: in the middle of their gap
+    model = dataclasses.replace(model, steps=tuple((x - center, size) for x, size in model.steps))
+    info["steps"] = [{"time_s": x, "size_s": size, "gap_s": float(gap_extra[np.argmin(np.abs(gap_at - x))] + step_s)}
+                     for x, size in model.steps]
+    what = []
+    if model.drift_s_per_s:
+        what.append(f"runs {-1e6 * model.drift_s_per_s:+.1f} ppm fast ({-1e3 * info['drift_over_flight_s']:+.0f} ms "
+                    f"over {(wt[-1] - wt[0]) / 3600:.1f} h)")
+    what += [f"was set {abs(st['size_s']):.3f} s {'forward' if st['size_s'] < 0 else 'back'} at {st['time_s']:.2f} s "
+             f"(a {st['gap_s']:.3f} s gap of the record)" for st in info["steps"]]
+    retimed = gr.copy()
+    ref = float(np.sum(wt / wse ** 2) / np.sum(1.0 / wse ** 2)) - center   # on the stamps' scale
+    retimed["time"] = clock.retime_stamps_s(gr["time"].to_numpy(float), model, ref)
+    # judged on the flight: the band-passed acceleration residual with one offset, before and after
+    try:
+        runs = height_runs(rec.series, t, vu_from_h, p)
+        before = gm.fit_time_offset(rec.series, t, vu, tau, k, p.max_time_offset_s, band, runs).cost_min
+        after = gm.fit_time_offset(gravimeter_record(retimed, p, []).series, t, vu, tau, k, p.max_time_offset_s,
+                                   band, runs)
+    except ValueError as exc:
+        info["reason"] = f"the re-timed record could not be judged: {exc}"
+        return info, None
+    gain = (before - after.cost_min) / before if before > 0 else 0.0
+    info.update(residual_before_m2s4=before, residual_after_m2s4=after.cost_min, residual_reduction=gain)
+    if not gain >= p.time_offset_min_improvement:
+        info["reason"] = (f"re-timing removes only {100 * gain:.2f} % of the acceleration residual "
+                          f"(< {100 * p.time_offset_min_improvement:g} %)")
+        info["notes"] = [f"the gravimeter's clock {' and '.join(what)} against the GNSS's by {len(rows)} windows of "
+                         f"{p.clock_window_s:g} s, not re-timed: {info['reason']}"]
+        return info, None
+    info.update(applied=True, reason="significant, and removes that share of the acceleration residual")
+    info["notes"] = [f"the gravimeter's clock {' and '.join(what)} against the GNSS's (time offsets of {len(rows)} windows of "
+                     f"{p.clock_window_s:g} s): the gravimeter's stamps re-timed to the GNSS's scale, "
+                     f"{100 * gain:.0f} % of the acceleration residual removed (report time_offsets.clock)"]
+    return info, retimed
 
 
 #: the gravimeter's acceleration per unit of the GNSS's when the GNSS heights (and velocities) are in

@@ -1,0 +1,178 @@
+"""The gravimeter's clock against the GNSS's: a drift and jumps, from windowed time offsets.
+
+SPEC §4 puts every file of a survey on one time scale.  A logger whose clock runs free (a
+few to a hundred ppm off the GNSS's) or is set again in flight (a jump) breaks that, and a
+single time offset per flight cannot mend it: 20 ppm over a two-hour flight misaligns the
+ends by 70 ms, and a 0.2 s jump halfway misaligns half the flight by 0.2 s, so the aircraft's
+jerk enters z (white-30 of ``benchmarks/bench_regimes.py``: 3.68 mGal from the truth clean,
+4.35 with a 20 ppm drift, 5.29 with a 0.2 s jump, 25.5 with a 1 s jump — FIR 100 s 4.3).
+
+The time offset is estimated on windows along the flight
+(:func:`app.core.gravimeter.fit_time_offset`); :func:`fit_clock` explains those offsets by a
+constant, a linear drift and steps, each term kept only when the windows' own scatter says it
+is real (a forward-selection F-test) and it moves the clock by more than a set amount;
+:func:`clock_offset_s` evaluates the result and :func:`retime_stamps_s` puts the gravimeter's
+stamps on the GNSS's scale.  Pure functions on arrays; times in s, offsets in s with the sign
+of :class:`app.core.gravimeter.TimeOffsetFit` (gravimeter stamp + offset = GNSS time).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+#: Fewest windows on each side of a step (one window off by chance must not make two steps).
+MIN_SEGMENT_WINDOWS = 2
+
+
+@dataclass(frozen=True)
+class ClockModel:
+    """The gravimeter clock's offset from the GNSS's along a flight (:func:`fit_clock`).
+
+    Attributes
+    ----------
+    offset_s : float
+        Offset at ``t_ref_s`` before any step (s).
+    drift_s_per_s : float
+        Rate of the offset (s per s; 1e-6 is 1 ppm); 0 when no drift was kept.
+    t_ref_s : float
+        Reference time of the drift (s, the windows' weighted mean time).
+    steps : tuple of (float, float)
+        ``(time_s, size_s)`` of each step: the offset changes by ``size_s`` after ``time_s``
+        (a forward jump of the gravimeter's clock by J seconds is a step of −J).
+    terms : list of dict
+        Each kept term in the order selected, with its F-test p-value and size.
+    """
+
+    offset_s: float
+    drift_s_per_s: float = 0.0
+    t_ref_s: float = 0.0
+    steps: tuple = ()
+    terms: list = field(default_factory=list)
+
+    @property
+    def changes(self) -> bool:
+        """True when the clock drifts or jumps (more than a constant offset)."""
+        return bool(self.drift_s_per_s != 0.0 or self.steps)
+
+
+def _wls(X: np.ndarray, y: np.ndarray, w: np.ndarray) -> tuple[np.ndarray, float]:
+    """Weighted least squares: coefficients and the weighted residual sum of squares."""
+    sw = np.sqrt(w)
+    beta, *_ = np.linalg.lstsq(X * sw[:, None], y * sw, rcond=None)
+    r = (y - X @ beta) * sw
+    return beta, float(r @ r)
+
+
+def fit_clock(t_s, offset_s, se_s, step_times_s=(), p_level: float = 1e-3, min_change_s: float = 0.02,
+              max_steps: int = 3) -> ClockModel:
+    """A constant offset, a linear drift and steps fitted to windowed time offsets.
+
+    Terms are added by forward selection: the drift or a step at one of ``step_times_s``,
+    whichever lowers the weighted residual sum of squares most, kept when its partial F-test
+    (against the windows' own scatter about the larger model, so under-stated standard errors
+    do not make false steps) gives p < ``p_level`` and it moves the clock by at least
+    ``min_change_s`` (the drift over the windows' span, a step by its size).  A step leaves at
+    least :data:`MIN_SEGMENT_WINDOWS` windows on either side of it and of every other step.
+
+    Parameters
+    ----------
+    t_s, offset_s, se_s : array_like, shape (n,)
+        Window centres (s, increasing), their offsets (s) and standard errors (s, > 0).
+    step_times_s : array_like
+        Where a step may be (s): the gaps of the gravimeter's record, where a clock set
+        forward or back in flight shows (none: drift only).
+    p_level : float
+        Significance of each term.
+    min_change_s : float
+        Smallest clock change (s) worth a term.
+    max_steps : int
+        Most steps.
+
+    Returns
+    -------
+    ClockModel
+        A constant only when no term passes.
+
+    Raises
+    ------
+    ValueError
+        Arrays of different lengths or empty, non-finite values, t not increasing or se not positive.
+    """
+    t = np.asarray(t_s, dtype=float)
+    y = np.asarray(offset_s, dtype=float)
+    se = np.asarray(se_s, dtype=float)
+    if not (t.shape == y.shape == se.shape and t.ndim == 1):
+        raise ValueError("t_s, offset_s and se_s must be 1-D arrays of one length")
+    if t.size == 0:
+        raise ValueError("no window")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(y)) and np.all(np.isfinite(se))):
+        raise ValueError("t_s, offset_s and se_s must be finite")
+    if np.any(se <= 0):
+        raise ValueError("se_s must be positive")
+    if np.any(np.diff(t) <= 0):
+        raise ValueError("t_s must be strictly increasing")
+    n = t.size
+    # weights from the standard errors, floored at half their median: one window's tiny se
+    # must not carry the fit
+    w = 1.0 / np.maximum(se, 0.5 * float(np.median(se))) ** 2
+    t_ref = float(np.sum(w * t) / np.sum(w))
+    span = float(t[-1] - t[0])
+    cols = [np.ones(n)]
+    kinds: list = [("offset", None)]
+    beta, rss = _wls(np.column_stack(cols), y, w)
+    terms: list = []
+    steps_at = sorted({float(x) for x in np.asarray(step_times_s, dtype=float).ravel() if np.isfinite(x)})
+
+    def room(tau: float) -> bool:   # enough windows on both sides of tau and of every step taken
+        edges = [tau] + [x for kind, x in kinds if kind == "step"]
+        bounds = [-np.inf] + sorted(edges) + [np.inf]
+        return all(np.sum((t > a) & (t < b)) >= MIN_SEGMENT_WINDOWS for a, b in zip(bounds[:-1], bounds[1:]))
+
+    while n - (len(cols) + 1) >= 2:
+        k = len(cols)
+        cands = [] if ("drift", None) in kinds else [(("drift", None), t - t_ref)]
+        if sum(kind == "step" for kind, _ in kinds) < max_steps:
+            cands += [(("step", x), (t > x).astype(float)) for x in steps_at
+                      if ("step", x) not in kinds and room(x)]
+        best = None
+        for kind, col in cands:
+            b, r = _wls(np.column_stack(cols + [col]), y, w)
+            if best is None or r < best[2]:
+                best = (kind, col, r, b)
+        if best is None:
+            break
+        kind, col, r_new, b_new = best
+        dof = n - (k + 1)
+        p_val = float(stats.f.sf((rss - r_new) / (r_new / dof), 1, dof)) if r_new > 0 else 0.0
+        size = float(b_new[-1]) * (span if kind[0] == "drift" else 1.0)
+        if not (p_val < p_level and abs(size) >= min_change_s):
+            break
+        cols.append(col)
+        kinds.append(kind)
+        beta, rss = b_new, r_new
+        terms.append({"term": kind[0], "p_value": p_val, "change_s": size,
+                      **({"time_s": kind[1]} if kind[0] == "step" else {})})
+    drift = next((float(b) for (kind, _), b in zip(kinds, beta) if kind == "drift"), 0.0)
+    steps = tuple(sorted((float(x), float(b)) for (kind, x), b in zip(kinds, beta) if kind == "step"))
+    return ClockModel(float(beta[0]), drift, t_ref, steps, terms)
+
+
+def clock_offset_s(model: ClockModel, t_s) -> np.ndarray:
+    """The model's offset (s, gravimeter stamp + offset = GNSS time) at times ``t_s`` (s)."""
+    t = np.asarray(t_s, dtype=float)
+    out = model.offset_s + model.drift_s_per_s * (t - model.t_ref_s)
+    for t_step, size in model.steps:
+        out = out + np.where(t >= t_step, size, 0.0)
+    return out
+
+
+def retime_stamps_s(stamps_s, model: ClockModel, reference_s: float) -> np.ndarray:
+    """The gravimeter's stamps put on the GNSS's scale, less the model's offset at
+    ``reference_s`` (s): ``stamp + offset(stamp) − offset(reference)``, so that what remains is
+    one constant offset, left to the flight's time-offset estimate.  Steps are evaluated on
+    the stamps, so a step placed in a gap of the record closes it."""
+    s = np.asarray(stamps_s, dtype=float)
+    return s + clock_offset_s(model, s) - float(clock_offset_s(model, np.array([reference_s]))[0])
