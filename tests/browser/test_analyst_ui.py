@@ -151,6 +151,11 @@ def test_report_panel_settings_and_delete(fake_server, browser_page, tmp_path, s
     if offsets.count() > 1:
         assert offsets.nth(1).locator("td").last.inner_text().startswith("no (z's RMS")
     assert "\t0.01–0.4\t" in offsets.nth(0).inner_text()        # the band the accelerations were compared in
+    # the gravimeter's clock: re-timed on the first flight (a drift and a jump), one offset on the others
+    assert offsets.nth(0).locator("td").nth(9).inner_text() == (
+        "re-timed: runs 18.6 ppm fast, set 0.197 s forward at 13880.65 s (14 windows), 96 % of the residual removed")
+    if offsets.count() > 1:
+        assert offsets.nth(1).locator("td").nth(9).inner_text() == "one offset (12 windows) — one offset fits every window"
     assert page.locator("#report-gnss-filled tbody tr").first.locator("td").last.inner_text() == "2"
     assert page.locator("#report-gravimeter-filled tbody tr").first.locator("td").last.inner_text() == "7"
     fc = page.inner_text("#report-family-check")

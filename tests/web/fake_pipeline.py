@@ -63,6 +63,13 @@ def fake_report(df: pd.DataFrame, base_gravity_mgal: float | None = None, crs: s
                              "gnss_stamps_dejittered": i == 0, "gnss_stamp_jitter_lag1": -0.03 if i == 0 else 0.97,
                              # a 1 Hz gravimeter beside 10 Hz GNSS: the first flight's motion cancelled
                              "motion_compensation": _motion_compensation(i),
+                             # the gravimeter's clock (white-30's figures): the first flight's logger ran 18.6
+                             # ppm fast and was set 0.2 s forward, re-timed; the others kept one offset
+                             "clock": ({"applied": True, "drift_ppm": -18.6, "residual_reduction": 0.96,
+                                        "steps": [{"time_s": 13880.65, "size_s": -0.197, "gap_s": 0.255}],
+                                        "windows": [{"t_s": 12000.0 + 300 * k} for k in range(14)]} if i == 0 else
+                                       {"applied": False, "reason": "one offset fits every window",
+                                        "windows": [{"t_s": 12000.0 + 300 * k} for k in range(12)]}),
                              # a 2 Hz platform's decimation filter read from the data (seed-20 figures)
                              "response_width": {"estimated": True, "c_s2": 0.0136 + 0.0001 * i, "se_s2": 0.00011,
                                                 "band_hz": [0.01, 0.8], "residual_reduction": 0.651,

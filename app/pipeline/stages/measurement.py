@@ -768,6 +768,19 @@ def _record_gaps(t_s, min_extra_s: float) -> tuple[np.ndarray, np.ndarray]:
     return 0.5 * (t[j] + t[j + 1]), extra[j]
 
 
+def clock_retimed(gr: pd.DataFrame, clock_info: dict | None) -> pd.DataFrame:
+    """The gravimeter record ``gr`` with its stamps re-timed as :func:`gravimeter_clock` decided
+    (its evidence ``clock_info``, ``model`` kept when applied); ``gr`` itself otherwise."""
+    if not (clock_info and clock_info.get("applied") and clock_info.get("model")):
+        return gr
+    mod = clock_info["model"]
+    model = clock.ClockModel(mod["offset_s"], mod["drift_s_per_s"], mod["t_ref_s"],
+                             tuple(tuple(x) for x in mod["steps"]))
+    out = gr.copy()
+    out["time"] = clock.retime_stamps_s(gr["time"].to_numpy(float), model, mod["reference_s"])
+    return out
+
+
 def gravimeter_clock(gr: pd.DataFrame, rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_from_h: bool,
                      offset_info: dict) -> tuple[dict | None, pd.DataFrame | None]:
     """The gravimeter's clock tracked against the GNSS's along one flight (:mod:`app.core.clock`).
@@ -854,9 +867,10 @@ def gravimeter_clock(gr: pd.DataFrame, rec: GravimeterRecord, gnss: tuple, respo
                     f"over {(wt[-1] - wt[0]) / 3600:.1f} h)")
     what += [f"was set {abs(st['size_s']):.3f} s {'forward' if st['size_s'] < 0 else 'back'} at {st['time_s']:.2f} s "
              f"(a {st['gap_s']:.3f} s gap of the record)" for st in info["steps"]]
-    retimed = gr.copy()
     ref = float(np.sum(wt / wse ** 2) / np.sum(1.0 / wse ** 2)) - center   # on the stamps' scale
-    retimed["time"] = clock.retime_stamps_s(gr["time"].to_numpy(float), model, ref)
+    info["model"] = {"offset_s": model.offset_s, "drift_s_per_s": model.drift_s_per_s, "t_ref_s": model.t_ref_s,
+                     "steps": [list(x) for x in model.steps], "reference_s": ref}
+    retimed = clock_retimed(gr, {**info, "applied": True})
     # judged on the flight: the band-passed acceleration residual with one offset, before and after
     try:
         runs = height_runs(rec.series, t, vu_from_h, p)
@@ -869,6 +883,7 @@ def gravimeter_clock(gr: pd.DataFrame, rec: GravimeterRecord, gnss: tuple, respo
     gain = (before - after.cost_min) / before if before > 0 else 0.0
     info.update(residual_before_m2s4=before, residual_after_m2s4=after.cost_min, residual_reduction=gain)
     if not gain >= p.time_offset_min_improvement:
+        info.pop("model")
         info["reason"] = (f"re-timing removes only {100 * gain:.2f} % of the acceleration residual "
                           f"(< {100 * p.time_offset_min_improvement:g} %)")
         info["notes"] = [f"the gravimeter's clock {' and '.join(what)} against the GNSS's by {len(rows)} windows of "
@@ -1325,7 +1340,8 @@ def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600
     k = int(np.argmax(stops - starts))
     a, b = int(starts[k]), int(stops[k])
     b = min(b, a + int(max_duration_s / dt))
-    series = gravimeter_record(flight.gravimeter, cfg.processing, []).series   # as z was formed from it
+    # the record as z was formed from it (the clock re-timed as the measurement decided)
+    series = gravimeter_record(clock_retimed(flight.gravimeter, m.time_offset.get("clock")), cfg.processing, []).series
     off = m.time_offset_s if m.time_offset_applied else 0.0
     seg = slice(a - 1, b) if a > 0 else slice(a, b)
     tt = t[seg]

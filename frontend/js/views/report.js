@@ -218,17 +218,28 @@ function motionCompensation(mc) {
   return (mc.applied ? "yes" : "no") + rms + (mc.applied || rms ? "" : ` — ${mc.reason || "not compared"}`);
 }
 
+// the gravimeter's clock tracked along the flight (stage 1): a drift, jumps, and whether the stamps were re-timed
+function clockCell(c) {
+  if (!c) return "—";
+  const what = [];
+  if (c.drift_ppm) what.push(`runs ${fmt(-c.drift_ppm, 3)} ppm fast`);
+  for (const st of c.steps || []) what.push(`set ${fmt(Math.abs(st.size_s), 3)} s ${st.size_s < 0 ? "forward" : "back"} at ${fmt(st.time_s, 7)} s`);
+  const n = (c.windows || []).length;
+  return (c.applied ? "re-timed: " : "") + (what.join(", ") || "one offset") + ` (${n} windows)`
+    + (c.applied ? `, ${pct(c.residual_reduction)} of the residual removed` : (c.reason ? ` — ${c.reason}` : ""));
+}
+
 const RENDER = {
   base_ties: (v) => [perFlight(v, ["Tie applied", "Absolute", "Drift (mGal/h)", "Static periods", "Reading error (mGal)"], (b) => [
     yes(b.applied), yes(b.absolute), fmt(b.drift_mgal_per_h, 3), String((b.static_periods || []).length),
     (b.static_periods || []).map((p) => fmt(p.reading_error_mgal, 2)).join(", ") || "—"])],
   time_offsets: (v) => [perFlight(v, ["Offset (s)", "Std. error (s)", "Correlation", "Compared (Hz)", "Residual reduction",
-    "Applied", "Reason", "Gravimeter stamp scatter (ms)", "GNSS stamp scatter (ms)", "GNSS stamps put on the clock",
-    "Motion cancelled at the gravimeter's samples"], (o) => [
+    "Applied", "Reason", "Gravimeter stamp scatter (ms)", "Gravimeter clock", "GNSS stamp scatter (ms)",
+    "GNSS stamps put on the clock", "Motion cancelled at the gravimeter's samples"], (o) => [
     fmt(o.offset_s, 4), fmt(o.se_s, 2), fmt(o.correlation, 4),
     Array.isArray(o.band_hz) ? `${fmt(o.band_hz[0], 2)}–${fmt(o.band_hz[1], 2)}` : "—",
     pct(o.residual_reduction), yes(o.applied), o.reason || "—",
-    fmt(o.gravimeter_stamp_jitter_ms, 2), fmt(o.gnss_stamp_jitter_ms, 2),
+    fmt(o.gravimeter_stamp_jitter_ms, 2), clockCell(o.clock), fmt(o.gnss_stamp_jitter_ms, 2),
     o.gnss_stamps_dejittered === undefined ? "—" : (o.gnss_stamps_dejittered ? "yes"
       : (o.gnss_stamp_jitter_lag1 > 0.5 ? `no (correlated, lag-1 ${fmt(o.gnss_stamp_jitter_lag1, 2)}: a receiver clock)` : "no")),
     motionCompensation(o.motion_compensation)], { id: "report-time-offsets" })],

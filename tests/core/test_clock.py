@@ -1,0 +1,96 @@
+"""app.core.clock: a drift and steps of the gravimeter's clock from windowed time offsets,
+against offsets drawn from a known clock."""
+
+import numpy as np
+import pytest
+
+from app.core.clock import ClockModel, clock_offset_s, fit_clock, retime_stamps_s
+
+T = np.arange(15) * 300.0 + 10_000.0     # 15 windows of 300 s (1.2 h)
+SE = 0.003                               # a window's offset: ±3 ms
+
+
+def _offsets(rng, drift=0.0, steps=(), se=SE):
+    y = 0.05 + drift * (T - T.mean())
+    for at, size in steps:
+        y = y + np.where(T > at, size, 0.0)
+    return y + rng.normal(0.0, se, T.size)
+
+
+def test_a_constant_clock_is_left_alone():
+    """Offsets that scatter by their standard error about a constant: over 400 draws a drift or a
+    step (at any of five gaps) is kept on at most 1 % (the terms' level is 1e-3 each; the search
+    over the candidates and the size floor make it so), and the constant is the weighted mean."""
+    rng = np.random.default_rng(0)
+    gaps = T[[3, 6, 7, 10, 12]] + 150.0
+    kept = 0
+    for _ in range(400):
+        y = _offsets(rng)
+        m = fit_clock(T, y, np.full(T.size, SE), gaps)
+        kept += m.changes
+        if not m.changes:
+            assert m.offset_s == pytest.approx(y.mean(), abs=1e-12)
+    assert kept <= 4
+
+
+def test_a_drift_is_found_and_sized():
+    """20 ppm over 1.2 h (84 ms): found on every draw, its rate within 3 standard errors of the
+    least-squares slope's (σ/√Σ(t − t̄)²), and no step taken for it."""
+    rng = np.random.default_rng(1)
+    sd = SE / np.sqrt(np.sum((T - T.mean()) ** 2))
+    for _ in range(50):
+        m = fit_clock(T, _offsets(rng, drift=-20e-6), np.full(T.size, SE), [T[5] + 150.0])
+        assert m.drift_s_per_s == pytest.approx(-20e-6, abs=3 * sd)
+        assert m.steps == ()
+
+
+def test_a_jump_at_a_gap_is_found_and_not_where_there_is_no_gap():
+    """The clock set forward by 0.2 s between windows 7 and 8, at a gap of the record: one step of
+    −0.2 s (±3 ms) there, no drift.  Offered only a gap elsewhere, no step can stand in for it
+    there on both sides' data: what is kept leaves the offsets' residual far above their
+    scatter, which is what the pipeline's acceptance test then judges."""
+    rng = np.random.default_rng(2)
+    at = 0.5 * (T[7] + T[8])
+    y = _offsets(rng, steps=[(at, -0.2)])
+    m = fit_clock(T, y, np.full(T.size, SE), [T[2] + 150.0, at, T[11] + 150.0])
+    assert len(m.steps) == 1 and m.steps[0][0] == at
+    assert m.steps[0][1] == pytest.approx(-0.2, abs=0.003) and m.drift_s_per_s == 0.0
+    m2 = fit_clock(T, y, np.full(T.size, SE), [T[2] + 150.0])
+    assert not any(x == at for x, _ in m2.steps)
+    resid = y - clock_offset_s(m2, T)
+    assert np.std(resid) > 10 * SE
+
+
+def test_one_window_off_makes_no_step_pair():
+    """One window 60 ms off (a wrong correlation peak): a step needs two windows on either side
+    of it and of every other step, so no pair of steps isolates the window."""
+    rng = np.random.default_rng(3)
+    y = _offsets(rng)
+    y[6] += 0.06
+    m = fit_clock(T, y, np.full(T.size, SE), T[:-1] + 150.0)
+    assert len(m.steps) <= 1
+
+
+def test_retimed_stamps_are_the_true_times():
+    """Stamps of a clock running 50 ppm fast and set forward by 0.3 s: re-timed by the clock that
+    made them, they are the true times plus one constant (left to the flight's offset), to
+    within the drift over the jump (50 ppm of 0.3 s: the drift is evaluated on the stamps)."""
+    t_true = np.arange(0.0, 4000.0, 0.05)
+    jump_at = 2000.0
+    stamps = t_true + 50e-6 * t_true + np.where(t_true >= jump_at, 0.3, 0.0)
+    gap_mid = 0.5 * (stamps[t_true < jump_at][-1] + stamps[t_true >= jump_at][0])
+    model = ClockModel(0.0, -50e-6 / (1 + 50e-6), 0.0, ((gap_mid, -0.3),))
+    out = retime_stamps_s(stamps, model, 1000.0)
+    d = out - t_true
+    assert np.ptp(d) < 20e-6
+
+
+def test_bad_input_is_refused():
+    with pytest.raises(ValueError, match="one length"):
+        fit_clock(T, T[:-1], np.full(T.size, SE))
+    with pytest.raises(ValueError, match="positive"):
+        fit_clock(T, T, np.zeros(T.size))
+    with pytest.raises(ValueError, match="increasing"):
+        fit_clock(T[::-1], T, np.full(T.size, SE))
+    with pytest.raises(ValueError, match="finite"):
+        fit_clock(T, np.full(T.size, np.nan), np.full(T.size, SE))
