@@ -832,8 +832,8 @@ def gravimeter_clock(gr: pd.DataFrame, rec: GravimeterRecord, gnss: tuple, respo
         try:
             fit = gm.fit_time_offset(rec.series, tw, vw, tau, k, CLOCK_SEARCH_S, band,
                                      height_runs(rec.series, tw, vu_from_h, p), center_s=center)
-        except ValueError:
-            continue
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+            continue   # a window the fit cannot take (too short a run, a flat record): left out
         if np.isfinite(fit.correlation) and fit.correlation >= CLOCK_MIN_CORRELATION and 0 < fit.se_s < np.inf:
             rows.append((0.5 * float(tw[0] + tw[-1]), fit.offset_s, fit.se_s, fit.correlation))
     info: dict = {"window_s": float(p.clock_window_s), "windows": [
@@ -871,13 +871,20 @@ def gravimeter_clock(gr: pd.DataFrame, rec: GravimeterRecord, gnss: tuple, respo
     info["model"] = {"offset_s": model.offset_s, "drift_s_per_s": model.drift_s_per_s, "t_ref_s": model.t_ref_s,
                      "steps": [list(x) for x in model.steps], "reference_s": ref}
     retimed = clock_retimed(gr, {**info, "applied": True})
+    if not np.all(np.diff(retimed["time"].to_numpy(float)) > 0):
+        info.pop("model")
+        info["reason"] = "the re-timed stamps would not increase (a jump larger than its gap): not re-timed"
+        info["notes"] = [f"the gravimeter's clock {' and '.join(what)} against the GNSS's, not re-timed: "
+                         + info["reason"]]
+        return info, None
     # judged on the flight: the band-passed acceleration residual with one offset, before and after
     try:
         runs = height_runs(rec.series, t, vu_from_h, p)
         before = gm.fit_time_offset(rec.series, t, vu, tau, k, p.max_time_offset_s, band, runs).cost_min
         after = gm.fit_time_offset(gravimeter_record(retimed, p, []).series, t, vu, tau, k, p.max_time_offset_s,
                                    band, runs)
-    except ValueError as exc:
+    except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
+        info.pop("model")
         info["reason"] = f"the re-timed record could not be judged: {exc}"
         return info, None
     gain = (before - after.cost_min) / before if before > 0 else 0.0
