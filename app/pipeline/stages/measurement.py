@@ -157,8 +157,7 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     offset_notes: list = []
     offset_info = time_offset(rec.series, t, vu, tau, k, p, offset_notes, runs)
     # the gravimeter's clock along the flight: a drift or a jump re-times its stamps
-    clock, retimed = gravimeter_clock(flight.gravimeter, rec, (t, vu, ve, vn), (tau, k), p, vu_from_h,
-                                      offset_info)
+    clock, retimed = gravimeter_clock(rec, (t, vu, ve, vn), (tau, k), p, vu_from_h, offset_info)
     if retimed is not None:
         rec_notes, offset_notes = [], []
         rec = gravimeter_record(retimed, p, rec_notes)
@@ -222,6 +221,7 @@ class GravimeterRecord(NamedTuple):
     scale_s: float          # robust scatter of the stamps about the clock (s)
     largest_s: float        # largest scatter (s)
     dejittered: bool        # the samples were integrated on the clock, not their stamps
+    f_ms2: np.ndarray       # f_z per sample (m/s²), put-back samples included
 
 
 def gravimeter_record(gr: pd.DataFrame, p, notes: list) -> GravimeterRecord:
@@ -248,7 +248,7 @@ def gravimeter_record(gr: pd.DataFrame, p, notes: list) -> GravimeterRecord:
                                                              p.gravimeter_fill_max_error_mgal, p.fir_cutoff_period_s)
     _fill_notes(int(g_filled.sum()), g_info, p, notes)
     series = gm.integrate_samples(t_grav, f_z, dejitter=False)
-    return GravimeterRecord(series, t_grav, g_filled, g_info, scale_s, largest_s, bool(jitter > 0))
+    return GravimeterRecord(series, t_grav, g_filled, g_info, scale_s, largest_s, bool(jitter > 0), f_z)
 
 
 def _fill_notes(n_filled: int, info: dict, p, notes: list) -> None:
@@ -768,20 +768,22 @@ def _record_gaps(t_s, min_extra_s: float) -> tuple[np.ndarray, np.ndarray]:
     return 0.5 * (t[j] + t[j + 1]), extra[j]
 
 
-def clock_retimed(gr: pd.DataFrame, clock_info: dict | None) -> pd.DataFrame:
-    """The gravimeter record ``gr`` with its stamps re-timed as :func:`gravimeter_clock` decided
-    (its evidence ``clock_info``, ``model`` kept when applied); ``gr`` itself otherwise."""
+def clock_retimed(rec: GravimeterRecord, clock_info: dict | None) -> pd.DataFrame | None:
+    """The gravimeter record ``rec`` (:func:`gravimeter_record`) re-timed as :func:`gravimeter_clock`
+    decided (its evidence ``clock_info``, ``model`` kept when applied): its samples on the
+    instrument's clock (dejittered, dropped ones put back), the clock put on the GNSS's scale —
+    a record of ``time`` and ``f_z`` for :func:`gravimeter_record` again.  The clock, not the raw
+    stamps: a rounding of the stamps that the dejitter recognises would no longer be one after
+    part of them moved by a fraction of the rounding.  None when no re-timing was applied."""
     if not (clock_info and clock_info.get("applied") and clock_info.get("model")):
-        return gr
+        return None
     mod = clock_info["model"]
     model = clock.ClockModel(mod["offset_s"], mod["drift_s_per_s"], mod["t_ref_s"],
                              tuple(tuple(x) for x in mod["steps"]))
-    out = gr.copy()
-    out["time"] = clock.retime_stamps_s(gr["time"].to_numpy(float), model, mod["reference_s"])
-    return out
+    return pd.DataFrame({"time": clock.retime_stamps_s(rec.t_s, model, mod["reference_s"]), "f_z": rec.f_ms2})
 
 
-def gravimeter_clock(gr: pd.DataFrame, rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_from_h: bool,
+def gravimeter_clock(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_from_h: bool,
                      offset_info: dict) -> tuple[dict | None, pd.DataFrame | None]:
     """The gravimeter's clock tracked against the GNSS's along one flight (:mod:`app.core.clock`).
 
@@ -798,10 +800,8 @@ def gravimeter_clock(gr: pd.DataFrame, rec: GravimeterRecord, gnss: tuple, respo
 
     Parameters
     ----------
-    gr : DataFrame
-        The gravimeter record (``time`` s, ``f_z``).
     rec : GravimeterRecord
-        :func:`gravimeter_record` of ``gr``.
+        The flight's gravimeter record (:func:`gravimeter_record`): its clock is what is re-timed.
     gnss : tuple
         ``(t, vu, ve, vn)`` at the GNSS epochs (s, m/s).
     response : tuple
@@ -857,10 +857,19 @@ def gravimeter_clock(gr: pd.DataFrame, rec: GravimeterRecord, gnss: tuple, respo
     if not model.changes:
         info["reason"] = "one offset fits every window"
         return info, None
-    # the steps on the gravimeter's stamps: in the middle of their gap
-    model = dataclasses.replace(model, steps=tuple((x - center, size) for x, size in model.steps))
-    info["steps"] = [{"time_s": x, "size_s": size, "gap_s": float(gap_extra[np.argmin(np.abs(gap_at - x))] + step_s)}
-                     for x, size in model.steps]
+    # the steps on the gravimeter's stamps, in the middle of their gap, each snapped to the instrument's clock
+    steps, info["steps"] = [], []
+    for x, size in model.steps:
+        gap = float(gap_extra[np.argmin(np.abs(gap_at - (x - center)))] + step_s)
+        snapped = clock.snap_step_s(size, gap, step_s, max(3.0 * float(np.median(wse)), 0.25 * step_s))
+        steps.append((x - center, size if snapped is None else snapped))
+        info["steps"].append({"time_s": x - center, "size_s": steps[-1][1], "fitted_size_s": size, "gap_s": gap,
+                              "snapped_to_clock": snapped is not None})
+    model = dataclasses.replace(model, steps=tuple(steps))
+    if model.drift_s_per_s and any(st["snapped_to_clock"] for st in info["steps"]):
+        # the drift refitted with the steps as snapped (the fitted steps had taken part of it)
+        model = clock.refit_drift(model, wt - center, wo, wse)
+        info.update(drift_ppm=1e6 * model.drift_s_per_s, drift_over_flight_s=model.drift_s_per_s * float(wt[-1] - wt[0]))
     what = []
     if model.drift_s_per_s:
         what.append(f"runs {-1e6 * model.drift_s_per_s:+.1f} ppm fast ({-1e3 * info['drift_over_flight_s']:+.0f} ms "
@@ -870,7 +879,7 @@ def gravimeter_clock(gr: pd.DataFrame, rec: GravimeterRecord, gnss: tuple, respo
     ref = float(np.sum(wt / wse ** 2) / np.sum(1.0 / wse ** 2)) - center   # on the stamps' scale
     info["model"] = {"offset_s": model.offset_s, "drift_s_per_s": model.drift_s_per_s, "t_ref_s": model.t_ref_s,
                      "steps": [list(x) for x in model.steps], "reference_s": ref}
-    retimed = clock_retimed(gr, {**info, "applied": True})
+    retimed = clock_retimed(rec, {**info, "applied": True})
     if not np.all(np.diff(retimed["time"].to_numpy(float)) > 0):
         info.pop("model")
         info["reason"] = "the re-timed stamps would not increase (a jump larger than its gap): not re-timed"
@@ -1348,7 +1357,9 @@ def calibrate_gravimeter(flight, cfg: SurveyConfig, max_duration_s: float = 3600
     a, b = int(starts[k]), int(stops[k])
     b = min(b, a + int(max_duration_s / dt))
     # the record as z was formed from it (the clock re-timed as the measurement decided)
-    series = gravimeter_record(clock_retimed(flight.gravimeter, m.time_offset.get("clock")), cfg.processing, []).series
+    rec = gravimeter_record(flight.gravimeter, cfg.processing, [])
+    retimed = clock_retimed(rec, m.time_offset.get("clock"))
+    series = (rec if retimed is None else gravimeter_record(retimed, cfg.processing, [])).series
     off = m.time_offset_s if m.time_offset_applied else 0.0
     seg = slice(a - 1, b) if a > 0 else slice(a, b)
     tt = t[seg]
