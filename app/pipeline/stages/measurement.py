@@ -824,6 +824,10 @@ def gravimeter_clock(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_
     band = (0.01, acceleration_band_top_hz(float(np.median(np.diff(t))), rec.series.step_s))
     step_s = float(rec.series.step_s)
     gap_at, gap_extra = _record_gaps(rec.t_s, max(p.clock_min_change_s, 0.5 * step_s))
+    # a gap of whole sample steps on the instrument's clock is samples lost, not the clock set:
+    # no candidate for a step (a 2 Hz record dropping a sample every few minutes kept no window)
+    whole = np.abs(gap_extra / step_s - np.round(gap_extra / step_s)) * step_s <= max(0.05 * step_s, 0.002)
+    gap_at, gap_extra = gap_at[~whole], gap_extra[~whole]
     rows = []
     for a, b in _clock_windows(t, np.hypot(ve, vn) > 20.0, p.clock_window_s):
         tw, vw = t[a:b], vu[a:b]
