@@ -783,6 +783,73 @@ def clock_retimed(rec: GravimeterRecord, clock_info: dict | None) -> pd.DataFram
     return pd.DataFrame({"time": clock.retime_stamps_s(rec.t_s, model, mod["reference_s"]), "f_z": rec.f_ms2})
 
 
+def _clock_gaps(rec: GravimeterRecord, p) -> tuple[np.ndarray, np.ndarray]:
+    """Where the gravimeter's clock may have been set (:func:`_record_gaps`, at least
+    ``clock_min_change_s`` and half a step long): the middle of each gap (s, stamps' scale) and
+    its excess over the step (s).  A gap of whole sample steps on the instrument's clock is
+    samples lost, not the clock set: no candidate (a 2 Hz record dropping a sample every few
+    minutes would keep no window)."""
+    step_s = float(rec.series.step_s)
+    gap_at, gap_extra = _record_gaps(rec.t_s, max(p.clock_min_change_s, 0.5 * step_s))
+    whole = np.abs(gap_extra / step_s - np.round(gap_extra / step_s)) * step_s <= max(0.05 * step_s, 0.002)
+    return gap_at[~whole], gap_extra[~whole]
+
+
+def _window_offsets(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_from_h: bool, center: float,
+                    band: tuple, gap_at: np.ndarray) -> list[tuple]:
+    """The time offset on each clock window (:func:`_clock_windows`), searched
+    ±:data:`CLOCK_SEARCH_S` about ``center`` (s): ``(centre s, offset s, se s, correlation)`` of the
+    windows that hold no candidate gap (a step inside would blur its offset) and correlate at
+    least :data:`CLOCK_MIN_CORRELATION`."""
+    t, vu, ve, vn = gnss
+    tau, k = response
+    rows = []
+    for a, b in _clock_windows(t, np.hypot(ve, vn) > 20.0, p.clock_window_s):
+        tw, vw = t[a:b], vu[a:b]
+        if np.any((gap_at + center > tw[0]) & (gap_at + center <= tw[-1])):
+            continue
+        try:
+            fit = gm.fit_time_offset(rec.series, tw, vw, tau, k, CLOCK_SEARCH_S, band,
+                                     height_runs(rec.series, tw, vu_from_h, p), center_s=center)
+        except (ValueError, FloatingPointError, np.linalg.LinAlgError):
+            continue   # a window the fit cannot take (too short a run, a flat record): left out
+        if np.isfinite(fit.correlation) and fit.correlation >= CLOCK_MIN_CORRELATION and 0 < fit.se_s < np.inf:
+            rows.append((0.5 * float(tw[0] + tw[-1]), fit.offset_s, fit.se_s, fit.correlation))
+    return rows
+
+
+def _fit_clock_at_gaps(windows: tuple, gaps: tuple, center: float, step_s: float, p) -> tuple:
+    """:func:`app.core.clock.fit_clock` of the windows' ``(t, offset, se)`` (GNSS scale) with steps
+    at the candidate ``gaps`` ``(middle, excess)`` (stamps' scale; ``center`` the flight's offset
+    between the two): a step larger than its gap (a clock set forward by J leaves a gap of at
+    least J) is not the clock's, and the fit is repeated without that gap.  Each step is then
+    put on the stamps' scale and snapped to the sampling (:func:`app.core.clock.snap_step_s`),
+    the drift refitted under snapped steps.  Returns the model (stamps' scale) and each step's
+    evidence."""
+    wt, wo, wse = windows
+    gap_at, gap_extra = gaps
+    tol = max(3.0 * float(np.median(wse)), 0.5 * step_s)
+    allowed = np.ones(gap_at.size, bool)
+    for _ in range(4):
+        model = clock.fit_clock(wt, wo, wse, gap_at[allowed] + center, p.clock_p, p.clock_min_change_s)
+        near = [int(np.argmin(np.abs(gap_at + center - x))) for x, _ in model.steps]
+        bad = [i for i, (_, size) in zip(near, model.steps) if -size > gap_extra[i] + tol]
+        if not bad:
+            break
+        allowed[bad] = False
+    steps, evidence = [], []
+    for x, size in model.steps:
+        gap = float(gap_extra[np.argmin(np.abs(gap_at - (x - center)))] + step_s)
+        snapped = clock.snap_step_s(size, gap, step_s, max(3.0 * float(np.median(wse)), 0.25 * step_s))
+        steps.append((x - center, size if snapped is None else snapped))
+        evidence.append({"time_s": x - center, "size_s": steps[-1][1], "fitted_size_s": size, "gap_s": gap,
+                         "snapped_to_clock": snapped is not None})
+    model = dataclasses.replace(model, steps=tuple(steps))
+    if model.drift_s_per_s and any(e["snapped_to_clock"] for e in evidence):
+        model = clock.refit_drift(model, wt - center, wo, wse)   # the fitted steps had taken part of it
+    return model, evidence
+
+
 def gravimeter_clock(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_from_h: bool,
                      offset_info: dict) -> tuple[dict | None, pd.DataFrame | None]:
     """The gravimeter's clock tracked against the GNSS's along one flight (:mod:`app.core.clock`).
@@ -818,62 +885,25 @@ def gravimeter_clock(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_
     """
     if not (p.clock_track and p.estimate_time_offset and offset_info.get("estimated")):
         return None, None
-    t, vu, ve, vn = gnss
+    t, vu = gnss[0], gnss[1]
     tau, k = response
     center = float(offset_info.get("offset_s", 0.0))
     band = (0.01, acceleration_band_top_hz(float(np.median(np.diff(t))), rec.series.step_s))
-    step_s = float(rec.series.step_s)
-    gap_at, gap_extra = _record_gaps(rec.t_s, max(p.clock_min_change_s, 0.5 * step_s))
-    # a gap of whole sample steps on the instrument's clock is samples lost, not the clock set:
-    # no candidate for a step (a 2 Hz record dropping a sample every few minutes kept no window)
-    whole = np.abs(gap_extra / step_s - np.round(gap_extra / step_s)) * step_s <= max(0.05 * step_s, 0.002)
-    gap_at, gap_extra = gap_at[~whole], gap_extra[~whole]
-    rows = []
-    for a, b in _clock_windows(t, np.hypot(ve, vn) > 20.0, p.clock_window_s):
-        tw, vw = t[a:b], vu[a:b]
-        if np.any((gap_at + center > tw[0]) & (gap_at + center <= tw[-1])):
-            continue   # a step inside the window would blur its offset
-        try:
-            fit = gm.fit_time_offset(rec.series, tw, vw, tau, k, CLOCK_SEARCH_S, band,
-                                     height_runs(rec.series, tw, vu_from_h, p), center_s=center)
-        except (ValueError, FloatingPointError, np.linalg.LinAlgError):
-            continue   # a window the fit cannot take (too short a run, a flat record): left out
-        if np.isfinite(fit.correlation) and fit.correlation >= CLOCK_MIN_CORRELATION and 0 < fit.se_s < np.inf:
-            rows.append((0.5 * float(tw[0] + tw[-1]), fit.offset_s, fit.se_s, fit.correlation))
+    gap_at, gap_extra = _clock_gaps(rec, p)
+    rows = _window_offsets(rec, gnss, response, p, vu_from_h, center, band, gap_at)
     info: dict = {"window_s": float(p.clock_window_s), "windows": [
-        {"t_s": r[0], "offset_s": r[1], "se_s": r[2], "correlation": r[3]} for r in rows], "applied": False}
+        {"t_s": r[0], "offset_s": r[1], "se_s": r[2], "correlation": r[3]} for r in rows], "applied": False,
+        "candidate_gaps": int(gap_at.size)}
     if len(rows) < CLOCK_MIN_WINDOWS:
         info["reason"] = f"{len(rows)} windows with the accelerations correlated (< {CLOCK_MIN_WINDOWS}): not tracked"
         return info, None
     wt, wo, wse = (np.array([r[i] for r in rows]) for i in range(3))
-    tol = max(3.0 * float(np.median(wse)), 0.5 * step_s)
-    allowed = np.ones(gap_at.size, bool)
-    for _ in range(4):
-        model = clock.fit_clock(wt, wo, wse, gap_at[allowed] + center, p.clock_p, p.clock_min_change_s)
-        # a clock set forward by J leaves a gap of at least J: a larger step there is not the clock's
-        bad = [int(np.argmin(np.abs(gap_at + center - x))) for x, size in model.steps
-               if -size > gap_extra[int(np.argmin(np.abs(gap_at + center - x)))] + tol]
-        if not bad:
-            break
-        allowed[bad] = False
+    model, info["steps"] = _fit_clock_at_gaps((wt, wo, wse), (gap_at, gap_extra), center, float(rec.series.step_s), p)
     info.update(drift_ppm=1e6 * model.drift_s_per_s, drift_over_flight_s=model.drift_s_per_s * float(wt[-1] - wt[0]),
-                terms=model.terms, candidate_gaps=int(gap_at.size))
+                terms=model.terms)
     if not model.changes:
         info["reason"] = "one offset fits every window"
         return info, None
-    # the steps on the gravimeter's stamps, in the middle of their gap, each snapped to the instrument's clock
-    steps, info["steps"] = [], []
-    for x, size in model.steps:
-        gap = float(gap_extra[np.argmin(np.abs(gap_at - (x - center)))] + step_s)
-        snapped = clock.snap_step_s(size, gap, step_s, max(3.0 * float(np.median(wse)), 0.25 * step_s))
-        steps.append((x - center, size if snapped is None else snapped))
-        info["steps"].append({"time_s": x - center, "size_s": steps[-1][1], "fitted_size_s": size, "gap_s": gap,
-                              "snapped_to_clock": snapped is not None})
-    model = dataclasses.replace(model, steps=tuple(steps))
-    if model.drift_s_per_s and any(st["snapped_to_clock"] for st in info["steps"]):
-        # the drift refitted with the steps as snapped (the fitted steps had taken part of it)
-        model = clock.refit_drift(model, wt - center, wo, wse)
-        info.update(drift_ppm=1e6 * model.drift_s_per_s, drift_over_flight_s=model.drift_s_per_s * float(wt[-1] - wt[0]))
     what = []
     if model.drift_s_per_s:
         what.append(f"runs {-1e6 * model.drift_s_per_s:+.1f} ppm fast ({-1e3 * info['drift_over_flight_s']:+.0f} ms "
