@@ -720,7 +720,27 @@ def check_time_increasing(t: np.ndarray, rows: np.ndarray, display: str, column:
                     msg += (f" — the time scale wrapped ({what}); the survey needs one monotonic scale: "
                             f"add {period:.0f} s to this row's time and every later one (and to the "
                             f"lines.csv windows after the wrap)")
+                    break
+            else:
+                msg += _set_back_hint(dt, i, back)
         raise InputError(display, int(rows[i]), column, msg)
+
+
+def _set_back_hint(dt: np.ndarray, i: int, back_s: float) -> str:
+    """The words for a clock set back in flight: the times step back by under a minute at row
+    ``i`` and go on at the record's own step after it (a logger re-synchronised; a clock set
+    forward is a gap, which the measurement re-times itself — METHOD stage 1); "" otherwise."""
+    good = dt[dt > 0]
+    if not (0.0 < back_s < 60.0) or good.size < 10:
+        return ""
+    step = float(np.median(good))
+    after = dt[i:i + 20]
+    if after.size < 5 or not np.all(np.abs(after - step) <= 0.25 * step):
+        return ""
+    shift = back_s + step
+    return (f" — the times go on at the record's {step:.3g} s step after this row: the clock looks set back by "
+            f"about {shift:.3f} s in flight; the survey needs one time scale — add {shift:.3f} s to this row's time "
+            "and every later one (the measurement then re-times the gravimeter's clock against the GNSS's)")
 
 
 def median_rate_hz(t: np.ndarray, span: int = 10) -> float:

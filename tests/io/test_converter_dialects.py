@@ -190,3 +190,21 @@ def test_swapped_lat_lon_says_so():
     with pytest.raises(InputError) as ei:
         check_range(df, "lat", -90.0, 90.0, np.array([2, 3]), "gnss.csv", "latitude")
     assert "swapped" not in str(ei.value) and ei.value.row == 3
+
+
+def test_a_clock_set_back_in_flight_says_so():
+    """An 18.24 Hz record whose logger clock was set back 0.3 s at sample 120: the times step back
+    and go on at the record's step.  The error names the row and says how much to add to it and
+    every later row (0.3 s less one step back, plus that step: the shift that joins the two
+    parts); a record shuffled (a single row out of place) gets no such advice."""
+    step = 1 / 18.24
+    t = np.arange(300) * step
+    t[120:] -= 0.3
+    with pytest.raises(InputError, match="clock looks set back by about 0.300 s") as ei:
+        check_time_increasing(t, np.arange(2, 302), "g.csv")
+    assert ei.value.row == 2 + 120 and "add 0.300 s to this row's time and every later one" in str(ei.value)
+    t = np.arange(300) * step
+    t[150], t[151] = t[151], t[150]
+    with pytest.raises(InputError) as ei:
+        check_time_increasing(t, np.arange(2, 302), "g.csv")
+    assert "set back" not in str(ei.value)
