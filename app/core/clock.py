@@ -23,6 +23,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import stats
 
+from app.core.epochs import run_bounds
+
 #: Fewest windows on each side of a step (one window off by chance must not make two steps).
 MIN_SEGMENT_WINDOWS = 2
 
@@ -193,6 +195,86 @@ def refit_drift(model: ClockModel, t_s, offset_s, se_s) -> ClockModel:
     t_ref = float(np.sum(w * t) / np.sum(w))
     beta, _ = _wls(np.column_stack([np.ones(t.size), t - t_ref]), y, w)
     return ClockModel(float(beta[0]), float(beta[1]), t_ref, model.steps, model.terms)
+
+
+def clock_windows(t_s, moving, window_s: float, min_epochs: int = 200) -> list[tuple[int, int]]:
+    """Index ranges ``[a, b)`` of the epochs ``t_s`` (s) the clock is tracked on: each run of
+    ``moving`` epochs without a gap (:func:`app.core.epochs.run_bounds`) cut into equal windows of
+    at least ``window_s`` (s), those of fewer than ``min_epochs`` epochs left out."""
+    t = np.asarray(t_s, dtype=float)
+    out = []
+    for a, b in run_bounds(moving, t):
+        n_w = int((t[b - 1] - t[a]) // window_s)
+        if n_w < 1:
+            continue
+        edges = np.linspace(a, b, n_w + 1).round().astype(int)
+        out += [(int(x), int(y)) for x, y in zip(edges[:-1], edges[1:]) if y - x >= min_epochs]
+    return out
+
+
+def step_candidates(clock_t_s, min_excess_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where a record's clock may have been set: the gaps of its sample times ``clock_t_s`` (s;
+    dejittered, dropped samples put back) longer than the median step by ``min_excess_s`` at
+    least, less those of a whole number of steps (within 5 % of a step or 2 ms: samples lost,
+    not the clock set).  Returns the middle of each gap (s: a step put there is clear of the
+    stamps' jitter) and its excess over the step (s)."""
+    t = np.asarray(clock_t_s, dtype=float)
+    step = float(np.median(np.diff(t)))
+    excess = np.diff(t) - step
+    j = np.flatnonzero(excess >= min_excess_s)
+    whole = np.abs(excess[j] / step - np.round(excess[j] / step)) * step <= max(0.05 * step, 0.002)
+    j = j[~whole]
+    return 0.5 * (t[j] + t[j + 1]), excess[j]
+
+
+def fit_clock_at_gaps(t_s, offset_s, se_s, gaps: tuple, sample_step_s: float, shift_s: float = 0.0,
+                      p_level: float = 1e-3, min_change_s: float = 0.02) -> tuple[ClockModel, list]:
+    """:func:`fit_clock` with steps only at a record's gaps, snapped to its sampling.
+
+    A clock set forward by J leaves a gap of at least J: a larger fitted step there is not the
+    clock's, and the fit is repeated without that gap.  Each step is then snapped
+    (:func:`snap_step_s`, within 3 standard errors of the windows or a quarter step) and the
+    drift refitted under snapped steps (:func:`refit_drift`: the fitted steps had taken part of it).
+
+    Parameters
+    ----------
+    t_s, offset_s, se_s : array_like, shape (n,)
+        The windows (as :func:`fit_clock`), on the GNSS's time scale.
+    gaps : (ndarray, ndarray)
+        :func:`step_candidates` of the record: gap middles (s, on the record's scale) and excesses (s).
+    sample_step_s : float
+        The record's sampling step (s).
+    shift_s : float
+        Record time + ``shift_s`` = the windows' time scale (the flight's offset, s).
+
+    Returns
+    -------
+    (ClockModel, list of dict)
+        The model on the record's time scale, and per step its evidence (``time_s``, ``size_s``,
+        ``fitted_size_s``, ``gap_s``, ``snapped_to_clock``).
+    """
+    wt, wo, wse = (np.asarray(a, dtype=float) for a in (t_s, offset_s, se_s))
+    gap_at, gap_excess = (np.asarray(a, dtype=float) for a in gaps)
+    tol = max(3.0 * float(np.median(wse)), 0.5 * sample_step_s)
+    allowed = np.ones(gap_at.size, bool)
+    for _ in range(4):
+        model = fit_clock(wt, wo, wse, gap_at[allowed] + shift_s, p_level, min_change_s)
+        near = [int(np.argmin(np.abs(gap_at + shift_s - x))) for x, _ in model.steps]
+        bad = [i for i, (_, size) in zip(near, model.steps) if -size > gap_excess[i] + tol]
+        if not bad:
+            break
+        allowed[bad] = False
+    steps, evidence = [], []
+    for x, size in model.steps:
+        gap = float(gap_excess[np.argmin(np.abs(gap_at - (x - shift_s)))] + sample_step_s)
+        snapped = snap_step_s(size, gap, sample_step_s, max(3.0 * float(np.median(wse)), 0.25 * sample_step_s))
+        steps.append((x - shift_s, size if snapped is None else snapped))
+        evidence.append({"time_s": x - shift_s, "size_s": steps[-1][1], "fitted_size_s": size, "gap_s": gap,
+                         "snapped_to_clock": snapped is not None})
+    model = ClockModel(model.offset_s, model.drift_s_per_s, model.t_ref_s, tuple(steps), model.terms)
+    if model.drift_s_per_s and any(e["snapped_to_clock"] for e in evidence):
+        model = refit_drift(model, wt - shift_s, wo, wse)
+    return model, evidence
 
 
 def clock_offset_s(model: ClockModel, t_s) -> np.ndarray:

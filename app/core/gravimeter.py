@@ -25,6 +25,7 @@ Units: times in s, specific force in m/s².
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -262,6 +263,12 @@ class IntegratedSeries:
         """f'(t) = F'(t): smooth point value of the series (m/s²)."""
         return self.spline(np.asarray(t_s, dtype=float), 1)
 
+    @cached_property
+    def double_integral(self):
+        """∫F dt (m/s²·s²) as a piecewise polynomial, made once: :func:`double_integral_m` is
+        called for every trial offset of every time-offset fit of a heights-only flight."""
+        return self.spline.antiderivative()
+
     @property
     def step_s(self) -> float:
         """Median sampling interval (s) of the series (its boundaries' spacing)."""
@@ -388,7 +395,7 @@ def double_integral_m(series: IntegratedSeries, t_epochs_s, tau_s: float = 0.0, 
     t = np.asarray(t_epochs_s, dtype=float) - float(time_offset_s)
     inside = (t >= series.t_first_s) & (t <= series.t_last_s)
     tc = np.clip(t, series.t_first_s, series.t_last_s)
-    out = scale * series.spline.antiderivative()(tc) + tau_s * series.integral(tc)
+    out = scale * series.double_integral(tc) + tau_s * series.integral(tc)
     return np.where(inside, out, np.nan)
 
 

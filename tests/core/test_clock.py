@@ -129,3 +129,42 @@ def test_the_drift_refitted_under_snapped_steps():
         assert m2.drift_s_per_s == pytest.approx(-30e-6, abs=3 * sd)
         closer += abs(m2.drift_s_per_s + 30e-6) <= abs(m.drift_s_per_s + 30e-6)
     assert closer >= 25
+
+
+def test_windows_and_step_candidates_from_known_records():
+    """Windows: two airborne runs of 1000 s and 250 s at 10 Hz (a ground stop between, a 30 s gap of
+    the record inside the first): 300 s windows fill each gap-free run and none spans the gap or
+    the stop.  Candidates: a 2 Hz clock with one sample lost (a whole step) and one 0.3 s jump —
+    only the jump is a candidate, at the middle of its gap, with its excess over the step."""
+    from app.core.clock import clock_windows, step_candidates
+
+    t = np.arange(0.0, 1400.0, 0.1)
+    t = t[(t < 500.0) | (t >= 530.0)]                       # 30 s without a record
+    moving = (t < 1100.0) | (t >= 1150.0)                   # a stop on the ground
+    win = clock_windows(t, moving, 300.0)
+    spans = [(t[a], t[b - 1]) for a, b in win]
+    assert len(win) == 2 and all(b - a >= 300.0 - 0.2 for a, b in spans)
+    assert all((b < 500.0) or (a >= 530.0 and b < 1100.0) or a >= 1150.0 for a, b in spans)
+    clk = np.arange(0.0, 600.0, 0.5)
+    clk = np.delete(clk, 100)                               # one sample lost
+    clk[400:] += 0.3                                        # the clock set 0.3 s forward
+    mid, excess = step_candidates(clk, 0.02)
+    assert mid.size == 1 and mid[0] == pytest.approx(0.5 * (clk[399] + clk[400]))
+    assert excess[0] == pytest.approx(0.3)
+
+
+def test_a_jump_is_kept_only_where_its_gap_can_hold_it():
+    """Windows of a clock set 0.3 s forward, offered the gap it left (0.35 s of excess on a 0.05 s
+    step): one step of exactly −0.3 s there once snapped, no drift.  Offered instead a gap whose
+    excess (0.1 s) is shorter than the jump, no step is kept there: the clock cannot have jumped
+    further than its gap."""
+    from app.core.clock import fit_clock_at_gaps
+
+    rng = np.random.default_rng(5)
+    at = 0.5 * (T[7] + T[8])
+    y = _offsets(rng, steps=[(at, -0.3)])
+    model, ev = fit_clock_at_gaps(T, y, np.full(T.size, SE), (np.array([at]), np.array([0.3 + 0.05])), 0.05)
+    assert model.steps == ((at, pytest.approx(-0.3, abs=1e-12)),) and ev[0]["snapped_to_clock"]
+    assert model.drift_s_per_s == 0.0
+    model, ev = fit_clock_at_gaps(T, y, np.full(T.size, SE), (np.array([at]), np.array([0.1])), 0.05)
+    assert model.steps == () and ev == []

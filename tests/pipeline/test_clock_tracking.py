@@ -10,18 +10,10 @@ import shutil
 import numpy as np
 import pandas as pd
 
-from app.pipeline.evaluate import merge_truth
+from tests.pipeline.test_gaps import _rms
 
 DRIFT = 40e-6      # the logger's clock runs 40 ppm fast
 JUMP_S = 0.3       # and is set 0.3 s forward halfway
-
-
-def _rms(out, survey):
-    m = merge_truth(pd.read_parquet(out / "lines.parquet"), pd.read_parquet(survey / "truth" / "lines.parquet"))
-    L = m.groupby("line")["along_km"].transform("max")
-    core = m[(m["along_km"] > 5) & (m["along_km"] < L - 5)]
-    e = core["dg_unleveled_mgal"] - core["dg_true_mgal"]
-    return float(np.sqrt(np.mean((e - e.groupby(core["line"]).transform("mean")) ** 2)))
 
 
 def test_a_drifting_clock_set_forward_in_flight_is_retimed(tmp_path):

@@ -15,7 +15,6 @@ flight, the in-flight check of the declared lag, base ties to the parking-place 
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import NamedTuple
@@ -158,11 +157,13 @@ def measure_flight(flight, cfg: SurveyConfig, tau_s: float | None = None,
     offset_info = time_offset(rec.series, t, vu, tau, k, p, offset_notes, runs)
     # the gravimeter's clock along the flight: a drift or a jump re-times its stamps
     clock, retimed = gravimeter_clock(rec, (t, vu, ve, vn), (tau, k), p, vu_from_h, offset_info)
-    if retimed is not None:
-        rec_notes, offset_notes = [], []
-        rec = gravimeter_record(retimed, p, rec_notes)
-        runs = height_runs(rec.series, t, vu_from_h, p)
-        offset_info = time_offset(rec.series, t, vu, tau, k, p, offset_notes, runs)
+    if retimed is not None:   # kept when the flight's one-offset fit on it is better (judge_clock)
+        new_notes, new_offset_notes = [], []
+        new_rec = gravimeter_record(retimed, p, new_notes)
+        new_runs = height_runs(new_rec.series, t, vu_from_h, p)
+        new_offset = time_offset(new_rec.series, t, vu, tau, k, p, new_offset_notes, new_runs)
+        if judge_clock(clock, offset_info, new_offset, p):
+            rec, runs, offset_info, rec_notes, offset_notes = new_rec, new_runs, new_offset, new_notes, new_offset_notes
     notes.extend(rec_notes)
     if clock is not None:
         offset_info["clock"] = clock
@@ -704,7 +705,8 @@ def time_offset(series, t, vu, tau: float, k: float, p, notes: list, runs=None) 
     info = {"estimated": True, "offset_s": offset, "se_s": fit.se_s, "correlation": corr, "gain": fit.gain,
             "gain_low": fit.gain_low, "gain_low_correlation": fit.gain_low_correlation,
             "gain_low_band_hz": list(gm.GAIN_LOW_BAND_HZ),
-            "residual_reduction": fit.relative_improvement, "band_hz": [float(b) for b in band]}
+            "residual_reduction": fit.relative_improvement, "residual_m2s4": fit.cost_min,
+            "band_hz": [float(b) for b in band]}
     if not (np.isfinite(corr) and corr > 0.1):
         notes.append(f"the gravimeter's and the GNSS vertical accelerations do not match at any time offset "
                      f"within ±{p.max_time_offset_s:g} s (best correlation {corr:.2f}): the two files' time "
@@ -742,32 +744,6 @@ CLOCK_MIN_WINDOWS = 5
 CLOCK_MIN_CORRELATION = 0.5
 
 
-def _clock_windows(t, moving, window_s: float) -> list[tuple[int, int]]:
-    """Index ranges ``[a, b)`` of the windows: each airborne run without GNSS gaps cut into equal
-    windows of at least ``window_s`` (s)."""
-    dt = float(np.median(np.diff(t)))
-    ok = moving & np.concatenate([[True], np.diff(t) < 1.5 * dt])
-    d = np.diff(np.concatenate([[0], ok.astype(int), [0]]))
-    out = []
-    for a, b in zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)):
-        n_w = int((t[b - 1] - t[a]) // window_s)
-        if n_w < 1:
-            continue
-        edges = np.linspace(a, b, n_w + 1).round().astype(int)
-        out += [(int(x), int(y)) for x, y in zip(edges[:-1], edges[1:]) if y - x >= 200]
-    return out
-
-
-def _record_gaps(t_s, min_extra_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """The gaps of a gravimeter record's clock ``t_s`` (s; dejittered, dropped samples put back)
-    longer than its median step by ``min_extra_s`` at least: the middle of each gap (s; a step
-    placed there is clear of the stamps' jitter) and the gap's excess over the step (s).  A clock set forward in flight leaves such a gap."""
-    t = np.asarray(t_s, dtype=float)
-    extra = np.diff(t) - float(np.median(np.diff(t)))
-    j = np.flatnonzero(extra >= min_extra_s)
-    return 0.5 * (t[j] + t[j + 1]), extra[j]
-
-
 def clock_retimed(rec: GravimeterRecord, clock_info: dict | None) -> pd.DataFrame | None:
     """The gravimeter record ``rec`` (:func:`gravimeter_record`) re-timed as :func:`gravimeter_clock`
     decided (its evidence ``clock_info``, ``model`` kept when applied): its samples on the
@@ -783,28 +759,16 @@ def clock_retimed(rec: GravimeterRecord, clock_info: dict | None) -> pd.DataFram
     return pd.DataFrame({"time": clock.retime_stamps_s(rec.t_s, model, mod["reference_s"]), "f_z": rec.f_ms2})
 
 
-def _clock_gaps(rec: GravimeterRecord, p) -> tuple[np.ndarray, np.ndarray]:
-    """Where the gravimeter's clock may have been set (:func:`_record_gaps`, at least
-    ``clock_min_change_s`` and half a step long): the middle of each gap (s, stamps' scale) and
-    its excess over the step (s).  A gap of whole sample steps on the instrument's clock is
-    samples lost, not the clock set: no candidate (a 2 Hz record dropping a sample every few
-    minutes would keep no window)."""
-    step_s = float(rec.series.step_s)
-    gap_at, gap_extra = _record_gaps(rec.t_s, max(p.clock_min_change_s, 0.5 * step_s))
-    whole = np.abs(gap_extra / step_s - np.round(gap_extra / step_s)) * step_s <= max(0.05 * step_s, 0.002)
-    return gap_at[~whole], gap_extra[~whole]
-
-
 def _window_offsets(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_from_h: bool, center: float,
                     band: tuple, gap_at: np.ndarray) -> list[tuple]:
-    """The time offset on each clock window (:func:`_clock_windows`), searched
+    """The time offset on each clock window (:func:`app.core.clock.clock_windows`), searched
     ±:data:`CLOCK_SEARCH_S` about ``center`` (s): ``(centre s, offset s, se s, correlation)`` of the
     windows that hold no candidate gap (a step inside would blur its offset) and correlate at
     least :data:`CLOCK_MIN_CORRELATION`."""
     t, vu, ve, vn = gnss
     tau, k = response
     rows = []
-    for a, b in _clock_windows(t, np.hypot(ve, vn) > 20.0, p.clock_window_s):
+    for a, b in clock.clock_windows(t, np.hypot(ve, vn) > 20.0, p.clock_window_s):
         tw, vw = t[a:b], vu[a:b]
         if np.any((gap_at + center > tw[0]) & (gap_at + center <= tw[-1])):
             continue
@@ -818,38 +782,6 @@ def _window_offsets(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_f
     return rows
 
 
-def _fit_clock_at_gaps(windows: tuple, gaps: tuple, center: float, step_s: float, p) -> tuple:
-    """:func:`app.core.clock.fit_clock` of the windows' ``(t, offset, se)`` (GNSS scale) with steps
-    at the candidate ``gaps`` ``(middle, excess)`` (stamps' scale; ``center`` the flight's offset
-    between the two): a step larger than its gap (a clock set forward by J leaves a gap of at
-    least J) is not the clock's, and the fit is repeated without that gap.  Each step is then
-    put on the stamps' scale and snapped to the sampling (:func:`app.core.clock.snap_step_s`),
-    the drift refitted under snapped steps.  Returns the model (stamps' scale) and each step's
-    evidence."""
-    wt, wo, wse = windows
-    gap_at, gap_extra = gaps
-    tol = max(3.0 * float(np.median(wse)), 0.5 * step_s)
-    allowed = np.ones(gap_at.size, bool)
-    for _ in range(4):
-        model = clock.fit_clock(wt, wo, wse, gap_at[allowed] + center, p.clock_p, p.clock_min_change_s)
-        near = [int(np.argmin(np.abs(gap_at + center - x))) for x, _ in model.steps]
-        bad = [i for i, (_, size) in zip(near, model.steps) if -size > gap_extra[i] + tol]
-        if not bad:
-            break
-        allowed[bad] = False
-    steps, evidence = [], []
-    for x, size in model.steps:
-        gap = float(gap_extra[np.argmin(np.abs(gap_at - (x - center)))] + step_s)
-        snapped = clock.snap_step_s(size, gap, step_s, max(3.0 * float(np.median(wse)), 0.25 * step_s))
-        steps.append((x - center, size if snapped is None else snapped))
-        evidence.append({"time_s": x - center, "size_s": steps[-1][1], "fitted_size_s": size, "gap_s": gap,
-                         "snapped_to_clock": snapped is not None})
-    model = dataclasses.replace(model, steps=tuple(steps))
-    if model.drift_s_per_s and any(e["snapped_to_clock"] for e in evidence):
-        model = clock.refit_drift(model, wt - center, wo, wse)   # the fitted steps had taken part of it
-    return model, evidence
-
-
 def gravimeter_clock(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_from_h: bool,
                      offset_info: dict) -> tuple[dict | None, pd.DataFrame | None]:
     """The gravimeter's clock tracked against the GNSS's along one flight (:mod:`app.core.clock`).
@@ -857,13 +789,13 @@ def gravimeter_clock(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_
     The time offset is fitted on windows of ``clock_window_s`` over the airborne runs
     (:func:`app.core.gravimeter.fit_time_offset`, searched ±:data:`CLOCK_SEARCH_S` about the
     flight's offset), windows whose accelerations correlate under :data:`CLOCK_MIN_CORRELATION`
-    left out; :func:`app.core.clock.fit_clock` keeps a drift or steps only where the windows'
-    own scatter says they are real (``clock_p``) and they move the clock by at least
-    ``clock_min_change_s``.  A step is applied only at the gap of the record it left (a clock
-    set forward; a clock set back makes the stamps go back, which the reader refuses).  The
-    stamps are re-timed (:func:`app.core.clock.retime_stamps_s`; the constant part stays with
-    the flight's time offset) only when that lowers the flight's band-passed acceleration
-    residual by ``time_offset_min_improvement`` at least.
+    left out; :func:`app.core.clock.fit_clock_at_gaps` keeps a drift or steps only where the
+    windows' own scatter says they are real (``clock_p``) and they move the clock by at least
+    ``clock_min_change_s``, a step only at a gap of the record (a clock set forward; one set back
+    makes the stamps go back, which the reader refuses).  The record's clock re-timed by the
+    model (:func:`clock_retimed`; the constant part stays with the flight's time offset) is a
+    proposal: :func:`measure_flight` keeps it when the flight's one-offset fit on it is better
+    (:func:`judge_clock`).
 
     Parameters
     ----------
@@ -879,17 +811,17 @@ def gravimeter_clock(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_
     Returns
     -------
     (dict or None, DataFrame or None)
-        The evidence (``windows``, ``drift_ppm``, ``steps``, ``applied``, ``reason``, ``notes``)
+        The evidence (``windows``, ``drift_ppm``, ``steps``, ``terms``, ``reason``, ``notes``)
         — None when tracking is off or the offset was not estimated — and the re-timed record
-        (None unless applied).
+        proposed (None when the windows show nothing to mend).
     """
     if not (p.clock_track and p.estimate_time_offset and offset_info.get("estimated")):
         return None, None
-    t, vu = gnss[0], gnss[1]
-    tau, k = response
+    t = gnss[0]
     center = float(offset_info.get("offset_s", 0.0))
     band = (0.01, acceleration_band_top_hz(float(np.median(np.diff(t))), rec.series.step_s))
-    gap_at, gap_extra = _clock_gaps(rec, p)
+    step_s = float(rec.series.step_s)
+    gap_at, gap_extra = clock.step_candidates(rec.t_s, max(p.clock_min_change_s, 0.5 * step_s))
     rows = _window_offsets(rec, gnss, response, p, vu_from_h, center, band, gap_at)
     info: dict = {"window_s": float(p.clock_window_s), "windows": [
         {"t_s": r[0], "offset_s": r[1], "se_s": r[2], "correlation": r[3]} for r in rows], "applied": False,
@@ -898,7 +830,8 @@ def gravimeter_clock(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_
         info["reason"] = f"{len(rows)} windows with the accelerations correlated (< {CLOCK_MIN_WINDOWS}): not tracked"
         return info, None
     wt, wo, wse = (np.array([r[i] for r in rows]) for i in range(3))
-    model, info["steps"] = _fit_clock_at_gaps((wt, wo, wse), (gap_at, gap_extra), center, float(rec.series.step_s), p)
+    model, info["steps"] = clock.fit_clock_at_gaps(wt, wo, wse, (gap_at, gap_extra), step_s, center, p.clock_p,
+                                                   p.clock_min_change_s)
     info.update(drift_ppm=1e6 * model.drift_s_per_s, drift_over_flight_s=model.drift_s_per_s * float(wt[-1] - wt[0]),
                 terms=model.terms)
     if not model.changes:
@@ -920,30 +853,33 @@ def gravimeter_clock(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_
         info["notes"] = [f"the gravimeter's clock {' and '.join(what)} against the GNSS's, not re-timed: "
                          + info["reason"]]
         return info, None
-    # judged on the flight: the band-passed acceleration residual with one offset, before and after
-    try:
-        runs = height_runs(rec.series, t, vu_from_h, p)
-        before = gm.fit_time_offset(rec.series, t, vu, tau, k, p.max_time_offset_s, band, runs).cost_min
-        after = gm.fit_time_offset(gravimeter_record(retimed, p, []).series, t, vu, tau, k, p.max_time_offset_s,
-                                   band, runs)
-    except (ValueError, FloatingPointError, np.linalg.LinAlgError) as exc:
-        info.pop("model")
-        info["reason"] = f"the re-timed record could not be judged: {exc}"
-        return info, None
-    gain = (before - after.cost_min) / before if before > 0 else 0.0
-    info.update(residual_before_m2s4=before, residual_after_m2s4=after.cost_min, residual_reduction=gain)
+    info["what"] = what
+    info["n_windows"] = len(rows)
+    return info, retimed
+
+
+def judge_clock(info: dict, before: dict, after: dict, p) -> bool:
+    """Whether the re-timed record :func:`gravimeter_clock` proposed is kept (``info`` updated in
+    place, with the notes): the flight's band-passed acceleration residual with one offset
+    (:func:`time_offset`'s fit, ``residual_m2s4``) before and after must drop by
+    ``time_offset_min_improvement`` at least."""
+    what, n = " and ".join(info.pop("what")), info.pop("n_windows")
+    r0, r1 = before.get("residual_m2s4", np.nan), after.get("residual_m2s4", np.nan)
+    gain = (r0 - r1) / r0 if np.isfinite(r0) and np.isfinite(r1) and r0 > 0 else np.nan
+    info.update(residual_before_m2s4=r0, residual_after_m2s4=r1, residual_reduction=gain)
     if not gain >= p.time_offset_min_improvement:
         info.pop("model")
         info["reason"] = (f"re-timing removes only {100 * gain:.2f} % of the acceleration residual "
-                          f"(< {100 * p.time_offset_min_improvement:g} %)")
-        info["notes"] = [f"the gravimeter's clock {' and '.join(what)} against the GNSS's by {len(rows)} windows of "
+                          f"(< {100 * p.time_offset_min_improvement:g} %)" if np.isfinite(gain)
+                          else "the re-timed record's time offset could not be fitted")
+        info["notes"] = [f"the gravimeter's clock {what} against the GNSS's by {n} windows of "
                          f"{p.clock_window_s:g} s, not re-timed: {info['reason']}"]
-        return info, None
+        return False
     info.update(applied=True, reason="significant, and removes that share of the acceleration residual")
-    info["notes"] = [f"the gravimeter's clock {' and '.join(what)} against the GNSS's (time offsets of {len(rows)} windows of "
+    info["notes"] = [f"the gravimeter's clock {what} against the GNSS's (time offsets of {n} windows of "
                      f"{p.clock_window_s:g} s): the gravimeter's stamps re-timed to the GNSS's scale, "
                      f"{100 * gain:.0f} % of the acceleration residual removed (report time_offsets.clock)"]
-    return info, retimed
+    return True
 
 
 #: the gravimeter's acceleration per unit of the GNSS's when the GNSS heights (and velocities) are in
