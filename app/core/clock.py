@@ -75,7 +75,8 @@ def fit_clock(t_s, offset_s, se_s, step_times_s=(), p_level: float = 1e-3, min_c
     Terms are added by forward selection: the drift or a step at one of ``step_times_s``,
     whichever lowers the weighted residual sum of squares most, kept when its partial F-test
     (against the windows' own scatter about the larger model, so under-stated standard errors
-    do not make false steps) gives p < ``p_level`` and it moves the clock by at least
+    do not make false steps) gives p < ``p_level`` (a step: ``p_level`` over the number of
+    candidate times, the best of which it is) and it moves the clock by at least
     ``min_change_s`` (the drift over the windows' span, a step by its size).  A step leaves at
     least :data:`MIN_SEGMENT_WINDOWS` windows on either side of it and of every other step.
 
@@ -150,7 +151,9 @@ def fit_clock(t_s, offset_s, se_s, step_times_s=(), p_level: float = 1e-3, min_c
         dof = n - (k + 1)
         p_val = float(stats.f.sf((rss - r_new) / (r_new / dof), 1, dof)) if r_new > 0 else 0.0
         size = float(b_new[-1]) * (span if kind[0] == "drift" else 1.0)
-        if not (p_val < p_level and abs(size) >= min_change_s):
+        # a step is the best of every candidate gap: its level shared among them (Bonferroni)
+        level = p_level / max(1, len(steps_at)) if kind[0] == "step" else p_level
+        if not (p_val < level and abs(size) >= min_change_s):
             break
         cols.append(col)
         kinds.append(kind)
@@ -212,19 +215,42 @@ def clock_windows(t_s, moving, window_s: float, min_epochs: int = 200) -> list[t
     return out
 
 
-def step_candidates(clock_t_s, min_excess_s: float) -> tuple[np.ndarray, np.ndarray]:
+def step_candidates(clock_t_s, min_excess_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where a record's clock may have been set: the gaps of its sample times ``clock_t_s`` (s;
     dejittered, dropped samples put back) longer than the median step by ``min_excess_s`` at
-    least, less those of a whole number of steps (within 5 % of a step or 2 ms: samples lost,
-    not the clock set).  Returns the middle of each gap (s: a step put there is clear of the
-    stamps' jitter) and its excess over the step (s)."""
+    least.  Returns the middle of each gap (s: a step put there is clear of the stamps' jitter),
+    its excess over the step (s), and whether that excess is a whole number of steps (within 5 %
+    of a step or 2 ms) — samples lost, as a rule, which leaves a window across it sound; a clock
+    set forward by a whole number of steps looks the same, so such a gap stays a candidate."""
     t = np.asarray(clock_t_s, dtype=float)
     step = float(np.median(np.diff(t)))
     excess = np.diff(t) - step
     j = np.flatnonzero(excess >= min_excess_s)
     whole = np.abs(excess[j] / step - np.round(excess[j] / step)) * step <= max(0.05 * step, 0.002)
-    j = j[~whole]
-    return 0.5 * (t[j] + t[j + 1]), excess[j]
+    return 0.5 * (t[j] + t[j + 1]), excess[j], whole
+
+
+def _gap_of_step(x: float, size: float, t_s, gap_t_s, gap_excess_s, sample_step_s: float, tol_s: float) -> int:
+    """Which gap holds a step fitted at ``x`` (s) of ``size`` (s): the windows ``t_s`` cannot tell
+    apart the gaps between the same two of them (a record losing samples every few minutes has
+    several), so the one the jump fits is taken — where it snaps to the sampling
+    (:func:`snap_step_s`), else where its excess is not whole steps and holds the jump, else the
+    fitted one."""
+    t = np.asarray(t_s, dtype=float)
+    g = np.asarray(gap_t_s, dtype=float)
+    same = np.flatnonzero(np.searchsorted(t, g) == np.searchsorted(t, x))
+    fitted = int(np.argmin(np.abs(g - x)))
+    if same.size <= 1:
+        return fitted
+    snaps = [(abs(-snap_step_s(size, e + sample_step_s, sample_step_s, tol_s) + size), int(j))
+             for j, e in zip(same, np.asarray(gap_excess_s)[same])
+             if snap_step_s(size, e + sample_step_s, sample_step_s, tol_s) is not None]
+    if snaps:
+        return min(snaps)[1]
+    e = np.asarray(gap_excess_s)[same]
+    whole = np.abs(e / sample_step_s - np.round(e / sample_step_s)) * sample_step_s <= max(0.05 * sample_step_s, 0.002)
+    holds = same[~whole & (-size <= e + tol_s)]
+    return int(holds[np.argmin(np.abs(np.asarray(gap_excess_s)[holds] + size))]) if holds.size else fitted
 
 
 def fit_clock_at_gaps(t_s, offset_s, se_s, gaps: tuple, sample_step_s: float, shift_s: float = 0.0,
@@ -264,12 +290,14 @@ def fit_clock_at_gaps(t_s, offset_s, se_s, gaps: tuple, sample_step_s: float, sh
         if not bad:
             break
         allowed[bad] = False
+    snap_tol = max(3.0 * float(np.median(wse)), 0.25 * sample_step_s)
     steps, evidence = [], []
     for x, size in model.steps:
-        gap = float(gap_excess[np.argmin(np.abs(gap_at - (x - shift_s)))] + sample_step_s)
-        snapped = snap_step_s(size, gap, sample_step_s, max(3.0 * float(np.median(wse)), 0.25 * sample_step_s))
-        steps.append((x - shift_s, size if snapped is None else snapped))
-        evidence.append({"time_s": x - shift_s, "size_s": steps[-1][1], "fitted_size_s": size, "gap_s": gap,
+        i = _gap_of_step(x, size, wt, gap_at + shift_s, gap_excess, sample_step_s, snap_tol)
+        gap = float(gap_excess[i] + sample_step_s)
+        snapped = snap_step_s(size, gap, sample_step_s, snap_tol)
+        steps.append((float(gap_at[i]), size if snapped is None else snapped))
+        evidence.append({"time_s": float(gap_at[i]), "size_s": steps[-1][1], "fitted_size_s": size, "gap_s": gap,
                          "snapped_to_clock": snapped is not None})
     model = ClockModel(model.offset_s, model.drift_s_per_s, model.t_ref_s, tuple(steps), model.terms)
     if model.drift_s_per_s and any(e["snapped_to_clock"] for e in evidence):

@@ -135,7 +135,8 @@ def test_windows_and_step_candidates_from_known_records():
     """Windows: two airborne runs of 1000 s and 250 s at 10 Hz (a ground stop between, a 30 s gap of
     the record inside the first): 300 s windows fill each gap-free run and none spans the gap or
     the stop.  Candidates: a 2 Hz clock with one sample lost (a whole step) and one 0.3 s jump —
-    only the jump is a candidate, at the middle of its gap, with its excess over the step."""
+    both gaps, at their middles with their excess over the step, only the lost sample marked a
+    whole number of steps."""
     from app.core.clock import clock_windows, step_candidates
 
     t = np.arange(0.0, 1400.0, 0.1)
@@ -148,9 +149,10 @@ def test_windows_and_step_candidates_from_known_records():
     clk = np.arange(0.0, 600.0, 0.5)
     clk = np.delete(clk, 100)                               # one sample lost
     clk[400:] += 0.3                                        # the clock set 0.3 s forward
-    mid, excess = step_candidates(clk, 0.02)
-    assert mid.size == 1 and mid[0] == pytest.approx(0.5 * (clk[399] + clk[400]))
-    assert excess[0] == pytest.approx(0.3)
+    mid, excess, whole = step_candidates(clk, 0.02)
+    assert mid.size == 2 and mid[1] == pytest.approx(0.5 * (clk[399] + clk[400]))
+    assert mid[0] == pytest.approx(0.5 * (clk[99] + clk[100]))
+    assert np.allclose(excess, [0.5, 0.3]) and whole.tolist() == [True, False]
 
 
 def test_a_jump_is_kept_only_where_its_gap_can_hold_it():

@@ -763,8 +763,8 @@ def _window_offsets(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_f
                     band: tuple, gap_at: np.ndarray) -> list[tuple]:
     """The time offset on each clock window (:func:`app.core.clock.clock_windows`), searched
     ±:data:`CLOCK_SEARCH_S` about ``center`` (s): ``(centre s, offset s, se s, correlation)`` of the
-    windows that hold no candidate gap (a step inside would blur its offset) and correlate at
-    least :data:`CLOCK_MIN_CORRELATION`."""
+    windows that hold none of the gaps ``gap_at`` (a step inside would blur its offset) and
+    correlate at least :data:`CLOCK_MIN_CORRELATION`."""
     t, vu, ve, vn = gnss
     tau, k = response
     rows = []
@@ -821,8 +821,9 @@ def gravimeter_clock(rec: GravimeterRecord, gnss: tuple, response: tuple, p, vu_
     center = float(offset_info.get("offset_s", 0.0))
     band = (0.01, acceleration_band_top_hz(float(np.median(np.diff(t))), rec.series.step_s))
     step_s = float(rec.series.step_s)
-    gap_at, gap_extra = clock.step_candidates(rec.t_s, max(p.clock_min_change_s, 0.5 * step_s))
-    rows = _window_offsets(rec, gnss, response, p, vu_from_h, center, band, gap_at)
+    gap_at, gap_extra, lost = clock.step_candidates(rec.t_s, max(p.clock_min_change_s, 0.5 * step_s))
+    # a window across a gap that is not whole samples would blur a step there: left out
+    rows = _window_offsets(rec, gnss, response, p, vu_from_h, center, band, gap_at[~lost])
     info: dict = {"window_s": float(p.clock_window_s), "windows": [
         {"t_s": r[0], "offset_s": r[1], "se_s": r[2], "correlation": r[3]} for r in rows], "applied": False,
         "candidate_gaps": int(gap_at.size)}
