@@ -566,6 +566,11 @@ class ProcessingParams(_Strict):
                                     "is added in quadrature; 1 = off.  The data do not fix Q there within a decade "
                                     "(held-out small layouts: the RMS-optimal Q 6-34x above the estimate on some, "
                                     "below it on others; 2-sigma coverage 0.81-0.89 on average without it)")
+    std_level_min_contrast: float = Field(3.0, ge=1, le=1000, description="Two or more anomaly levels whose "
+                                          "largest is within this factor of the smallest are levels the EM did not "
+                                          "tell apart (the map says nothing of where the anomaly is rougher): "
+                                          "dg_std_mgal carries the level's uncertainty as with one level "
+                                          "(std_level_factor).  1 = off")
     std_repeat_min_samples: float = Field(8.0, ge=0, description="Where std_level_factor would widen the std and "
                                           "repeat passes measure the error instead (the passes' scatter: the noise "
                                           "part; their common difference from the estimate at std_level_factor x Q: "
@@ -974,7 +979,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
      ("recognition_pool_h_per_km", "recognition_pool_rho_km")),
     ("filtering", "Filtering and the posterior std",
      ("smoother", "fir_cutoff_period_s", "anomaly_level_scale"),
-     ("fir_gap_max_error_mgal", "q_from_posteriors", "std_level_factor", "std_repeat_min_samples",
+     ("fir_gap_max_error_mgal", "q_from_posteriors", "std_level_factor", "std_level_min_contrast",
+      "std_repeat_min_samples",
       "std_repeat_significance", "std_state_mixture", "std_unresolved_bound", "std_common_level", "std_crossover_check",
       "std_crossover_min_n", "std_crossover_min_n_widen", "std_crossover_min_factor", "std_crossover_shared_fraction",
       "rescale_noisy_passes")),

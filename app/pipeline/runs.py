@@ -290,6 +290,17 @@ def _test_line_level(filtered, idf, m: int, p, warnings: list) -> None:
                         + (f" ({lc['scaled']})" if lc.get("scaled") else "") + f": {lc['reason']}")
 
 
+def _level_spread(cand, dt_s: float, m: int, noise, p) -> None:
+    """Levels learned from too few points (one level, or two from < 2 x min_points_adaptive) or
+    learned alike (within std_level_min_contrast): the std also carries the levels' uncertainty
+    (:meth:`app.pipeline.stages.filtering.Filtered.level_spread_std`), in place."""
+    cand.filtered.level_spread_std(dt_s, m, p.smoother, noise, p.std_level_factor, n_points=cand.ident.n_points,
+                                   min_points=p.min_points_adaptive, q_from_posteriors=p.q_from_posteriors,
+                                   repeat_min_samples=p.std_repeat_min_samples or None,
+                                   fir_period_s=p.fir_cutoff_period_s, repeat_significance=p.std_repeat_significance,
+                                   min_contrast=p.std_level_min_contrast, em_levels_mgal2=cand.ident.learned.em.Q)
+
+
 def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = None, rho_km: float | None = None,
                survey_name: str | None = None, orders: list[int] | None = None,
                q_start: dict | None = None, q_stationary: dict | None = None) -> dict:
@@ -352,14 +363,7 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
                                                 p.repeat_blend_reference_q_factor, p.repeat_blend_min_passes)
     if p.std_state_mixture:  # and the std of the mixture of levels
         cands[m_best].filtered.mixture_std(idf.dt_s, m_best, p.smoother, noise)
-    # levels from too few points (one level, or two from < 2 x min_points_adaptive): the std
-    # also carries the levels' uncertainty
-    cands[m_best].filtered.level_spread_std(idf.dt_s, m_best, p.smoother, noise, p.std_level_factor,
-                                            n_points=cands[m_best].ident.n_points,
-                                            min_points=p.min_points_adaptive, q_from_posteriors=p.q_from_posteriors,
-                                            repeat_min_samples=p.std_repeat_min_samples or None,
-                                            fir_period_s=p.fir_cutoff_period_s,
-                                            repeat_significance=p.std_repeat_significance)
+    _level_spread(cands[m_best], idf.dt_s, m_best, noise, p)
     warnings.extend(pass_noise_warnings(cands[m_best].filtered.std_repeat_tracks))
     if blend:   # after m_best's own std: the blend's spread adds to it
         cands[m_best].filtered.blend_order(blend_est, blend["weight"])

@@ -580,3 +580,47 @@ def test_a_lines_interior_is_measured_along_it_and_a_missing_position_adds_no_di
     line.easting_km[150] = np.nan
     mask = _interior(pr, 10.0)
     np.testing.assert_array_equal(np.flatnonzero(mask) - 20, np.arange(100, 201))
+
+
+def test_levels_the_em_did_not_tell_apart_carry_their_uncertainty():
+    """Two levels learned alike (within ``min_contrast`` of each other) from enough points: the
+    map says nothing of where the anomaly is rougher — here a line whose second half is 100x
+    rougher, smoothed at two learned levels 1.7x apart near their geometric mean (as the EM
+    gives where the noise hides the contrast: the 1 Hz GNSS regime, 1.18x).  The posterior std
+    covers the rough half's error on about half of its epochs; the one-level spread on ~88 %.  Levels learned apart (or
+    the learned ones when a refinement lifted one past the contrast) are judged as learned."""
+    dt, T, R, step = 0.1, 20000, 1.0, 100
+    q_true = np.array([2e-9, 2e-7])
+    q_alike = np.array([1.5e-8, 2.5e-8])
+    cov = {"plain": [], "spread": []}
+    for seed in range(3):
+        rng = np.random.default_rng(10 + seed)
+        z, dg, state, idx, pq = _two_level_line(rng, T, dt, q_true, R, step)
+        pq = np.full_like(pq, 0.5)   # the map cannot tell the levels apart either
+        pr = PreparedLine(None, state, state, z, slice(0, T), None, idx, pq)
+        lq = np.exp(np.interp(np.arange(T), idx, pq @ np.log(q_alike)))
+        sm = kalman_smooth(z, lq, np.full(T, R), dt, m=2)
+        table = pd.DataFrame({"dg_mgal": sm.dg_mgal, "dg_std_mgal": sm.dg_std_mgal})
+        rough = slice(T // 2 + 1000, T - 1000)
+        err = np.abs(sm.dg_mgal - dg)[rough]
+        for learned, expect in ((q_alike, True), (q_true, False), (None, True)):
+            # None: the levels as refined are judged (q_alike here)
+            f = Filtered(table.copy(), q_alike, None, 1.0, prepared=[pr], r_lines=[np.full(T, R)], n_r=1)
+            f.level_spread_std(dt, 2, "bf", None, 10.0, n_points=5000, min_points=200, min_contrast=3.0,
+                               em_levels_mgal2=learned)
+            std = f.table["dg_std_mgal"].to_numpy()
+            if expect:
+                assert f.std_level_factor == 10.0 and "within a factor 1.67" in f.std_level_reason
+                np.testing.assert_array_equal(f.table["dg_mgal"].to_numpy(), sm.dg_mgal)
+                assert np.all(std >= sm.dg_std_mgal)
+                if learned is not None:
+                    cov["spread"].append(np.mean(err < 2 * std[rough]))
+            else:
+                assert f.std_level_factor is None and np.array_equal(std, sm.dg_std_mgal)
+        # off (min_contrast None): left as the smoother gave it
+        f = Filtered(table.copy(), q_alike, None, 1.0, prepared=[pr], r_lines=[np.full(T, R)], n_r=1)
+        f.level_spread_std(dt, 2, "bf", None, 10.0, n_points=5000, min_points=200, em_levels_mgal2=q_alike)
+        assert f.std_level_factor is None
+        cov["plain"].append(np.mean(err < 2 * sm.dg_std_mgal[rough]))
+    assert np.mean(cov["plain"]) < 0.65, cov     # 0.50-0.58 on the rough half
+    assert np.mean(cov["spread"]) > 0.85, cov    # 0.87-0.89

@@ -311,14 +311,18 @@ class Filtered:
     def level_spread_std(self, dt_s: float, m: int, method: str, noise, factor: float,
                          n_points: int | None = None, min_points: int | None = None,
                          q_from_posteriors: bool = True, repeat_min_samples: float | None = None,
-                         fir_period_s: float = 100.0, repeat_significance: float = 0.1) -> None:
+                         fir_period_s: float = 100.0, repeat_significance: float = 0.1,
+                         min_contrast: float | None = None, em_levels_mgal2=None) -> None:
         """Levels learned from too few points: widen ``dg_std_mgal`` by the spread of the
         estimates with the Q levels scaled by 1/f and f (:func:`app.core.smoother.level_spread_std_mgal`,
         ``std_level_factor`` = f); the report's ``level_refinement.std_level_factor`` and
         ``std_level_reason`` say so.  It applies with one anomaly level (too few decimated
         points for two), and with ``n_q`` levels when the EM learned them from fewer than
         ``n_q × min_points`` decimated points (``n_points``): fewer points per level than one
-        level needs.  Q(t) is the estimate's (the levels' geometric mean under the map's
+        level needs, or levels the EM did not tell apart (of the levels as learned,
+        ``em_levels_mgal2`` — before any refinement lifts one —, the largest within
+        ``min_contrast`` of the smallest: the map then says nothing of where the anomaly is
+        rougher, and the level is as unsure as one level's).  Q(t) is the estimate's (the levels' geometric mean under the map's
         probabilities with ``q_from_posteriors``), scaled as a whole.  With
         ``repeat_min_samples``, repeat tracks that measure their own error get
         :meth:`repeat_calibrated_std` instead (``fir_period_s``: the length of one independent
@@ -326,12 +330,17 @@ class Filtered:
         order that is used only."""
         n_q = len(self.Q_levels)
         few = n_q > 1 and n_points is not None and min_points is not None and n_points < n_q * min_points
-        if (n_q != 1 and not few) or factor <= 1.0 or not self.prepared or self.r_lines is None:
+        learned = np.asarray(self.Q_levels if em_levels_mgal2 is None else em_levels_mgal2, dtype=float)
+        contrast = float(learned.max() / learned.min()) if n_q > 1 and learned.min() > 0 else np.inf
+        alike = n_q > 1 and not few and min_contrast is not None and contrast < min_contrast
+        if (n_q != 1 and not few and not alike) or factor <= 1.0 or not self.prepared or self.r_lines is None:
             if repeat_min_samples is not None and self.prepared:
                 self.repeat_noise_floor(repeat_min_samples, fir_period_s, repeat_significance)
             return
         reason = ("one anomaly level" if n_q == 1 else
-                  f"{n_q} anomaly levels from {n_points} decimated points (< {n_q} x {min_points})")
+                  f"{n_q} anomaly levels from {n_points} decimated points (< {n_q} x {min_points})" if few else
+                  f"{n_q} anomaly levels within a factor {contrast:.2f} of each other (< {min_contrast:g}): "
+                  "the map does not tell them apart")
         done, floors = (self.repeat_calibrated_std(dt_s, m, method, noise, factor, q_from_posteriors,
                                                    repeat_min_samples, fir_period_s, repeat_significance)
                         if repeat_min_samples is not None else (set(), {}))
