@@ -322,8 +322,9 @@ class Filtered:
         level needs, or levels the EM did not tell apart (of the levels as learned,
         ``em_levels_mgal2`` — before any refinement lifts one —, the largest within
         ``min_contrast`` of the smallest: the map then says nothing of where the anomaly is
-        rougher, and the level is as unsure as one level's).  Q(t) is the estimate's (the levels' geometric mean under the map's
-        probabilities with ``q_from_posteriors``), scaled as a whole.  With
+        rougher, and the level is as unsure as one level's).  Q(t) is the estimate's (the
+        levels' geometric mean under the map's probabilities with ``q_from_posteriors``),
+        scaled as a whole.  With
         ``repeat_min_samples``, repeat tracks that measure their own error get
         :meth:`repeat_calibrated_std` instead (``fir_period_s``: the length of one independent
         stretch; ``repeat_significance``: the level its smoothing part must pass).  Run for the
