@@ -581,7 +581,8 @@ class ProcessingParams(_Strict):
     repeat_level_check: bool = Field(True, description="Where the crossovers are too few to judge the estimate "
                                      "(fewer than fir_guard_min_crossovers: a test line) and a repeat track has "
                                      "repeat_blend_min_passes passes or more, the anomaly level Q(t) is scaled by "
-                                     "1 / repeat_level_factor (or by repeat_level_factor, with repeat_level_raise) "
+                                     "1 / repeat_level_factor (or by its powers up to repeat_level_raise_steps, with "
+                                     "repeat_level_raise) "
                                      "when the passes then agree significantly better with the other passes' "
                                      "reference (repeat_level_reference) away from the ends of their common stretch "
                                      "(repeat_level_edge_km; repeat_level_significance)")
@@ -592,6 +593,11 @@ class ProcessingParams(_Strict):
                                      "held-out generated test lines better than the check that only lowered by > 1 % "
                                      "on 9, worse on 1; against the 50 s low-pass of z (the check's earlier "
                                      "reference) Q x 3 had made 5 of 18 less repeatable and one 9 % worse")
+    repeat_level_raise_steps: int = Field(2, ge=1, le=4, description="With repeat_level_raise, the check tries "
+                                          "Q(t) x repeat_level_factor^k for k = 1 .. this (3 and 9 by default) and "
+                                          "keeps the significant one with the least figure: a level a decade too low "
+                                          "(the generator's test lines 1064, 1176: 10-14 % less error) is not mended "
+                                          "by x 3 alone.  1 = x 3 only (session 49's ladder)")
     repeat_level_reference: Literal["smoother", "lowpass"] = Field(
         "smoother", description="The repeat level check's reference: each pass smoothed at "
         "repeat_blend_reference_q_factor x Q(t) under the fitted noise model ('smoother'), or the light low-pass of z "
@@ -992,7 +998,8 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
       "repeat_blend_reference", "repeat_blend_reference_q_factor",
       "repeat_blend_reference_period_s", "repeat_blend_reference_periods", "repeat_blend_min_passes",
       "repeat_blend_shrink",
-      "repeat_level_check", "repeat_level_factor", "repeat_level_raise", "repeat_level_reference",
+      "repeat_level_check", "repeat_level_factor", "repeat_level_raise", "repeat_level_raise_steps",
+      "repeat_level_reference",
       "repeat_level_edge_km", "repeat_level_block_s", "repeat_level_significance")),
     ("leveling", "Leveling at the crossovers",
      ("leveling_degree", "leveling_per_flight", "leveling_significance"),

@@ -272,11 +272,19 @@ def _recognised_by(idents: dict, m: int, p):
     return hybrid
 
 
+def repeat_level_factors(p) -> tuple[float, ...]:
+    """The factors of Q(t) the repeat level check tries: ``1 / repeat_level_factor``, 1, and with
+    ``repeat_level_raise`` ``repeat_level_factor^k`` for k = 1 .. ``repeat_level_raise_steps``."""
+    f = float(p.repeat_level_factor)
+    raised = tuple(f ** k for k in range(1, int(p.repeat_level_raise_steps) + 1)) if p.repeat_level_raise else ()
+    return (1.0 / f, 1.0) + raised
+
+
 def _test_line_level(filtered, idf, m: int, p, warnings: list) -> None:
     """A test line's anomaly level checked by its repeat passes (``repeat_level_*``,
     :meth:`app.pipeline.stages.filtering.Filtered.repeat_level_check`), in place; a warning
     says when it was scaled."""
-    factors = (1.0 / p.repeat_level_factor, 1.0) + ((p.repeat_level_factor,) if p.repeat_level_raise else ())
+    factors = repeat_level_factors(p)
     filtered.repeat_level_check(
         idf.dt_s, m, p.smoother, filtered.noise_for(idf.noise.model), p.q_from_posteriors, factors,
         p.repeat_level_significance,

@@ -624,3 +624,33 @@ def test_levels_the_em_did_not_tell_apart_carry_their_uncertainty():
         cov["plain"].append(np.mean(err < 2 * sm.dg_std_mgal[rough]))
     assert np.mean(cov["plain"]) < 0.65, cov     # 0.50-0.58 on the rough half
     assert np.mean(cov["spread"]) > 0.85, cov    # 0.87-0.89
+
+
+def test_a_test_lines_level_a_decade_too_low_is_raised_by_the_ladder():
+    """With the model's level 30x too low the check's ladder (Q/3, Q, 3Q, 9Q: the defaults'
+    ``repeat_level_factors``) takes 9Q where the passes agree significantly better so, and the
+    error against the truth in the interiors falls below what 3Q alone gives; with the level
+    right the ladder leaves it.  Seeds 90-99: 9Q on 10 of 10 (error 6-19 % below 3Q's), never
+    moved with the level right."""
+    from app.config import ProcessingParams
+    from app.pipeline.runs import repeat_level_factors
+
+    ladder = repeat_level_factors(ProcessingParams())
+    assert ladder == (1 / 3, 1.0, 3.0, 9.0)
+    assert repeat_level_factors(ProcessingParams(repeat_level_raise_steps=1)) == (1 / 3, 1.0, 3.0)
+    q = 2e-5
+    inner = slice(400, -400)
+    args = (0.1, 50.0, 6.0, 3, 50.0)
+    errs = {}
+    for seed in (90, 91, 92):
+        for name, factors in (("three", (1 / 3, 1.0, 3.0)), ("ladder", ladder)):
+            f, truths, dt, T = _level_track(seed, q, q / 30)
+            f.repeat_level_check(dt, 2, "bf", None, True, factors, *args, reference_q_factor=300.0, edge_km=10.0)
+            after = f.table["dg_mgal"].to_numpy().reshape(4, T)
+            errs.setdefault(name, []).append(float(np.sqrt(np.mean((after[:, inner] - np.array(truths)[:, inner]) ** 2))))
+            if name == "ladder":
+                assert f.repeat_level["factor"] == 9.0, f.repeat_level
+        g, _, dt, T = _level_track(seed, q, q)
+        g.repeat_level_check(dt, 2, "bf", None, True, ladder, *args, reference_q_factor=300.0, edge_km=10.0)
+        assert g.repeat_level["factor"] == 1.0, g.repeat_level
+    assert all(b < 0.95 * a for a, b in zip(errs["three"], errs["ladder"])), errs
