@@ -25,11 +25,11 @@ Units: times in s, specific force in m/s².
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 
 import numpy as np
 from scipy.interpolate import CubicSpline
-from scipy.signal import savgol_filter
+from scipy.signal import butter, savgol_filter, sosfilt, sosfilt_zi
 
 from app.core.geodesy import vertical_velocity_from_heights_ms
 
@@ -656,7 +656,6 @@ def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 
         variances with and without it.
     """
     from scipy.optimize import minimize_scalar
-    from scipy.signal import butter, sosfiltfilt
 
     t = np.asarray(t_epochs_s, dtype=float)
     v = np.asarray(vu_ms, dtype=float)
@@ -666,18 +665,18 @@ def fit_time_offset(series: IntegratedSeries, t_epochs_s, vu_ms, tau_s: float = 
     fs = 1.0 / dt
     lo, hi = band_hz
     hi = min(hi, 0.45 * fs)
-    sos = butter(4, [lo, hi], btype="band", fs=fs, output="sos")
+    band = band_filter(float(lo), float(hi), fs)
     acc = np.full(t.shape, np.nan)
     acc[1:] = np.diff(v) / np.diff(t)
     # at most an eighth of the record either way, so the compared stretch keeps 3/4 of it
     max_offset_s = min(float(max_offset_s), 0.125 * (t[-1] - t[0]))
     margin = int(np.ceil((max_offset_s + abs(float(center_s))) / dt)) + 2
     sl = slice(margin, t.size - margin)
-    acc_bp = sosfiltfilt(sos, fill_nan(acc))[sl]
+    acc_bp = filtfilt_band(band, fill_nan(acc))[sl]
 
     def grav_bp(offset):
         f = gnss_side_means(series, t, tau_s, scale, offset, height_runs)
-        return sosfiltfilt(sos, fill_nan(f))[sl]
+        return filtfilt_band(band, fill_nan(f))[sl]
 
     g0 = grav_bp(float(center_s))
     # shifting the gravimeter by +offset moves its features later: g(t − offset)
@@ -728,15 +727,13 @@ def _low_band_gain(series: IntegratedSeries, t: np.ndarray, acc: np.ndarray, res
     gravimeter's: its noise does not bias it), two periods of the band's low edge left out at both
     ends (the filters' transients).  NaNs when the band is above the GNSS's Nyquist or the record
     shorter than eight such periods."""
-    from scipy.signal import butter, sosfiltfilt
-
     lo, hi = GAIN_LOW_BAND_HZ
     if not hi < 0.45 * fs:
         return float("nan"), float("nan")
-    sos = butter(4, [lo, hi], btype="band", fs=fs, output="sos")
+    band = band_filter(float(lo), float(hi), float(fs))
     tau_s, scale, off = response
-    g = sosfiltfilt(sos, fill_nan(gnss_side_means(series, t, tau_s, scale, off, height_runs)))[sl]
-    a = sosfiltfilt(sos, fill_nan(acc))[sl]
+    g = filtfilt_band(band, fill_nan(gnss_side_means(series, t, tau_s, scale, off, height_runs)))[sl]
+    a = filtfilt_band(band, fill_nan(acc))[sl]
     edge = int(round(2.0 / lo * fs))   # two periods of the band's low edge: the filters' end transients
     if g.size < 4 * edge:
         return float("nan"), float("nan")
@@ -745,6 +742,34 @@ def _low_band_gain(series: IntegratedSeries, t: np.ndarray, acc: np.ndarray, res
     if not den > 0:
         return float("nan"), float(np.corrcoef(g, a)[0, 1])
     return float(np.sum(g * g) / den), float(np.corrcoef(g, a)[0, 1])
+
+
+@lru_cache(maxsize=64)
+def band_filter(lo_hz: float, hi_hz: float, fs_hz: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """A 4th-order Butterworth band-pass ``[lo_hz, hi_hz]`` at ``fs_hz`` (second-order sections),
+    its steady-state initial conditions (``sosfilt_zi``) and the odd-extension length SciPy's
+    ``sosfiltfilt`` pads with: made once per band and rate, shared (never modified) — the time-offset fit
+    filters the same band hundreds of times per flight (:func:`filtfilt_band`)."""
+    sos = butter(4, [lo_hz, hi_hz], btype="band", fs=fs_hz, output="sos")
+    zi = sosfilt_zi(sos)
+    ntaps = 2 * sos.shape[0] + 1 - min(int((sos[:, 2] == 0).sum()), int((sos[:, 5] == 0).sum()))
+    zi.setflags(write=False)   # (SciPy's sosfilt needs a writable sos: not to be modified either)
+    return sos, zi, 3 * ntaps
+
+
+def filtfilt_band(band: tuple[np.ndarray, np.ndarray, int], x) -> np.ndarray:
+    """Zero-phase filtering of the 1-D ``x`` by ``band`` (:func:`band_filter`): the same
+    operations as ``scipy.signal.sosfiltfilt(sos, x)`` with its default odd padding (the
+    result is identical), without designing the filter and solving for its initial
+    conditions on every call."""
+    sos, zi, edge = band
+    x = np.asarray(x, dtype=float)
+    if x.ndim != 1 or x.shape[0] <= edge:
+        raise ValueError(f"The length of the input vector x must be greater than padlen, which is {edge}.")
+    ext = np.concatenate((2 * x[0:1] - x[edge:0:-1], x, 2 * x[-1:] - x[-2:-(edge + 2):-1]))
+    y, _ = sosfilt(sos, ext, zi=zi * ext[0:1])
+    y, _ = sosfilt(sos, y[::-1], zi=zi * y[-1:])
+    return y[::-1][edge:-edge]
 
 
 def fill_nan(x):

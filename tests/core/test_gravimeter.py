@@ -437,3 +437,26 @@ def test_time_offset_of_heights_only_gnss_found_through_the_heights_spline():
     assert abs(fit.offset_s - offset) < 0.005
     assert fit.correlation > 0.99
     assert abs(plain.offset_s - offset) > 5 * abs(fit.offset_s - offset)
+
+
+@pytest.mark.parametrize("fs_hz, band_hz, n", [(10.0, (0.01, 1.0), 5000), (2.0, (0.01, 0.9), 700),
+                                                (1.0, (0.01, 0.05), 300), (20.0, (0.05, 2.0), 60000)])
+def test_filtfilt_band_is_scipys_sosfiltfilt(fs_hz, band_hz, n):
+    """The cached band-pass of the time-offset fit gives SciPy's ``sosfiltfilt`` of the same
+    Butterworth design bit for bit (a random walk, a trend and a step), and refuses a record no
+    longer than SciPy's padding as SciPy does."""
+    from scipy.signal import butter, sosfiltfilt
+
+    from app.core.gravimeter import band_filter, filtfilt_band
+
+    rng = np.random.default_rng(n)
+    x = rng.normal(size=n).cumsum() + 0.01 * np.arange(n) + np.where(np.arange(n) > n // 3, 5.0, 0.0)
+    ref = sosfiltfilt(butter(4, list(band_hz), btype="band", fs=fs_hz, output="sos"), x)
+    got = filtfilt_band(band_filter(*band_hz, fs_hz), x)
+    np.testing.assert_array_equal(got, ref)
+    assert band_filter(*band_hz, fs_hz) is band_filter(*band_hz, fs_hz)   # designed once
+    short = np.zeros(band_filter(*band_hz, fs_hz)[2])
+    with pytest.raises(ValueError, match="padlen"):
+        sosfiltfilt(butter(4, list(band_hz), btype="band", fs=fs_hz, output="sos"), short)
+    with pytest.raises(ValueError, match="padlen"):
+        filtfilt_band(band_filter(*band_hz, fs_hz), short)
