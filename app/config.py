@@ -490,6 +490,13 @@ class ProcessingParams(_Strict):
                                         "iteration whose transition matrix still gave every level "
                                         "level_support_min_share of the steps (the level as learned from a terrain, "
                                         "before its state shed its points)")
+    level_backoff_floor_min_iteration: int = Field(2, ge=0, le=MAX_EM_ITER, description="A level "
+                                                   "level_support_backoff took from an EM iteration before this one "
+                                                   "was never learned from a terrain (its state lost its points after "
+                                                   "the first M-step: the value is the initial guess moved once): it "
+                                                   "is no floor for the full-rate likelihood's level under the map "
+                                                   "(refine_lift_only), which is used, kept at least the level below "
+                                                   "it (0: every level taken back is a floor)")
     refine_levels: bool = Field(True, description="Re-estimate Q_i, R_j by full-rate Kalman likelihood given the "
                                 "recognised states (the decimated EM can collapse a smooth state's Q)")
     refine_lift_only: bool = Field(True, description="The refinement may only raise a Q level above the EM's, "
@@ -976,7 +983,7 @@ PARAM_GROUPS: tuple[tuple[str, str, tuple[str, ...], tuple[str, ...]], ...] = (
     ("identification", "Identification: EM learning of the levels and transitions",
      ("n_q", "n_r", "em_max_iter", "em_tol"),
      ("min_points_adaptive", "include_tie_lines", "level_support_min_share", "level_support_map_share",
-      "level_support_backoff", "refine_levels", "refine_lift_only", "refine_lift_max_stationary", "refine_max_epochs",
+      "level_support_backoff", "level_backoff_floor_min_iteration", "refine_levels", "refine_lift_only", "refine_lift_max_stationary", "refine_max_epochs",
       "rough_level_factor", "crossover_noise_floor",
       "crossover_noise_floor_min_flattening", "crossover_level_check", "crossover_level_p", "crossover_level_min_crossovers",
       "crossover_level_all_orders", "crossover_level_min_scale")),

@@ -306,7 +306,18 @@ def _level_spread(cand, dt_s: float, m: int, noise, p) -> None:
                                    min_points=p.min_points_adaptive, q_from_posteriors=p.q_from_posteriors,
                                    repeat_min_samples=p.std_repeat_min_samples or None,
                                    fir_period_s=p.fir_cutoff_period_s, repeat_significance=p.std_repeat_significance,
-                                   min_contrast=p.std_level_min_contrast, em_levels_mgal2=cand.ident.learned.em.Q)
+                                   min_contrast=p.std_level_min_contrast, em_levels_mgal2=_learned_levels(cand))
+
+
+def _learned_levels(cand) -> np.ndarray:
+    """The levels as the EM learned them (mGal²), before any refinement lifts one; a level the
+    EM did not learn (taken back from its first iterations, ``unlearned_levels``) as the
+    likelihood set it: the EM told no contrast there."""
+    q = np.asarray(cand.ident.learned.em.Q, dtype=float).copy()
+    ul = cand.filtered.unlearned_levels
+    if ul:
+        q[ul["levels"]] = ul["used_mgal2"]
+    return q
 
 
 def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = None, rho_km: float | None = None,

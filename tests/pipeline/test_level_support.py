@@ -142,3 +142,40 @@ def test_backoff_leaves_supported_or_unrecoverable_levels_alone():
     inverted = back_off_levels(_emptied([0.5, 0.1, 0.001], [(0.008, 0.07), (0.01, 0.003), (0.004, 0.13)]), 0.02, 0.1)
     assert inverted.level_backoff["iteration"] is None and "ascend" in inverted.level_backoff["reason"]
     np.testing.assert_allclose(inverted.learned.em.Q, [0.004, 0.13])
+
+
+def test_a_level_taken_back_from_the_first_iteration_is_not_learned():
+    """A level whose state lost its points after the first M-step is taken back from iteration 1
+    (the initial guess moved once): ``unlearned_levels`` names it below the default threshold of
+    iteration 2, and never a level taken back from a later iteration or none."""
+    from app.pipeline.stages.identification import unlearned_levels
+
+    early = back_off_levels(_emptied([0.5, 0.05, 0.01, 0.005], [(0.008, 0.07), (0.003, 0.9), (0.0035, 0.3),
+                                                                   (0.004, 0.13)]), 0.02, 0.1)
+    assert early.level_backoff["iteration"] == 1
+    np.testing.assert_allclose(early.learned.em.Q, [0.004, 0.9])
+    assert unlearned_levels(early, 2) == [1]
+    assert unlearned_levels(early, 1) == [] and unlearned_levels(early, 0) == []
+    late = back_off_levels(_emptied([0.5, 0.1, 0.05, 0.021, 0.01, 0.001],
+                                    [(0.008, 0.07), (0.003, 0.027), (0.003, 0.021), (0.0033, 0.024),
+                                     (0.0035, 0.05), (0.004, 0.13)]), 0.02, 0.1)
+    assert late.level_backoff["iteration"] == 3 and unlearned_levels(late, 2) == []
+    never = back_off_levels(_emptied([0.01, 0.01, 0.01], [(0.008, 0.07)] * 3), 0.02, 0.1)
+    assert unlearned_levels(never, 2) == []
+
+
+def test_lift_levels_floor_every_level_but_an_unlearned_one():
+    """refine_lift_only by hand: each likelihood level raised to the EM's, except an unlearned
+    level, which keeps the likelihood's level, never below the level under it."""
+    from app.pipeline.stages.filtering import lift_levels
+
+    q, rep = lift_levels([1e-7, 5e-6], [2e-6, 3e-4])
+    np.testing.assert_array_equal(q, [2e-6, 3e-4])
+    assert rep is None
+    q, rep = lift_levels([1e-7, 5e-6], [2e-6, 3e-4], [1])
+    np.testing.assert_array_equal(q, [2e-6, 5e-6])
+    assert rep["levels"] == [1] and rep["em_floor_mgal2"] == [3e-4] and rep["used_mgal2"] == [5e-6]
+    q, rep = lift_levels([1e-7, 1e-6], [2e-6, 3e-4], [1])       # below the smooth level: held at it
+    np.testing.assert_array_equal(q, [2e-6, 2e-6])
+    q, _ = lift_levels([1e-7, 4e-5, 1e-6], [2e-6, 1e-5, 3e-4], [2])
+    np.testing.assert_array_equal(q, [2e-6, 4e-5, 4e-5])

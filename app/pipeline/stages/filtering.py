@@ -27,6 +27,7 @@ from app.core.model_check import blend_estimates, leave_one_out_msd_mgal2, leave
 from app.core.noise_model import white_velocity, with_white_floor
 from app.core.smoother import kalman_smooth, level_spread_std_mgal, mixture_std_mgal
 from app.pipeline.parallel import line_map
+from app.pipeline.stages.identification import unlearned_levels
 from app.pipeline.stages.lines import LineData
 from app.pipeline.stages.measurement import FlightMeasurement
 
@@ -247,6 +248,7 @@ class Filtered:
     std_level_reason: str | None = None
     std_repeat_tracks: dict | None = None
     smooth_lift_cap: dict | None = None
+    unlearned_levels: dict | None = None
     noisy_passes: dict | None = None
     repeat_level: dict | None = None
     rough_level: dict | None = None
@@ -299,7 +301,8 @@ class Filtered:
                 "std_level_factor": self.std_level_factor,
                 "std_level_reason": self.std_level_reason, "std_repeat_tracks": self.std_repeat_tracks,
                 "noisy_passes_rescaled": self.noisy_passes, "repeat_level_check": self.repeat_level,
-                "smooth_lift_capped": self.smooth_lift_cap, "rough_level": self.rough_level, **scale}
+                "smooth_lift_capped": self.smooth_lift_cap, "unlearned_levels": self.unlearned_levels,
+                "rough_level": self.rough_level, **scale}
 
     def estimate_q(self, pr: PreparedLine, q_from_posteriors: bool) -> np.ndarray:
         """Q(t) over the extended line as the estimate uses it: the one level, or
@@ -985,6 +988,29 @@ def stationary_level(prepared: list, Q_levels, r_stationary: float, dt_s: float,
         return float(Qs[0])
 
 
+def lift_levels(Q_ml_mgal2, Q_em_mgal2, unlearned=()) -> tuple[np.ndarray, dict | None]:
+    """``refine_lift_only``: each full-rate likelihood level ``Q_ml_mgal2`` raised to the EM's
+    ``Q_em_mgal2`` (a guard against a collapsed level), except the ``unlearned`` levels
+    (:func:`app.pipeline.stages.identification.unlearned_levels`: taken back from the EM's
+    first iterations, never learned from a terrain), which keep the likelihood's level under
+    the map, at least the level below them so the levels still ascend.  Returns the levels
+    (mGal², ascending as given) and, when a level was left to the likelihood, the report's
+    ``unlearned_levels`` (None otherwise)."""
+    q_ml = np.asarray(Q_ml_mgal2, dtype=float)
+    floor = np.asarray(Q_em_mgal2, dtype=float).copy()
+    bad = sorted(int(i) for i in unlearned)
+    if not bad:
+        return np.maximum(q_ml, floor), None
+    floor[bad] = 0.0
+    q = np.maximum(q_ml, floor)
+    for i in bad:
+        if i > 0:
+            q[i] = max(q[i], q[i - 1])
+    return q, {"levels": bad, "em_floor_mgal2": [float(x) for x in np.asarray(Q_em_mgal2, float)[bad]],
+               "used_mgal2": [float(x) for x in q[bad]],
+               "reason": "taken back from the EM's first iterations (identification.level_support.backoff), not "
+                         "learned from a terrain: the full-rate likelihood's level under the map, not floored at it"}
+
 
 def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], fir: dict, ident, smap,
                   r_local: dict, noise, dt_s: float, p, warnings: list, progress=None,
@@ -997,6 +1023,7 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
     em = ident.learned.em
     Qs, Rs = np.asarray(em.Q, float), np.asarray(em.R, float)
     n_r = len(Rs)
+    unlearned = None
     prepared = prepare_lines(lines, flights, ident.regularized, smap, len(Qs), n_r, r_local, dt_s)
     r_scale = em_level_scale(prepared, Rs, n_r, ident.n_points, p)
     level_fit = None
@@ -1013,7 +1040,7 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
             if p.refine_lift_only:
                 # a guard against a collapsed level, not a replacement of the EM's levels (config);
                 # the report keeps the likelihood's own levels beside the ones used
-                Qs = np.maximum(Qs, np.asarray(em.Q, float))
+                Qs, unlearned = lift_levels(Qs, em.Q, unlearned_levels(ident, p.level_backoff_floor_min_iteration))
         except (ValueError, FloatingPointError) as exc:
             warnings.append(f"level refinement skipped: {exc}")
     if r_local:
@@ -1066,6 +1093,7 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
     if q_stationary is not None and np.isfinite(q_stationary) and q_stationary > 0:
         out.Q_stationary = float(q_stationary)
     out.smooth_lift_cap = lift_cap
+    out.unlearned_levels = unlearned
     out.rough_level = rough
     out.level_scale = float(p.anomaly_level_scale)
     if stationary:

@@ -184,6 +184,18 @@ def back_off_levels(ident: Identification, min_share: float, map_share: float) -
     return _with(ident, learned=replace(ident.learned, em=replace(em, Q=q)), level_backoff=info)
 
 
+def unlearned_levels(ident: Identification, min_iteration: int) -> list[int]:
+    """Indices of the levels :func:`back_off_levels` took from an EM iteration before
+    ``min_iteration`` (``level_backoff_floor_min_iteration``): their state lost its points after
+    the first M-step or so, and the value is the initialisation's (spread over the chunk
+    estimates' quantiles) moved once — not a level learned from a terrain.  Empty when no level
+    was taken back."""
+    b = ident.level_backoff
+    if not b or b.get("iteration") is None or int(b["iteration"]) >= int(min_iteration):
+        return []
+    return [i for i, (final, used) in enumerate(zip(b["Q_em_mgal2"], b["Q_used_mgal2"])) if final != used]
+
+
 def _with(ident: Identification, **changes) -> Identification:
     """A copy of ``ident`` with ``changes``, keeping the borrowed map's order (``recognition_m``)."""
     out = replace(ident, **changes)
