@@ -438,7 +438,9 @@ def _add_noted_sections(report: dict, ident, table, p, warnings: list) -> None:
     """The report's sections that only say what the analyst should know (in place, each with its
     warnings): where each anomaly level is learned and applied (``identification.level_support``),
     and the lines' noise episodes (``noise_episodes``)."""
-    support, support_warnings = level_support(ident, p.level_support_min_share, p.level_support_map_share)
+    support, support_warnings = level_support(ident, p.level_support_min_share, p.level_support_map_share,
+                                              p.level_backoff_floor_min_iteration
+                                              if p.refine_levels and p.refine_lift_only else 0)
     report["identification"]["level_support"] = support
     warnings.extend(support_warnings)
     report["noise_episodes"], episode_warnings = noise_episodes(table, p.noise_episode_factor, p.noise_episode_min_s,

@@ -156,6 +156,10 @@ def test_a_level_taken_back_from_the_first_iteration_is_not_learned():
     np.testing.assert_allclose(early.learned.em.Q, [0.004, 0.9])
     assert unlearned_levels(early, 2) == [1]
     assert unlearned_levels(early, 1) == [] and unlearned_levels(early, 0) == []
+    _, said = level_support(early, 0.02, 0.1, 2)
+    assert len(said) == 1 and "full-rate likelihood's level" in said[0] and "iteration 1" in said[0]
+    _, said = level_support(early, 0.02, 0.1)
+    assert len(said) == 1 and "filtered with its level at EM iteration 1 (0.9 mGal²)" in said[0]
     late = back_off_levels(_emptied([0.5, 0.1, 0.05, 0.021, 0.01, 0.001],
                                     [(0.008, 0.07), (0.003, 0.027), (0.003, 0.021), (0.0033, 0.024),
                                      (0.0035, 0.05), (0.004, 0.13)]), 0.02, 0.1)

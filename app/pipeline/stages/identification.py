@@ -109,7 +109,8 @@ def _shares(rec: Recognition):
     return level_shares(probs, rec.n_r) if probs.shape[0] else None
 
 
-def level_support(ident: Identification, min_share: float, map_share: float) -> tuple[dict, list[str]]:
+def level_support(ident: Identification, min_share: float, map_share: float,
+                  floor_min_iteration: int = 0) -> tuple[dict, list[str]]:
     """Where the EM put each anomaly level against where the filter's state map puts it.
 
     The state map may be another order's (``recognition_order``: m = 1's map with m = 2's
@@ -122,7 +123,9 @@ def level_support(ident: Identification, min_share: float, map_share: float) -> 
 
     Returns the report's ``identification.level_support`` (``Q_mgal2``, ``share_em``,
     ``share_map``, ``map_from_m``, ``em_converged``, ``unsupported``: indices of such levels;
-    a share is None where its recognition has no point with finite posteriors) and the warnings."""
+    a share is None where its recognition has no point with finite posteriors) and the warnings
+    (``floor_min_iteration``: ``level_backoff_floor_min_iteration``, for what the warning says
+    is done with a level taken back from an earlier iteration)."""
     em = ident.learned.em
     own = ident.own_recognition or ident.recognition
     backoff = ident.level_backoff
@@ -134,7 +137,11 @@ def level_support(ident: Identification, min_share: float, map_share: float) -> 
            "share_map": None if share_map is None else share_map.tolist(),
            "map_from_m": int(getattr(ident, "recognition_m", ident.m)),
            "em_converged": bool(getattr(em, "converged", True)), "unsupported": bad, "backoff": backoff}
-    if backoff is not None and backoff.get("iteration") is not None:
+    if backoff is not None and backoff.get("iteration") is not None and int(backoff["iteration"]) < floor_min_iteration:
+        fate = (f"its level at EM iteration {backoff['iteration']}, the last whose transitions gave every level "
+                f"{100 * min_share:.2g} % of the steps, is the initial guess moved once, so those stretches are "
+                "filtered with the full-rate likelihood's level under the map (level_refinement.unlearned_levels)")
+    elif backoff is not None and backoff.get("iteration") is not None:
         then = [f"{q_used:.3g} mGal²" for q_used in np.asarray(backoff["Q_used_mgal2"])[bad]]
         fate = (f"they are filtered with its level at EM iteration {backoff['iteration']} ({', '.join(then)}), "
                 f"the last whose transitions gave every level {100 * min_share:.2g} % of the steps")
