@@ -139,8 +139,9 @@ def level_support(ident: Identification, min_share: float, map_share: float,
            "em_converged": bool(getattr(em, "converged", True)), "unsupported": bad, "backoff": backoff}
     if backoff is not None and backoff.get("iteration") is not None and int(backoff["iteration"]) < floor_min_iteration:
         fate = (f"its level at EM iteration {backoff['iteration']}, the last whose transitions gave every level "
-                f"{100 * min_share:.2g} % of the steps, is the initial guess moved once, so those stretches are "
-                "filtered with the full-rate likelihood's level under the map (level_refinement.unlearned_levels)")
+                f"{100 * min_share:.2g} % of the steps, comes from the EM's first iterations (before "
+                f"{floor_min_iteration}), not from a terrain, so those stretches are filtered with the full-rate "
+                "likelihood's level under the map (level_refinement.unlearned_levels)")
     elif backoff is not None and backoff.get("iteration") is not None:
         then = [f"{q_used:.3g} mGal²" for q_used in np.asarray(backoff["Q_used_mgal2"])[bad]]
         fate = (f"they are filtered with its level at EM iteration {backoff['iteration']} ({', '.join(then)}), "

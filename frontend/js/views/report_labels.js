@@ -45,6 +45,7 @@ export const LABELS = {
   n_evaluations: "Likelihood evaluations", std_level_factor: "Std level factor", std_level_reason: "Why the std carries the level spread",
   std_repeat_tracks: "Std checked on the repeat tracks", noisy_passes_rescaled: "Noisy repeat passes smoothed again",
   repeat_level_check: "Test-line level check", smooth_lift_capped: "Smooth lift capped",
+  unlearned_levels: "Levels the EM never learned (the likelihood's level used)", em_floor_mgal2: "Level taken back from the EM (mGal² per step)",
   rough_level: "Rough level (at least the factor × its full-rate likelihood level)", full_rate_ml_mgal2: "Full-rate likelihood level (mGal² per step)",
   lifted_mgal2: "Level as lifted (mGal² per step)", used_mgal2: "Level used (mGal² per step)", raised: "Raised", pass_lines: "Passes", pass_noise_ratio: "Noise ratio per pass",
   noise_part_mgal: "Passes' scatter (mGal)", smoothing_part_mgal: "Smoothing part (mGal)", posterior_mgal: "Posterior σ (mGal)",
