@@ -178,6 +178,39 @@ def refine_levels(z_lines, state_lines, Q_mgal2, R_cm2s2, dt_s: float, m: int,
     return LevelFit(Q, R, -f0, -min(res.fun, f0), int(sum(len(z) for z in zs)), int(res.nfev) + 1)
 
 
+def lift_levels(Q_ml_mgal2, Q_em_mgal2, unlearned=()) -> np.ndarray:
+    """The lift-only refinement's levels: each full-rate likelihood level raised to the EM's.
+
+    The EM's level is a floor against a likelihood level that collapsed.  A level the EM never
+    learned (``unlearned``: taken back from its first iterations, where the value is the
+    initialisation's) is no floor: that level keeps the likelihood's value, held at least at
+    the level below it so the levels still ascend.
+
+    Parameters
+    ----------
+    Q_ml_mgal2, Q_em_mgal2 : array_like, shape (n_q,)
+        The likelihood's and the EM's levels (mGal² per step, ascending as the EM's).
+    unlearned : sequence of int
+        Indices of the levels the EM did not learn.
+
+    Returns
+    -------
+    ndarray, shape (n_q,)
+        The levels to use (mGal² per step).
+    """
+    q_ml = np.asarray(Q_ml_mgal2, dtype=float).reshape(-1)
+    floor = np.array(Q_em_mgal2, dtype=float).reshape(-1)
+    if q_ml.shape != floor.shape:
+        raise ValueError(f"Q_ml_mgal2 has shape {q_ml.shape}, Q_em_mgal2 {floor.shape}")
+    bad = sorted(int(i) for i in unlearned)
+    floor[bad] = 0.0
+    q = np.maximum(q_ml, floor)
+    for i in bad:
+        if i > 0:
+            q[i] = max(q[i], q[i - 1])
+    return q
+
+
 def cap_lifted_smooth_level(Q_used_mgal2, Q_em_mgal2, Q_stationary_mgal2: float):
     """The smoothest anomaly level after a lift-only refinement, never above the one-level model's.
 

@@ -422,7 +422,7 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     tr.close()
     report = build_report(survey_name or cfg.survey.name, idf.crs, table, idf.flights, leveled, best.ident, grid,
                           warnings)
-    _add_noted_sections(report, best.ident, table, p, warnings)
+    _add_noted_sections(report, best.ident, table, p, warnings, bool(best.filtered.unlearned_levels))
     report.update(idf.measurement_report)
     report["noise_model"] = idf.noise.describe()
     report["model_choice"] = choice.report
@@ -434,13 +434,13 @@ def run_filter(idf: Identified, out_dir, tr: Tracker, h_per_km: float | None = N
     return report
 
 
-def _add_noted_sections(report: dict, ident, table, p, warnings: list) -> None:
+def _add_noted_sections(report: dict, ident, table, p, warnings: list, unlearned: bool = False) -> None:
     """The report's sections that only say what the analyst should know (in place, each with its
-    warnings): where each anomaly level is learned and applied (``identification.level_support``),
-    and the lines' noise episodes (``noise_episodes``)."""
+    warnings): where each anomaly level is learned and applied (``identification.level_support``;
+    ``unlearned``: the filter left a level the EM never learned to the likelihood), and the
+    lines' noise episodes (``noise_episodes``)."""
     support, support_warnings = level_support(ident, p.level_support_min_share, p.level_support_map_share,
-                                              p.level_backoff_floor_min_iteration
-                                              if p.refine_levels and p.refine_lift_only else 0)
+                                              p.level_backoff_floor_min_iteration if unlearned else 0)
     report["identification"]["level_support"] = support
     warnings.extend(support_warnings)
     report["noise_episodes"], episode_warnings = noise_episodes(table, p.noise_episode_factor, p.noise_episode_min_s,

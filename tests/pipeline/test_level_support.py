@@ -171,15 +171,17 @@ def test_a_level_taken_back_from_the_first_iteration_is_not_learned():
 def test_lift_levels_floor_every_level_but_an_unlearned_one():
     """refine_lift_only by hand: each likelihood level raised to the EM's, except an unlearned
     level, which keeps the likelihood's level, never below the level under it."""
-    from app.pipeline.stages.filtering import lift_levels
+    from app.pipeline.stages.filtering import lifted_levels
 
-    q, rep = lift_levels([1e-7, 5e-6], [2e-6, 3e-4])
+    q, rep = lifted_levels([1e-7, 5e-6], [2e-6, 3e-4])
     np.testing.assert_array_equal(q, [2e-6, 3e-4])
     assert rep is None
-    q, rep = lift_levels([1e-7, 5e-6], [2e-6, 3e-4], [1])
+    q, rep = lifted_levels([1e-7, 5e-6], [2e-6, 3e-4], [1])
     np.testing.assert_array_equal(q, [2e-6, 5e-6])
     assert rep["levels"] == [1] and rep["em_floor_mgal2"] == [3e-4] and rep["used_mgal2"] == [5e-6]
-    q, rep = lift_levels([1e-7, 1e-6], [2e-6, 3e-4], [1])       # below the smooth level: held at it
+    q, rep = lifted_levels([1e-7, 1e-6], [2e-6, 3e-4], [1])     # below the smooth level: held at it
     np.testing.assert_array_equal(q, [2e-6, 2e-6])
-    q, _ = lift_levels([1e-7, 4e-5, 1e-6], [2e-6, 1e-5, 3e-4], [2])
+    q, _ = lifted_levels([1e-7, 4e-5, 1e-6], [2e-6, 1e-5, 3e-4], [2])
     np.testing.assert_array_equal(q, [2e-6, 4e-5, 4e-5])
+    with pytest.raises(ValueError, match="shape"):
+        lifted_levels([1e-7, 4e-5], [2e-6, 1e-5, 3e-4])

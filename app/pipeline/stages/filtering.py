@@ -22,7 +22,7 @@ from app.core.accuracy import (
     repeat_pass_std_scales,
 )
 from app.core.baselines import fir_gap_error_mgal, fir_lowpass_mgal
-from app.core.level_ml import cap_lifted_smooth_level, raise_rough_level, refine_levels
+from app.core.level_ml import cap_lifted_smooth_level, lift_levels, raise_rough_level, refine_levels
 from app.core.model_check import blend_estimates, leave_one_out_msd_mgal2, leave_one_out_msd_test
 from app.core.noise_model import white_velocity, with_white_floor
 from app.core.smoother import kalman_smooth, level_spread_std_mgal, mixture_std_mgal
@@ -988,24 +988,14 @@ def stationary_level(prepared: list, Q_levels, r_stationary: float, dt_s: float,
         return float(Qs[0])
 
 
-def lift_levels(Q_ml_mgal2, Q_em_mgal2, unlearned=()) -> tuple[np.ndarray, dict | None]:
-    """``refine_lift_only``: each full-rate likelihood level ``Q_ml_mgal2`` raised to the EM's
-    ``Q_em_mgal2`` (a guard against a collapsed level), except the ``unlearned`` levels
-    (:func:`app.pipeline.stages.identification.unlearned_levels`: taken back from the EM's
-    first iterations, never learned from a terrain), which keep the likelihood's level under
-    the map, at least the level below them so the levels still ascend.  Returns the levels
-    (mGal², ascending as given) and, when a level was left to the likelihood, the report's
-    ``unlearned_levels`` (None otherwise)."""
-    q_ml = np.asarray(Q_ml_mgal2, dtype=float)
-    floor = np.asarray(Q_em_mgal2, dtype=float).copy()
+def lifted_levels(Q_ml_mgal2, Q_em_mgal2, unlearned=()) -> tuple[np.ndarray, dict | None]:
+    """``refine_lift_only`` (:func:`app.core.level_ml.lift_levels`) and, when a level was left to
+    the likelihood (``unlearned``, :func:`app.pipeline.stages.identification.unlearned_levels`),
+    the report's ``level_refinement.unlearned_levels`` (None otherwise)."""
+    q = lift_levels(Q_ml_mgal2, Q_em_mgal2, unlearned)
     bad = sorted(int(i) for i in unlearned)
     if not bad:
-        return np.maximum(q_ml, floor), None
-    floor[bad] = 0.0
-    q = np.maximum(q_ml, floor)
-    for i in bad:
-        if i > 0:
-            q[i] = max(q[i], q[i - 1])
+        return q, None
     return q, {"levels": bad, "em_floor_mgal2": [float(x) for x in np.asarray(Q_em_mgal2, float)[bad]],
                "used_mgal2": [float(x) for x in q[bad]],
                "reason": "taken back from the EM's first iterations (identification.level_support.backoff), not "
@@ -1040,7 +1030,7 @@ def filter_survey(lines: list[LineData], flights: dict[str, FlightMeasurement], 
             if p.refine_lift_only:
                 # a guard against a collapsed level, not a replacement of the EM's levels (config);
                 # the report keeps the likelihood's own levels beside the ones used
-                Qs, unlearned = lift_levels(Qs, em.Q, unlearned_levels(ident, p.level_backoff_floor_min_iteration))
+                Qs, unlearned = lifted_levels(Qs, em.Q, unlearned_levels(ident, p.level_backoff_floor_min_iteration))
         except (ValueError, FloatingPointError) as exc:
             warnings.append(f"level refinement skipped: {exc}")
     if r_local:

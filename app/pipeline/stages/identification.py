@@ -124,8 +124,9 @@ def level_support(ident: Identification, min_share: float, map_share: float,
     Returns the report's ``identification.level_support`` (``Q_mgal2``, ``share_em``,
     ``share_map``, ``map_from_m``, ``em_converged``, ``unsupported``: indices of such levels;
     a share is None where its recognition has no point with finite posteriors) and the warnings
-    (``floor_min_iteration``: ``level_backoff_floor_min_iteration``, for what the warning says
-    is done with a level taken back from an earlier iteration)."""
+    (``floor_min_iteration``: ``level_backoff_floor_min_iteration`` where the filter left such
+    levels to the likelihood, :func:`unlearned_levels`, else 0 — what the warning says is done
+    with them)."""
     em = ident.learned.em
     own = ident.own_recognition or ident.recognition
     backoff = ident.level_backoff
@@ -137,7 +138,7 @@ def level_support(ident: Identification, min_share: float, map_share: float,
            "share_map": None if share_map is None else share_map.tolist(),
            "map_from_m": int(getattr(ident, "recognition_m", ident.m)),
            "em_converged": bool(getattr(em, "converged", True)), "unsupported": bad, "backoff": backoff}
-    if backoff is not None and backoff.get("iteration") is not None and int(backoff["iteration"]) < floor_min_iteration:
+    if unlearned_levels(ident, floor_min_iteration):
         fate = (f"its level at EM iteration {backoff['iteration']}, the last whose transitions gave every level "
                 f"{100 * min_share:.2g} % of the steps, comes from the EM's first iterations (before "
                 f"{floor_min_iteration}), not from a terrain, so those stretches are filtered with the full-rate "
