@@ -1858,17 +1858,19 @@ def lag_band_check(flights: list, cfg: SurveyConfig, tau_s: float, declared: lis
     ``tau_s`` (:func:`band_lag`'s last fit), else measured here."""
     p = cfg.processing
     band = (2.0 / p.fir_cutoff_period_s, 5.0 / p.fir_cutoff_period_s)
-    ss = {"declared": 0.0, "estimated": 0.0}
-    n_tot = 0
-    for i, flight in enumerate(flights):
-        # measured already, or now (plain z either way)
-        m0 = (measure_flight(flight, cfg, compensation=False, match_response=False) if declared is None
+    def powers(i):
+        # measured already, or now (plain z either way), the flights at once (each_flight)
+        m0 = (measure_flight(flights[i], cfg, compensation=False, match_response=False) if declared is None
               else declared[i])
-        m1 = (measure_flight(flight, cfg, tau_s=tau_s, compensation=False, match_response=False)
+        m1 = (measure_flight(flights[i], cfg, tau_s=tau_s, compensation=False, match_response=False)
               if estimated is None else estimated[i])
         # the same epochs for both (a gap's or a spike's mask moves with the time offset)
         usable = airborne(m0) & np.isfinite(m0.z_mgal) & np.isfinite(m1.z_mgal)
-        (e0, n), (e1, _) = (band_power(m, band, usable) for m in (m0, m1))
+        return [band_power(m, band, usable) for m in (m0, m1)]
+
+    ss = {"declared": 0.0, "estimated": 0.0}
+    n_tot = 0
+    for (e0, n), (e1, _) in each_flight(powers, range(len(flights))):   # summed in the flights' order
         ss["declared"] += e0
         ss["estimated"] += e1
         n_tot += n
