@@ -162,6 +162,28 @@ def test_model_choice_on_a_test_line_gives_the_repeat_blend(fake_server, browser
     _no_errors(page)
 
 
+def test_model_choice_on_a_small_survey_gives_its_share_of_fir(fake_server, browser_page):  # noqa: F811
+    """A small survey with nothing to judge its estimate (no crossovers, no repeat track, one
+    level from 44 decimated points): the report says why and what share of FIR was blended in,
+    marked as a departure from the adaptive estimate."""
+    page = browser_page
+    page.goto(fake_server.url)
+    got = page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const rep = {warnings: [], report: {model_choice: {chosen: 'blend with FIR', m: 2, noisy_check: {applied: false},
+            fir_guard: {applied: false, reason: '0 crossovers (< 4)'},
+            repeat_blend: {applied: false, reason: 'no repeat track of 3 passes or more'},
+            small_survey_blend: {applied: true, weight_fir: 0.3, n_points: 44, reason: 'no crossovers'}}}};
+        const li = [...m.summary(rep).querySelectorAll('li')].find((l) => l.textContent.startsWith('Model choice'));
+        return {text: li.textContent, cls: li.className};
+    }""")
+    assert got["text"].startswith("Model choice: blend with FIR (anomaly order m = 2) — no crossovers or repeat "
+                                  "passes can judge an anomaly level learned from 44 decimated points: 0.3 of FIR "
+                                  "100 s is blended in (small_survey_fir_weight)"), got
+    assert got["cls"] == "warn"
+    _no_errors(page)
+
+
 def test_lag_from_the_flights_on_one_scale_is_told_as_such(fake_server, browser_page):  # noqa: F811
     """Generated survey 237's lag check: two flights' offsets took the lag, the third's τ fit
     found it.  The summary said "the flights say 0.006, 0.011, 0.269 s: the flights' value was

@@ -963,3 +963,55 @@ def test_a_longer_lowpass_std_covers_the_anomaly_it_clips():
         assert rep["long_lowpass"]["std_mgal"] >= rep["spread_mgal"]
         assert np.mean(e < 2 * table["dg_std_mgal"].to_numpy()) >= 0.9, (seed, rep)
     assert applied >= 8
+
+
+def _candidate_learned(table: pd.DataFrame, n_points: int, levels: list):
+    """:func:`_candidate` with the identification's decimated points and anomaly levels given."""
+    cand = _candidate(table)
+
+    class _Ident:
+        class learned:
+            class em:
+                Q = levels
+
+    _Ident.n_points = n_points
+    cand.ident = _Ident
+    return cand
+
+
+def test_a_small_survey_nothing_can_judge_takes_a_share_of_fir():
+    """Three parallel lines, no crossovers, no repeat track, one anomaly level from 60 decimated
+    points: nothing in the data can judge the estimate, so 0.3 of FIR 100 s is blended in
+    (small_survey_fir_weight).  The estimate's error (white, 4 mGal) is independent of FIR's
+    noise, so the blend's mean square error is 0.49·MSE(estimate) + 0.09·MSE(FIR) (analytic,
+    the cross term vanishing); its std covers its error.  Controls: crossovers to judge it
+    (the ties), two levels, enough points, n_q set, the weight 0 — nothing blended."""
+    full, noise = _table(np.random.default_rng(11), 4.0)
+    table = full[full["kind"] == "main"].reset_index(drop=True)
+    est, fir, truth = (table[c].to_numpy().copy() for c in ("dg_unleveled_mgal", "dg_fir_mgal", "dg_true_mgal"))
+    warnings: list = []
+    choice = choose_model({2: _candidate_learned(table.copy(), 60, [1.0])}, noise, DT_S, ProcessingParams(), warnings,
+                          order=(2, {}))
+    rep, out = choice.report, choice.table
+    assert "p_value" not in rep["fir_guard"] and "weight_fir" not in rep["repeat_blend"]
+    small = rep["small_survey_blend"]
+    assert small["applied"] and small["weight_fir"] == 0.3 and small["n_points"] == 60
+    assert rep["chosen"] == "blend with FIR"
+    assert any("small survey" in w and "0.3 of FIR 100 s" in w for w in warnings)
+    np.testing.assert_allclose(out["dg_mgal"].to_numpy(), 0.7 * est + 0.3 * fir, rtol=0, atol=1e-12)
+    mse = lambda x: float(np.mean((x - truth) ** 2))   # noqa: E731
+    assert mse(out["dg_mgal"].to_numpy()) == pytest.approx(0.49 * mse(est) + 0.09 * mse(fir), rel=0.05)
+    assert np.mean(np.abs(out["dg_mgal"] - truth) < 2 * out["dg_std_mgal"]) > 0.9
+
+    def small_rep(tab, n_points, levels, **kw):
+        c = choose_model({2: _candidate_learned(tab.copy(), n_points, levels)}, noise, DT_S, ProcessingParams(**kw),
+                         [], order=(2, {}))
+        return c.report["small_survey_blend"], c.table
+
+    rep_c, _ = small_rep(full, 60, [1.0])   # the ties' crossovers judge it (the FIR guard's test ran)
+    assert rep_c["applied"] is False and "judged" in rep_c["reason"]
+    for args, kw in (((table, 60, [1.0, 2.0]), {}), ((table, 500, [1.0]), {}),
+                     ((table, 60, [1.0]), {"n_q": 1}), ((table, 60, [1.0]), {"small_survey_fir_weight": 0.0})):
+        rep_c, out_c = small_rep(*args, **kw)
+        assert rep_c["applied"] is False, (args[1:], kw)
+        assert np.array_equal(out_c["dg_mgal"].to_numpy(), args[0]["dg_mgal"].to_numpy())

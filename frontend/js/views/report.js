@@ -160,6 +160,11 @@ export function summary(r) {
           `${rb.reference ? String(rb.reference) : fmt(rb.reference_period_s, 3) + " s low-pass of z"} when ${fmt(rb.weight_fir, 3)} of FIR 100 s is blended in ` +
           `(mean square ${fmt(rb.msd_estimate_mgal2, 4)} adaptive, ${fmt(rb.msd_fir_mgal2, 4)} FIR, ` +
           `${fmt(rb.msd_blend_mgal2, 4)} blend, mGal², the reference's noise included)`;
+      } else if (mc.small_survey_blend && mc.small_survey_blend.applied) {
+        // a small survey nothing can judge: a fixed share of FIR 100 s (stage 9, step 4d)
+        const sb = mc.small_survey_blend;
+        text += ` — no crossovers or repeat passes can judge an anomaly level learned from ${sb.n_points} ` +
+          `decimated points: ${fmt(sb.weight_fir, 3)} of FIR 100 s is blended in (small_survey_fir_weight)`;
       } else if (g.n_crossovers && g.crossover_rms_fir_mgal !== undefined) {
         // the adaptive estimate kept: the crossovers' evidence against FIR 100 s, the alternative
         const better = g.crossover_rms_mgal <= g.crossover_rms_fir_mgal;

@@ -24,6 +24,7 @@ export const LABELS = {
   fir_signal_var_mgal2: "FIR signal variance (mGal²)", fir_noise_std_mgal: "FIR noise std (mGal)", fir_noise_samples: "FIR independent samples",
   detectable: "Anomaly detectable", estimate_std_mgal: "Estimate spread (mGal)", posterior_std_mgal: "Posterior σ (mGal)", resolved: "Resolved",
   noisy_check: "Noisy-estimate check", fir_guard: "FIR guard at the crossovers", repeat_blend: "Blend with FIR judged by the repeat passes",
+  small_survey_blend: "Share of FIR where nothing can judge the estimate (small survey)", n_points: "Decimated points",
   stationary_check: "Stationary-smoother check", max_ratio: "Largest variance ratio allowed", max_disagreement: "Largest disagreement allowed",
   median_disagreement: "Median disagreement with FIR", median_variance_ratio: "Median variance ratio", weight_fir: "Weight of FIR 100 s",
   weight_raw: "Weight of FIR from the passes, before shrinking", weight_se: "Its jackknife error over the passes",
