@@ -456,9 +456,9 @@ class ProcessingParams(_Strict):
                                            "track of repeat_blend_min_passes passes — and its one anomaly level was "
                                            "learned from fewer than min_points_adaptive decimated points, this share "
                                            "of FIR 100 s is blended into it (0: off).  Held-out random layouts of that "
-                                           "kind: adaptive / FIR 1.006 -> 0.961 and 0.976 -> 0.938, the worst 1.80 -> "
-                                           "1.51 and 1.45 -> 1.26 (the pooled least-error share on the layouts it was "
-                                           "chosen on: 0.33)")
+                                           "kind (14 of 100): adaptive / FIR 0.948 -> 0.921, the worst 1.45 -> 1.26, "
+                                           "better on 7, worse on 7 (the pooled least-error share on the layouts it "
+                                           "was chosen on: 0.33)")
     repeat_blend_shrink: bool = Field(False, description="The repeat blend's weight shrunk towards 0 (the adaptive "
                                       "estimate alone) by its jackknife error over the passes (positive-part "
                                       "James-Stein, app.core.model_check.shrunk_repeat_blend_weight). With four "

@@ -856,8 +856,8 @@ def small_survey_blend(table: pd.DataFrame, noise, dt_s: float, p, n_points: int
     ``(1 − w)·estimate + w·FIR`` with ``w = small_survey_fir_weight`` (:func:`_blend_with_fir`).
     On 19 random layouts of that kind (``bench_unseen.py --geometry``, 3200–3299) the shares
     0.1–0.3 lowered the mean error (adaptive / FIR 0.890 → 0.871 at 0.3; the pooled least-error
-    share 0.33), and on 14 held out (3300–3399) 1.006 → 0.961 and 0.976 → 0.938, the worst
-    1.80 → 1.51 and 1.45 → 1.26; a layout the model suits loses (0.40 → 0.55).  Report:
+    share 0.33); on the 14 of 100 held out (3300–3399) 0.948 → 0.921, the worst 1.45 → 1.26,
+    better on 7 and worse on 7 — a layout the model suits loses (0.53 → 0.64).  Report:
     ``applied``, ``weight_fir``, ``n_points``, ``reason``."""
     w = float(p.small_survey_fir_weight)
     rep: dict = {"applied": False, "weight_fir": w, "n_points": int(n_points)}
