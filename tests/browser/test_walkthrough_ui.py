@@ -40,6 +40,17 @@ def test_apply_h_rho_shows_the_filter_job_in_the_list_and_on_processing(paced_se
     _no_errors(page)
 
 
+def _model_choice_line(page, model_choice_js: str) -> dict:
+    """The report summary's "Model choice" line (text and class) for a report whose
+    ``model_choice`` is the JavaScript object literal ``model_choice_js``."""
+    return page.evaluate("""async () => {
+        const m = await import('/js/views/report.js');
+        const rep = {warnings: [], report: {model_choice: """ + model_choice_js + """}};
+        const li = [...m.summary(rep).querySelectorAll('li')].find((l) => l.textContent.startsWith('Model choice'));
+        return {text: li.textContent, cls: li.className};
+    }""")
+
+
 def _em_rows(model, n, nr=2):
     a = [[0.9 if i == j else 0.1 / (2 * nr - 1) for j in range(2 * nr)] for i in range(2 * nr)]
     return [{"iteration": i, "Q": [1e-5, 5e-5], "R": [1.7, 17.0][:nr], "objective": -2200.0 + i, "transition": a,
@@ -135,29 +146,20 @@ def test_model_choice_on_a_test_line_gives_the_repeat_blend(fake_server, browser
     departure from the adaptive estimate."""
     page = browser_page
     page.goto(fake_server.url)
-    got = page.evaluate("""async () => {
-        const m = await import('/js/views/report.js');
-        const rep = {warnings: [], report: {model_choice: {chosen: 'blend with FIR', m: 2, noisy_check: {applied: false},
-            fir_guard: {applied: false, reason: '0 crossovers (< 4)'},
-            repeat_blend: {weight_fir: 0.6412, passes: 4, tracks: 1, reference_period_s: 50, msd_estimate_mgal2: 61.23,
-                           msd_fir_mgal2: 60.87, msd_blend_mgal2: 60.31, applied: true, fir_std_floor_mgal: 2.1}}}};
-        const li = [...m.summary(rep).querySelectorAll('li')].find((l) => l.textContent.startsWith('Model choice'));
-        return {text: li.textContent, cls: li.className};
-    }""")
+    got = _model_choice_line(page, """{chosen: 'blend with FIR', m: 2, noisy_check: {applied: false},
+        fir_guard: {applied: false, reason: '0 crossovers (< 4)'},
+        repeat_blend: {weight_fir: 0.6412, passes: 4, tracks: 1, reference_period_s: 50, msd_estimate_mgal2: 61.23,
+                       msd_fir_mgal2: 60.87, msd_blend_mgal2: 60.31, applied: true, fir_std_floor_mgal: 2.1}}""")
     assert got["text"].startswith("Model choice: blend with FIR (anomaly order m = 2) — too few crossovers to judge; "
                                   "the 4 repeat passes agree best with each other's 50 s low-pass of z when 0.641 of "
                                   "FIR 100 s is blended in (mean square 61.23 adaptive, 60.87 FIR, 60.31 blend"), got
     assert got["cls"] == "warn"
     # the default reference since session 48: the other passes smoothed lightly, named as such
-    text = page.evaluate("""async () => {
-        const m = await import('/js/views/report.js');
-        const rep = {warnings: [], report: {model_choice: {chosen: 'blend with FIR', m: 2, noisy_check: {applied: false},
-            fir_guard: {applied: false, reason: '0 crossovers (< 4)'},
-            repeat_blend: {weight_fir: 0.8379, passes: 4, tracks: 1, reference: 'estimate at 300 x Q(t)',
-                           reference_q_factor: 300, msd_estimate_mgal2: 37.70, msd_fir_mgal2: 33.38,
-                           msd_blend_mgal2: 33.1, applied: true, fir_std_floor_mgal: 2.1}}}};
-        return [...m.summary(rep).querySelectorAll('li')].find((l) => l.textContent.startsWith('Model choice')).textContent;
-    }""")
+    text = _model_choice_line(page, """{chosen: 'blend with FIR', m: 2, noisy_check: {applied: false},
+        fir_guard: {applied: false, reason: '0 crossovers (< 4)'},
+        repeat_blend: {weight_fir: 0.8379, passes: 4, tracks: 1, reference: 'estimate at 300 x Q(t)',
+                       reference_q_factor: 300, msd_estimate_mgal2: 37.70, msd_fir_mgal2: 33.38,
+                       msd_blend_mgal2: 33.1, applied: true, fir_std_floor_mgal: 2.1}}""")["text"]
     assert "agree best with each other's estimate at 300 x Q(t) when 0.838 of FIR 100 s is blended in" in text, text
     _no_errors(page)
 
@@ -168,15 +170,10 @@ def test_model_choice_on_a_small_survey_gives_its_share_of_fir(fake_server, brow
     marked as a departure from the adaptive estimate."""
     page = browser_page
     page.goto(fake_server.url)
-    got = page.evaluate("""async () => {
-        const m = await import('/js/views/report.js');
-        const rep = {warnings: [], report: {model_choice: {chosen: 'blend with FIR', m: 2, noisy_check: {applied: false},
-            fir_guard: {applied: false, reason: '0 crossovers (< 4)'},
-            repeat_blend: {applied: false, reason: 'no repeat track of 3 passes or more'},
-            small_survey_blend: {applied: true, weight_fir: 0.3, n_points: 44, reason: 'no crossovers'}}}};
-        const li = [...m.summary(rep).querySelectorAll('li')].find((l) => l.textContent.startsWith('Model choice'));
-        return {text: li.textContent, cls: li.className};
-    }""")
+    got = _model_choice_line(page, """{chosen: 'blend with FIR', m: 2, noisy_check: {applied: false},
+        fir_guard: {applied: false, reason: '0 crossovers (< 4)'},
+        repeat_blend: {applied: false, reason: 'no repeat track of 3 passes or more'},
+        small_survey_blend: {applied: true, weight_fir: 0.3, n_points: 44, reason: 'no crossovers'}}""")
     assert got["text"].startswith("Model choice: blend with FIR (anomaly order m = 2) — no crossovers or repeat "
                                   "passes can judge an anomaly level learned from 44 decimated points: 0.3 of FIR "
                                   "100 s is blended in (small_survey_fir_weight)"), got

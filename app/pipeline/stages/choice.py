@@ -865,8 +865,9 @@ def small_survey_blend(table: pd.DataFrame, noise, dt_s: float, p, n_points: int
         rep["reason"] = "off (small_survey_fir_weight = 0)"
         return rep
     if p.n_q is not None or n_q != 1 or n_points >= p.min_points_adaptive:
-        rep["reason"] = (f"the anomaly model was learned from {n_points} decimated points"
-                         + (" (n_q set)" if p.n_q is not None else f", {n_q} level(s)"))
+        rep["reason"] = ("n_q set: the number of levels was not chosen from the points" if p.n_q is not None else
+                         f"not a small survey: {n_q} anomaly level(s) from {n_points} decimated points "
+                         f"(the blend needs one level from < {p.min_points_adaptive})")
         return rep
     _blend_with_fir(table, noise, dt_s, p, w)
     rep["applied"] = True
